@@ -1,0 +1,166 @@
+// tofu: the command line. Sub-commands map one to one onto harness functions; this file
+// only parses arguments, draws progress and maps errors to exit codes (core::ExitCode).
+
+#include <unistd.h>
+
+#include <cstdio>
+#include <iostream>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include "core/error.h"
+#include "harness/evaluation.h"
+#include "harness/metrics.h"
+#include "harness/run.h"
+#include "harness/run_directory.h"
+#include "harness/scenario.h"
+
+namespace {
+
+using tofu::core::ExitCode;
+
+// A one-line progress bar on stderr, redrawn in place; only on a terminal.
+class ProgressBar {
+ public:
+  explicit ProgressBar(std::string label) : label_(std::move(label)) {}
+  void operator()(double fraction) {
+    const int percent = static_cast<int>(fraction * 100.0);
+    if (percent == last_percent_) return;
+    last_percent_ = percent;
+    constexpr int kWidth = 40;
+    const int filled = static_cast<int>(fraction * kWidth);
+    std::fprintf(stderr, "\r%s [%s%s] %3d%%", label_.c_str(), std::string(filled, '#').c_str(),
+                 std::string(kWidth - filled, '.').c_str(), percent);
+    if (percent >= 100) std::fprintf(stderr, "\n");
+    std::fflush(stderr);
+  }
+
+ private:
+  std::string label_;
+  int last_percent_ = -1;
+};
+
+std::string FormatValue(const std::optional<double>& v) {
+  return v ? fmt::format("{:.4g}", *v) : std::string("n/a");
+}
+
+void PrintReport(const tofu::harness::RunRecord& record,
+                 const tofu::harness::Evaluation& evaluation, const std::string& out_dir) {
+  fmt::print("run directory: {}\n", out_dir);
+  fmt::print("simulated {:.1f} s in {:.2f} s wall ({:.0f}x real time)\n",
+             record.physics_steps / record.scenario.physics.rate_hz, record.wall_time_s,
+             record.wall_time_s > 0 ? record.physics_steps / record.scenario.physics.rate_hz /
+                                          record.wall_time_s
+                                    : 0.0);
+  if (record.failure) fmt::print("SIMULATION FAILED: {}\n", *record.failure);
+  for (const auto& c : record.collisions) {
+    fmt::print("collision at {:.3f} s: {} hit {} (penetration {:.3f} m)\n",
+               tofu::core::TimeToSeconds(c.start_ns), c.robot_geom, c.structure_geom,
+               c.max_penetration_m);
+  }
+  if (!evaluation.expectations.empty()) {
+    fmt::print("{:<36} {:>10} {:>10} {:>10}  {}\n", "expectation", "value", "min", "max",
+               "result");
+    for (const auto& r : evaluation.expectations) {
+      std::string metric = r.expectation.metric;
+      if (r.expectation.window_s) {
+        metric += fmt::format(" [{:g},{:g}]s", r.expectation.window_s->first,
+                              r.expectation.window_s->second);
+      }
+      fmt::print("{:<36} {:>10} {:>10} {:>10}  {}\n", metric, FormatValue(r.value),
+                 FormatValue(r.expectation.min), FormatValue(r.expectation.max),
+                 r.passed ? "pass" : "FAIL");
+    }
+  }
+  fmt::print("{}\n", evaluation.passed ? "PASSED" : "FAILED");
+}
+
+int RunCommand(const std::string& scenario_path, std::optional<std::string> out_dir,
+               std::optional<uint64_t> seed, bool quiet) {
+  tofu::harness::Scenario scenario = tofu::harness::LoadScenario(scenario_path);
+  if (seed) scenario.seed = *seed;
+  const std::string out = out_dir.value_or("runs/" + scenario.name);
+
+  tofu::harness::SimulateOptions options;
+  std::optional<ProgressBar> bar;
+  if (!quiet && ::isatty(STDERR_FILENO)) {
+    bar.emplace(scenario.name);
+    options.progress = [&bar](double f) { (*bar)(f); };
+  }
+  const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
+  const tofu::harness::Evaluation evaluation = tofu::harness::Evaluate(record);
+  tofu::harness::WriteRunDirectory(record, evaluation, out);
+  if (!quiet) PrintReport(record, evaluation, out);
+  if (record.failure) return tofu::core::kExitSimulationError;
+  return evaluation.passed ? tofu::core::kExitOk : tofu::core::kExitExpectationFailed;
+}
+
+int ValidateCommand(const std::vector<std::string>& paths) {
+  int status = tofu::core::kExitOk;
+  for (const std::string& path : paths) {
+    try {
+      const tofu::harness::Scenario scenario = tofu::harness::LoadScenario(path);
+      fmt::print("{}: ok ({}, {} segments, {} expectations)\n", path, scenario.name,
+                 scenario.trajectory.segments.size(), scenario.expect.size());
+    } catch (const tofu::core::InputError& e) {
+      fmt::print(stderr, "tofu: error: {}\n", e.what());
+      status = tofu::core::kExitBadInput;
+    }
+  }
+  return status;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"tofu: simulation-in-the-loop test harness for multi-sensor state estimation"};
+  app.require_subcommand(1);
+
+  CLI::App* run = app.add_subcommand("run", "Fly a scenario and write its run directory");
+  std::string scenario_path;
+  std::optional<std::string> out_dir;
+  std::optional<uint64_t> seed;
+  bool quiet = false;
+  run->add_option("scenario", scenario_path, "Scenario YAML file")->required();
+  run->add_option("--out", out_dir, "Run directory (default: runs/<scenario name>)");
+  run->add_option("--seed", seed, "Seed overriding the scenario's");
+  run->add_flag("--quiet", quiet, "No progress bar and no report");
+
+  CLI::App* validate = app.add_subcommand("validate", "Check scenario files without running");
+  std::vector<std::string> validate_paths;
+  validate->add_option("scenarios", validate_paths, "Scenario YAML files")->required();
+
+  CLI::App* metrics = app.add_subcommand("metrics", "List the metrics expectations can use");
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    app.exit(e);
+    return tofu::core::kExitBadInput;
+  }
+
+  try {
+    if (*run) return RunCommand(scenario_path, out_dir, seed, quiet);
+    if (*validate) return ValidateCommand(validate_paths);
+    if (*metrics) {
+      for (const auto& m : tofu::harness::MetricCatalog()) {
+        fmt::print("{:<36} [{}]{} {}\n", m.name, m.unit, m.windowable ? " (window_s)" : "",
+                   m.description);
+      }
+      return tofu::core::kExitOk;
+    }
+  } catch (const tofu::core::InputError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return tofu::core::kExitBadInput;
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return tofu::core::kExitSimulationError;
+  }
+  return tofu::core::kExitOk;
+}

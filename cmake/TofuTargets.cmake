@@ -1,0 +1,24 @@
+# Helpers that give every module the same shape: one static library `tofu_<name>`
+# (alias `tofu::<name>`) built from <name>/*.cc, warnings per target, never global flags.
+
+function(tofu_set_warnings target)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow=local)
+  if(TOFU_SANITIZE)
+    target_compile_options(${target} PRIVATE -fsanitize=address,undefined -fno-omit-frame-pointer)
+    target_link_options(${target} PRIVATE -fsanitize=address,undefined)
+  endif()
+endfunction()
+
+function(tofu_add_library name)
+  cmake_parse_arguments(ARG "" "" "DEPS" ${ARGN})
+  file(GLOB sources CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/${name}/*.cc)
+  add_library(tofu_${name} STATIC ${sources})
+  add_library(tofu::${name} ALIAS tofu_${name})
+  # Headers are included as "<module>/<header>.h" from the project root.
+  target_include_directories(tofu_${name} PUBLIC ${PROJECT_SOURCE_DIR})
+  target_link_libraries(tofu_${name} PUBLIC ${ARG_DEPS})
+  tofu_set_warnings(tofu_${name})
+  if(TOFU_SANITIZE)
+    target_link_options(tofu_${name} INTERFACE -fsanitize=address,undefined)
+  endif()
+endfunction()

@@ -1,0 +1,37 @@
+#include "core/random.h"
+
+namespace tofu::core {
+namespace {
+
+uint64_t SplitMix64(uint64_t x) {
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
+
+uint64_t Fnv1a(std::string_view s) {
+  uint64_t h = 0xcbf29ce484222325ULL;
+  for (const char c : s) {
+    h ^= static_cast<uint8_t>(c);
+    h *= 0x100000001b3ULL;
+  }
+  return h;
+}
+
+}  // namespace
+
+uint64_t StreamSeed(uint64_t scenario_seed, std::string_view stream_name) {
+  return SplitMix64(SplitMix64(scenario_seed) ^ Fnv1a(stream_name));
+}
+
+RandomStream::RandomStream(uint64_t scenario_seed, std::string_view stream_name)
+    : engine_(StreamSeed(scenario_seed, stream_name)) {}
+
+double RandomStream::Normal() { return normal_(engine_); }
+
+double RandomStream::Uniform(double lo, double hi) {
+  return std::uniform_real_distribution<double>(lo, hi)(engine_);
+}
+
+}  // namespace tofu::core

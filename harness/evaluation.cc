@@ -1,0 +1,173 @@
+#include "harness/evaluation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+
+#include "harness/metrics.h"
+
+namespace tofu::harness {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / std::numbers::pi;
+
+bool InWindow(core::Time t_ns, const std::optional<std::pair<double, double>>& window_s) {
+  if (!window_s) return true;
+  const double t_s = core::TimeToSeconds(t_ns);
+  return t_s >= window_s->first && t_s <= window_s->second;
+}
+
+struct Stats {
+  size_t count = 0;
+  double sum_squares = 0.0;
+  double max = 0.0;
+  std::optional<double> rmse() const {
+    if (count == 0) return std::nullopt;
+    return std::sqrt(sum_squares / static_cast<double>(count));
+  }
+  std::optional<double> maximum() const {
+    if (count == 0) return std::nullopt;
+    return max;
+  }
+};
+
+template <typename Getter>
+Stats TrackingStats(const RunRecord& record,
+                    const std::optional<std::pair<double, double>>& window_s, Getter get) {
+  Stats s;
+  for (const TrackingSample& sample : record.tracking) {
+    if (!InWindow(sample.t_ns, window_s)) continue;
+    const double e = get(sample);
+    ++s.count;
+    s.sum_squares += e * e;
+    s.max = std::max(s.max, e);
+  }
+  return s;
+}
+
+nlohmann::json OptionalNumber(const std::optional<double>& v) {
+  return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
+}
+
+}  // namespace
+
+std::optional<double> MetricValue(const RunRecord& record, const std::string& metric,
+                                  const std::optional<std::pair<double, double>>& window_s) {
+  const auto position = [](const TrackingSample& s) { return s.position_error_m; };
+  const auto attitude = [](const TrackingSample& s) { return s.attitude_error_rad * kRadToDeg; };
+  if (metric == "tracking.position_rmse_m") return TrackingStats(record, window_s, position).rmse();
+  if (metric == "tracking.position_max_m") {
+    return TrackingStats(record, window_s, position).maximum();
+  }
+  if (metric == "tracking.attitude_rmse_deg") {
+    return TrackingStats(record, window_s, attitude).rmse();
+  }
+  if (metric == "tracking.attitude_max_deg") {
+    return TrackingStats(record, window_s, attitude).maximum();
+  }
+  if (metric == "tracking.final_position_error_m") {
+    if (record.tracking.empty()) return std::nullopt;
+    return record.tracking.back().position_error_m;
+  }
+  if (metric == "collisions.count") return static_cast<double>(record.collisions.size());
+  if (metric == "structure.min_distance_m") {
+    // Beyond the horizon nothing is measured; the horizon is then a lower bound.
+    return record.closest_structure ? record.closest_structure->proximity.distance_m
+                                    : record.distance_horizon_m;
+  }
+  if (metric == "allocation.saturation_fraction") {
+    size_t count = 0;
+    size_t saturated = 0;
+    for (const auto& [t_ns, is_saturated] : record.saturation) {
+      if (!InWindow(t_ns, window_s)) continue;
+      ++count;
+      saturated += is_saturated ? 1 : 0;
+    }
+    if (count == 0) return std::nullopt;
+    return static_cast<double>(saturated) / static_cast<double>(count);
+  }
+  if (metric == "approach.max_standoff_error_m") {
+    std::optional<double> worst;
+    for (const ApproachResult& a : record.approaches) {
+      if (!a.distance_m) return std::nullopt;
+      const double error = std::abs(*a.distance_m - a.standoff_m);
+      worst = std::max(worst.value_or(0.0), error);
+    }
+    return worst;
+  }
+  throw std::invalid_argument("unknown metric '" + metric + "'");
+}
+
+Evaluation Evaluate(const RunRecord& record) {
+  Evaluation eval;
+  const Scenario& sc = record.scenario;
+  nlohmann::json& j = eval.summary;
+  j["scenario"] = sc.name;
+  j["world"] = sc.world;
+  j["robot"] = sc.robot;
+  j["seed"] = sc.seed;
+  j["duration_s"] = sc.duration_s;
+  j["physics_steps"] = record.physics_steps;
+  j["simulated_s"] = core::TimeToSeconds(record.physics_steps *
+                                         core::PeriodFromRate(sc.physics.rate_hz));
+  j["failure"] = record.failure ? nlohmann::json(*record.failure) : nlohmann::json(nullptr);
+
+  nlohmann::json metrics = nlohmann::json::object();
+  for (const MetricInfo& info : MetricCatalog()) {
+    metrics[info.name] = OptionalNumber(MetricValue(record, info.name, std::nullopt));
+  }
+  j["metrics"] = metrics;
+
+  nlohmann::json collisions = nlohmann::json::array();
+  for (const CollisionEvent& e : record.collisions) {
+    collisions.push_back({{"start_s", core::TimeToSeconds(e.start_ns)},
+                          {"end_s", core::TimeToSeconds(e.end_ns)},
+                          {"robot_geom", e.robot_geom},
+                          {"structure_geom", e.structure_geom},
+                          {"max_penetration_m", e.max_penetration_m}});
+  }
+  j["collisions"] = collisions;
+
+  if (record.closest_structure) {
+    const ProximityRecord& p = *record.closest_structure;
+    j["closest_structure"] = {{"distance_m", p.proximity.distance_m},
+                              {"t_s", core::TimeToSeconds(p.t_ns)},
+                              {"horizon_m", record.distance_horizon_m}};
+  } else {
+    j["closest_structure"] = {{"distance_m", nullptr}, {"horizon_m", record.distance_horizon_m}};
+  }
+
+  nlohmann::json approaches = nlohmann::json::array();
+  for (const ApproachResult& a : record.approaches) {
+    approaches.push_back({{"segment", a.segment_index},
+                          {"t_s", core::TimeToSeconds(a.t_ns)},
+                          {"standoff_m", a.standoff_m},
+                          {"tool_tip_distance_m", OptionalNumber(a.distance_m)}});
+  }
+  j["approaches"] = approaches;
+
+  bool all_passed = !record.failure.has_value();
+  nlohmann::json expectations = nlohmann::json::array();
+  for (const Expectation& e : sc.expect) {
+    ExpectationResult r{e, MetricValue(record, e.metric, e.window_s), false};
+    r.passed = r.value.has_value() && (!e.min || *r.value >= *e.min) &&
+               (!e.max || *r.value <= *e.max);
+    all_passed = all_passed && r.passed;
+    nlohmann::json je = {{"metric", e.metric},
+                         {"min", OptionalNumber(e.min)},
+                         {"max", OptionalNumber(e.max)},
+                         {"value", OptionalNumber(r.value)},
+                         {"passed", r.passed},
+                         {"where", e.location.file + ":" + std::to_string(e.location.line)}};
+    if (e.window_s) je["window_s"] = {e.window_s->first, e.window_s->second};
+    expectations.push_back(je);
+    eval.expectations.push_back(r);
+  }
+  j["expectations"] = expectations;
+  j["passed"] = all_passed;
+  eval.passed = all_passed;
+  return eval;
+}
+
+}  // namespace tofu::harness

@@ -1,0 +1,189 @@
+#include "harness/run.h"
+
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+#include "core/error.h"
+#include "core/lie.h"
+#include "core/random.h"
+#include "sim/allocation.h"
+#include "sim/controller.h"
+#include "sim/wind.h"
+
+namespace tofu::harness {
+namespace {
+
+sim::RobotState ToRobotState(const sim::TruthState& truth) {
+  return sim::RobotState{truth.t_ns, truth.p_WB, truth.q_WB, truth.v_WB_W, truth.omega_WB_B};
+}
+
+// Open contact episodes (robot geom, structure geom) -> index into the event list.
+class CollisionTracker {
+ public:
+  void Update(core::Time t_ns, const std::vector<sim::Contact>& contacts,
+              const sim::World& world, std::vector<CollisionEvent>& events) {
+    std::vector<Open> still_open;
+    for (const sim::Contact& c : contacts) {
+      bool found = false;
+      for (const Open& o : open_) {
+        if (o.robot_geom == c.robot_geom && o.structure_geom == c.structure_geom) {
+          CollisionEvent& e = events[o.event];
+          e.end_ns = t_ns;
+          e.max_penetration_m = std::max(e.max_penetration_m, -c.distance_m);
+          if (!Contains(still_open, o)) still_open.push_back(o);
+          found = true;
+          break;
+        }
+      }
+      if (found) continue;
+      const Open o{c.robot_geom, c.structure_geom, events.size()};
+      if (Contains(still_open, o)) continue;
+      events.push_back({t_ns, t_ns, world.GeomName(c.robot_geom),
+                        world.GeomName(c.structure_geom), -c.distance_m});
+      still_open.push_back(o);
+    }
+    open_.swap(still_open);
+  }
+
+ private:
+  struct Open {
+    int robot_geom;
+    int structure_geom;
+    size_t event;
+  };
+  static bool Contains(const std::vector<Open>& v, const Open& o) {
+    for (const Open& x : v) {
+      if (x.robot_geom == o.robot_geom && x.structure_geom == o.structure_geom) return true;
+    }
+    return false;
+  }
+  std::vector<Open> open_;
+};
+
+}  // namespace
+
+RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
+  RunRecord record;
+  record.scenario = scenario;
+
+  sim::WorldOptions world_options;
+  world_options.models_dir = options.models_dir;
+  world_options.world = scenario.world;
+  world_options.robot = scenario.robot;
+  world_options.physics_rate_hz = scenario.physics.rate_hz;
+  record.distance_horizon_m = world_options.distance_horizon_m;
+  std::unique_ptr<sim::World> world_ptr;
+  try {
+    world_ptr = std::make_unique<sim::World>(world_options);
+  } catch (const core::InputError& e) {
+    // Name the scenario that asked for the model, and the model's own problem.
+    throw core::InputError({scenario.source_file, 0, 0}, e.key_path(), e.what());
+  }
+  sim::World& world = *world_ptr;
+  record.robot = world.robot();
+
+  sim::TrajectoryContext context;
+  context.p_B_tool = record.robot.FindSite("tool_tip")->p_B_s;
+  context.surface_distance = [&world](const Eigen::Vector3d& origin_W,
+                                      const Eigen::Vector3d& direction_W) {
+    return world.RayDistance(origin_W, direction_W);
+  };
+  std::unique_ptr<sim::Trajectory> trajectory;
+  try {
+    trajectory = sim::BuildTrajectory(scenario.trajectory, context);
+  } catch (const std::invalid_argument& e) {
+    throw core::InputError({scenario.source_file, 0, 0}, "trajectory.segments", e.what());
+  }
+  record.segments = trajectory->segments();
+
+  const sim::Waypoint& start = scenario.trajectory.start;
+  world.Reset(sim::Waypoint{start.p_WB + scenario.initial_offset.position_W_m,
+                            start.q_WB * scenario.initial_offset.q_offset});
+  sim::GeometricController controller(scenario.controller, record.robot.rigid_body);
+  const sim::Allocator allocator(record.robot.allocation);
+  sim::Wind wind(scenario.wind, core::RandomStream(scenario.seed, "wind"));
+
+  const core::Time dt_ns = world.timestep_ns();
+  const double dt_s = core::TimeToSeconds(dt_ns);
+  const core::Time controller_period_ns = core::PeriodFromRate(scenario.controller.rate_hz);
+  const core::Time output_period_ns = core::PeriodFromRate(scenario.output.groundtruth_rate_hz);
+  const int64_t total_steps =
+      std::llround(scenario.duration_s * scenario.physics.rate_hz);
+  const int64_t progress_every = std::max<int64_t>(1, total_steps / 200);
+  core::Time next_controller_ns = 0;
+  core::Time next_output_ns = 0;
+  size_t next_approach = 0;
+  std::vector<size_t> approach_segments;
+  for (size_t i = 0; i < record.segments.size(); ++i) {
+    if (record.segments[i].kind == "approach") approach_segments.push_back(i);
+  }
+  record.groundtruth.reserve(static_cast<size_t>(
+      scenario.duration_s * scenario.output.groundtruth_rate_hz + 2));
+  record.tracking.reserve(record.groundtruth.capacity());
+  CollisionTracker collisions;
+
+  const auto wall_start = std::chrono::steady_clock::now();
+  try {
+    for (int64_t step = 0; step < total_steps; ++step) {
+      const core::Time t_ns = world.time_ns();
+      const sim::TruthState now = world.Truth();
+      if (t_ns >= next_controller_ns) {
+        const sim::Reference reference = trajectory->Sample(t_ns);
+        const sim::Wrench wrench = controller.Compute(ToRobotState(now), reference);
+        const sim::AllocationResult allocation = allocator.Allocate(wrench, now.tilt_rad);
+        world.SetCommand(allocation.command);
+        record.saturation.emplace_back(t_ns, allocation.saturated);
+        next_controller_ns += controller_period_ns;
+      }
+      wind.Advance(dt_s);
+      world.SetExternalForce_W(wind.DragForce_W(now.v_WB_W));
+
+      const sim::TruthState& truth = world.Step();
+      ++record.physics_steps;
+
+      if (truth.t_ns >= next_output_ns) {
+        const sim::Reference reference = trajectory->Sample(truth.t_ns);
+        record.groundtruth.push_back(truth);
+        record.tracking.push_back(
+            {truth.t_ns, reference, (truth.p_WB - reference.p_WB).norm(),
+             core::RotationAngleBetween(reference.q_WB.toRotationMatrix(),
+                                        truth.q_WB.toRotationMatrix())});
+        next_output_ns += output_period_ns;
+      }
+
+      const std::vector<sim::Contact>& contacts = world.Contacts();
+      collisions.Update(world.time_ns(), contacts, world, record.collisions);
+      if (const auto closest = world.ClosestStructure();
+          closest && (!record.closest_structure ||
+                      closest->distance_m < record.closest_structure->proximity.distance_m)) {
+        record.closest_structure = ProximityRecord{world.time_ns(), *closest};
+      }
+
+      // Where the tool tip stands when an approach segment's reference comes to rest.
+      if (next_approach < approach_segments.size()) {
+        const sim::SegmentInfo& seg = record.segments[approach_segments[next_approach]];
+        if (world.time_ns() >= seg.end_ns) {
+          const Eigen::Isometry3d T_W_tip = world.SitePose_W("tool_tip");
+          record.approaches.push_back(
+              {static_cast<int>(approach_segments[next_approach]), world.time_ns(),
+               seg.approach_standoff_m,
+               world.RayDistance(T_W_tip.translation(), seg.approach_direction_W)});
+          ++next_approach;
+        }
+      }
+
+      if (options.progress && step % progress_every == 0) {
+        options.progress(static_cast<double>(step) / static_cast<double>(total_steps));
+      }
+    }
+  } catch (const core::SimulationError& e) {
+    record.failure = e.what();
+  }
+  record.wall_time_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  if (options.progress) options.progress(1.0);
+  return record;
+}
+
+}  // namespace tofu::harness

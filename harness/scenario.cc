@@ -1,0 +1,585 @@
+#include "harness/scenario.h"
+
+#include <fmt/format.h>
+#include <yaml-cpp/yaml.h>
+
+#include <cassert>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <sstream>
+#include <type_traits>
+
+#include "core/lie.h"
+#include "harness/metrics.h"
+#include "harness/yaml_reader.h"
+
+namespace tofu::harness {
+namespace {
+
+using internal::FormatDouble;
+using internal::NumberRule;
+using internal::YamlMap;
+using internal::YamlValue;
+
+constexpr double kRadPerDeg = std::numbers::pi / 180.0;
+constexpr double kDegPerRad = 180.0 / std::numbers::pi;
+
+// ---- attitude in YAML: roll, pitch, yaw in degrees, R = Rz(yaw) Ry(pitch) Rx(roll) ----
+
+Eigen::Quaterniond QuatFromRpyDeg(const Eigen::Vector3d& rpy_deg) {
+  const Eigen::Matrix3d R = core::RotationFromRollPitchYaw(
+      rpy_deg.x() * kRadPerDeg, rpy_deg.y() * kRadPerDeg, rpy_deg.z() * kRadPerDeg);
+  return core::CanonicalQuat(Eigen::Quaterniond(R).normalized());
+}
+
+// Inverse of QuatFromRpyDeg with pitch in [-90, 90] and roll, yaw in [-180, 180].
+// Near gimbal lock yaw is ill-conditioned (cos(pitch) -> 0), so pitch and roll are
+// taken from M = Rz(yaw)^T R = Ry(pitch) Rx(roll), where they absorb yaw's error and
+// the angles reproduce R to rounding; at the lock itself yaw is set to 0.
+Eigen::Vector3d RpyDegFromQuat(const Eigen::Quaterniond& q) {
+  const Eigen::Matrix3d R = q.normalized().toRotationMatrix();
+  const double yaw = std::hypot(R(0, 0), R(1, 0)) > 1e-12 ? std::atan2(R(1, 0), R(0, 0)) : 0.0;
+  const Eigen::Matrix3d M =
+      Eigen::AngleAxisd(-yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() * R;
+  // Ry(p) Rx(r) = [cp, sp sr, sp cr; 0, cr, -sr; -sp, cp sr, cp cr].
+  const double pitch = std::atan2(-M(2, 0), M(0, 0));
+  const double roll = std::atan2(-M(1, 2), M(1, 1));
+  // "+ 0.0" turns -0 into 0 for tidy output.
+  return Eigen::Vector3d(roll + 0.0, pitch + 0.0, yaw + 0.0) * kDegPerRad;
+}
+
+// ---- readers of optional keys: leave the struct's default when the key is absent ----
+
+void ReadNumber(YamlMap& map, std::string_view key, const NumberRule& rule, double* out) {
+  if (const auto value = map.Optional(key)) *out = value->Number(rule);
+}
+
+void ReadVector(YamlMap& map, std::string_view key, const NumberRule& rule, bool allow_scalar,
+                Eigen::Vector3d* out) {
+  if (const auto value = map.Optional(key)) *out = value->Vector3(rule, allow_scalar);
+}
+
+void ReadDegrees(YamlMap& map, std::string_view key, const NumberRule& rule, double* out_rad) {
+  if (const auto value = map.Optional(key)) *out_rad = value->Number(rule) * kRadPerDeg;
+}
+
+std::optional<Eigen::Quaterniond> ReadRpy(YamlMap& map) {
+  if (const auto value = map.Optional("rpy_deg")) {
+    return QuatFromRpyDeg(value->Vector3(NumberRule::Any("deg")));
+  }
+  return std::nullopt;
+}
+
+// ---- sections ----
+
+// Also hands out the rate_hz value, which later checks of other rates may blame.
+PhysicsOptions ReadPhysics(const YamlValue& value, std::optional<YamlValue>* rate_value) {
+  PhysicsOptions physics;
+  YamlMap map = value.Map({"rate_hz"});
+  *rate_value = map.Optional("rate_hz");
+  if (*rate_value) {
+    physics.rate_hz = (*rate_value)->Number(NumberRule::Between(100.0, 10000.0, "Hz"));
+  }
+  map.Finish();
+  return physics;
+}
+
+sim::ControllerOptions ReadController(const YamlValue& value, double physics_rate_hz) {
+  sim::ControllerOptions controller;
+  YamlMap map = value.Map({"rate_hz", "position_gain_per_s2", "velocity_gain_per_s",
+                           "position_integral_gain_per_s3", "integral_limit_mps2",
+                           "attitude_gain_per_s2", "angular_rate_gain_per_s",
+                           "attitude_integral_gain_per_s3", "attitude_integral_limit_radps2",
+                           "integral_error_band_m", "attitude_integral_error_band_rad"});
+  ReadNumber(map, "rate_hz",
+             NumberRule::Between(1.0, physics_rate_hz, "Hz, at most physics.rate_hz"),
+             &controller.rate_hz);
+  ReadVector(map, "position_gain_per_s2", NumberRule::NonNegative("1/s^2"), true,
+             &controller.position_gain_per_s2);
+  ReadVector(map, "velocity_gain_per_s", NumberRule::NonNegative("1/s"), true,
+             &controller.velocity_gain_per_s);
+  ReadVector(map, "position_integral_gain_per_s3", NumberRule::NonNegative("1/s^3"), true,
+             &controller.position_integral_gain_per_s3);
+  ReadNumber(map, "integral_limit_mps2", NumberRule::NonNegative("m/s^2"),
+             &controller.integral_limit_mps2);
+  ReadVector(map, "attitude_gain_per_s2", NumberRule::NonNegative("1/s^2"), true,
+             &controller.attitude_gain_per_s2);
+  ReadVector(map, "angular_rate_gain_per_s", NumberRule::NonNegative("1/s"), true,
+             &controller.angular_rate_gain_per_s);
+  ReadVector(map, "attitude_integral_gain_per_s3", NumberRule::NonNegative("1/s^3"), true,
+             &controller.attitude_integral_gain_per_s3);
+  ReadNumber(map, "attitude_integral_limit_radps2", NumberRule::NonNegative("rad/s^2"),
+             &controller.attitude_integral_limit_radps2);
+  ReadNumber(map, "integral_error_band_m", NumberRule::NonNegative("m"),
+             &controller.integral_error_band_m);
+  ReadNumber(map, "attitude_integral_error_band_rad", NumberRule::NonNegative("rad"),
+             &controller.attitude_integral_error_band_rad);
+  map.Finish();
+  return controller;
+}
+
+sim::WindOptions ReadWind(const YamlValue& value) {
+  sim::WindOptions wind;
+  YamlMap map = value.Map({"mean_velocity_mps", "gust_std_mps", "gust_correlation_time_s",
+                           "drag_area_m2", "air_density_kgpm3"});
+  ReadVector(map, "mean_velocity_mps", NumberRule::Any("m/s"), false, &wind.mean_velocity_W_mps);
+  ReadNumber(map, "gust_std_mps", NumberRule::NonNegative("m/s"), &wind.gust_std_mps);
+  ReadNumber(map, "gust_correlation_time_s", NumberRule::Positive("s"),
+             &wind.gust_correlation_time_s);
+  ReadNumber(map, "drag_area_m2", NumberRule::NonNegative("m^2"), &wind.drag_area_m2);
+  ReadNumber(map, "air_density_kgpm3", NumberRule::Positive("kg/m^3"), &wind.air_density_kgpm3);
+  map.Finish();
+  return wind;
+}
+
+InitialOffset ReadInitialOffset(const YamlValue& value) {
+  InitialOffset offset;
+  YamlMap map = value.Map({"position_m", "rpy_deg"});
+  ReadVector(map, "position_m", NumberRule::Any("m"), false, &offset.position_W_m);
+  if (const auto q = ReadRpy(map)) offset.q_offset = *q;
+  map.Finish();
+  return offset;
+}
+
+OutputOptions ReadOutput(const YamlValue& value, double physics_rate_hz) {
+  OutputOptions output;
+  YamlMap map = value.Map({"groundtruth_rate_hz"});
+  ReadNumber(map, "groundtruth_rate_hz",
+             NumberRule::PositiveAtMost(physics_rate_hz, "Hz, at most physics.rate_hz"),
+             &output.groundtruth_rate_hz);
+  map.Finish();
+  return output;
+}
+
+constexpr std::string_view kSegmentKinds = "hover, line, waypoints, circle, figure_eight, approach";
+
+sim::HoverSpec ReadHover(const YamlValue& value) {
+  sim::HoverSpec hover;
+  YamlMap map = value.Map({"duration_s"});
+  hover.duration_s = map.Required("duration_s").Number(NumberRule::Positive("s"));
+  map.Finish();
+  return hover;
+}
+
+sim::LineSpec ReadLine(const YamlValue& value, Eigen::Quaterniond* attitude) {
+  sim::LineSpec line;
+  YamlMap map = value.Map({"to_m", "rpy_deg"});
+  line.to_W = map.Required("to_m").Vector3(NumberRule::Any("m"));
+  line.q_WB = ReadRpy(map);
+  if (line.q_WB) *attitude = *line.q_WB;
+  map.Finish();
+  return line;
+}
+
+sim::WaypointsSpec ReadWaypoints(const YamlValue& value, Eigen::Quaterniond* attitude) {
+  sim::WaypointsSpec spec;
+  for (const YamlValue& item : value.List(/*non_empty=*/true)) {
+    YamlMap map = item.Map({"position_m", "rpy_deg"});
+    sim::Waypoint waypoint;
+    waypoint.p_WB = map.Required("position_m").Vector3(NumberRule::Any("m"));
+    // Without rpy_deg a waypoint keeps the attitude the robot has before it.
+    waypoint.q_WB = ReadRpy(map).value_or(*attitude);
+    *attitude = waypoint.q_WB;
+    map.Finish();
+    spec.waypoints.push_back(waypoint);
+  }
+  return spec;
+}
+
+sim::CircleSpec ReadCircle(const YamlValue& value) {
+  sim::CircleSpec circle;
+  YamlMap map = value.Map({"center_m", "radius_m", "speed_mps", "laps", "clockwise"});
+  circle.center_W = map.Required("center_m").Vector3(NumberRule::Any("m"));
+  circle.radius_m = map.Required("radius_m").Number(NumberRule::Positive("m"));
+  ReadNumber(map, "speed_mps", NumberRule::Positive("m/s"), &circle.speed_mps);
+  ReadNumber(map, "laps", NumberRule::Positive(""), &circle.laps);
+  if (const auto clockwise = map.Optional("clockwise")) circle.clockwise = clockwise->Bool();
+  map.Finish();
+  return circle;
+}
+
+sim::FigureEightSpec ReadFigureEight(const YamlValue& value) {
+  sim::FigureEightSpec figure;
+  YamlMap map = value.Map({"center_m", "half_length_m", "half_width_m", "speed_mps", "laps"});
+  figure.center_W = map.Required("center_m").Vector3(NumberRule::Any("m"));
+  figure.half_length_m = map.Required("half_length_m").Number(NumberRule::Positive("m"));
+  figure.half_width_m = map.Required("half_width_m").Number(NumberRule::Positive("m"));
+  ReadNumber(map, "speed_mps", NumberRule::Positive("m/s"), &figure.speed_mps);
+  ReadNumber(map, "laps", NumberRule::Positive(""), &figure.laps);
+  map.Finish();
+  return figure;
+}
+
+sim::ApproachSpec ReadApproach(const YamlValue& value) {
+  sim::ApproachSpec approach;
+  YamlMap map = value.Map({"direction", "standoff_m", "speed_mps"});
+  const YamlValue direction = map.Required("direction");
+  const Eigen::Vector3d d = direction.Vector3(NumberRule::Any(""));
+  if (!(d.norm() > 1e-9)) {
+    direction.FailExpected("a non-zero direction vector (list of 3 numbers)");
+  }
+  approach.direction_W = d.normalized();
+  approach.standoff_m = map.Required("standoff_m").Number(NumberRule::NonNegative("m"));
+  ReadNumber(map, "speed_mps", NumberRule::Positive("m/s"), &approach.speed_mps);
+  map.Finish();
+  return approach;
+}
+
+// One list item of trajectory.segments: a map with exactly one key naming the primitive.
+sim::PrimitiveSpec ReadSegment(const YamlValue& item, Eigen::Quaterniond* attitude) {
+  const std::string expected =
+      fmt::format("a map with exactly one key naming the primitive (one of: {})", kSegmentKinds);
+  if (!item.node().IsMap()) item.FailExpected(expected);
+  YamlMap map = item.Map({"hover", "line", "waypoints", "circle", "figure_eight", "approach"});
+  if (map.keys().empty()) item.FailExpected(expected);
+  if (map.keys().size() > 1) {
+    const YamlValue second = *map.Optional(map.keys()[1]);
+    throw core::InputError(
+        second.key_location(), item.path(),
+        fmt::format("a segment has exactly one key naming its primitive, got {} ('{}', '{}'{}); "
+                    "start each segment with its own '-'",
+                    map.keys().size(), map.keys()[0], map.keys()[1],
+                    map.keys().size() > 2 ? ", ..." : ""));
+  }
+  const std::string& kind = map.keys()[0];
+  const YamlValue body = *map.Optional(kind);
+  if (kind == "hover") return ReadHover(body);
+  if (kind == "line") return ReadLine(body, attitude);
+  if (kind == "waypoints") return ReadWaypoints(body, attitude);
+  if (kind == "circle") return ReadCircle(body);
+  if (kind == "figure_eight") return ReadFigureEight(body);
+  return ReadApproach(body);  // the only kind left after Map()'s key check
+}
+
+sim::TrajectorySpec ReadTrajectory(const YamlValue& value) {
+  sim::TrajectorySpec trajectory;
+  YamlMap map = value.Map({"start", "limits", "segments"});
+
+  YamlMap start = map.Required("start").Map({"position_m", "rpy_deg"});
+  trajectory.start.p_WB = start.Required("position_m").Vector3(NumberRule::Any("m"));
+  if (const auto q = ReadRpy(start)) trajectory.start.q_WB = *q;
+  start.Finish();
+
+  if (const auto limits_value = map.Optional("limits")) {
+    sim::DynamicLimits& limits = trajectory.limits;
+    YamlMap lim = limits_value->Map({"max_speed_mps", "max_acceleration_mps2",
+                                     "max_angular_rate_degps", "max_angular_acceleration_degps2"});
+    ReadNumber(lim, "max_speed_mps", NumberRule::Positive("m/s"), &limits.max_speed_mps);
+    ReadNumber(lim, "max_acceleration_mps2", NumberRule::Positive("m/s^2"),
+               &limits.max_acceleration_mps2);
+    ReadDegrees(lim, "max_angular_rate_degps", NumberRule::Positive("deg/s"),
+                &limits.max_angular_rate_radps);
+    ReadDegrees(lim, "max_angular_acceleration_degps2", NumberRule::Positive("deg/s^2"),
+                &limits.max_angular_acceleration_radps2);
+    lim.Finish();
+  }
+
+  // The attitude the robot holds before each segment, for waypoints without rpy_deg.
+  Eigen::Quaterniond attitude = trajectory.start.q_WB;
+  for (const YamlValue& item : map.Required("segments").List(/*non_empty=*/true)) {
+    trajectory.segments.push_back(ReadSegment(item, &attitude));
+  }
+  map.Finish();
+  return trajectory;
+}
+
+std::string MetricNames(bool windowable_only) {
+  std::string names;
+  for (const MetricInfo& info : MetricCatalog()) {
+    if (windowable_only && !info.windowable) continue;
+    if (!names.empty()) names += ", ";
+    names += info.name;
+  }
+  return names;
+}
+
+Expectation ReadExpectation(const YamlValue& item) {
+  Expectation expectation;
+  expectation.location = item.location();
+  YamlMap map = item.Map({"metric", "min", "max", "window_s"});
+
+  const YamlValue metric = map.Required("metric");
+  expectation.metric = metric.String();
+  const MetricInfo* info = FindMetric(expectation.metric);
+  if (info == nullptr) {
+    std::vector<std::string> names;
+    for (const MetricInfo& known : MetricCatalog()) names.push_back(known.name);
+    const std::string suggestion = internal::ClosestMatch(expectation.metric, names);
+    metric.Fail(
+        fmt::format("unknown metric '{}'{}; known metrics: {}", expectation.metric,
+                    suggestion.empty() ? "" : fmt::format(" (did you mean '{}'?)", suggestion),
+                    MetricNames(false)));
+  }
+
+  const std::optional<YamlValue> min = map.Optional("min");
+  const std::optional<YamlValue> max = map.Optional("max");
+  if (min) expectation.min = min->Number(NumberRule::Any(info->unit));
+  if (max) expectation.max = max->Number(NumberRule::Any(info->unit));
+  if (!min && !max) {
+    item.FailAtKey(
+        fmt::format("expectation on '{}' needs at least one of 'min' and 'max'", info->name));
+  }
+  if (min && max && *expectation.min > *expectation.max) {
+    max->Fail(fmt::format("expected max >= min ({}), got {}", FormatDouble(*expectation.min),
+                          max->Describe()));
+  }
+
+  if (const auto window = map.Optional("window_s")) {
+    if (!info->windowable) {
+      window->FailAtKey(fmt::format(
+          "metric '{}' cannot be restricted to a time window; window_s is allowed for: {}",
+          info->name, MetricNames(true)));
+    }
+    const std::vector<double> from_to = window->Numbers(2, NumberRule::NonNegative("s"));
+    if (!(from_to[0] < from_to[1])) {
+      window->Fail(fmt::format("expected [from, to] with 0 <= from < to (s), got [{}, {}]",
+                               FormatDouble(from_to[0]), FormatDouble(from_to[1])));
+    }
+    expectation.window_s = std::make_pair(from_to[0], from_to[1]);
+  }
+  map.Finish();
+  return expectation;
+}
+
+// ---- emitting ----
+
+void EmitVector(YAML::Emitter& out, const Eigen::Vector3d& v) {
+  out << YAML::Flow << YAML::BeginSeq;
+  for (int i = 0; i < 3; ++i) out << FormatDouble(v[i]);
+  out << YAML::EndSeq;
+}
+
+void EmitNumber(YAML::Emitter& out, std::string_view key, double value) {
+  out << YAML::Key << std::string(key) << YAML::Value << FormatDouble(value);
+}
+
+void EmitVector(YAML::Emitter& out, std::string_view key, const Eigen::Vector3d& value) {
+  out << YAML::Key << std::string(key) << YAML::Value;
+  EmitVector(out, value);
+}
+
+void EmitSegment(YAML::Emitter& out, const sim::PrimitiveSpec& segment) {
+  out << YAML::BeginMap;
+  std::visit(
+      [&out](const auto& spec) {
+        using T = std::decay_t<decltype(spec)>;
+        if constexpr (std::is_same_v<T, sim::HoverSpec>) {
+          out << YAML::Key << "hover" << YAML::Value << YAML::BeginMap;
+          EmitNumber(out, "duration_s", spec.duration_s);
+          out << YAML::EndMap;
+        } else if constexpr (std::is_same_v<T, sim::LineSpec>) {
+          out << YAML::Key << "line" << YAML::Value << YAML::BeginMap;
+          EmitVector(out, "to_m", spec.to_W);
+          if (spec.q_WB) EmitVector(out, "rpy_deg", RpyDegFromQuat(*spec.q_WB));
+          out << YAML::EndMap;
+        } else if constexpr (std::is_same_v<T, sim::WaypointsSpec>) {
+          out << YAML::Key << "waypoints" << YAML::Value << YAML::BeginSeq;
+          for (const sim::Waypoint& waypoint : spec.waypoints) {
+            out << YAML::BeginMap;
+            EmitVector(out, "position_m", waypoint.p_WB);
+            EmitVector(out, "rpy_deg", RpyDegFromQuat(waypoint.q_WB));
+            out << YAML::EndMap;
+          }
+          out << YAML::EndSeq;
+        } else if constexpr (std::is_same_v<T, sim::CircleSpec>) {
+          out << YAML::Key << "circle" << YAML::Value << YAML::BeginMap;
+          EmitVector(out, "center_m", spec.center_W);
+          EmitNumber(out, "radius_m", spec.radius_m);
+          EmitNumber(out, "speed_mps", spec.speed_mps);
+          EmitNumber(out, "laps", spec.laps);
+          out << YAML::Key << "clockwise" << YAML::Value << spec.clockwise;
+          out << YAML::EndMap;
+        } else if constexpr (std::is_same_v<T, sim::FigureEightSpec>) {
+          out << YAML::Key << "figure_eight" << YAML::Value << YAML::BeginMap;
+          EmitVector(out, "center_m", spec.center_W);
+          EmitNumber(out, "half_length_m", spec.half_length_m);
+          EmitNumber(out, "half_width_m", spec.half_width_m);
+          EmitNumber(out, "speed_mps", spec.speed_mps);
+          EmitNumber(out, "laps", spec.laps);
+          out << YAML::EndMap;
+        } else {
+          static_assert(std::is_same_v<T, sim::ApproachSpec>, "unhandled primitive");
+          out << YAML::Key << "approach" << YAML::Value << YAML::BeginMap;
+          EmitVector(out, "direction", spec.direction_W);
+          EmitNumber(out, "standoff_m", spec.standoff_m);
+          EmitNumber(out, "speed_mps", spec.speed_mps);
+          out << YAML::EndMap;
+        }
+      },
+      segment);
+  out << YAML::EndMap;
+}
+
+}  // namespace
+
+Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label) {
+  const YamlValue root = internal::ParseDocument(yaml_text, file_label);
+  YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
+                          "controller", "wind", "output", "trajectory", "initial_offset",
+                          "expect"});
+  Scenario scenario;
+  scenario.source_file = file_label;
+  scenario.name = map.Required("name").Identifier();
+  if (const auto description = map.Optional("description")) {
+    scenario.description = description->String();
+  }
+  scenario.world = map.Required("world").Identifier();
+  if (const auto robot = map.Optional("robot")) scenario.robot = robot->Identifier();
+  scenario.duration_s = map.Required("duration_s").Number(NumberRule::PositiveAtMost(86400.0, "s"));
+  if (const auto seed = map.Optional("seed")) scenario.seed = seed->UnsignedInteger();
+
+  // Physics first: the controller and output rates are bounded by it.
+  std::optional<YamlValue> physics_rate;
+  if (const auto physics = map.Optional("physics")) {
+    scenario.physics = ReadPhysics(*physics, &physics_rate);
+  }
+  const auto controller = map.Optional("controller");
+  if (controller) scenario.controller = ReadController(*controller, scenario.physics.rate_hz);
+  if (const auto wind = map.Optional("wind")) scenario.wind = ReadWind(*wind);
+  const auto output = map.Optional("output");
+  if (output) scenario.output = ReadOutput(*output, scenario.physics.rate_hz);
+  // A default rate above a (given) physics rate: blame the physics rate, the only key written.
+  for (const auto& [what, rate_hz] :
+       {std::pair<const char*, double>{"controller.rate_hz", scenario.controller.rate_hz},
+        std::pair<const char*, double>{"output.groundtruth_rate_hz",
+                                       scenario.output.groundtruth_rate_hz}}) {
+    if (rate_hz > scenario.physics.rate_hz) {
+      assert(physics_rate.has_value());  // the default physics rate carries every default
+      physics_rate->Fail(fmt::format(
+          "expected at least the default {} of {} Hz, got {} (or set {} <= physics.rate_hz)", what,
+          FormatDouble(rate_hz), physics_rate->Describe(), what));
+    }
+  }
+
+  scenario.trajectory = ReadTrajectory(map.Required("trajectory"));
+  if (const auto offset = map.Optional("initial_offset")) {
+    scenario.initial_offset = ReadInitialOffset(*offset);
+  }
+  if (const auto expect = map.Optional("expect")) {
+    for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
+      scenario.expect.push_back(ReadExpectation(item));
+    }
+  }
+  map.Finish();
+  return scenario;
+}
+
+Scenario LoadScenario(const std::string& path) {
+  std::error_code error;
+  const std::filesystem::file_status status = std::filesystem::status(path, error);
+  if (error || !std::filesystem::exists(status)) {
+    throw core::InputError(
+        {path, 0, 0}, "",
+        "cannot read scenario file: " + (error ? error.message() : std::string("no such file")));
+  }
+  if (std::filesystem::is_directory(status)) {
+    throw core::InputError({path, 0, 0}, "",
+                           "cannot read scenario file: it is a directory, expected a YAML file");
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    throw core::InputError({path, 0, 0}, "",
+                           std::string("cannot open scenario file: ") + std::strerror(errno));
+  }
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) {
+    throw core::InputError({path, 0, 0}, "",
+                           std::string("cannot read scenario file: ") + std::strerror(errno));
+  }
+  return ParseScenario(text.str(), path);
+}
+
+std::string ResolvedScenarioYaml(const Scenario& scenario) {
+  YAML::Emitter out;
+  out << YAML::BeginMap;
+  out << YAML::Key << "name" << YAML::Value << scenario.name;
+  out << YAML::Key << "description" << YAML::Value << scenario.description;
+  out << YAML::Key << "world" << YAML::Value << scenario.world;
+  out << YAML::Key << "robot" << YAML::Value << scenario.robot;
+  EmitNumber(out, "duration_s", scenario.duration_s);
+  out << YAML::Key << "seed" << YAML::Value << scenario.seed;
+
+  out << YAML::Key << "physics" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "rate_hz", scenario.physics.rate_hz);
+  out << YAML::EndMap;
+
+  const sim::ControllerOptions& c = scenario.controller;
+  out << YAML::Key << "controller" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "rate_hz", c.rate_hz);
+  EmitVector(out, "position_gain_per_s2", c.position_gain_per_s2);
+  EmitVector(out, "velocity_gain_per_s", c.velocity_gain_per_s);
+  EmitVector(out, "position_integral_gain_per_s3", c.position_integral_gain_per_s3);
+  EmitNumber(out, "integral_limit_mps2", c.integral_limit_mps2);
+  EmitVector(out, "attitude_gain_per_s2", c.attitude_gain_per_s2);
+  EmitVector(out, "angular_rate_gain_per_s", c.angular_rate_gain_per_s);
+  EmitVector(out, "attitude_integral_gain_per_s3", c.attitude_integral_gain_per_s3);
+  EmitNumber(out, "attitude_integral_limit_radps2", c.attitude_integral_limit_radps2);
+  EmitNumber(out, "integral_error_band_m", c.integral_error_band_m);
+  EmitNumber(out, "attitude_integral_error_band_rad", c.attitude_integral_error_band_rad);
+  out << YAML::EndMap;
+
+  const sim::WindOptions& w = scenario.wind;
+  out << YAML::Key << "wind" << YAML::Value << YAML::BeginMap;
+  EmitVector(out, "mean_velocity_mps", w.mean_velocity_W_mps);
+  EmitNumber(out, "gust_std_mps", w.gust_std_mps);
+  EmitNumber(out, "gust_correlation_time_s", w.gust_correlation_time_s);
+  EmitNumber(out, "drag_area_m2", w.drag_area_m2);
+  EmitNumber(out, "air_density_kgpm3", w.air_density_kgpm3);
+  out << YAML::EndMap;
+
+  out << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "groundtruth_rate_hz", scenario.output.groundtruth_rate_hz);
+  out << YAML::EndMap;
+
+  const sim::TrajectorySpec& t = scenario.trajectory;
+  out << YAML::Key << "trajectory" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "start" << YAML::Value << YAML::BeginMap;
+  EmitVector(out, "position_m", t.start.p_WB);
+  EmitVector(out, "rpy_deg", RpyDegFromQuat(t.start.q_WB));
+  out << YAML::EndMap;
+  out << YAML::Key << "limits" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "max_speed_mps", t.limits.max_speed_mps);
+  EmitNumber(out, "max_acceleration_mps2", t.limits.max_acceleration_mps2);
+  EmitNumber(out, "max_angular_rate_degps", t.limits.max_angular_rate_radps * kDegPerRad);
+  EmitNumber(out, "max_angular_acceleration_degps2",
+             t.limits.max_angular_acceleration_radps2 * kDegPerRad);
+  out << YAML::EndMap;
+  out << YAML::Key << "segments" << YAML::Value << YAML::BeginSeq;
+  for (const sim::PrimitiveSpec& segment : t.segments) EmitSegment(out, segment);
+  out << YAML::EndSeq;
+  out << YAML::EndMap;
+
+  out << YAML::Key << "initial_offset" << YAML::Value << YAML::BeginMap;
+  EmitVector(out, "position_m", scenario.initial_offset.position_W_m);
+  EmitVector(out, "rpy_deg", RpyDegFromQuat(scenario.initial_offset.q_offset));
+  out << YAML::EndMap;
+
+  out << YAML::Key << "expect" << YAML::Value;
+  if (scenario.expect.empty()) {
+    out << YAML::Flow << YAML::BeginSeq << YAML::EndSeq;
+  } else {
+    out << YAML::BeginSeq;
+    for (const Expectation& e : scenario.expect) {
+      out << YAML::BeginMap;
+      out << YAML::Key << "metric" << YAML::Value << e.metric;
+      if (e.min) EmitNumber(out, "min", *e.min);
+      if (e.max) EmitNumber(out, "max", *e.max);
+      if (e.window_s) {
+        out << YAML::Key << "window_s" << YAML::Value << YAML::Flow << YAML::BeginSeq
+            << FormatDouble(e.window_s->first) << FormatDouble(e.window_s->second) << YAML::EndSeq;
+      }
+      out << YAML::EndMap;
+    }
+    out << YAML::EndSeq;
+  }
+  out << YAML::EndMap;
+  assert(out.good());
+  return std::string(out.c_str()) + "\n";
+}
+
+}  // namespace tofu::harness

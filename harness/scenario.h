@@ -1,0 +1,71 @@
+#pragma once
+// A scenario: the typed, validated form of scenarios/*.yaml. Loading is strict: unknown
+// keys, missing required keys, wrong types, non-finite and out-of-range values are
+// InputErrors that name file:line:column, the key path and the expected form.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "core/error.h"
+#include "sim/controller.h"
+#include "sim/trajectory.h"
+#include "sim/wind.h"
+
+namespace tofu::harness {
+
+struct PhysicsOptions {
+  double rate_hz = 1000.0;  ///< MuJoCo timestep = 1 / rate_hz; 100 .. 10000
+};
+
+struct OutputOptions {
+  double groundtruth_rate_hz = 200.0;  ///< rate of groundtruth.csv/.tum; <= physics rate
+};
+
+/// One assertion on a summary metric: min <= value <= max (at least one bound given).
+struct Expectation {
+  std::string metric;  ///< a name of MetricCatalog()
+  std::optional<double> min;
+  std::optional<double> max;
+  /// [from, to] in seconds of run time, only for windowable metrics.
+  std::optional<std::pair<double, double>> window_s;
+  core::SourceLocation location;  ///< where it was written, for reports
+};
+
+/// The robot starts displaced from the trajectory's start pose (at rest), so that the
+/// controller has to settle: p_WB(0) = p_start + position_W_m, q_WB(0) = q_start * q_offset.
+struct InitialOffset {
+  Eigen::Vector3d position_W_m = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_offset = Eigen::Quaterniond::Identity();
+};
+
+struct Scenario {
+  std::string name;         ///< required; [a-z0-9_]+
+  std::string description;  ///< optional free text
+  std::string source_file;  ///< path it was loaded from
+  std::string world;        ///< models/worlds/<world>.xml, required
+  std::string robot = "omav";  ///< models/robots/<robot>.xml
+  double duration_s = 0.0;  ///< required, > 0; may exceed the trajectory (holds the end)
+  uint64_t seed = 0;        ///< default 0; `tofu run --seed` overrides
+  PhysicsOptions physics;
+  sim::ControllerOptions controller;
+  sim::TrajectorySpec trajectory;
+  InitialOffset initial_offset;
+  sim::WindOptions wind;
+  OutputOptions output;
+  std::vector<Expectation> expect;
+};
+
+/// Reads and validates a scenario file. Throws core::InputError on any problem.
+Scenario LoadScenario(const std::string& path);
+
+/// Same, from YAML text; `file_label` is used in error messages.
+Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label);
+
+/// The scenario as YAML with every default filled in; loading it back yields an equal
+/// scenario. Deterministic text (fixed key order, round-trip float formatting).
+std::string ResolvedScenarioYaml(const Scenario& scenario);
+
+}  // namespace tofu::harness

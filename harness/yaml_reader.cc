@@ -1,0 +1,437 @@
+#include "harness/yaml_reader.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cassert>
+#include <charconv>
+#include <cmath>
+#include <limits>
+#include <system_error>
+#include <utility>
+
+namespace tofu::harness::internal {
+namespace {
+
+// yaml-cpp tags: "?" for plain scalars, "!" for quoted ones.
+bool IsQuoted(const YAML::Node& node) { return node.IsScalar() && node.Tag() == "!"; }
+
+// The YAML 1.2 core-schema spellings of infinities and NaN.
+bool IsYamlNonFinite(std::string_view text) {
+  if (!text.empty() && (text.front() == '+' || text.front() == '-')) text.remove_prefix(1);
+  return text == ".inf" || text == ".Inf" || text == ".INF" || text == ".nan" || text == ".NaN" ||
+         text == ".NAN";
+}
+
+// Scalar text for a message: one line, bounded length.
+std::string Quote(std::string_view text) {
+  std::string out;
+  for (char c : text) {
+    if (c == '\n') {
+      out += "\\n";
+    } else if (c == '\t') {
+      out += "\\t";
+    } else if (c == '\r') {
+      out += "\\r";
+    } else {
+      out += c;
+    }
+  }
+  constexpr size_t kMaxChars = 60;
+  if (out.size() > kMaxChars) out = out.substr(0, kMaxChars) + "...";
+  return "'" + out + "'";
+}
+
+std::string Join(const std::vector<std::string>& words) {
+  std::string out;
+  for (const std::string& word : words) {
+    if (!out.empty()) out += ", ";
+    out += word;
+  }
+  return out;
+}
+
+size_t EditDistance(std::string_view a, std::string_view b) {
+  // Levenshtein distance, one row at a time.
+  std::vector<size_t> row(b.size() + 1);
+  for (size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (size_t i = 1; i <= a.size(); ++i) {
+    size_t diagonal = row[0];
+    row[0] = i;
+    for (size_t j = 1; j <= b.size(); ++j) {
+      const size_t above = row[j];
+      const size_t substitution = diagonal + (a[i - 1] == b[j - 1] ? 0 : 1);
+      row[j] = std::min({above + 1, row[j - 1] + 1, substitution});
+      diagonal = above;
+    }
+  }
+  return row[b.size()];
+}
+
+std::string ChildPath(const std::string& parent, std::string_view key) {
+  return parent.empty() ? std::string(key) : parent + "." + std::string(key);
+}
+
+}  // namespace
+
+// ---- NumberRule ----
+
+NumberRule NumberRule::Any(std::string_view unit) {
+  NumberRule rule;
+  rule.unit = unit;
+  return rule;
+}
+
+NumberRule NumberRule::Positive(std::string_view unit) {
+  NumberRule rule;
+  rule.min = 0.0;
+  rule.min_exclusive = true;
+  rule.unit = unit;
+  return rule;
+}
+
+NumberRule NumberRule::NonNegative(std::string_view unit) {
+  NumberRule rule;
+  rule.min = 0.0;
+  rule.unit = unit;
+  return rule;
+}
+
+NumberRule NumberRule::Between(double lo, double hi, std::string_view unit) {
+  NumberRule rule;
+  rule.min = lo;
+  rule.max = hi;
+  rule.unit = unit;
+  return rule;
+}
+
+NumberRule NumberRule::PositiveAtMost(double hi, std::string_view unit) {
+  NumberRule rule = Positive(unit);
+  rule.max = hi;
+  return rule;
+}
+
+bool NumberRule::Accepts(double value) const {
+  if (min && (min_exclusive ? !(value > *min) : !(value >= *min))) return false;
+  if (max && (max_exclusive ? !(value < *max) : !(value <= *max))) return false;
+  return true;
+}
+
+std::string NumberRule::Describe() const {
+  std::string bounds;
+  if (min && max) {
+    bounds = fmt::format(" in {}{}, {}{}", min_exclusive ? "(" : "[", FormatDouble(*min),
+                         FormatDouble(*max), max_exclusive ? ")" : "]");
+  } else if (min) {
+    bounds = fmt::format(" {} {}", min_exclusive ? ">" : ">=", FormatDouble(*min));
+  } else if (max) {
+    bounds = fmt::format(" {} {}", max_exclusive ? "<" : "<=", FormatDouble(*max));
+  }
+  if (!unit.empty()) bounds += fmt::format(" ({})", unit);
+  return bounds;
+}
+
+std::string FormatDouble(double value) {
+  char buffer[64];
+  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
+  assert(result.ec == std::errc());
+  return std::string(buffer, result.ptr);
+}
+
+std::string ClosestMatch(std::string_view word, const std::vector<std::string>& candidates) {
+  std::string best;
+  size_t best_distance = std::max<size_t>(2, word.size() / 3) + 1;
+  for (const std::string& candidate : candidates) {
+    const size_t distance = EditDistance(word, candidate);
+    if (distance < best_distance) {
+      best_distance = distance;
+      best = candidate;
+    }
+  }
+  if (!best.empty() || word.empty()) return best;
+  // A key written without its unit suffix ("rpy" for "rpy_deg").
+  for (const std::string& candidate : candidates) {
+    if (candidate.size() > word.size() && candidate.compare(0, word.size(), word) == 0 &&
+        candidate[word.size()] == '_') {
+      return candidate;
+    }
+  }
+  return best;
+}
+
+// ---- YamlValue ----
+
+YamlValue::YamlValue(YAML::Node node, std::string path, std::shared_ptr<const std::string> file,
+                     YAML::Mark key_mark)
+    : node_(std::move(node)), path_(std::move(path)), file_(std::move(file)), key_mark_(key_mark) {}
+
+core::SourceLocation YamlValue::LocationOf(const YAML::Mark& mark) const {
+  core::SourceLocation location;
+  location.file = *file_;
+  if (!mark.is_null() && mark.line >= 0) {
+    location.line = mark.line + 1;
+    location.column = mark.column + 1;
+  }
+  return location;
+}
+
+core::SourceLocation YamlValue::location() const {
+  // yaml-cpp marks an implicit null at the next token: point at the key instead.
+  if (!node_.IsDefined() || node_.IsNull()) return LocationOf(key_mark_);
+  return LocationOf(node_.Mark());
+}
+
+core::SourceLocation YamlValue::key_location() const { return LocationOf(key_mark_); }
+
+void YamlValue::Fail(const std::string& message) const {
+  throw core::InputError(location(), path_, message);
+}
+
+void YamlValue::FailAtKey(const std::string& message) const {
+  throw core::InputError(key_location(), path_, message);
+}
+
+void YamlValue::FailExpected(const std::string& expected) const {
+  Fail(fmt::format("expected {}, got {}", expected, Describe()));
+}
+
+std::string YamlValue::Describe() const {
+  if (!node_.IsDefined() || node_.IsNull()) return "null (no value)";
+  if (node_.IsMap()) return node_.size() == 0 ? "an empty map" : "a map";
+  if (node_.IsSequence()) {
+    return node_.size() == 0 ? std::string("an empty list")
+                             : fmt::format("a list of {}", node_.size());
+  }
+  if (IsQuoted(node_)) return "the quoted string " + Quote(node_.Scalar());
+  return Quote(node_.Scalar());
+}
+
+YamlValue YamlValue::Child(const YAML::Node& node, std::string path, YAML::Mark key_mark) const {
+  return YamlValue(node, std::move(path), file_, key_mark);
+}
+
+double YamlValue::Number(const NumberRule& rule) const {
+  const std::string expected = "a number" + rule.Describe();
+  if (!node_.IsScalar() || IsQuoted(node_)) FailExpected(expected);
+  std::string_view text = node_.Scalar();
+  if (IsYamlNonFinite(text)) {
+    Fail(fmt::format("expected a finite number{}, got {}", rule.Describe(), Quote(text)));
+  }
+  // YAML 1.2 core-schema decimal floats and integers only: no hex, no '_' separators.
+  const bool decimal_chars = !text.empty() && std::all_of(text.begin(), text.end(), [](char c) {
+    return (c >= '0' && c <= '9') || c == '.' || c == 'e' || c == 'E' || c == '+' || c == '-';
+  });
+  if (!decimal_chars) FailExpected(expected);
+  std::string_view digits = text;
+  if (digits.front() == '+') digits.remove_prefix(1);
+  double value = 0.0;
+  const auto result = std::from_chars(digits.data(), digits.data() + digits.size(), value,
+                                      std::chars_format::general);
+  if (result.ec == std::errc::result_out_of_range) {
+    Fail(fmt::format("expected a finite number{}, got {} (outside the range of a double)",
+                     rule.Describe(), Quote(text)));
+  }
+  if (result.ec != std::errc() || result.ptr != digits.data() + digits.size()) {
+    FailExpected(expected);
+  }
+  if (!std::isfinite(value)) {
+    Fail(fmt::format("expected a finite number{}, got {}", rule.Describe(), Quote(text)));
+  }
+  if (!rule.Accepts(value)) FailExpected(expected);
+  return value;
+}
+
+std::vector<double> YamlValue::Numbers(size_t count, const NumberRule& rule) const {
+  const std::string expected = fmt::format("a list of {} numbers{}", count, rule.Describe());
+  if (!node_.IsSequence()) FailExpected(expected);
+  if (node_.size() != count) FailExpected(expected);
+  std::vector<double> values;
+  values.reserve(count);
+  for (size_t i = 0; i < count; ++i) {
+    const YAML::Node element = node_[i];
+    values.push_back(Child(element, fmt::format("{}[{}]", path_, i), element.Mark()).Number(rule));
+  }
+  return values;
+}
+
+Eigen::Vector3d YamlValue::Vector3(const NumberRule& rule, bool allow_scalar) const {
+  if (allow_scalar && node_.IsScalar()) {
+    const std::string expected = fmt::format("a number or a list of 3 numbers{}", rule.Describe());
+    if (IsQuoted(node_)) FailExpected(expected);
+    return Eigen::Vector3d::Constant(Number(rule));
+  }
+  if (allow_scalar && !node_.IsSequence()) {
+    FailExpected(fmt::format("a number or a list of 3 numbers{}", rule.Describe()));
+  }
+  const std::vector<double> values = Numbers(3, rule);
+  return Eigen::Vector3d(values[0], values[1], values[2]);
+}
+
+uint64_t YamlValue::UnsignedInteger() const {
+  const std::string expected = "a non-negative integer (at most 18446744073709551615)";
+  if (!node_.IsScalar() || IsQuoted(node_)) FailExpected(expected);
+  std::string_view text = node_.Scalar();
+  if (!text.empty() && text.front() == '+') text.remove_prefix(1);
+  const bool all_digits = !text.empty() && std::all_of(text.begin(), text.end(),
+                                                       [](char c) { return c >= '0' && c <= '9'; });
+  if (!all_digits) FailExpected(expected);
+  uint64_t value = 0;
+  const auto result = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (result.ec != std::errc() || result.ptr != text.data() + text.size()) FailExpected(expected);
+  return value;
+}
+
+bool YamlValue::Bool() const {
+  const std::string expected = "true or false";
+  if (!node_.IsScalar() || IsQuoted(node_)) FailExpected(expected);
+  const std::string& text = node_.Scalar();
+  if (text == "true" || text == "True" || text == "TRUE") return true;
+  if (text == "false" || text == "False" || text == "FALSE") return false;
+  FailExpected(expected);
+}
+
+std::string YamlValue::String() const {
+  if (!node_.IsScalar()) FailExpected("a string");
+  return node_.Scalar();
+}
+
+std::string YamlValue::Identifier() const {
+  const std::string expected = "a name of lowercase letters, digits and '_' ([a-z0-9_]+)";
+  if (!node_.IsScalar()) FailExpected(expected);
+  const std::string& text = node_.Scalar();
+  const bool valid = !text.empty() && std::all_of(text.begin(), text.end(), [](char c) {
+    return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_';
+  });
+  if (!valid) FailExpected(expected);
+  return text;
+}
+
+YamlMap YamlValue::Map(std::initializer_list<std::string_view> allowed) const {
+  std::vector<std::string> allowed_keys(allowed.begin(), allowed.end());
+  std::vector<YamlValue> values;
+  std::vector<std::string> keys;
+  if (!node_.IsDefined() || node_.IsNull()) {
+    return YamlMap(*this, std::move(allowed_keys), std::move(values), std::move(keys));
+  }
+  if (!node_.IsMap()) FailExpected(fmt::format("a map (keys: {})", Join(allowed_keys)));
+
+  // Check every key in document order: a scalar, allowed, and not seen before (yaml-cpp
+  // keeps duplicates; lookups would silently pick one of them).
+  std::vector<YAML::Mark> key_marks;
+  for (auto it = node_.begin(); it != node_.end(); ++it) {
+    const YAML::Node key = it->first;
+    if (!key.IsScalar()) {
+      Child(key, path_, key.Mark())
+          .FailExpected(fmt::format("a key name (one of: {})", Join(allowed_keys)));
+    }
+    const std::string& name = key.Scalar();
+    const YamlValue value = Child(it->second, ChildPath(path_, name), key.Mark());
+    const auto previous = std::find(keys.begin(), keys.end(), name);
+    if (previous != keys.end()) {
+      const YAML::Mark first = key_marks[static_cast<size_t>(previous - keys.begin())];
+      value.FailAtKey(fmt::format("duplicate key '{}' (first given at line {}, column {})", name,
+                                  first.line + 1, first.column + 1));
+    }
+    if (std::find(allowed_keys.begin(), allowed_keys.end(), name) == allowed_keys.end()) {
+      const std::string suggestion = ClosestMatch(name, allowed_keys);
+      value.FailAtKey(
+          fmt::format("unknown key {}{}; allowed keys here: {}", Quote(name),
+                      suggestion.empty() ? "" : fmt::format(" (did you mean '{}'?)", suggestion),
+                      Join(allowed_keys)));
+    }
+    keys.push_back(name);
+    key_marks.push_back(key.Mark());
+    values.push_back(value);
+  }
+  return YamlMap(*this, std::move(allowed_keys), std::move(values), std::move(keys));
+}
+
+std::vector<YamlValue> YamlValue::List(bool non_empty) const {
+  std::vector<YamlValue> items;
+  const char* expected = non_empty ? "a non-empty list" : "a list";
+  if (!node_.IsDefined() || node_.IsNull()) {
+    if (non_empty) FailExpected(expected);
+    return items;
+  }
+  if (!node_.IsSequence()) FailExpected(expected);
+  if (non_empty && node_.size() == 0) FailExpected(expected);
+  for (size_t i = 0; i < node_.size(); ++i) {
+    const YAML::Node item = node_[i];
+    // A list item has no key: its own position stands in for the key's. yaml-cpp marks
+    // an empty item ("-" alone) at the next token, so fall back to the list's position.
+    const YAML::Mark mark = item.IsNull() ? node_.Mark() : item.Mark();
+    items.push_back(Child(item, fmt::format("{}[{}]", path_, i), mark));
+  }
+  return items;
+}
+
+// ---- YamlMap ----
+
+YamlMap::YamlMap(YamlValue self, std::vector<std::string> allowed, std::vector<YamlValue> values,
+                 std::vector<std::string> keys)
+    : self_(std::move(self)),
+      allowed_(std::move(allowed)),
+      values_(std::move(values)),
+      keys_(std::move(keys)),
+      consumed_(allowed_.size(), false) {}
+
+std::optional<YamlValue> YamlMap::Optional(std::string_view key) {
+  const auto allowed = std::find(allowed_.begin(), allowed_.end(), key);
+  assert(allowed != allowed_.end() && "key looked up but not declared allowed");
+  if (allowed != allowed_.end()) consumed_[static_cast<size_t>(allowed - allowed_.begin())] = true;
+  const auto found = std::find(keys_.begin(), keys_.end(), key);
+  if (found == keys_.end()) return std::nullopt;
+  return values_[static_cast<size_t>(found - keys_.begin())];
+}
+
+YamlValue YamlMap::Required(std::string_view key) {
+  std::optional<YamlValue> value = Optional(key);
+  if (!value) {
+    throw core::InputError(self_.key_location(), ChildPath(self_.path(), key),
+                           fmt::format("missing required key '{}'{}", key,
+                                       self_.path().empty() ? std::string(" at the top level")
+                                                            : " in '" + self_.path() + "'"));
+  }
+  return *value;
+}
+
+bool YamlMap::Has(std::string_view key) const {
+  return std::find(keys_.begin(), keys_.end(), key) != keys_.end();
+}
+
+void YamlMap::Finish() const {
+  assert(std::all_of(consumed_.begin(), consumed_.end(), [](bool c) { return c; }) &&
+         "an allowed key was never read by the loader");
+}
+
+// ---- document ----
+
+YamlValue ParseDocument(const std::string& text, const std::string& file_label) {
+  auto file = std::make_shared<const std::string>(file_label);
+  std::vector<YAML::Node> documents;
+  try {
+    documents = YAML::LoadAll(text);
+  } catch (const YAML::Exception& e) {
+    core::SourceLocation location{file_label, 0, 0};
+    if (!e.mark.is_null() && e.mark.line >= 0) {
+      location.line = e.mark.line + 1;
+      location.column = e.mark.column + 1;
+    }
+    throw core::InputError(location, "", "YAML syntax error: " + e.msg);
+  }
+  if (documents.empty() || (documents.size() == 1 && documents[0].IsNull())) {
+    throw core::InputError({file_label, 0, 0}, "",
+                           "the file is empty: expected a YAML map of scenario keys");
+  }
+  if (documents.size() > 1) {
+    throw core::InputError(YamlValue(documents[1], "", file, documents[1].Mark()).location(), "",
+                           fmt::format("expected a single YAML document, found {} (remove the "
+                                       "'---' separators)",
+                                       documents.size()));
+  }
+  YamlValue root(documents[0], "", file, documents[0].Mark());
+  if (!root.node().IsMap()) root.FailExpected("a map of scenario keys at the top level");
+  return root;
+}
+
+}  // namespace tofu::harness::internal

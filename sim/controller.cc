@@ -1,0 +1,76 @@
+#include "sim/controller.h"
+
+#include "core/lie.h"
+
+namespace tofu::sim {
+namespace {
+
+Eigen::Vector3d ClampNorm(const Eigen::Vector3d& v, double limit) {
+  const double n = v.norm();
+  return n > limit ? Eigen::Vector3d(v * (limit / n)) : v;
+}
+
+}  // namespace
+
+GeometricController::GeometricController(const ControllerOptions& options,
+                                         const RigidBodyParams& params)
+    : options_(options), params_(params) {}
+
+void GeometricController::Reset() {
+  position_integral_.setZero();
+  attitude_integral_.setZero();
+  last_t_ns_ = -1;
+}
+
+Wrench GeometricController::Compute(const RobotState& state, const Reference& reference) {
+  const double dt_s = last_t_ns_ < 0 ? 0.0 : core::TimeToSeconds(state.t_ns - last_t_ns_);
+  last_t_ns_ = state.t_ns;
+
+  const Eigen::Matrix3d R = state.q_WB.toRotationMatrix();
+  const Eigen::Matrix3d R_d = reference.q_WB.toRotationMatrix();
+
+  // Translation: PID on the position error with acceleration feed-forward; the robot is
+  // fully actuated, so the commanded force is realised in any attitude.
+  const Eigen::Vector3d e_p = state.p_WB - reference.p_WB;
+  const Eigen::Vector3d e_v = state.v_WB_W - reference.v_WB_W;
+  const Eigen::Vector3d Ki_p = options_.position_integral_gain_per_s3;
+  position_integral_ += dt_s * e_p.cwiseMax(-options_.integral_error_band_m)
+                                    .cwiseMin(options_.integral_error_band_m);
+  // Anti-windup: bound the integral's contribution, not the state, per axis gain.
+  const Eigen::Vector3d integral_term =
+      ClampNorm(Ki_p.cwiseProduct(position_integral_), options_.integral_limit_mps2);
+  for (int k = 0; k < 3; ++k) {
+    if (Ki_p(k) > 0.0) position_integral_(k) = integral_term(k) / Ki_p(k);
+  }
+  const Eigen::Vector3d a_cmd_W = reference.a_WB_W -
+                                  options_.position_gain_per_s2.cwiseProduct(e_p) -
+                                  options_.velocity_gain_per_s.cwiseProduct(e_v) - integral_term;
+  const Eigen::Vector3d force_W =
+      params_.mass_kg * (a_cmd_W + Eigen::Vector3d(0.0, 0.0, params_.gravity_mps2));
+
+  // Rotation: Lee et al. (2010) eq. (11)-(12) on SO(3) with an integral term.
+  const Eigen::Matrix3d R_T_Rd = R.transpose() * R_d;
+  const Eigen::Vector3d e_R = 0.5 * core::Vee(R_T_Rd.transpose() - R_T_Rd);
+  const Eigen::Vector3d omega_d_B = R_T_Rd * reference.omega_WB_B;
+  const Eigen::Vector3d alpha_d_B = R_T_Rd * reference.alpha_WB_B;
+  const Eigen::Vector3d e_omega = state.omega_WB_B - omega_d_B;
+  const Eigen::Vector3d Ki_R = options_.attitude_integral_gain_per_s3;
+  attitude_integral_ += dt_s * e_R.cwiseMax(-options_.attitude_integral_error_band_rad)
+                                    .cwiseMin(options_.attitude_integral_error_band_rad);
+  const Eigen::Vector3d attitude_integral_term =
+      ClampNorm(Ki_R.cwiseProduct(attitude_integral_), options_.attitude_integral_limit_radps2);
+  for (int k = 0; k < 3; ++k) {
+    if (Ki_R(k) > 0.0) attitude_integral_(k) = attitude_integral_term(k) / Ki_R(k);
+  }
+  const Eigen::Matrix3d& J = params_.inertia_B_kgm2;
+  const Eigen::Vector3d& w = state.omega_WB_B;
+  const Eigen::Vector3d angular_acc_cmd = -options_.attitude_gain_per_s2.cwiseProduct(e_R) -
+                                          options_.angular_rate_gain_per_s.cwiseProduct(e_omega) -
+                                          attitude_integral_term;
+  const Eigen::Vector3d torque_B = J * angular_acc_cmd + w.cross(J * w) -
+                                   J * (core::Hat(w) * omega_d_B - alpha_d_B);
+
+  return Wrench{R.transpose() * force_W, torque_B};
+}
+
+}  // namespace tofu::sim

@@ -1,0 +1,25 @@
+#include "sim/wind.h"
+
+#include <cmath>
+
+namespace tofu::sim {
+
+Wind::Wind(const WindOptions& options, core::RandomStream stream)
+    : options_(options), stream_(std::move(stream)) {
+  // Start the gust process in its stationary distribution, so no warm-up transient.
+  for (int k = 0; k < 3; ++k) gust_W_(k) = options_.gust_std_mps * stream_.Normal();
+}
+
+void Wind::Advance(double dt_s) {
+  if (options_.gust_std_mps <= 0.0) return;
+  const double phi = std::exp(-dt_s / options_.gust_correlation_time_s);
+  const double sigma_step = options_.gust_std_mps * std::sqrt(1.0 - phi * phi);
+  for (int k = 0; k < 3; ++k) gust_W_(k) = phi * gust_W_(k) + sigma_step * stream_.Normal();
+}
+
+Eigen::Vector3d Wind::DragForce_W(const Eigen::Vector3d& v_WB_W) const {
+  const Eigen::Vector3d v_rel = velocity_W() - v_WB_W;
+  return 0.5 * options_.air_density_kgpm3 * options_.drag_area_m2 * v_rel.norm() * v_rel;
+}
+
+}  // namespace tofu::sim

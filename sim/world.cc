@@ -1,0 +1,434 @@
+#include "sim/world.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fmt/format.h>
+#include <mujoco/mujoco.h>
+
+#include "core/error.h"
+
+namespace tofu::sim {
+namespace {
+
+namespace fs = std::filesystem;
+
+const char* const kRequiredSites[] = {"imu",   "vio_camera",   "lidar",
+                                      "prism", "gnss_antenna", "tool_tip"};
+constexpr int kGroundGeomGroup = 1;     // floors, terrain, water (models/ README)
+constexpr int kStructureGeomGroup = 0;  // world solids
+
+// MuJoCo reports warnings through a global hook; keep the last text so that a bad
+// state turns into an error that says what MuJoCo saw.
+thread_local std::string g_last_mujoco_warning;
+
+void OnMujocoWarning(const char* message) { g_last_mujoco_warning = message; }
+
+[[noreturn]] void OnMujocoError(const char* message) {
+  // MuJoCo's engine errors are internal invariants (e.g. out of memory); unwinding C++
+  // exceptions through its C frames is undefined, so report and stop.
+  std::fprintf(stderr, "tofu: MuJoCo engine error: %s\n", message);
+  std::abort();
+}
+
+void InstallMujocoHandlers() {
+  static const bool installed = [] {
+    mju_user_warning = OnMujocoWarning;
+    mju_user_error = OnMujocoError;
+    return true;
+  }();
+  (void)installed;
+}
+
+Eigen::Vector3d Vec3(const mjtNum* v) { return Eigen::Vector3d(v[0], v[1], v[2]); }
+
+Eigen::Matrix3d Mat3(const mjtNum* m) {
+  Eigen::Matrix3d R;
+  R << m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8];
+  return R;
+}
+
+void RequireModelFile(const fs::path& path, const std::string& key) {
+  if (!fs::is_regular_file(path)) {
+    std::vector<std::string> names;
+    if (fs::is_directory(path.parent_path())) {
+      for (const auto& entry : fs::directory_iterator(path.parent_path())) {
+        if (entry.path().extension() == ".xml") names.push_back(entry.path().stem().string());
+      }
+    }
+    std::sort(names.begin(), names.end());
+    std::string available;
+    for (const auto& n : names) available += (available.empty() ? "" : ", ") + n;
+    throw core::InputError({path.string(), 0, 0}, key,
+                           fmt::format("model file not found; available: {}",
+                                       available.empty() ? "(none)" : available));
+  }
+}
+
+}  // namespace
+
+std::string DefaultModelsDir() {
+  if (const char* env = std::getenv("TOFU_MODELS_DIR"); env != nullptr && *env != '\0') {
+    return env;
+  }
+  return TOFU_DEFAULT_MODELS_DIR;
+}
+
+const MountSite* RobotDescription::FindSite(const std::string& name) const {
+  for (const MountSite& site : sites) {
+    if (site.name == name) return &site;
+  }
+  return nullptr;
+}
+
+struct World::Impl {
+  WorldOptions options;
+  mjModel* m = nullptr;
+  mjData* d = nullptr;
+  RobotDescription robot;
+  int base_body = -1;
+  int qpos_root = 0;  // address of the free joint in qpos
+  int qvel_root = 0;
+  std::array<int, kArmCount> tilt_qpos{};
+  std::array<int, kArmCount> tilt_servo_actuator{};
+  std::array<int, kArmCount> thrust_top_actuator{};
+  std::array<int, kArmCount> thrust_bottom_actuator{};
+  std::array<double, kArmCount> tilt_target_rad{};
+  std::vector<char> is_robot_geom;   // by geom id
+  std::vector<char> is_foot_geom;    // landing gear: ground contact allowed
+  std::array<int, mjNWARNING> warning_count{};
+  TruthState last_step_truth;
+  core::Time timestep_ns = 0;
+  int64_t step_count = 0;
+  std::vector<Contact> contacts_buffer;  // time is step_count * timestep_ns: no float accumulation
+
+  ~Impl() {
+    if (d != nullptr) mj_deleteData(d);
+    if (m != nullptr) mj_deleteModel(m);
+  }
+
+  int Id(int type, const std::string& name, const char* what) const {
+    const int id = mj_name2id(m, type, name.c_str());
+    if (id < 0) {
+      throw core::InputError(
+          {fs::path(options.models_dir) / "robots" / (options.robot + ".xml"), 0, 0}, "robot",
+          fmt::format("the robot model has no {} named '{}'", what, name));
+    }
+    return id;
+  }
+
+  void Load() {
+    const fs::path models = fs::absolute(options.models_dir);
+    RequireModelFile(models / "worlds" / (options.world + ".xml"), "world");
+    RequireModelFile(models / "robots" / (options.robot + ".xml"), "robot");
+    // Compose the scene in memory; includes resolve relative to models/.
+    const std::string scene = fmt::format(
+        "<mujoco model=\"tofu_{0}_{1}\">\n"
+        "  <include file=\"common/materials.xml\"/>\n"
+        "  <include file=\"robots/{1}.xml\"/>\n"
+        "  <include file=\"worlds/{0}.xml\"/>\n"
+        "</mujoco>\n",
+        options.world, options.robot);
+    const std::string scene_path = (models / "scene.xml").string();
+    mjVFS vfs;
+    mj_defaultVFS(&vfs);
+    mj_makeEmptyFileVFS(&vfs, scene_path.c_str(), static_cast<int>(scene.size()));
+    const int file = mj_findFileVFS(&vfs, scene_path.c_str());
+    std::memcpy(vfs.filedata[file], scene.data(), scene.size());
+    char error[1024] = "";
+    m = mj_loadXML(scene_path.c_str(), &vfs, error, sizeof(error));
+    mj_deleteVFS(&vfs);
+    if (m == nullptr) {
+      throw core::InputError({(models / "worlds" / (options.world + ".xml")).string(), 0, 0},
+                             "world", fmt::format("MuJoCo could not load the scene: {}", error));
+    }
+    m->opt.timestep = 1.0 / options.physics_rate_hz;
+    m->opt.integrator = mjINT_EULER;
+    timestep_ns = core::PeriodFromRate(options.physics_rate_hz);
+    d = mj_makeData(m);
+  }
+
+  void IndexRobot() {
+    base_body = Id(mjOBJ_BODY, "base", "body");
+    const int root_joint = Id(mjOBJ_JOINT, "root", "joint");
+    if (m->jnt_type[root_joint] != mjJNT_FREE || m->jnt_bodyid[root_joint] != base_body) {
+      throw core::InputError({options.robot, 0, 0}, "robot",
+                             "joint 'root' must be the free joint of body 'base'");
+    }
+    qpos_root = m->jnt_qposadr[root_joint];
+    qvel_root = m->jnt_dofadr[root_joint];
+    for (int k = 0; k < kArmCount; ++k) {
+      const int joint = Id(mjOBJ_JOINT, fmt::format("tilt_{}", k + 1), "joint");
+      tilt_qpos[k] = m->jnt_qposadr[joint];
+      tilt_servo_actuator[k] = Id(mjOBJ_ACTUATOR, fmt::format("tilt_servo_{}", k + 1), "actuator");
+      thrust_top_actuator[k] = Id(mjOBJ_ACTUATOR, fmt::format("thrust_{}_top", k + 1), "actuator");
+      thrust_bottom_actuator[k] =
+          Id(mjOBJ_ACTUATOR, fmt::format("thrust_{}_bottom", k + 1), "actuator");
+    }
+    is_robot_geom.assign(m->ngeom, 0);
+    is_foot_geom.assign(m->ngeom, 0);
+    for (int g = 0; g < m->ngeom; ++g) {
+      const int body = m->geom_bodyid[g];
+      if (m->body_rootid[body] != base_body) continue;
+      if (m->geom_contype[g] == 0 && m->geom_conaffinity[g] == 0) continue;
+      is_robot_geom[g] = 1;
+      const char* name = mj_id2name(m, mjOBJ_GEOM, g);
+      is_foot_geom[g] = name != nullptr && std::strncmp(name, "foot", 4) == 0;
+      // Distances to structure within the horizon are measured by MuJoCo's contact
+      // margin; an equal gap keeps those contacts out of the constraint solver.
+      m->geom_margin[g] = options.distance_horizon_m;
+      m->geom_gap[g] = options.distance_horizon_m;
+    }
+  }
+
+  // Mass properties, arm geometry and mounts, read at the zero-tilt, level pose.
+  void DescribeRobot() {
+    mj_resetData(m, d);
+    for (int k = 0; k < 4; ++k) d->qpos[qpos_root + 3 + k] = (k == 0) ? 1.0 : 0.0;
+    mj_forward(m, d);
+    const Eigen::Vector3d p_W_base = Vec3(d->xpos + 3 * base_body);
+    const Eigen::Matrix3d R_W_base = Mat3(d->xmat + 9 * base_body);
+    const Eigen::Vector3d p_W_com = Vec3(d->subtree_com + 3 * base_body);
+
+    RigidBodyParams& rb = robot.rigid_body;
+    rb.mass_kg = m->body_subtreemass[base_body];
+    rb.gravity_mps2 = -m->opt.gravity[2];
+    Eigen::Matrix3d inertia_W = Eigen::Matrix3d::Zero();
+    for (int b = 0; b < m->nbody; ++b) {
+      if (m->body_rootid[b] != base_body) continue;
+      const Eigen::Matrix3d R_W_principal = Mat3(d->ximat + 9 * b);
+      const Eigen::Vector3d r = Vec3(d->xipos + 3 * b) - p_W_com;
+      const double mass = m->body_mass[b];
+      // Parallel-axis theorem about the composite CoM.
+      inertia_W += R_W_principal * Vec3(m->body_inertia + 3 * b).asDiagonal() *
+                       R_W_principal.transpose() +
+                   mass * (r.squaredNorm() * Eigen::Matrix3d::Identity() - r * r.transpose());
+    }
+    rb.inertia_B_kgm2 = R_W_base.transpose() * inertia_W * R_W_base;
+    robot.p_B_CoM = R_W_base.transpose() * (p_W_com - p_W_base);
+
+    AllocationParams& alloc = robot.allocation;
+    for (int k = 0; k < kArmCount; ++k) {
+      const int joint = Id(mjOBJ_JOINT, fmt::format("tilt_{}", k + 1), "joint");
+      alloc.arms[k].p_CoM_hinge_B =
+          R_W_base.transpose() * (Vec3(d->xanchor + 3 * joint) - p_W_com);
+      alloc.arms[k].tilt_axis_B = (R_W_base.transpose() * Vec3(d->xaxis + 3 * joint)).normalized();
+    }
+    const int servo = tilt_servo_actuator[0];
+    alloc.tilt_min_rad = m->actuator_ctrlrange[2 * servo];
+    alloc.tilt_max_rad = m->actuator_ctrlrange[2 * servo + 1];
+    const int thrust = thrust_top_actuator[0];
+    alloc.rotor_min_thrust_N = m->actuator_ctrlrange[2 * thrust];
+    alloc.rotor_max_thrust_N = m->actuator_ctrlrange[2 * thrust + 1];
+
+    const int rate_id = mj_name2id(m, mjOBJ_NUMERIC, "tilt_servo_max_rate_radps");
+    if (rate_id >= 0 && m->numeric_size[rate_id] >= 1) {
+      robot.tilt_servo_max_rate_radps = m->numeric_data[m->numeric_adr[rate_id]];
+    }
+
+    robot.sites.clear();
+    for (const char* name : kRequiredSites) {
+      const int site = Id(mjOBJ_SITE, name, "site");
+      MountSite mount;
+      mount.name = name;
+      mount.p_B_s = R_W_base.transpose() * (Vec3(d->site_xpos + 3 * site) - p_W_base);
+      mount.q_B_s = Eigen::Quaterniond(R_W_base.transpose() * Mat3(d->site_xmat + 9 * site));
+      mount.q_B_s.normalize();
+      if (mount.q_B_s.w() < 0.0) mount.q_B_s.coeffs() *= -1.0;
+      robot.sites.push_back(mount);
+    }
+  }
+
+  TruthState ReadState() const {
+    TruthState s;
+    s.t_ns = step_count * timestep_ns;
+    s.p_WB = Vec3(d->qpos + qpos_root);
+    const mjtNum* q = d->qpos + qpos_root + 3;
+    s.q_WB = Eigen::Quaterniond(q[0], q[1], q[2], q[3]).normalized();
+    // MuJoCo's free joint: linear velocity in W, angular velocity in the body frame.
+    s.v_WB_W = Vec3(d->qvel + qvel_root);
+    s.omega_WB_B = Vec3(d->qvel + qvel_root + 3);
+    for (int k = 0; k < kArmCount; ++k) s.tilt_rad[k] = d->qpos[tilt_qpos[k]];
+    return s;
+  }
+
+  void CheckWarnings() {
+    for (int w = 0; w < mjNWARNING; ++w) {
+      if (d->warning[w].number == warning_count[w]) continue;
+      warning_count[w] = d->warning[w].number;
+      if (w == mjWARN_VGEOMFULL) continue;  // a rendering limit, not a physics fault
+      static const char* const kWhat[mjNWARNING] = {
+          "near-singular inertia", "contact buffer full", "constraint buffer full",
+          "visual geom buffer full", "non-finite qpos", "non-finite qvel",
+          "non-finite or huge qacc (MuJoCo would silently reset the simulation)",
+          "non-finite ctrl"};
+      throw core::SimulationError(fmt::format(
+          "simulation failed at t = {:.3f} s: MuJoCo warning: {} ({})", d->time, kWhat[w],
+          g_last_mujoco_warning));
+    }
+  }
+};
+
+World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
+  InstallMujocoHandlers();
+  impl_->options = options;
+  impl_->Load();
+  impl_->IndexRobot();
+  impl_->DescribeRobot();
+  Reset(Waypoint{Eigen::Vector3d(0.0, 0.0, 1.0), Eigen::Quaterniond::Identity()});
+}
+
+World::~World() = default;
+
+const RobotDescription& World::robot() const { return impl_->robot; }
+const WorldOptions& World::options() const { return impl_->options; }
+const mjModel_* World::model() const { return impl_->m; }
+const mjData_* World::data() const { return impl_->d; }
+core::Time World::time_ns() const { return impl_->step_count * impl_->timestep_ns; }
+core::Time World::timestep_ns() const { return impl_->timestep_ns; }
+
+void World::Reset(const Waypoint& pose) {
+  Impl& s = *impl_;
+  mj_resetData(s.m, s.d);
+  s.step_count = 0;
+  const Eigen::Quaterniond q = pose.q_WB.normalized();
+  for (int k = 0; k < 3; ++k) s.d->qpos[s.qpos_root + k] = pose.p_WB(k);
+  s.d->qpos[s.qpos_root + 3] = q.w();
+  s.d->qpos[s.qpos_root + 4] = q.x();
+  s.d->qpos[s.qpos_root + 5] = q.y();
+  s.d->qpos[s.qpos_root + 6] = q.z();
+
+  // Hover allocation at this attitude: gravity compensation about the CoM.
+  const Allocator allocator(s.robot.allocation);
+  const RigidBodyParams& rb = s.robot.rigid_body;
+  const Wrench hover{q.toRotationMatrix().transpose() *
+                         Eigen::Vector3d(0.0, 0.0, rb.mass_kg * rb.gravity_mps2),
+                     Eigen::Vector3d::Zero()};
+  const AllocationResult a = allocator.Allocate(hover, {});
+  for (int k = 0; k < kArmCount; ++k) {
+    s.d->qpos[s.tilt_qpos[k]] = a.command.tilt_rad[k];
+    s.tilt_target_rad[k] = a.command.tilt_rad[k];
+    s.d->ctrl[s.tilt_servo_actuator[k]] = a.command.tilt_rad[k];
+    for (const int act : {s.thrust_top_actuator[k], s.thrust_bottom_actuator[k]}) {
+      s.d->ctrl[act] = a.command.rotor_thrust_N[k];
+      // Filter actuators: spin the motors up to the hover thrust already. In MuJoCo 2.2
+      // the activations belong to the last na actuators, in order.
+      const int act_index = act - (s.m->nu - s.m->na);
+      if (s.m->actuator_dyntype[act] != mjDYN_NONE && act_index >= 0) {
+        s.d->act[act_index] = a.command.rotor_thrust_N[k];
+      }
+    }
+  }
+  mj_forward(s.m, s.d);
+  for (int w = 0; w < mjNWARNING; ++w) s.warning_count[w] = s.d->warning[w].number;
+  s.last_step_truth = s.ReadState();
+}
+
+void World::SetCommand(const ActuatorCommand& command) {
+  Impl& s = *impl_;
+  for (int k = 0; k < kArmCount; ++k) {
+    s.tilt_target_rad[k] = command.tilt_rad[k];
+    s.d->ctrl[s.thrust_top_actuator[k]] = command.rotor_thrust_N[k];
+    s.d->ctrl[s.thrust_bottom_actuator[k]] = command.rotor_thrust_N[k];
+  }
+}
+
+void World::SetExternalForce_W(const Eigen::Vector3d& force_W) {
+  mjtNum* f = impl_->d->xfrc_applied + 6 * impl_->base_body;
+  for (int k = 0; k < 3; ++k) f[k] = force_W(k);
+}
+
+const TruthState& World::Step() {
+  Impl& s = *impl_;
+  // Servo set-points move towards their targets no faster than the servo can turn.
+  const double max_step_rad = s.robot.tilt_servo_max_rate_radps * s.m->opt.timestep;
+  for (int k = 0; k < kArmCount; ++k) {
+    double& setpoint = s.d->ctrl[s.tilt_servo_actuator[k]];
+    setpoint += std::clamp(s.tilt_target_rad[k] - setpoint, -max_step_rad, max_step_rad);
+  }
+  TruthState truth = s.ReadState();
+  mj_step(s.m, s.d);
+  ++s.step_count;
+  s.CheckWarnings();
+  // With the Euler integrator, qacc is the acceleration at the pre-step state.
+  truth.a_WB_W = Vec3(s.d->qacc + s.qvel_root);
+  truth.alpha_WB_B = Vec3(s.d->qacc + s.qvel_root + 3);
+  if (!truth.p_WB.allFinite() || !truth.a_WB_W.allFinite()) {
+    throw core::SimulationError(
+        fmt::format("simulation failed at t = {:.3f} s: non-finite robot state", s.d->time));
+  }
+  s.last_step_truth = truth;
+  return s.last_step_truth;
+}
+
+TruthState World::Truth() const {
+  TruthState s = impl_->ReadState();
+  s.a_WB_W = impl_->last_step_truth.a_WB_W;
+  s.alpha_WB_B = impl_->last_step_truth.alpha_WB_B;
+  return s;
+}
+
+const std::vector<Contact>& World::Contacts() const {
+  const Impl& s = *impl_;
+  std::vector<Contact>& contacts = impl_->contacts_buffer;
+  contacts.clear();
+  for (int i = 0; i < s.d->ncon; ++i) {
+    const mjContact& c = s.d->contact[i];
+    if (c.dist >= 0.0) continue;
+    int robot_geom = c.geom1;
+    int other = c.geom2;
+    if (!s.is_robot_geom[robot_geom]) std::swap(robot_geom, other);
+    if (!s.is_robot_geom[robot_geom] || s.is_robot_geom[other]) continue;
+    if (s.is_foot_geom[robot_geom] && s.m->geom_group[other] == kGroundGeomGroup) continue;
+    contacts.push_back({robot_geom, other, c.dist});
+  }
+  return contacts;
+}
+
+std::optional<Proximity> World::ClosestStructure() const {
+  const Impl& s = *impl_;
+  std::optional<Proximity> closest;
+  for (int i = 0; i < s.d->ncon; ++i) {
+    const mjContact& c = s.d->contact[i];
+    const bool robot1 = s.is_robot_geom[c.geom1];
+    if (robot1 == static_cast<bool>(s.is_robot_geom[c.geom2])) continue;
+    const int other = robot1 ? c.geom2 : c.geom1;
+    if (s.m->geom_group[other] != kStructureGeomGroup) continue;
+    if (!closest || c.dist < closest->distance_m) {
+      closest = Proximity{c.dist, robot1 ? c.geom1 : c.geom2, other};
+    }
+  }
+  return closest;
+}
+
+std::string World::GeomName(int geom_id) const {
+  const char* name = mj_id2name(impl_->m, mjOBJ_GEOM, geom_id);
+  return name != nullptr ? std::string(name) : fmt::format("geom{}", geom_id);
+}
+
+std::optional<double> World::RayDistance(const Eigen::Vector3d& origin_W,
+                                         const Eigen::Vector3d& direction_W) const {
+  const Impl& s = *impl_;
+  const Eigen::Vector3d dir = direction_W.normalized();
+  mjtByte groups[mjNGROUP] = {};
+  groups[kStructureGeomGroup] = 1;
+  groups[kGroundGeomGroup] = 1;
+  int geom_id = -1;
+  const mjtNum distance = mj_ray(s.m, s.d, origin_W.data(), dir.data(), groups, 1, -1, &geom_id);
+  if (distance < 0.0) return std::nullopt;
+  return distance;
+}
+
+Eigen::Isometry3d World::SitePose_W(const std::string& site) const {
+  const Impl& s = *impl_;
+  const int id = s.Id(mjOBJ_SITE, site, "site");
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Mat3(s.d->site_xmat + 9 * id);
+  T.translation() = Vec3(s.d->site_xpos + 3 * id);
+  return T;
+}
+
+}  // namespace tofu::sim

@@ -1,0 +1,141 @@
+#pragma once
+// The simulated world: a MuJoCo scene composed of models/common/materials.xml, a robot
+// (models/robots/<robot>.xml) and a world (models/worlds/<world>.xml), stepped at the
+// physics rate. MuJoCo stays behind this class: its load errors become InputErrors, its
+// bad-state warnings (which would otherwise silently reset the simulation) become
+// SimulationErrors.
+
+#include <array>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/time.h"
+#include "sim/allocation.h"
+#include "sim/controller.h"
+#include "sim/trajectory.h"
+
+struct mjModel_;
+struct mjData_;
+
+namespace tofu::sim {
+
+/// Directory of the MJCF models: $TOFU_MODELS_DIR if set, else the source tree's.
+std::string DefaultModelsDir();
+
+struct WorldOptions {
+  std::string models_dir = DefaultModelsDir();
+  std::string world;           ///< models/worlds/<world>.xml
+  std::string robot = "omav";  ///< models/robots/<robot>.xml
+  double physics_rate_hz = 1000.0;
+  /// Robot-to-structure distances are tracked up to this range [m] (MuJoCo contact
+  /// margin with an equal gap: measured, never a constraint).
+  double distance_horizon_m = 1.0;
+};
+
+/// A mount site on the robot: pose of the site frame s in B.
+struct MountSite {
+  std::string name;
+  Eigen::Vector3d p_B_s = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_B_s = Eigen::Quaterniond::Identity();
+};
+
+/// What the harness and the controller need to know of the robot, read from the model.
+struct RobotDescription {
+  RigidBodyParams rigid_body;   ///< mass, inertia about CoM in B (zero tilt), gravity
+  Eigen::Vector3d p_B_CoM = Eigen::Vector3d::Zero();
+  AllocationParams allocation;  ///< arm geometry about the CoM, thrust and tilt limits
+  double tilt_servo_max_rate_radps = 5.0;
+  std::vector<MountSite> sites;  ///< imu, vio_camera, lidar, prism, gnss_antenna, tool_tip
+  const MountSite* FindSite(const std::string& name) const;
+};
+
+/// Ground truth of the body frame B at one physics step.
+struct TruthState {
+  core::Time t_ns = 0;
+  Eigen::Vector3d p_WB = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_WB = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d v_WB_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d omega_WB_B = Eigen::Vector3d::Zero();
+  Eigen::Vector3d a_WB_W = Eigen::Vector3d::Zero();      ///< d/dt v_WB_W
+  Eigen::Vector3d alpha_WB_B = Eigen::Vector3d::Zero();  ///< d/dt omega_WB_B
+  std::array<double, kArmCount> tilt_rad{};
+};
+
+/// A robot-structure contact with penetration (the ground under the feet excluded).
+/// Geoms are MuJoCo ids; World::GeomName() names them.
+struct Contact {
+  int robot_geom = -1;
+  int structure_geom = -1;
+  double distance_m = 0.0;  ///< negative: penetration depth
+};
+
+/// Closest robot-structure pair within the distance horizon (ground excluded).
+struct Proximity {
+  double distance_m = 0.0;
+  int robot_geom = -1;
+  int structure_geom = -1;
+};
+
+class World {
+ public:
+  /// Loads and compiles the scene. Throws core::InputError when a model is missing or
+  /// MuJoCo rejects it (its message included), or the robot lacks a required element.
+  explicit World(const WorldOptions& options);
+  ~World();
+  World(const World&) = delete;
+  World& operator=(const World&) = delete;
+
+  const RobotDescription& robot() const;
+  const WorldOptions& options() const;
+
+  /// Places the robot at `pose` at rest, time 0, with rotors spun up and tilts set to
+  /// the hover allocation of that attitude (no start-up transient).
+  void Reset(const Waypoint& pose);
+
+  /// Actuator set-points; tilt targets reach the servos through the slew-rate limit.
+  void SetCommand(const ActuatorCommand& command);
+
+  /// External force on the robot's centre of mass in W [N], held until changed.
+  void SetExternalForce_W(const Eigen::Vector3d& force_W);
+
+  /// Advances the physics by one step. Returns the truth at the start of the step
+  /// (state and the acceleration that the step integrates). Throws SimulationError on
+  /// MuJoCo's bad qpos/qvel/qacc warnings or a non-finite state.
+  const TruthState& Step();
+
+  /// Ground truth now (state only; acceleration is that of the previous step).
+  TruthState Truth() const;
+  core::Time time_ns() const;
+  core::Time timestep_ns() const;
+
+  /// Robot-structure contacts with penetration after the last step. The reference
+  /// stays valid until the next call (no allocation per step).
+  const std::vector<Contact>& Contacts() const;
+  /// Closest robot-structure pair after the last step, if within the horizon.
+  std::optional<Proximity> ClosestStructure() const;
+
+  /// Distance along a ray to the first structure or ground surface (robot ignored).
+  std::optional<double> RayDistance(const Eigen::Vector3d& origin_W,
+                                    const Eigen::Vector3d& direction_W) const;
+
+  /// Name of a geom, or "geom<id>" when it has none.
+  std::string GeomName(int geom_id) const;
+
+  /// Pose of a robot site in W now.
+  Eigen::Isometry3d SitePose_W(const std::string& site) const;
+
+  /// Raw MuJoCo access for sim-internal consumers (sensor models, renderer).
+  const mjModel_* model() const;
+  const mjData_* data() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tofu::sim
