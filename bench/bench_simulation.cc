@@ -1,0 +1,80 @@
+// Simulation speed: the harness's run loop on a 200 s scenario at 1 kHz physics against
+// bare mj_step on the very same compiled model. Results go to docs/BENCHMARKS.md.
+//
+//   build/bench/bench_simulation --benchmark_repetitions=3
+
+#include <benchmark/benchmark.h>
+#include <mujoco/mujoco.h>
+
+#include "harness/run.h"
+#include "harness/scenario.h"
+#include "sim/world.h"
+
+namespace {
+
+using tofu::harness::Scenario;
+
+constexpr double kDurationS = 200.0;
+
+// Two-lap figure-eights repeated for 200 s in the indoor arena with gusts: controller,
+// trajectory, wind, contacts and distance queries all active.
+Scenario BenchScenario() {
+  return tofu::harness::ParseScenario(R"(
+name: bench_figure_eight
+world: indoor_arena
+duration_s: 200
+seed: 1
+wind: {gust_std_mps: 0.2}
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  limits: {max_speed_mps: 1.0, max_acceleration_mps2: 2.0}
+  segments:
+    - figure_eight: {center_m: [0, 0, 1.5], half_length_m: 2.0, half_width_m: 1.2, speed_mps: 1.0, laps: 14}
+)",
+                                      "bench_figure_eight");
+}
+
+void BM_HarnessRun200s(benchmark::State& state) {
+  const Scenario scenario = BenchScenario();
+  double simulated_s = 0.0;
+  for (auto _ : state) {
+    const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario);
+    benchmark::DoNotOptimize(record.groundtruth.data());
+    simulated_s += static_cast<double>(record.physics_steps) / scenario.physics.rate_hz;
+  }
+  state.counters["real_time_factor"] =
+      benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
+  state.counters["steps_per_s"] =
+      benchmark::Counter(simulated_s * scenario.physics.rate_hz, benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_HarnessRun200s)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+// Bare mj_step on the same compiled model (the harness's margins included), the robot
+// hovering on constant hover controls: the floor under any harness overhead.
+void BM_BareMjStep200s(benchmark::State& state) {
+  tofu::sim::WorldOptions options;
+  options.world = "indoor_arena";
+  tofu::sim::World world(options);
+  world.Reset({Eigen::Vector3d(0, 0, 1.5), Eigen::Quaterniond::Identity()});
+  mjModel* m = mj_copyModel(nullptr, world.model());
+  mjData* d = mj_makeData(m);
+  const auto steps = static_cast<int64_t>(kDurationS / m->opt.timestep);
+  double simulated_s = 0.0;
+  for (auto _ : state) {
+    mj_copyData(d, m, world.data());
+    for (int64_t k = 0; k < steps; ++k) mj_step(m, d);
+    benchmark::DoNotOptimize(d->qpos[0]);
+    simulated_s += kDurationS;
+  }
+  state.counters["real_time_factor"] =
+      benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
+  state.counters["steps_per_s"] =
+      benchmark::Counter(simulated_s / m->opt.timestep, benchmark::Counter::kIsRate);
+  mj_deleteData(d);
+  mj_deleteModel(m);
+}
+BENCHMARK(BM_BareMjStep200s)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+}  // namespace
+
+BENCHMARK_MAIN();
