@@ -266,8 +266,8 @@ struct World::Impl {
           "non-finite or huge qacc (MuJoCo would silently reset the simulation)",
           "non-finite ctrl"};
       throw core::SimulationError(fmt::format(
-          "simulation failed at t = {:.3f} s: MuJoCo warning: {} ({})", d->time, kWhat[w],
-          g_last_mujoco_warning));
+          "simulation failed at t = {:.3f} s: MuJoCo warning: {} ({})",
+          core::TimeToSeconds((step_count - 1) * timestep_ns), kWhat[w], g_last_mujoco_warning));
     }
   }
 };
@@ -420,6 +420,92 @@ std::optional<double> World::RayDistance(const Eigen::Vector3d& origin_W,
   const mjtNum distance = mj_ray(s.m, s.d, origin_W.data(), dir.data(), groups, 1, -1, &geom_id);
   if (distance < 0.0) return std::nullopt;
   return distance;
+}
+
+namespace {
+
+// Outward surface normal of a primitive geom at a point on its surface, in W.
+Eigen::Vector3d GeomSurfaceNormal_W(const mjModel* m, const mjData* d, int g,
+                                    const Eigen::Vector3d& point_W,
+                                    const Eigen::Vector3d& ray_dir_W) {
+  const Eigen::Matrix3d R = Mat3(d->geom_xmat + 9 * g);
+  const Eigen::Vector3d p = R.transpose() * (point_W - Vec3(d->geom_xpos + 3 * g));
+  const mjtNum* size = m->geom_size + 3 * g;
+  Eigen::Vector3d n_local = Eigen::Vector3d::Zero();
+  switch (m->geom_type[g]) {
+    case mjGEOM_PLANE:
+      n_local = Eigen::Vector3d::UnitZ();
+      break;
+    case mjGEOM_SPHERE:
+    case mjGEOM_ELLIPSOID:
+      n_local = p;
+      break;
+    case mjGEOM_BOX: {
+      // The face whose normalised coordinate is largest.
+      int axis = 0;
+      double best = -1.0;
+      for (int k = 0; k < 3; ++k) {
+        const double r = std::abs(p(k)) / size[k];
+        if (r > best) {
+          best = r;
+          axis = k;
+        }
+      }
+      n_local(axis) = p(axis) >= 0.0 ? 1.0 : -1.0;
+      break;
+    }
+    case mjGEOM_CYLINDER:
+      if (std::abs(std::abs(p.z()) - size[1]) < 1e-6 * (1.0 + size[1]) ||
+          std::hypot(p.x(), p.y()) < size[0] * (1.0 - 1e-6)) {
+        n_local = Eigen::Vector3d(0.0, 0.0, p.z() >= 0.0 ? 1.0 : -1.0);
+      } else {
+        n_local = Eigen::Vector3d(p.x(), p.y(), 0.0);
+      }
+      break;
+    case mjGEOM_CAPSULE:
+      n_local = p - Eigen::Vector3d(0.0, 0.0, std::clamp(p.z(), -size[1], size[1]));
+      break;
+    default:  // meshes, height fields: facing the ray is the best we know cheaply
+      return -ray_dir_W.normalized();
+  }
+  Eigen::Vector3d n = (R * n_local).normalized();
+  if (n.dot(ray_dir_W) > 0.0) n = -n;  // face the ray origin (e.g. hits on a plane's back)
+  return n;
+}
+
+}  // namespace
+
+std::optional<RayHit> World::CastRay(const Eigen::Vector3d& origin_W,
+                                     const Eigen::Vector3d& direction_W,
+                                     uint32_t groups) const {
+  const Impl& s = *impl_;
+  const Eigen::Vector3d dir = direction_W.normalized();
+  mjtByte group_mask[mjNGROUP] = {};
+  for (int g = 0; g < mjNGROUP; ++g) group_mask[g] = (groups >> g) & 1u;
+  int geom = -1;
+  const mjtNum distance = mj_ray(s.m, s.d, origin_W.data(), dir.data(), group_mask, 1, -1, &geom);
+  if (distance < 0.0 || geom < 0) return std::nullopt;
+  RayHit hit;
+  hit.distance_m = distance;
+  hit.geom = geom;
+  hit.point_W = origin_W + distance * dir;
+  hit.normal_W = GeomSurfaceNormal_W(s.m, s.d, geom, hit.point_W, dir);
+  const int material = s.m->geom_matid[geom];
+  hit.textured = material >= 0 && s.m->mat_texid[material] >= 0;
+  hit.group = s.m->geom_group[geom];
+  return hit;
+}
+
+std::array<double, kArmCount * kRotorsPerArm> World::RotorThrusts_N() const {
+  const Impl& s = *impl_;
+  std::array<double, kArmCount * kRotorsPerArm> thrust{};
+  for (int k = 0; k < kArmCount; ++k) {
+    const int actuators[2] = {s.thrust_top_actuator[k], s.thrust_bottom_actuator[k]};
+    for (int r = 0; r < kRotorsPerArm; ++r) {
+      thrust[kRotorsPerArm * k + r] = s.d->actuator_force[actuators[r]];
+    }
+  }
+  return thrust;
 }
 
 Eigen::Isometry3d World::SitePose_W(const std::string& site) const {

@@ -66,6 +66,22 @@ struct TruthState {
   std::array<double, kArmCount> tilt_rad{};
 };
 
+/// Where a ray met a surface.
+struct RayHit {
+  double distance_m = 0.0;
+  int geom = -1;  ///< MuJoCo geom id (World::GeomName names it)
+  Eigen::Vector3d point_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d normal_W = Eigen::Vector3d::Zero();  ///< unit, facing the ray origin
+  bool textured = false;  ///< the geom's material has a texture (gives camera features)
+  int group = 0;          ///< geom group (0 structure, 1 ground, 2/3 robot, 4 decoration)
+};
+
+/// Geom groups a ray sees, as a bit mask over groups (bit g = group g).
+enum RayGroups : uint32_t {
+  kRayScene = (1u << 0) | (1u << 1),            ///< structure and ground
+  kRaySceneAndRobot = kRayScene | (1u << 3),    ///< plus the robot's visual shapes
+};
+
 /// A robot-structure contact with penetration (the ground under the feet excluded).
 /// Geoms are MuJoCo ids; World::GeomName() names them.
 struct Contact {
@@ -123,10 +139,19 @@ class World {
   std::optional<double> RayDistance(const Eigen::Vector3d& origin_W,
                                     const Eigen::Vector3d& direction_W) const;
 
+  /// First surface along a ray (direction need not be normalised) among the geom
+  /// groups of `groups`, with its normal and material; nullopt if nothing is hit.
+  std::optional<RayHit> CastRay(const Eigen::Vector3d& origin_W,
+                                const Eigen::Vector3d& direction_W,
+                                uint32_t groups = kRayScene) const;
+
+  /// Actual (motor-filtered) rotor thrusts [N], arm-major: [arm0 top, arm0 bottom, ...].
+  std::array<double, kArmCount * kRotorsPerArm> RotorThrusts_N() const;
+
   /// Name of a geom, or "geom<id>" when it has none.
   std::string GeomName(int geom_id) const;
 
-  /// Pose of a robot site in W now.
+  /// Pose of a site (robot mount or world site, e.g. "station_tripod") in W now.
   Eigen::Isometry3d SitePose_W(const std::string& site) const;
 
   /// Raw MuJoCo access for sim-internal consumers (sensor models, renderer).

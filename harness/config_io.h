@@ -1,0 +1,42 @@
+#pragma once
+// Private to harness: small readers and writers shared by every config section (the
+// scenario's own keys and each sensor's options), on top of yaml_reader.h. Readers of
+// optional keys leave the struct's in-class default when the key is absent, so default
+// values are written exactly once, in the option structs.
+
+#include <optional>
+#include <string_view>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <yaml-cpp/yaml.h>
+
+#include "harness/yaml_reader.h"
+
+namespace tofu::harness::internal::config {
+
+inline constexpr double kRadPerDeg = 3.14159265358979323846 / 180.0;
+inline constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
+
+/// Attitude in YAML: roll, pitch, yaw in degrees, R = Rz(yaw) Ry(pitch) Rx(roll).
+Eigen::Quaterniond QuatFromRpyDeg(const Eigen::Vector3d& rpy_deg);
+/// Inverse of QuatFromRpyDeg, pitch in [-90, 90], roll and yaw in [-180, 180].
+Eigen::Vector3d RpyDegFromQuat(const Eigen::Quaterniond& q);
+
+void ReadNumber(YamlMap& map, std::string_view key, const NumberRule& rule, double* out);
+void ReadVector(YamlMap& map, std::string_view key, const NumberRule& rule, bool allow_scalar,
+                Eigen::Vector3d* out);
+/// A key in degrees (or deg/s, ...) stored in radians.
+void ReadDegrees(YamlMap& map, std::string_view key, const NumberRule& rule, double* out_rad);
+/// Optional `rpy_deg` key as a quaternion.
+std::optional<Eigen::Quaterniond> ReadRpy(YamlMap& map);
+/// Optional key as a non-negative integer in [lo, hi].
+void ReadInteger(YamlMap& map, std::string_view key, int lo, int hi, int* out);
+void ReadBool(YamlMap& map, std::string_view key, bool* out);
+
+/// Round-trip number formatting for the resolved scenario.
+void EmitNumber(YAML::Emitter& out, std::string_view key, double value);
+void EmitVector(YAML::Emitter& out, const Eigen::Vector3d& v);
+void EmitVector(YAML::Emitter& out, std::string_view key, const Eigen::Vector3d& value);
+
+}  // namespace tofu::harness::internal::config
