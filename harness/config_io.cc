@@ -1,6 +1,8 @@
 #include "harness/config_io.h"
 
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <string>
 
 #include <fmt/format.h>
@@ -81,6 +83,30 @@ void EmitVector(YAML::Emitter& out, const Eigen::Vector3d& v) {
 void EmitVector(YAML::Emitter& out, std::string_view key, const Eigen::Vector3d& value) {
   out << YAML::Key << std::string(key) << YAML::Value;
   EmitVector(out, value);
+}
+
+namespace {
+double RoundSignificant(double value, int digits) {
+  if (value == 0.0 || !std::isfinite(value)) return value;
+  char text[64];
+  std::snprintf(text, sizeof(text), "%.*g", digits, value);
+  return std::strtod(text, nullptr) + 0.0;  // + 0.0: no "-0" in the output
+}
+}  // namespace
+
+void EmitRpyDeg(YAML::Emitter& out, std::string_view key, const Eigen::Quaterniond& q) {
+  const Eigen::Vector3d rpy = RpyDegFromQuat(q);
+  Eigen::Vector3d rounded;
+  for (int k = 0; k < 3; ++k) rounded(k) = RoundSignificant(rpy(k), 12);
+  // Near gimbal lock roll and yaw are ill-conditioned: keep the rounding only where it
+  // reproduces the attitude to rounding error.
+  const bool faithful =
+      QuatFromRpyDeg(rounded).angularDistance(q.normalized()) < 1e-14;
+  EmitVector(out, key, faithful ? rounded : rpy);
+}
+
+void EmitDegrees(YAML::Emitter& out, std::string_view key, double value_rad) {
+  EmitNumber(out, key, RoundSignificant(value_rad * kDegPerRad, 12));
 }
 
 }  // namespace tofu::harness::internal::config

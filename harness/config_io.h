@@ -38,5 +38,11 @@ void ReadBool(YamlMap& map, std::string_view key, bool* out);
 void EmitNumber(YAML::Emitter& out, std::string_view key, double value);
 void EmitVector(YAML::Emitter& out, const Eigen::Vector3d& v);
 void EmitVector(YAML::Emitter& out, std::string_view key, const Eigen::Vector3d& value);
+/// An attitude as `key: [roll, pitch, yaw]` in degrees, rounded to 12 significant digits:
+/// degrees -> quaternion -> degrees loses the last bits, and the rounding recovers the
+/// value a person wrote, so a resolved scenario reloads to the very same quaternion.
+void EmitRpyDeg(YAML::Emitter& out, std::string_view key, const Eigen::Quaterniond& q);
+/// An angle stored in radians as degrees (same rounding as EmitRpyDeg).
+void EmitDegrees(YAML::Emitter& out, std::string_view key, double value_rad);
 
 }  // namespace tofu::harness::internal::config

@@ -18,47 +18,42 @@ sim::RobotState ToRobotState(const sim::TruthState& truth) {
   return sim::RobotState{truth.t_ns, truth.p_WB, truth.q_WB, truth.v_WB_W, truth.omega_WB_B};
 }
 
-// Open contact episodes (robot geom, structure geom) -> index into the event list.
+// Contact episodes between the robot and one structure geom. Contacts less than
+// kMergeGapNs apart belong to the same episode: a crash bounces and scrapes, and one
+// crash should count once, not once per bounce or per robot part.
 class CollisionTracker {
  public:
+  static constexpr core::Time kMergeGapNs = 250'000'000;
+
   void Update(core::Time t_ns, const std::vector<sim::Contact>& contacts,
               const sim::World& world, std::vector<CollisionEvent>& events) {
-    std::vector<Open> still_open;
     for (const sim::Contact& c : contacts) {
-      bool found = false;
-      for (const Open& o : open_) {
-        if (o.robot_geom == c.robot_geom && o.structure_geom == c.structure_geom) {
-          CollisionEvent& e = events[o.event];
-          e.end_ns = t_ns;
-          e.max_penetration_m = std::max(e.max_penetration_m, -c.distance_m);
-          if (!Contains(still_open, o)) still_open.push_back(o);
-          found = true;
-          break;
-        }
+      Latest* latest = nullptr;
+      for (Latest& l : latest_) {
+        if (l.structure_geom == c.structure_geom) latest = &l;
       }
-      if (found) continue;
-      const Open o{c.robot_geom, c.structure_geom, events.size()};
-      if (Contains(still_open, o)) continue;
+      if (latest != nullptr && t_ns - events[latest->event].end_ns <= kMergeGapNs) {
+        CollisionEvent& e = events[latest->event];
+        e.end_ns = t_ns;
+        e.max_penetration_m = std::max(e.max_penetration_m, -c.distance_m);
+        continue;
+      }
       events.push_back({t_ns, t_ns, world.GeomName(c.robot_geom),
                         world.GeomName(c.structure_geom), -c.distance_m});
-      still_open.push_back(o);
+      if (latest != nullptr) {
+        latest->event = events.size() - 1;
+      } else {
+        latest_.push_back({c.structure_geom, events.size() - 1});
+      }
     }
-    open_.swap(still_open);
   }
 
  private:
-  struct Open {
-    int robot_geom;
+  struct Latest {
     int structure_geom;
     size_t event;
   };
-  static bool Contains(const std::vector<Open>& v, const Open& o) {
-    for (const Open& x : v) {
-      if (x.robot_geom == o.robot_geom && x.structure_geom == o.structure_geom) return true;
-    }
-    return false;
-  }
-  std::vector<Open> open_;
+  std::vector<Latest> latest_;
 };
 
 }  // namespace

@@ -25,7 +25,8 @@ struct TrackingSample {
   double attitude_error_rad = 0.0;
 };
 
-/// A contact episode between one robot geom and one structure geom.
+/// A contact episode between the robot and one structure geom (contacts less than
+/// 0.25 s apart merged: one crash, one event). robot_geom is the part that hit first.
 struct CollisionEvent {
   core::Time start_ns = 0;
   core::Time end_ns = 0;  ///< last step in contact

@@ -315,14 +315,14 @@ void EmitSegment(YAML::Emitter& out, const sim::PrimitiveSpec& segment) {
         } else if constexpr (std::is_same_v<T, sim::LineSpec>) {
           out << YAML::Key << "line" << YAML::Value << YAML::BeginMap;
           EmitVector(out, "to_m", spec.to_W);
-          if (spec.q_WB) EmitVector(out, "rpy_deg", RpyDegFromQuat(*spec.q_WB));
+          if (spec.q_WB) EmitRpyDeg(out, "rpy_deg", *spec.q_WB);
           out << YAML::EndMap;
         } else if constexpr (std::is_same_v<T, sim::WaypointsSpec>) {
           out << YAML::Key << "waypoints" << YAML::Value << YAML::BeginSeq;
           for (const sim::Waypoint& waypoint : spec.waypoints) {
             out << YAML::BeginMap;
             EmitVector(out, "position_m", waypoint.p_WB);
-            EmitVector(out, "rpy_deg", RpyDegFromQuat(waypoint.q_WB));
+            EmitRpyDeg(out, "rpy_deg", waypoint.q_WB);
             out << YAML::EndMap;
           }
           out << YAML::EndSeq;
@@ -481,14 +481,13 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   out << YAML::Key << "trajectory" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "start" << YAML::Value << YAML::BeginMap;
   EmitVector(out, "position_m", t.start.p_WB);
-  EmitVector(out, "rpy_deg", RpyDegFromQuat(t.start.q_WB));
+  EmitRpyDeg(out, "rpy_deg", t.start.q_WB);
   out << YAML::EndMap;
   out << YAML::Key << "limits" << YAML::Value << YAML::BeginMap;
   EmitNumber(out, "max_speed_mps", t.limits.max_speed_mps);
   EmitNumber(out, "max_acceleration_mps2", t.limits.max_acceleration_mps2);
-  EmitNumber(out, "max_angular_rate_degps", t.limits.max_angular_rate_radps * kDegPerRad);
-  EmitNumber(out, "max_angular_acceleration_degps2",
-             t.limits.max_angular_acceleration_radps2 * kDegPerRad);
+  EmitDegrees(out, "max_angular_rate_degps", t.limits.max_angular_rate_radps);
+  EmitDegrees(out, "max_angular_acceleration_degps2", t.limits.max_angular_acceleration_radps2);
   out << YAML::EndMap;
   out << YAML::Key << "segments" << YAML::Value << YAML::BeginSeq;
   for (const sim::PrimitiveSpec& segment : t.segments) EmitSegment(out, segment);
@@ -497,7 +496,7 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
 
   out << YAML::Key << "initial_offset" << YAML::Value << YAML::BeginMap;
   EmitVector(out, "position_m", scenario.initial_offset.position_W_m);
-  EmitVector(out, "rpy_deg", RpyDegFromQuat(scenario.initial_offset.q_offset));
+  EmitRpyDeg(out, "rpy_deg", scenario.initial_offset.q_offset);
   out << YAML::EndMap;
 
   out << YAML::Key << "expect" << YAML::Value;

@@ -346,6 +346,51 @@ YamlMap YamlValue::Map(std::initializer_list<std::string_view> allowed) const {
   return YamlMap(*this, std::move(allowed_keys), std::move(values), std::move(keys));
 }
 
+std::optional<YamlValue> YamlValue::Peek(std::string_view key) const {
+  if (!node_.IsMap()) return std::nullopt;
+  for (auto it = node_.begin(); it != node_.end(); ++it) {
+    if (it->first.IsScalar() && it->first.Scalar() == key) {
+      return Child(it->second, ChildPath(path_, key), it->first.Mark());
+    }
+  }
+  return std::nullopt;
+}
+
+YamlValue YamlValue::Without(std::string_view key) const {
+  if (!node_.IsMap()) return *this;
+  // Rebuilt from the original nodes (YAML::Clone would drop their marks).
+  YAML::Node copy(YAML::NodeType::Map);
+  for (auto it = node_.begin(); it != node_.end(); ++it) {
+    if (it->first.IsScalar() && it->first.Scalar() == key) continue;
+    copy.force_insert(it->first, it->second);
+  }
+  YamlValue result = *this;
+  result.node_ = copy;
+  return result;
+}
+
+std::vector<std::pair<std::string, YamlValue>> YamlValue::Entries() const {
+  std::vector<std::pair<std::string, YamlValue>> entries;
+  if (!node_.IsDefined() || node_.IsNull()) return entries;
+  if (!node_.IsMap()) FailExpected("a map of names to maps");
+  std::vector<YAML::Mark> key_marks;
+  for (auto it = node_.begin(); it != node_.end(); ++it) {
+    const YAML::Node key = it->first;
+    const YamlValue key_value = Child(key, path_, key.Mark());
+    const std::string name = key_value.Identifier();
+    const YamlValue value = Child(it->second, ChildPath(path_, name), key.Mark());
+    for (size_t i = 0; i < entries.size(); ++i) {
+      if (entries[i].first == name) {
+        value.FailAtKey(fmt::format("duplicate key '{}' (first given at line {}, column {})",
+                                    name, key_marks[i].line + 1, key_marks[i].column + 1));
+      }
+    }
+    entries.emplace_back(name, value);
+    key_marks.push_back(key.Mark());
+  }
+  return entries;
+}
+
 std::vector<YamlValue> YamlValue::List(bool non_empty) const {
   std::vector<YamlValue> items;
   const char* expected = non_empty ? "a non-empty list" : "a list";

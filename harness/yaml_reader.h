@@ -15,6 +15,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "core/error.h"
@@ -98,6 +99,15 @@ class YamlValue {
   /// This value as a map whose keys must be among `allowed`; a null value is an empty
   /// map. Throws on a non-map, a non-scalar key, a duplicate or unknown key.
   YamlMap Map(std::initializer_list<std::string_view> allowed) const;
+  /// The value of `key` if this is a map that has it (no unknown-key checks; for a
+  /// selector such as `type` read before the map itself).
+  std::optional<YamlValue> Peek(std::string_view key) const;
+  /// A copy of this map without `key` (marks kept), e.g. to read a `type` selector first
+  /// and hand the rest to the selected type's reader. A non-map is returned unchanged.
+  YamlValue Without(std::string_view key) const;
+  /// This value as a map whose keys are free names ([a-z0-9_]+, e.g. sensor names), in
+  /// document order; a null value is an empty map. Duplicate keys are errors.
+  std::vector<std::pair<std::string, YamlValue>> Entries() const;
   /// This value as a list (a null value is an empty list); with non_empty an empty list
   /// is an error.
   std::vector<YamlValue> List(bool non_empty) const;

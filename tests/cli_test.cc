@@ -1,0 +1,383 @@
+// The `tofu` command line as a user meets it: run directories that are byte-identical
+// across runs of the same seed, their files and formats, exit codes (0 pass, 1 failed
+// expectation, 2 bad input or misuse), and bad input that leaves nothing behind.
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "harness/scenario.h"
+
+namespace tofu {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Substring check without gmock (the test links gtest only).
+#define EXPECT_CONTAINS(haystack, needle)                          \
+  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
+      << "'" << (haystack) << "' does not contain '" << (needle) << "'"
+
+std::string SourcePath(const std::string& relative) {
+  return std::string(TOFU_SOURCE_DIR) + "/" + relative;
+}
+
+std::string ReadFile(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  EXPECT_TRUE(in.good()) << "cannot read " << path;
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+void WriteFile(const fs::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+  ASSERT_TRUE(out.good()) << "cannot write " << path;
+}
+
+std::string Quote(const std::string& s) {
+  std::string out = "'";
+  for (const char c : s) out += (c == '\'') ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+struct Result {
+  int exit_code = -1;
+  std::string out;
+  std::string err;
+};
+
+// A fresh, empty directory per test under the test temp dir; removed at the end.
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    root_ = fs::path(::testing::TempDir()) /
+            (std::string("tofu_cli_test_") + info->name() + "_" + std::to_string(::getpid()));
+    fs::remove_all(root_);
+    work_ = root_ / "work";
+    logs_ = root_ / "logs";
+    fs::create_directories(work_);
+    fs::create_directories(logs_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(root_);
+  }
+
+  // Runs `tofu <args>` with the working directory work_, capturing stdout and stderr.
+  Result Tofu(const std::string& args) {
+    const fs::path out = logs_ / "stdout.txt";
+    const fs::path err = logs_ / "stderr.txt";
+    const std::string command = "cd " + Quote(work_.string()) + " && " + Quote(TOFU_BINARY) +
+                                " " + args + " >" + Quote(out.string()) + " 2>" +
+                                Quote(err.string());
+    const int status = std::system(command.c_str());
+    Result r;
+    EXPECT_TRUE(WIFEXITED(status)) << command;
+    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    r.out = ReadFile(out);
+    r.err = ReadFile(err);
+    return r;
+  }
+
+  // Names of the entries of the working directory (what a failed run left behind).
+  std::set<std::string> WorkEntries() const {
+    std::set<std::string> names;
+    for (const auto& entry : fs::directory_iterator(work_)) {
+      names.insert(entry.path().filename().string());
+    }
+    return names;
+  }
+
+  fs::path root_, work_, logs_;
+};
+
+std::set<std::string> FilesIn(const fs::path& dir) {
+  std::set<std::string> names;
+  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
+    if (entry.is_regular_file()) names.insert(fs::relative(entry.path(), dir).string());
+  }
+  return names;
+}
+
+// ---- determinism ----
+
+TEST_F(CliTest, SameScenarioTwiceGivesByteIdenticalRunDirectories) {
+  const std::string scenario = Quote(SourcePath("scenarios/hover_arena.yaml"));
+  const Result a = Tofu("run " + scenario + " --out A --quiet");
+  ASSERT_EQ(a.exit_code, 0) << a.out << a.err;
+  const Result b = Tofu("run " + scenario + " --out B --quiet");
+  ASSERT_EQ(b.exit_code, 0) << b.out << b.err;
+  EXPECT_EQ(a.out, "");  // --quiet
+  EXPECT_EQ(a.err, "");
+
+  const std::set<std::string> files = FilesIn(work_ / "A");
+  EXPECT_EQ(files, FilesIn(work_ / "B"));
+  EXPECT_TRUE(files.count("timing.json"));
+  for (const std::string& name : files) {
+    if (name == "timing.json") continue;
+    EXPECT_TRUE(ReadFile(work_ / "A" / name) == ReadFile(work_ / "B" / name))
+        << name << " differs between two runs of the same scenario and seed";
+  }
+  // Only the two run directories: no staging or backup siblings remain.
+  EXPECT_EQ(WorkEntries(), (std::set<std::string>{"A", "B"}));
+}
+
+TEST_F(CliTest, SeedOptionChangesTheGroundTruthOfAGustyScenario) {
+  const std::string scenario = Quote(SourcePath("tests/data/scenarios/gusty_hover_short.yaml"));
+  const Result a = Tofu("run " + scenario + " --out A --quiet");
+  const Result b = Tofu("run " + scenario + " --out B --quiet --seed 1");
+  const Result c = Tofu("run " + scenario + " --out C --quiet --seed 2");
+  ASSERT_EQ(a.exit_code, 0) << a.err;
+  ASSERT_EQ(b.exit_code, 0) << b.err;
+  ASSERT_EQ(c.exit_code, 0) << c.err;
+  const std::string truth_a = ReadFile(work_ / "A" / "groundtruth.csv");
+  // The scenario's own seed is 1: --seed 1 changes nothing, --seed 2 changes the gusts.
+  EXPECT_TRUE(truth_a == ReadFile(work_ / "B" / "groundtruth.csv"));
+  EXPECT_FALSE(truth_a == ReadFile(work_ / "C" / "groundtruth.csv"));
+  EXPECT_EQ(nlohmann::json::parse(ReadFile(work_ / "C" / "summary.json"))["seed"], 2);
+  // The resolved scenario records the effective seed.
+  EXPECT_EQ(harness::LoadScenario((work_ / "C" / "scenario.yaml").string()).seed, 2u);
+}
+
+// ---- the run directory ----
+
+TEST_F(CliTest, RunDirectoryHasTheDocumentedFilesAndFormats) {
+  const std::string input = SourcePath("scenarios/hover_arena.yaml");
+  const Result r = Tofu("run " + Quote(input) + " --out run");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_CONTAINS(r.out, "PASSED");
+  const fs::path run = work_ / "run";
+  for (const char* name : {"scenario.yaml", "groundtruth.csv", "groundtruth.tum", "tracking.csv",
+                           "calibration.yaml", "summary.json", "timing.json"}) {
+    EXPECT_TRUE(fs::is_regular_file(run / name)) << name;
+    EXPECT_GT(fs::file_size(run / name), 0u) << name;
+  }
+
+  // groundtruth.csv: EuRoC-style header, then one row per sample at 200 Hz for 10 s.
+  std::istringstream csv(ReadFile(run / "groundtruth.csv"));
+  std::string header, row;
+  std::getline(csv, header);
+  EXPECT_EQ(header.rfind("#timestamp [ns],", 0), 0u) << header;
+  EXPECT_CONTAINS(header, "p_WB_x [m]");
+  EXPECT_CONTAINS(header, "q_WB_w []");
+  size_t rows = 0;
+  long long last_t = -1;
+  while (std::getline(csv, row)) {
+    ++rows;
+    const long long t = std::stoll(row.substr(0, row.find(',')));
+    EXPECT_GT(t, last_t);
+    last_t = t;
+    EXPECT_EQ(std::count(row.begin(), row.end(), ','),
+              std::count(header.begin(), header.end(), ','));
+  }
+  EXPECT_NEAR(static_cast<double>(rows), 2000.0, 2.0);
+
+  // groundtruth.tum: "t x y z qx qy qz qw", as many rows, no header.
+  std::istringstream tum(ReadFile(run / "groundtruth.tum"));
+  std::getline(tum, row);
+  std::istringstream fields(row);
+  std::vector<double> values{std::istream_iterator<double>(fields), std::istream_iterator<double>()};
+  EXPECT_EQ(values.size(), 8u) << row;
+  size_t tum_rows = 1;
+  while (std::getline(tum, row)) ++tum_rows;
+  EXPECT_EQ(tum_rows, rows);
+
+  EXPECT_EQ(ReadFile(run / "tracking.csv").rfind("#timestamp [ns],", 0), 0u);
+  const std::string calibration = ReadFile(run / "calibration.yaml");
+  for (const char* site : {"imu", "vio_camera", "lidar", "prism", "gnss_antenna", "tool_tip"}) {
+    EXPECT_CONTAINS(calibration, std::string("  ") + site + ":\n");
+  }
+
+  const nlohmann::json summary = nlohmann::json::parse(ReadFile(run / "summary.json"));
+  for (const char* key : {"passed", "metrics", "expectations", "collisions"}) {
+    EXPECT_TRUE(summary.contains(key)) << key;
+  }
+  EXPECT_EQ(summary["passed"], true);
+  EXPECT_EQ(summary["scenario"], "hover_arena");
+  EXPECT_TRUE(summary["collisions"].is_array());
+  EXPECT_TRUE(summary["collisions"].empty());
+  EXPECT_TRUE(summary["metrics"].contains("tracking.position_rmse_m"));
+  ASSERT_EQ(summary["expectations"].size(), 3u);
+  for (const auto& e : summary["expectations"]) {
+    EXPECT_EQ(e["passed"], true) << e.dump();
+    EXPECT_CONTAINS(e["where"].get<std::string>(), "hover_arena.yaml:");
+  }
+  const nlohmann::json timing = nlohmann::json::parse(ReadFile(run / "timing.json"));
+  EXPECT_TRUE(timing.contains("wall_time_s"));
+
+  // The resolved scenario loads again, equals the input, and spells out the defaults.
+  const std::string resolved = ReadFile(run / "scenario.yaml");
+  EXPECT_EQ(ReadFile(input).find("controller:"), std::string::npos);
+  EXPECT_CONTAINS(resolved, "controller:");
+  EXPECT_CONTAINS(resolved, "physics:");
+  const harness::Scenario original = harness::LoadScenario(input);
+  const harness::Scenario reloaded = harness::LoadScenario((run / "scenario.yaml").string());
+  EXPECT_EQ(reloaded.name, original.name);
+  EXPECT_EQ(reloaded.world, original.world);
+  EXPECT_EQ(reloaded.seed, original.seed);
+  EXPECT_EQ(reloaded.duration_s, original.duration_s);
+  EXPECT_EQ(reloaded.expect.size(), original.expect.size());
+  EXPECT_EQ(reloaded.controller.rate_hz, original.controller.rate_hz);
+  EXPECT_EQ(reloaded.controller.position_gain_per_s2, original.controller.position_gain_per_s2);
+  EXPECT_EQ(reloaded.wind.gust_std_mps, original.wind.gust_std_mps);
+  EXPECT_EQ(reloaded.trajectory.start.p_WB, original.trajectory.start.p_WB);
+  EXPECT_EQ(reloaded.trajectory.segments.size(), original.trajectory.segments.size());
+  EXPECT_EQ(reloaded.initial_offset.position_W_m, original.initial_offset.position_W_m);
+  // Attitudes pass through degrees: equal to rounding (the text is not a bitwise fixed point).
+  EXPECT_LT(reloaded.initial_offset.q_offset.angularDistance(original.initial_offset.q_offset),
+            1e-12);
+}
+
+TEST_F(CliTest, RerunReplacesAnExistingRunDirectory) {
+  const std::string scenario = Quote(SourcePath("tests/data/scenarios/gusty_hover_short.yaml"));
+  fs::create_directories(work_ / "run");
+  WriteFile(work_ / "run" / "stale.txt", "from an older run");
+  const Result r = Tofu("run " + scenario + " --out run --quiet");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_FALSE(fs::exists(work_ / "run" / "stale.txt"));
+  EXPECT_TRUE(fs::exists(work_ / "run" / "summary.json"));
+  EXPECT_EQ(WorkEntries(), (std::set<std::string>{"run"}));
+}
+
+TEST_F(CliTest, DefaultRunDirectoryIsRunsSlashScenarioName) {
+  const Result r =
+      Tofu("run " + Quote(SourcePath("tests/data/scenarios/gusty_hover_short.yaml")) + " --quiet");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(fs::is_regular_file(work_ / "runs" / "gusty_hover_short" / "summary.json"));
+}
+
+// ---- failing runs ----
+
+TEST_F(CliTest, CrashExitsOneAndTheSummaryListsTheCollision) {
+  const Result r =
+      Tofu("run " + Quote(SourcePath("tests/data/scenarios/crash_into_wall.yaml")) + " --out crash");
+  EXPECT_EQ(r.exit_code, 1) << r.out << r.err;
+  EXPECT_CONTAINS(r.out, "FAILED");
+  EXPECT_CONTAINS(r.out, "hit wall_east");
+  const nlohmann::json summary = nlohmann::json::parse(ReadFile(work_ / "crash" / "summary.json"));
+  EXPECT_EQ(summary["passed"], false);
+  ASSERT_TRUE(summary["collisions"].is_array());
+  ASSERT_FALSE(summary["collisions"].empty());
+  const nlohmann::json& first = summary["collisions"][0];
+  EXPECT_EQ(first["robot_geom"], "tool");
+  EXPECT_EQ(first["structure_geom"], "wall_east");
+  EXPECT_GT(first["start_s"].get<double>(), 2.0);
+  EXPECT_LT(first["start_s"].get<double>(), 8.0);
+  EXPECT_GE(summary["metrics"]["collisions.count"].get<double>(), 1.0);
+  ASSERT_EQ(summary["expectations"].size(), 1u);
+  EXPECT_EQ(summary["expectations"][0]["passed"], false);
+}
+
+// ---- bad input ----
+
+TEST_F(CliTest, UnknownKeyExitsTwoNamingFileLineAndKeyAndLeavesNothing) {
+  const fs::path bad = root_ / "unknown_key.yaml";
+  WriteFile(bad,
+            "name: bad_key\n"
+            "world: indoor_arena\n"
+            "duration_s: 2\n"
+            "trajectory:\n"
+            "  start: {position_m: [0, 0, 1]}\n"
+            "  segments:\n"
+            "    - hover: {duration_s: 1}\n"
+            "wobble_amplitude_m: 3\n");
+  const Result r = Tofu("run " + Quote(bad.string()) + " --out run --quiet");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_CONTAINS(r.err, bad.string() + ":8:");
+  EXPECT_CONTAINS(r.err, "wobble_amplitude_m");
+  EXPECT_EQ(r.out, "");
+  // Neither the run directory, nor the default runs/, nor a staging sibling.
+  EXPECT_TRUE(WorkEntries().empty());
+
+  const Result v = Tofu("validate " + Quote(bad.string()));
+  EXPECT_EQ(v.exit_code, 2);
+  EXPECT_CONTAINS(v.err, bad.string() + ":8:");
+  EXPECT_CONTAINS(v.err, "wobble_amplitude_m");
+  // One bad file among good ones still fails the whole validation.
+  const Result mixed = Tofu("validate " + Quote(SourcePath("scenarios/hover_arena.yaml")) + " " +
+                            Quote(bad.string()));
+  EXPECT_EQ(mixed.exit_code, 2);
+  EXPECT_CONTAINS(mixed.out, "hover_arena.yaml: ok");
+}
+
+TEST_F(CliTest, ValidateAcceptsEveryShippedScenario) {
+  std::string args = "validate";
+  int count = 0;
+  for (const auto& entry : fs::directory_iterator(SourcePath("scenarios"))) {
+    if (entry.path().extension() != ".yaml") continue;
+    args.append(" ").append(Quote(entry.path().string()));
+    ++count;
+  }
+  ASSERT_GE(count, 6);
+  const Result r = Tofu(args);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(static_cast<int>(std::count(r.out.begin(), r.out.end(), '\n')), count) << r.out;
+  EXPECT_TRUE(WorkEntries().empty());
+}
+
+TEST_F(CliTest, UnknownWorldExitsTwoListingTheWorldsAndLeavesNothing) {
+  const fs::path bad = root_ / "nowhere.yaml";
+  WriteFile(bad,
+            "name: nowhere_hover\n"
+            "world: nowhere\n"
+            "duration_s: 2\n"
+            "trajectory:\n"
+            "  start: {position_m: [0, 0, 1]}\n"
+            "  segments:\n"
+            "    - hover: {duration_s: 1}\n");
+  const Result r = Tofu("run " + Quote(bad.string()) + " --out run");
+  EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+  EXPECT_CONTAINS(r.err, "nowhere");
+  for (const char* world : {"bridge", "building_window", "indoor_arena", "inspection_wall"}) {
+    EXPECT_CONTAINS(r.err, world);
+  }
+  EXPECT_CONTAINS(r.err, bad.string());
+  EXPECT_TRUE(WorkEntries().empty());
+}
+
+TEST_F(CliTest, MissingScenarioFileExitsTwo) {
+  const Result r = Tofu("run does_not_exist.yaml --out run");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_CONTAINS(r.err, "does_not_exist.yaml");
+  EXPECT_TRUE(WorkEntries().empty());
+}
+
+TEST_F(CliTest, MisuseExitsTwo) {
+  EXPECT_EQ(Tofu("").exit_code, 2);
+  EXPECT_EQ(Tofu("run").exit_code, 2);
+  EXPECT_EQ(Tofu("frobnicate").exit_code, 2);
+  EXPECT_EQ(Tofu("validate").exit_code, 2);
+  const std::string scenario = Quote(SourcePath("scenarios/hover_arena.yaml"));
+  EXPECT_EQ(Tofu("run " + scenario + " --seed minus_one").exit_code, 2);
+  EXPECT_EQ(Tofu("run " + scenario + " --frobnicate").exit_code, 2);
+  EXPECT_TRUE(WorkEntries().empty());
+  // Help is not misuse.
+  const Result help = Tofu("--help");
+  EXPECT_EQ(help.exit_code, 0);
+  EXPECT_CONTAINS(help.out, "run");
+}
+
+TEST_F(CliTest, MetricsListsTheCatalogue) {
+  const Result r = Tofu("metrics");
+  EXPECT_EQ(r.exit_code, 0);
+  for (const char* name : {"tracking.position_rmse_m", "collisions.count",
+                           "approach.max_standoff_error_m", "structure.min_distance_m"}) {
+    EXPECT_CONTAINS(r.out, name);
+  }
+}
+
+}  // namespace
+}  // namespace tofu

@@ -1,0 +1,327 @@
+// The simulated world (sim::World) on the real models: every world loads with the OMAV,
+// the robot description read from the MJCF is physically sensible, ray casts see the
+// structure and never the robot, Reset/Step keep an exact integer clock and a resting
+// hover, and MuJoCo's bad states surface as SimulationErrors instead of silent resets.
+
+#include "sim/world.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <Eigen/Eigenvalues>
+
+#include "core/error.h"
+#include "core/lie.h"
+#include "sim/allocation.h"
+
+namespace tofu::sim {
+namespace {
+
+// Substring check without gmock (the test links gtest only).
+#define EXPECT_CONTAINS(haystack, needle)                          \
+  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
+      << "'" << (haystack) << "' does not contain '" << (needle) << "'"
+
+constexpr double kRadPerDeg = std::numbers::pi / 180.0;
+
+const char* const kWorlds[] = {"indoor_arena", "inspection_wall", "building_window", "bridge"};
+const char* const kMountSites[] = {"imu",   "vio_camera",   "lidar",
+                                   "prism", "gnss_antenna", "tool_tip"};
+
+WorldOptions OptionsFor(const std::string& world, double physics_rate_hz = 1000.0) {
+  WorldOptions options;
+  options.world = world;
+  options.physics_rate_hz = physics_rate_hz;
+  return options;
+}
+
+Waypoint Pose(const Eigen::Vector3d& p_WB, double roll_deg = 0.0, double pitch_deg = 0.0,
+              double yaw_deg = 0.0) {
+  return Waypoint{p_WB, Eigen::Quaterniond(core::RotationFromRollPitchYaw(
+                            roll_deg * kRadPerDeg, pitch_deg * kRadPerDeg, yaw_deg * kRadPerDeg))};
+}
+
+// The open-loop command that holds `q_WB` still: gravity compensation in B, no torque.
+ActuatorCommand HoverCommand(const World& world, const Eigen::Quaterniond& q_WB,
+                             const std::array<double, kArmCount>& tilt_rad) {
+  const RigidBodyParams& rb = world.robot().rigid_body;
+  const Wrench hover{q_WB.toRotationMatrix().transpose() *
+                         Eigen::Vector3d(0.0, 0.0, rb.mass_kg * rb.gravity_mps2),
+                     Eigen::Vector3d::Zero()};
+  const AllocationResult a = Allocator(world.robot().allocation).Allocate(hover, tilt_rad);
+  EXPECT_FALSE(a.saturated);
+  return a.command;
+}
+
+// ---- models ----
+
+TEST(World, EveryWorldLoadsWithThePhysicallySensibleOmav) {
+  for (const char* name : kWorlds) {
+    SCOPED_TRACE(name);
+    const World world(OptionsFor(name));
+    const RobotDescription& robot = world.robot();
+
+    EXPECT_GE(robot.rigid_body.mass_kg, 4.0);
+    EXPECT_LE(robot.rigid_body.mass_kg, 5.0);
+    EXPECT_NEAR(robot.rigid_body.gravity_mps2, 9.81, 0.01);
+
+    const Eigen::Matrix3d& J = robot.rigid_body.inertia_B_kgm2;
+    EXPECT_LT((J - J.transpose()).norm(), 1e-12) << J;
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(J);
+    EXPECT_GT(eig.eigenvalues().minCoeff(), 1e-3) << J;
+    // A rigid body's principal moments obey the triangle inequality.
+    const Eigen::Vector3d m = eig.eigenvalues();
+    EXPECT_LE(m(2), m(0) + m(1) + 1e-12);
+
+    // Mount sites: all six, each at its own non-zero lever arm.
+    ASSERT_EQ(robot.sites.size(), 6u);
+    int rotated = 0;
+    for (const char* site_name : kMountSites) {
+      SCOPED_TRACE(site_name);
+      const MountSite* site = robot.FindSite(site_name);
+      ASSERT_NE(site, nullptr);
+      EXPECT_GT(site->p_B_s.norm(), 0.01);
+      EXPECT_NEAR(site->q_B_s.norm(), 1.0, 1e-9);
+      EXPECT_GE(site->q_B_s.w(), 0.0);
+      if (site->q_B_s.angularDistance(Eigen::Quaterniond::Identity()) > 1e-3) ++rotated;
+    }
+    EXPECT_GE(rotated, 2);
+    for (size_t i = 0; i < robot.sites.size(); ++i) {
+      for (size_t j = i + 1; j < robot.sites.size(); ++j) {
+        EXPECT_GT((robot.sites[i].p_B_s - robot.sites[j].p_B_s).norm(), 0.01)
+            << robot.sites[i].name << " and " << robot.sites[j].name << " share a lever arm";
+      }
+    }
+    EXPECT_EQ(robot.FindSite("no_such_site"), nullptr);
+
+    // Six tiltable arms: unit axes, hinges 0.35 m from the CoM, 60 deg apart.
+    for (int k = 0; k < kArmCount; ++k) {
+      SCOPED_TRACE(k);
+      const ArmGeometry& arm = robot.allocation.arms[k];
+      EXPECT_NEAR(arm.tilt_axis_B.norm(), 1.0, 1e-9);
+      EXPECT_NEAR(arm.p_CoM_hinge_B.norm(), 0.35, 0.01);
+      // The tilt axis points outward along the arm, in the body's x-y plane.
+      EXPECT_GT(arm.tilt_axis_B.dot(arm.p_CoM_hinge_B.normalized()), 0.99);
+      const double yaw = std::atan2(arm.p_CoM_hinge_B.y(), arm.p_CoM_hinge_B.x());
+      const double expected_yaw = std::remainder(k * std::numbers::pi / 3.0, 2 * std::numbers::pi);
+      EXPECT_NEAR(std::remainder(yaw - expected_yaw, 2 * std::numbers::pi), 0.0, 1e-6);
+    }
+    EXPECT_LT(robot.allocation.rotor_min_thrust_N, robot.allocation.rotor_max_thrust_N);
+    EXPECT_GT(robot.allocation.rotor_max_thrust_N * 2 * kArmCount,
+              robot.rigid_body.mass_kg * robot.rigid_body.gravity_mps2);
+  }
+}
+
+TEST(World, UnknownWorldIsAnInputErrorListingTheAvailableWorlds) {
+  try {
+    const World world(OptionsFor("nowhere"));
+    FAIL() << "expected an InputError";
+  } catch (const core::InputError& e) {
+    EXPECT_EQ(e.key_path(), "world");
+    EXPECT_CONTAINS(e.what(), "nowhere");
+    for (const char* name : kWorlds) EXPECT_CONTAINS(e.message(), name);
+  }
+}
+
+TEST(World, UnknownRobotIsAnInputErrorListingTheAvailableRobots) {
+  WorldOptions options = OptionsFor("indoor_arena");
+  options.robot = "quadcopter";
+  try {
+    const World world(options);
+    FAIL() << "expected an InputError";
+  } catch (const core::InputError& e) {
+    EXPECT_EQ(e.key_path(), "robot");
+    EXPECT_CONTAINS(e.message(), "omav");
+  }
+}
+
+// ---- ray casts ----
+
+TEST(WorldRay, HitsTheFacadeAndItsTexturedSkinAndMissesTheOpenSky) {
+  const World world(OptionsFor("inspection_wall"));
+  // Below z = 3 the 2 mm textured band stands in front of the facade (front at 4.998).
+  const std::optional<double> band = world.RayDistance({0, 0, 2}, {1, 0, 0});
+  ASSERT_TRUE(band.has_value());
+  EXPECT_NEAR(*band, 4.998, 1e-6);
+  // Above it, the plain facade face at x = 5.
+  const std::optional<double> facade = world.RayDistance({0, 0, 5}, {1, 0, 0});
+  ASSERT_TRUE(facade.has_value());
+  EXPECT_NEAR(*facade, 5.0, 1e-6);
+  // The direction need not be normalised; the distance is along the unit ray.
+  const std::optional<double> scaled = world.RayDistance({0, 0, 5}, {3, 0, 0});
+  ASSERT_TRUE(scaled.has_value());
+  EXPECT_NEAR(*scaled, 5.0, 1e-6);
+  // Oblique: 45 deg in the x-y plane travels sqrt(2) times further.
+  const std::optional<double> oblique = world.RayDistance({0, 0, 5}, {1, 1, 0});
+  ASSERT_TRUE(oblique.has_value());
+  EXPECT_NEAR(*oblique, 5.0 * std::sqrt(2.0), 1e-6);
+  // Down to the ground (group 1 counts as a surface), up into the open sky, away.
+  const std::optional<double> ground = world.RayDistance({0, 0, 2}, {0, 0, -1});
+  ASSERT_TRUE(ground.has_value());
+  EXPECT_NEAR(*ground, 2.0, 1e-6);
+  EXPECT_FALSE(world.RayDistance({0, 0, 2}, {0, 0, 1}).has_value());
+  EXPECT_FALSE(world.RayDistance({0, 0, 2}, {-1, 0, 1}).has_value());
+}
+
+TEST(WorldRay, IgnoresTheRobotItself) {
+  World world(OptionsFor("inspection_wall"));
+  // The ray starts inside the hub box and passes through rotor_guard_1 (0.35 m ahead).
+  world.Reset(Pose({0, 0, 2}));
+  ASSERT_NEAR((world.SitePose_W("tool_tip").translation() - Eigen::Vector3d(0.6, 0, 1.82)).norm(),
+              0.0, 1e-9);
+  const std::optional<double> ahead = world.RayDistance({0, 0, 2}, {1, 0, 0});
+  ASSERT_TRUE(ahead.has_value());
+  EXPECT_NEAR(*ahead, 4.998, 1e-6);
+  const std::optional<double> down = world.RayDistance({0, 0, 2}, {0, 0, -1});
+  ASSERT_TRUE(down.has_value());
+  EXPECT_NEAR(*down, 2.0, 1e-6);
+  // Along the tool from its root, through the tool capsule, to the wall.
+  const std::optional<double> tool = world.RayDistance({0.1, 0, 1.82}, {1, 0, 0});
+  ASSERT_TRUE(tool.has_value());
+  EXPECT_NEAR(*tool, 4.898, 1e-6);
+}
+
+// ---- reset, clock and hover ----
+
+TEST(WorldStep, ResetPlacesTheRobotAtRestAtTheGivenPose) {
+  World world(OptionsFor("indoor_arena"));
+  for (const Waypoint& pose : {Pose({1.0, -2.0, 1.5}), Pose({-0.5, 0.5, 2.0}, 30, -10, 120)}) {
+    world.Reset(pose);
+    const TruthState truth = world.Truth();
+    EXPECT_EQ(truth.t_ns, 0);
+    EXPECT_EQ(world.time_ns(), 0);
+    EXPECT_LT((truth.p_WB - pose.p_WB).norm(), 1e-12);
+    EXPECT_LT(truth.q_WB.angularDistance(pose.q_WB), 1e-9);
+    EXPECT_EQ(truth.v_WB_W, Eigen::Vector3d::Zero());
+    EXPECT_EQ(truth.omega_WB_B, Eigen::Vector3d::Zero());
+  }
+}
+
+TEST(WorldStep, TimeAdvancesByExactlyOneTimestepPerStep) {
+  for (const double rate_hz : {1000.0, 3000.0, 400.0}) {
+    SCOPED_TRACE(rate_hz);
+    World world(OptionsFor("indoor_arena", rate_hz));
+    const core::Time dt = world.timestep_ns();
+    EXPECT_EQ(dt, core::PeriodFromRate(rate_hz));
+    world.Reset(Pose({0, 0, 1.5}));
+    for (int k = 0; k < 300; ++k) {
+      const core::Time before = world.time_ns();
+      ASSERT_EQ(before, k * dt);
+      const TruthState& truth = world.Step();
+      // Step returns the state at the start of the step it integrated.
+      ASSERT_EQ(truth.t_ns, before);
+      ASSERT_EQ(world.time_ns(), before + dt);
+      ASSERT_EQ(world.Truth().t_ns, before + dt);
+    }
+    // Reset starts the clock again.
+    world.Reset(Pose({0, 0, 1.5}));
+    EXPECT_EQ(world.time_ns(), 0);
+  }
+}
+
+TEST(WorldStep, HoverCommandHoldsTheRobotStillLevelAndTilted) {
+  World world(OptionsFor("indoor_arena"));
+  for (const Waypoint& pose : {Pose({0, 0, 1.5}), Pose({1, 1, 2.0}, 30, 0, 0),
+                               Pose({-1, 0, 2.0}, 0, -45, 60)}) {
+    world.Reset(pose);
+    const ActuatorCommand command = HoverCommand(world, pose.q_WB, world.Truth().tilt_rad);
+    world.SetCommand(command);
+    // The model's hover and the allocator's agree: Reset already set these tilts.
+    for (int k = 0; k < kArmCount; ++k) {
+      EXPECT_NEAR(world.Truth().tilt_rad[k], command.tilt_rad[k], 1e-9);
+    }
+    for (int k = 0; k < 500; ++k) world.Step();  // 0.5 s open loop
+    const TruthState truth = world.Truth();
+    EXPECT_EQ(truth.t_ns, 500 * world.timestep_ns());
+    EXPECT_LT((truth.p_WB - pose.p_WB).norm(), 2e-3) << truth.p_WB.transpose();
+    EXPECT_LT(truth.q_WB.angularDistance(pose.q_WB), 0.2 * kRadPerDeg);
+    EXPECT_LT(truth.v_WB_W.norm(), 1e-2);
+    EXPECT_LT(truth.omega_WB_B.norm(), 1e-2);
+    // Gravity is balanced: the acceleration of the last step is (almost) zero.
+    EXPECT_LT(truth.a_WB_W.norm(), 0.05);
+  }
+}
+
+TEST(WorldStep, WithoutThrustTheRobotFallsAtG) {
+  World world(OptionsFor("indoor_arena"));
+  world.Reset(Pose({0, 0, 3.0}));
+  ActuatorCommand off;
+  off.tilt_rad = world.Truth().tilt_rad;
+  world.SetCommand(off);
+  // Motors spin down with a 40 ms time constant; after 0.3 s the robot is in free fall.
+  for (int k = 0; k < 300; ++k) world.Step();
+  EXPECT_NEAR(world.Step().a_WB_W.z(), -9.81, 0.05);
+  EXPECT_LT(world.Truth().p_WB.z(), 3.0 - 0.1);
+}
+
+TEST(WorldStep, ExternalForceAcceleratesTheRobot) {
+  World world(OptionsFor("indoor_arena"));
+  world.Reset(Pose({0, 0, 1.5}));
+  world.SetCommand(HoverCommand(world, Eigen::Quaterniond::Identity(), world.Truth().tilt_rad));
+  const double mass = world.robot().rigid_body.mass_kg;
+  world.SetExternalForce_W({mass * 1.0, 0, 0});  // 1 m/s^2 along x
+  for (int k = 0; k < 100; ++k) world.Step();
+  EXPECT_NEAR(world.Step().a_WB_W.x(), 1.0, 0.02);
+  EXPECT_NEAR(world.Truth().v_WB_W.x(), 0.1, 0.01);
+}
+
+// ---- bad states ----
+
+// Steps until a SimulationError; fails the test if none comes within `max_steps`.
+std::string StepUntilError(World& world, int max_steps) {
+  for (int k = 0; k < max_steps; ++k) {
+    try {
+      world.Step();
+    } catch (const core::SimulationError& e) {
+      return e.what();
+    }
+  }
+  ADD_FAILURE() << "no SimulationError within " << max_steps << " steps";
+  return "";
+}
+
+TEST(WorldBadState, AbsurdForceIsASimulationErrorNamingTheTime) {
+  World world(OptionsFor("indoor_arena"));
+  world.Reset(Pose({0, 0, 1.5}));
+  world.SetCommand(HoverCommand(world, Eigen::Quaterniond::Identity(), world.Truth().tilt_rad));
+  for (int k = 0; k < 250; ++k) world.Step();  // fly normally until t = 0.25 s
+  world.SetExternalForce_W({1e12, 0, 0});
+  const std::string what = StepUntilError(world, 1);
+  EXPECT_CONTAINS(what, "qacc");
+  // The time of the failure, not the time after MuJoCo's internal reset (0).
+  EXPECT_CONTAINS(what, "t = 0.25");
+}
+
+TEST(WorldBadState, NanThrustIsASimulationErrorNamingTheTime) {
+  World world(OptionsFor("indoor_arena"));
+  world.Reset(Pose({0, 0, 1.5}));
+  ActuatorCommand command =
+      HoverCommand(world, Eigen::Quaterniond::Identity(), world.Truth().tilt_rad);
+  world.SetCommand(command);
+  for (int k = 0; k < 100; ++k) world.Step();
+  command.rotor_thrust_N[2] = std::numeric_limits<double>::quiet_NaN();
+  world.SetCommand(command);
+  const std::string what = StepUntilError(world, 1);
+  EXPECT_CONTAINS(what, "ctrl");
+  EXPECT_CONTAINS(what, "t = 0.10");
+}
+
+TEST(WorldBadState, NanTiltTargetIsASimulationError) {
+  World world(OptionsFor("indoor_arena"));
+  world.Reset(Pose({0, 0, 1.5}));
+  ActuatorCommand command =
+      HoverCommand(world, Eigen::Quaterniond::Identity(), world.Truth().tilt_rad);
+  command.tilt_rad[0] = std::numeric_limits<double>::quiet_NaN();
+  world.SetCommand(command);
+  const std::string what = StepUntilError(world, 10);
+  EXPECT_CONTAINS(what, "simulation failed at t = ");
+}
+
+}  // namespace
+}  // namespace tofu::sim
