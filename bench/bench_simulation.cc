@@ -16,9 +16,17 @@ using tofu::harness::Scenario;
 
 constexpr double kDurationS = 200.0;
 
-// Two-lap figure-eights repeated for 200 s in the indoor arena with gusts: controller,
-// trajectory, wind, contacts and distance queries all active.
-Scenario BenchScenario() {
+// Figure-eights for 200 s in the indoor arena with gusts: controller, trajectory, wind,
+// contacts and distance queries all active; optionally the full sensor suite.
+Scenario BenchScenario(bool with_sensors) {
+  const std::string sensors = with_sensors ? R"(sensors:
+  imu: {}
+  vio: {}
+  lidar: {type: lidar_odometry}
+  leica: {type: total_station}
+  gnss: {}
+)"
+                                           : "";
   return tofu::harness::ParseScenario(R"(
 name: bench_figure_eight
 world: indoor_arena
@@ -30,12 +38,12 @@ trajectory:
   limits: {max_speed_mps: 1.0, max_acceleration_mps2: 2.0}
   segments:
     - figure_eight: {center_m: [0, 0, 1.5], half_length_m: 2.0, half_width_m: 1.2, speed_mps: 1.0, laps: 14}
-)",
+)" + sensors,
                                       "bench_figure_eight");
 }
 
 void BM_HarnessRun200s(benchmark::State& state) {
-  const Scenario scenario = BenchScenario();
+  const Scenario scenario = BenchScenario(state.range(0) != 0);
   double simulated_s = 0.0;
   for (auto _ : state) {
     const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario);
@@ -47,7 +55,14 @@ void BM_HarnessRun200s(benchmark::State& state) {
   state.counters["steps_per_s"] =
       benchmark::Counter(simulated_s * scenario.physics.rate_hz, benchmark::Counter::kIsRate);
 }
-BENCHMARK(BM_HarnessRun200s)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+// Arg 0: flight only; arg 1: with IMU, VIO, LiDAR odometry, total station and GNSS.
+BENCHMARK(BM_HarnessRun200s)
+    ->ArgName("sensors")
+    ->Arg(0)
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(1);
 
 // Bare mj_step on the same compiled model (the harness's margins included), the robot
 // hovering on constant hover controls: the floor under any harness overhead.

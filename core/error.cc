@@ -7,13 +7,12 @@ namespace {
 
 std::string Format(const SourceLocation& loc, const std::string& key_path,
                    const std::string& message) {
-  std::string out = loc.file.empty() ? std::string("<input>") : loc.file;
-  if (loc.line > 0) out += fmt::format(":{}", loc.line);
-  if (loc.column > 0) out += fmt::format(":{}", loc.column);
-  out += ": ";
-  if (!key_path.empty()) out += fmt::format("key '{}': ", key_path);
-  out += message;
-  return out;
+  // One fmt::format: GCC 12 warns (-Wrestrict, falsely) on chains of string appends here.
+  return fmt::format("{}{}{}: {}{}", loc.file.empty() ? std::string_view("<input>") : loc.file,
+                     loc.line > 0 ? fmt::format(":{}", loc.line) : std::string(),
+                     loc.column > 0 ? fmt::format(":{}", loc.column) : std::string(),
+                     key_path.empty() ? std::string() : fmt::format("key '{}': ", key_path),
+                     message);
 }
 
 }  // namespace

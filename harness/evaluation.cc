@@ -1,6 +1,7 @@
 #include "harness/evaluation.h"
 
 #include <algorithm>
+#include <map>
 #include <cmath>
 #include <numbers>
 #include <stdexcept>
@@ -146,6 +147,39 @@ Evaluation Evaluate(const RunRecord& record) {
                           {"tool_tip_distance_m", OptionalNumber(a.distance_m)}});
   }
   j["approaches"] = approaches;
+
+  // Per stream: samples produced and delivered, and the time share of each condition.
+  nlohmann::json sensors = nlohmann::json::object();
+  const double run_s = core::TimeToSeconds(record.physics_steps *
+                                           core::PeriodFromRate(sc.physics.rate_hz));
+  for (const SensorStream& stream : record.sensors) {
+    nlohmann::json conditions = nlohmann::json::object();
+    std::map<std::string, core::Time> active_since;
+    std::map<std::string, core::Time> active_ns;
+    for (const LabelEvent& l : record.labels) {
+      if (l.sensor != stream.name || l.source != "condition") continue;
+      if (l.active) {
+        active_since[l.label] = l.t_ns;
+      } else if (active_since.count(l.label) != 0) {
+        active_ns[l.label] += l.t_ns - active_since[l.label];
+        active_since.erase(l.label);
+      }
+    }
+    const core::Time end_ns = record.physics_steps * core::PeriodFromRate(sc.physics.rate_hz);
+    for (const auto& [label, since] : active_since) active_ns[label] += end_ns - since;
+    for (const auto& [label, ns] : active_ns) {
+      conditions[label] = run_s > 0.0 ? core::TimeToSeconds(ns) / run_s : 0.0;
+    }
+    sensors[stream.name] = {{"type", stream.type},
+                            {"site", stream.site},
+                            {"samples", stream.clean.size()},
+                            {"delivered", stream.delivered.size()},
+                            {"condition_time_fraction", conditions}};
+  }
+  j["sensors"] = sensors;
+  size_t fault_labels = 0;
+  for (const LabelEvent& l : record.labels) fault_labels += l.source == "fault" && l.active ? 1 : 0;
+  j["faults_scheduled"] = fault_labels;
 
   bool all_passed = !record.failure.has_value();
   nlohmann::json expectations = nlohmann::json::array();

@@ -1,5 +1,6 @@
 #include "harness/run.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
@@ -99,6 +100,31 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   const sim::Allocator allocator(record.robot.allocation);
   sim::Wind wind(scenario.wind, core::RandomStream(scenario.seed, "wind"));
 
+  // Sensors: one model per configured stream, its scheduled faults in an injector. Each
+  // draws only from streams seeded by (seed, its own name).
+  std::vector<std::unique_ptr<sim::SensorModel>> models;
+  std::vector<sim::FaultInjector> injectors;
+  std::vector<uint32_t> conditions;
+  for (const SensorConfig& config : scenario.sensors) {
+    try {
+      models.push_back(MakeSensorModel(config, world, scenario.seed));
+    } catch (const std::invalid_argument& e) {
+      throw core::InputError({scenario.source_file, 0, 0}, "sensors." + config.name, e.what());
+    }
+    std::vector<sim::FaultSpec> specs;
+    for (const sim::FaultSpec& fault : scenario.faults) {
+      if (fault.sensor == config.name) specs.push_back(fault);
+    }
+    injectors.emplace_back(std::move(specs), scenario.seed);
+    SensorStream stream;
+    stream.name = config.name;
+    stream.type = std::string(SensorTypeName(config.options));
+    stream.site = SensorSite(config.options);
+    record.sensors.push_back(std::move(stream));
+    conditions.push_back(sim::kConditionNone);
+  }
+  std::vector<sim::SensorSample> sensor_scratch;
+
   const core::Time dt_ns = world.timestep_ns();
   const double dt_s = core::TimeToSeconds(dt_ns);
   const core::Time controller_period_ns = core::PeriodFromRate(scenario.controller.rate_hz);
@@ -147,6 +173,36 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
         next_output_ns += output_period_ns;
       }
 
+      if (!models.empty()) {
+        const auto rotor_thrust_N = world.RotorThrusts_N();
+        const sim::SensorInput input{truth, world, rotor_thrust_N};
+        for (size_t i = 0; i < models.size(); ++i) {
+          SensorStream& stream = record.sensors[i];
+          const auto* imu = dynamic_cast<const sim::ImuModel*>(models[i].get());
+          std::pair<Eigen::Vector3d, Eigen::Vector3d> bias;
+          if (imu != nullptr) bias = {imu->gyro_bias_radps(), imu->accel_bias_mps2()};
+          sensor_scratch.clear();
+          models[i]->Step(input, &sensor_scratch);
+          for (const sim::SensorSample& sample : sensor_scratch) {
+            stream.clean.push_back(sample);
+            if (imu != nullptr) stream.imu_biases.push_back(bias);
+            injectors[i].Apply(sample, &stream.delivered);
+            stream.delivered_faults.resize(stream.delivered.size(),
+                                           injectors[i].ActiveFaults(sample.t_ns));
+          }
+          const uint32_t now_conditions = models[i]->conditions();
+          if (now_conditions != conditions[i]) {
+            for (const sim::Condition bit : sim::AllConditions()) {
+              if (((now_conditions ^ conditions[i]) & bit) == 0) continue;
+              record.labels.push_back({truth.t_ns, stream.name,
+                                       std::string(sim::ConditionName(bit)), "condition",
+                                       (now_conditions & bit) != 0});
+            }
+            conditions[i] = now_conditions;
+          }
+        }
+      }
+
       const std::vector<sim::Contact>& contacts = world.Contacts();
       collisions.Update(world.time_ns(), contacts, world, record.collisions);
       if (const auto closest = world.ClosestStructure();
@@ -177,6 +233,17 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   }
   record.wall_time_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+
+  // The true reference frames are known once the models have started (e.g. VIO's
+  // odometry frame is where the camera booted).
+  for (size_t i = 0; i < models.size(); ++i) record.sensors[i].T_WS = models[i]->T_WS();
+  // Scheduled faults as labels, merged with the condition transitions by time.
+  const core::Time run_end_ns = record.physics_steps * dt_ns;
+  for (const sim::FaultLabel& label : sim::FaultLabels(scenario.faults, run_end_ns)) {
+    record.labels.push_back({label.t_ns, label.sensor, label.fault, "fault", label.active});
+  }
+  std::stable_sort(record.labels.begin(), record.labels.end(),
+                   [](const LabelEvent& a, const LabelEvent& b) { return a.t_ns < b.t_ns; });
   if (options.progress) options.progress(1.0);
   return record;
 }

@@ -12,6 +12,7 @@
 
 #include "core/time.h"
 #include "harness/scenario.h"
+#include "harness/sensor_suite.h"
 #include "sim/trajectory.h"
 #include "sim/world.h"
 
@@ -59,6 +60,8 @@ struct RunRecord {
   std::optional<ProximityRecord> closest_structure;  ///< within the distance horizon
   double distance_horizon_m = 0.0;
   std::vector<ApproachResult> approaches;
+  std::vector<SensorStream> sensors;  ///< in the order of scenario.sensors
+  std::vector<LabelEvent> labels;     ///< condition and fault transitions, by time
   int64_t physics_steps = 0;
   double wall_time_s = 0.0;  ///< the only wall-clock figure; goes to timing.json
   /// Set when the simulation stopped early (MuJoCo bad state): what happened.

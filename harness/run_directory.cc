@@ -9,6 +9,10 @@
 
 #include <fmt/format.h>
 
+#include "core/lie.h"
+#include "sim/faults.h"
+#include "sim/sensor.h"
+
 namespace tofu::harness {
 namespace {
 
@@ -107,7 +111,199 @@ std::string CalibrationYaml(const RunRecord& record) {
         site.name, site.p_B_s.x(), site.p_B_s.y(), site.p_B_s.z(), site.q_B_s.w(),
         site.q_B_s.x(), site.q_B_s.y(), site.q_B_s.z());
   }
+  // The streams: their mount, and the true pose of their reference frame S in W (what
+  // frame alignment should find; an estimator is not given it).
+  if (!record.sensors.empty()) out += "sensors:\n";
+  for (const SensorStream& stream : record.sensors) {
+    const Eigen::Quaterniond q_WS = core::CanonicalQuat(Eigen::Quaterniond(stream.T_WS.linear()));
+    const Eigen::Vector3d p_WS = stream.T_WS.translation();
+    out += fmt::format(
+        "  {}:\n    type: {}\n    site: {}\n    true_T_WS:\n      p_W_m: [{:.6f}, {:.6f}, "
+        "{:.6f}]\n      q_W_wxyz: [{:.9f}, {:.9f}, {:.9f}, {:.9f}]\n",
+        stream.name, stream.type, stream.site, p_WS.x(), p_WS.y(), p_WS.z(), q_WS.w(), q_WS.x(),
+        q_WS.y(), q_WS.z());
+  }
   return out;
+}
+
+
+// ---- sensor streams (one CSV per stream, EuRoC/ASL-style headers with units) ----
+
+std::string ConditionText(uint32_t mask) {
+  std::string text;
+  for (const sim::Condition bit : sim::AllConditions()) {
+    if ((mask & bit) == 0) continue;
+    if (!text.empty()) text += '|';
+    text += sim::ConditionName(bit);
+  }
+  return text;
+}
+
+std::string FaultText(uint32_t mask) {
+  std::string text;
+  for (const sim::FaultKind kind : sim::AllFaultKinds()) {
+    if ((mask & sim::FaultBit(kind)) == 0) continue;
+    if (!text.empty()) text += '|';
+    text += sim::FaultKindName(kind);
+  }
+  return text;
+}
+
+// Upper triangle of a symmetric matrix, row by row: "c00,c01,...".
+template <int N>
+void AppendUpperTriangle(fmt::memory_buffer& out, const Eigen::Matrix<double, N, N>& c) {
+  for (int r = 0; r < N; ++r) {
+    for (int k = r; k < N; ++k) fmt::format_to(std::back_inserter(out), ",{:.6e}", c(r, k));
+  }
+}
+
+template <int N>
+std::string UpperTriangleHeader(const std::string& prefix, const std::string& unit) {
+  std::string header;
+  for (int r = 0; r < N; ++r) {
+    for (int k = r; k < N; ++k) header += fmt::format(",{}{}{} [{}]", prefix, r, k, unit);
+  }
+  return header;
+}
+
+std::string SensorCsv(const SensorStream& stream, bool delivered) {
+  const std::vector<sim::SensorSample>& samples = delivered ? stream.delivered : stream.clean;
+  fmt::memory_buffer out;
+  const auto row_faults = [&](size_t i) -> uint32_t {
+    return delivered && i < stream.delivered_faults.size() ? stream.delivered_faults[i] : 0u;
+  };
+  if (stream.type == "imu") {
+    // The first seven columns are EuRoC's imu0/data.csv.
+    fmt::format_to(std::back_inserter(out),
+                   "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+                   "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2],arrival [ns],"
+                   "err_w_x [rad s^-1],err_w_y [rad s^-1],err_w_z [rad s^-1],"
+                   "err_a_x [m s^-2],err_a_y [m s^-2],err_a_z [m s^-2],conditions,faults\n");
+    for (size_t i = 0; i < samples.size(); ++i) {
+      const sim::SensorSample& s = samples[i];
+      const auto& m = std::get<core::ImuMeasurement>(s.measured);
+      const auto& t = std::get<core::ImuMeasurement>(s.truth);
+      const Eigen::Vector3d ew = m.gyro_I_radps - t.gyro_I_radps;
+      const Eigen::Vector3d ea = m.acc_I_mps2 - t.acc_I_mps2;
+      fmt::format_to(std::back_inserter(out),
+                     "{},{:.9f},{:.9f},{:.9f},{:.7f},{:.7f},{:.7f},{},{:.9f},{:.9f},{:.9f},{:.7f},"
+                     "{:.7f},{:.7f},{},{}\n",
+                     s.t_ns, m.gyro_I_radps.x(), m.gyro_I_radps.y(), m.gyro_I_radps.z(),
+                     m.acc_I_mps2.x(), m.acc_I_mps2.y(), m.acc_I_mps2.z(), s.arrival_ns, ew.x(),
+                     ew.y(), ew.z(), ea.x(), ea.y(), ea.z(), ConditionText(s.conditions),
+                     FaultText(row_faults(i)));
+    }
+  } else if (stream.type == "vio" || stream.type == "lidar_odometry") {
+    fmt::format_to(std::back_inserter(out),
+                   "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m],q_Ss_w [],"
+                   "q_Ss_x [],q_Ss_y [],q_Ss_z [],v_s_x [m s^-1],v_s_y [m s^-1],v_s_z [m s^-1],"
+                   "omega_s_x [rad s^-1],omega_s_y [rad s^-1],omega_s_z [rad s^-1]{}{},"
+                   "err_p_x [m],err_p_y [m],err_p_z [m],err_theta_x [rad],err_theta_y [rad],"
+                   "err_theta_z [rad],conditions,faults\n",
+                   UpperTriangleHeader<6>("cov_pose_", "rad|m"),
+                   UpperTriangleHeader<6>("cov_twist_", "m/s|rad/s"));
+    for (size_t i = 0; i < samples.size(); ++i) {
+      const sim::SensorSample& s = samples[i];
+      const auto& m = std::get<core::PoseMeasurement>(s.measured);
+      const auto& t = std::get<core::PoseMeasurement>(s.truth);
+      const Eigen::Quaterniond q = core::CanonicalQuat(m.q_Ss);
+      // True error as the covariance defines it: R_meas = R_true Exp(err_theta).
+      const Eigen::Vector3d err_p = m.p_Ss - t.p_Ss;
+      const Eigen::Vector3d err_theta = core::LogQuat(t.q_Ss.conjugate() * m.q_Ss);
+      fmt::format_to(std::back_inserter(out),
+                     "{},{},{:.6f},{:.6f},{:.6f},{:.9f},{:.9f},{:.9f},{:.9f}", s.t_ns,
+                     s.arrival_ns, m.p_Ss.x(), m.p_Ss.y(), m.p_Ss.z(), q.w(), q.x(), q.y(), q.z());
+      if (m.has_twist) {
+        fmt::format_to(std::back_inserter(out), ",{:.6f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f}",
+                       m.v_s_s_mps.x(), m.v_s_s_mps.y(), m.v_s_s_mps.z(), m.omega_s_s_radps.x(),
+                       m.omega_s_s_radps.y(), m.omega_s_s_radps.z());
+      } else {
+        fmt::format_to(std::back_inserter(out), ",,,,,,");
+      }
+      AppendUpperTriangle<6>(out, m.covariance);
+      if (m.has_twist) {
+        AppendUpperTriangle<6>(out, m.twist_covariance);
+      } else {
+        fmt::format_to(std::back_inserter(out), "{}", std::string(21, ','));
+      }
+      fmt::format_to(std::back_inserter(out), ",{:.6f},{:.6f},{:.6f},{:.7f},{:.7f},{:.7f},{},{}\n",
+                     err_p.x(), err_p.y(), err_p.z(), err_theta.x(), err_theta.y(),
+                     err_theta.z(), ConditionText(s.conditions), FaultText(row_faults(i)));
+    }
+  } else {
+    fmt::format_to(std::back_inserter(out),
+                   "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m]{},"
+                   "err_p_x [m],err_p_y [m],err_p_z [m],conditions,faults\n",
+                   UpperTriangleHeader<3>("cov_p_", "m^2"));
+    for (size_t i = 0; i < samples.size(); ++i) {
+      const sim::SensorSample& s = samples[i];
+      const auto& m = std::get<core::PositionMeasurement>(s.measured);
+      const auto& t = std::get<core::PositionMeasurement>(s.truth);
+      const Eigen::Vector3d err = m.p_Ss - t.p_Ss;
+      fmt::format_to(std::back_inserter(out), "{},{},{:.6f},{:.6f},{:.6f}", s.t_ns, s.arrival_ns,
+                     m.p_Ss.x(), m.p_Ss.y(), m.p_Ss.z());
+      AppendUpperTriangle<3>(out, m.covariance);
+      fmt::format_to(std::back_inserter(out), ",{:.6f},{:.6f},{:.6f},{},{}\n", err.x(), err.y(),
+                     err.z(), ConditionText(s.conditions), FaultText(row_faults(i)));
+    }
+  }
+  return fmt::to_string(out);
+}
+
+std::string LabelsCsv(const RunRecord& record) {
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out), "#timestamp [ns],sensor,label,source,active\n");
+  for (const LabelEvent& l : record.labels) {
+    fmt::format_to(std::back_inserter(out), "{},{},{},{},{}\n", l.t_ns, l.sensor, l.label,
+                   l.source, l.active ? 1 : 0);
+  }
+  return fmt::to_string(out);
+}
+
+// EuRoC's state_groundtruth_estimate0: the IMU frame S (= our I) in R (= W), with the
+// true biases of the IMU (from its nearest earlier sample), so that VIO tools read a run.
+std::string EurocGroundTruthCsv(const RunRecord& record, const SensorStream& imu) {
+  const sim::MountSite* site = record.robot.FindSite(imu.site);
+  const Eigen::Vector3d p_B_I = site != nullptr ? site->p_B_s : Eigen::Vector3d::Zero();
+  const Eigen::Quaterniond q_B_I = site != nullptr ? site->q_B_s : Eigen::Quaterniond::Identity();
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out),
+                 "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], "
+                 "q_RS_y [], q_RS_z [], v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], "
+                 "b_w_RS_S_x [rad s^-1], b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], "
+                 "b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], b_a_RS_S_z [m s^-2]\n");
+  size_t k = 0;
+  for (const sim::TruthState& s : record.groundtruth) {
+    while (k + 1 < imu.clean.size() && imu.clean[k + 1].t_ns <= s.t_ns) ++k;
+    const Eigen::Matrix3d R_WB = s.q_WB.toRotationMatrix();
+    const Eigen::Vector3d p_WI = s.p_WB + R_WB * p_B_I;
+    const Eigen::Vector3d v_WI = s.v_WB_W + R_WB * s.omega_WB_B.cross(p_B_I);
+    const Eigen::Quaterniond q_WI = core::CanonicalQuat(s.q_WB * q_B_I);
+    const Eigen::Vector3d bw =
+        imu.imu_biases.empty() ? Eigen::Vector3d::Zero() : imu.imu_biases[k].first;
+    const Eigen::Vector3d ba =
+        imu.imu_biases.empty() ? Eigen::Vector3d::Zero() : imu.imu_biases[k].second;
+    fmt::format_to(std::back_inserter(out),
+                   "{},{:.6f},{:.6f},{:.6f},{:.9f},{:.9f},{:.9f},{:.9f},{:.6f},{:.6f},{:.6f},"
+                   "{:.9f},{:.9f},{:.9f},{:.7f},{:.7f},{:.7f}\n",
+                   s.t_ns, p_WI.x(), p_WI.y(), p_WI.z(), q_WI.w(), q_WI.x(), q_WI.y(), q_WI.z(),
+                   v_WI.x(), v_WI.y(), v_WI.z(), bw.x(), bw.y(), bw.z(), ba.x(), ba.y(), ba.z());
+  }
+  return fmt::to_string(out);
+}
+
+std::string EurocImuCsv(const SensorStream& imu) {
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out),
+                 "#timestamp [ns],w_RS_S_x [rad s-1],w_RS_S_y [rad s-1],w_RS_S_z [rad s-1],"
+                 "a_RS_S_x [m s-2],a_RS_S_y [m s-2],a_RS_S_z [m s-2]\n");
+  for (const sim::SensorSample& s : imu.delivered) {
+    const auto& m = std::get<core::ImuMeasurement>(s.measured);
+    fmt::format_to(std::back_inserter(out), "{},{:.9f},{:.9f},{:.9f},{:.7f},{:.7f},{:.7f}\n",
+                   s.t_ns, m.gyro_I_radps.x(), m.gyro_I_radps.y(), m.gyro_I_radps.z(),
+                   m.acc_I_mps2.x(), m.acc_I_mps2.y(), m.acc_I_mps2.z());
+  }
+  return fmt::to_string(out);
 }
 
 std::string TimingJson(const RunRecord& record) {
@@ -145,6 +341,24 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
     WriteText(staging / "calibration.yaml", CalibrationYaml(record));
     WriteText(staging / "summary.json", evaluation.summary.dump(2) + "\n");
     WriteText(staging / "timing.json", TimingJson(record));
+    if (!record.sensors.empty()) {
+      fs::create_directories(staging / "sensors" / "clean");
+      for (const SensorStream& stream : record.sensors) {
+        WriteText(staging / "sensors" / (stream.name + ".csv"), SensorCsv(stream, true));
+        WriteText(staging / "sensors" / "clean" / (stream.name + ".csv"), SensorCsv(stream, false));
+      }
+      WriteText(staging / "labels.csv", LabelsCsv(record));
+      // The EuRoC folder layout of the first IMU, so existing VIO tools read a run.
+      for (const SensorStream& stream : record.sensors) {
+        if (stream.type != "imu") continue;
+        fs::create_directories(staging / "mav0" / "imu0");
+        fs::create_directories(staging / "mav0" / "state_groundtruth_estimate0");
+        WriteText(staging / "mav0" / "imu0" / "data.csv", EurocImuCsv(stream));
+        WriteText(staging / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+                  EurocGroundTruthCsv(record, stream));
+        break;
+      }
+    }
     // Replace atomically from a reader's point of view: old aside, new in, old gone.
     const fs::path old = parent / (out.filename().string() + fmt::format(".old-{}", ::getpid()));
     if (fs::exists(out)) fs::rename(out, old);

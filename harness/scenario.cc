@@ -1,13 +1,16 @@
 #include "harness/scenario.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cassert>
 #include <cerrno>
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <fstream>
 #include <numbers>
 #include <sstream>
@@ -16,6 +19,12 @@
 #include "core/lie.h"
 #include "harness/metrics.h"
 #include "harness/config_io.h"
+#include "harness/fault_config.h"
+#include "harness/sensor_config_gnss.h"
+#include "harness/sensor_config_imu.h"
+#include "harness/sensor_config_lidar_odometry.h"
+#include "harness/sensor_config_total_station.h"
+#include "harness/sensor_config_vio.h"
 #include "harness/yaml_reader.h"
 
 namespace tofu::harness {
@@ -26,6 +35,55 @@ using internal::NumberRule;
 using internal::YamlMap;
 using internal::YamlValue;
 using namespace internal::config;
+
+std::string SensorTypeList() { return fmt::format("{}", fmt::join(kSensorTypeNames, ", ")); }
+
+std::vector<SensorConfig> ReadSensors(const YamlValue& value) {
+  std::vector<SensorConfig> sensors;
+  for (const auto& [name, entry] : value.Entries()) {
+    // `type` selects the model; a stream named after its type may leave it out.
+    std::string type = name;
+    if (const auto type_value = entry.Peek("type")) {
+      type = type_value->Identifier();
+      if (std::find(kSensorTypeNames.begin(), kSensorTypeNames.end(), type) ==
+          kSensorTypeNames.end()) {
+        type_value->Fail(fmt::format("unknown sensor type '{}'; expected one of: {}", type,
+                                     SensorTypeList()));
+      }
+    } else if (std::find(kSensorTypeNames.begin(), kSensorTypeNames.end(), name) ==
+               kSensorTypeNames.end()) {
+      entry.FailAtKey(fmt::format(
+          "sensor '{}' needs a 'type' (one of: {}); it may be left out only when the name "
+          "is a type",
+          name, SensorTypeList()));
+    }
+    const YamlValue options = entry.Without("type");
+    SensorConfig config{name, sim::ImuOptions{}};
+    if (type == "imu") {
+      config.options = internal::ReadImuOptions(options);
+    } else if (type == "vio") {
+      config.options = internal::ReadVioOptions(options);
+    } else if (type == "lidar_odometry") {
+      config.options = internal::ReadLidarOdometryOptions(options);
+    } else if (type == "total_station") {
+      config.options = internal::ReadTotalStationOptions(options);
+    } else {
+      config.options = internal::ReadGnssOptions(options);
+    }
+    sensors.push_back(std::move(config));
+  }
+  return sensors;
+}
+
+// The measurement type a sensor type produces, for the fault compatibility check.
+sim::SensorType MeasurementTypeOf(const SensorOptions& options) {
+  switch (options.index()) {
+    case 0: return sim::SensorType::kImu;
+    case 1:
+    case 2: return sim::SensorType::kPose;
+    default: return sim::SensorType::kPosition;
+  }
+}
 
 // ---- sections ----
 
@@ -361,7 +419,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   const YamlValue root = internal::ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
-                          "expect"});
+                          "sensors", "faults", "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -399,6 +457,14 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   scenario.trajectory = ReadTrajectory(map.Required("trajectory"));
   if (const auto offset = map.Optional("initial_offset")) {
     scenario.initial_offset = ReadInitialOffset(*offset);
+  }
+  if (const auto sensors = map.Optional("sensors")) scenario.sensors = ReadSensors(*sensors);
+  if (const auto faults = map.Optional("faults")) {
+    std::map<std::string, sim::SensorType> sensor_types;
+    for (const SensorConfig& sensor : scenario.sensors) {
+      sensor_types[sensor.name] = MeasurementTypeOf(sensor.options);
+    }
+    scenario.faults = internal::ReadFaults(*faults, scenario.duration_s, sensor_types);
   }
   if (const auto expect = map.Optional("expect")) {
     for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
@@ -498,6 +564,43 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   EmitVector(out, "position_m", scenario.initial_offset.position_W_m);
   EmitRpyDeg(out, "rpy_deg", scenario.initial_offset.q_offset);
   out << YAML::EndMap;
+
+  out << YAML::Key << "sensors" << YAML::Value;
+  if (scenario.sensors.empty()) {
+    out << YAML::Flow << YAML::BeginMap << YAML::EndMap;
+  } else {
+    out << YAML::BeginMap;
+    for (const SensorConfig& sensor : scenario.sensors) {
+      out << YAML::Key << sensor.name << YAML::Value << YAML::BeginMap;
+      out << YAML::Key << "type" << YAML::Value << std::string(SensorTypeName(sensor.options));
+      std::visit(
+          [&out](const auto& options) {
+            using Options = std::decay_t<decltype(options)>;
+            if constexpr (std::is_same_v<Options, sim::ImuOptions>) {
+              internal::EmitImuOptions(out, options);
+            } else if constexpr (std::is_same_v<Options, sim::VioOptions>) {
+              internal::EmitVioOptions(out, options);
+            } else if constexpr (std::is_same_v<Options, sim::LidarOdometryOptions>) {
+              internal::EmitLidarOdometryOptions(out, options);
+            } else if constexpr (std::is_same_v<Options, sim::TotalStationOptions>) {
+              internal::EmitTotalStationOptions(out, options);
+            } else {
+              internal::EmitGnssOptions(out, options);
+            }
+          },
+          sensor.options);
+      out << YAML::EndMap;
+    }
+    out << YAML::EndMap;
+  }
+  out << YAML::Key << "faults" << YAML::Value;
+  if (scenario.faults.empty()) {
+    out << YAML::Flow << YAML::BeginSeq << YAML::EndSeq;
+  } else {
+    out << YAML::BeginSeq;
+    for (const sim::FaultSpec& fault : scenario.faults) internal::EmitFaultSpec(out, fault);
+    out << YAML::EndSeq;
+  }
 
   out << YAML::Key << "expect" << YAML::Value;
   if (scenario.expect.empty()) {

@@ -10,6 +10,8 @@
 #include <vector>
 
 #include "core/error.h"
+#include "harness/sensor_suite.h"
+#include "sim/faults.h"
 #include "sim/controller.h"
 #include "sim/trajectory.h"
 #include "sim/wind.h"
@@ -55,6 +57,11 @@ struct Scenario {
   InitialOffset initial_offset;
   sim::WindOptions wind;
   OutputOptions output;
+  /// `sensors:` a map of stream name -> options; `type:` selects the model and may be
+  /// left out when the name is a type (imu, vio, lidar_odometry, total_station, gnss).
+  std::vector<SensorConfig> sensors;
+  /// `faults:` scheduled faults, each on one sensor of `sensors`.
+  std::vector<sim::FaultSpec> faults;
   std::vector<Expectation> expect;
 };
 

@@ -1,6 +1,7 @@
 #include "harness/yaml_reader.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <cassert>
@@ -43,12 +44,7 @@ std::string Quote(std::string_view text) {
 }
 
 std::string Join(const std::vector<std::string>& words) {
-  std::string out;
-  for (const std::string& word : words) {
-    if (!out.empty()) out += ", ";
-    out += word;
-  }
-  return out;
+  return fmt::format("{}", fmt::join(words, ", "));
 }
 
 size_t EditDistance(std::string_view a, std::string_view b) {

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <mujoco/mujoco.h>
 
 #include "core/error.h"
@@ -60,8 +61,7 @@ void RequireModelFile(const fs::path& path, const std::string& key) {
       }
     }
     std::sort(names.begin(), names.end());
-    std::string available;
-    for (const auto& n : names) available += (available.empty() ? "" : ", ") + n;
+    const std::string available = fmt::format("{}", fmt::join(names, ", "));
     throw core::InputError({path.string(), 0, 0}, key,
                            fmt::format("model file not found; available: {}",
                                        available.empty() ? "(none)" : available));

@@ -1,0 +1,75 @@
+#pragma once
+// The sensor suite of a scenario: typed sensor configurations, the factory that builds
+// the sim models, and what a run records of their streams: the clean samples, the
+// samples as delivered after scheduled faults, and the labels of every condition and
+// fault (labels.csv).
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <variant>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/time.h"
+#include "sim/faults.h"
+#include "sim/gnss.h"
+#include "sim/imu.h"
+#include "sim/lidar_odometry.h"
+#include "sim/sensor.h"
+#include "sim/total_station.h"
+#include "sim/vio.h"
+#include "sim/world.h"
+
+namespace tofu::harness {
+
+/// Options of one sensor; the alternative says its type.
+using SensorOptions = std::variant<sim::ImuOptions, sim::VioOptions, sim::LidarOdometryOptions,
+                                   sim::TotalStationOptions, sim::GnssOptions>;
+
+/// Type names as written in YAML (`type:`), in the order of SensorOptions.
+inline constexpr std::array<std::string_view, 5> kSensorTypeNames = {
+    "imu", "vio", "lidar_odometry", "total_station", "gnss"};
+
+struct SensorConfig {
+  std::string name;  ///< stream name: [a-z0-9_]+, the key under `sensors:`
+  SensorOptions options;
+};
+
+std::string_view SensorTypeName(const SensorOptions& options);
+
+/// The mount site a sensor's options name.
+const std::string& SensorSite(const SensorOptions& options);
+
+/// Builds the model of `config`; its random streams derive from (seed, sensor name) only,
+/// so adding or removing another sensor never changes this one's samples.
+std::unique_ptr<sim::SensorModel> MakeSensorModel(const SensorConfig& config,
+                                                  const sim::World& world, uint64_t seed);
+
+/// A label transition: a condition or a scheduled fault of a sensor starts or ends.
+struct LabelEvent {
+  core::Time t_ns = 0;
+  std::string sensor;
+  std::string label;   ///< condition name ("occluded") or fault kind ("divergence")
+  std::string source;  ///< "condition" or "fault"
+  bool active = false;
+};
+
+/// Everything a run recorded of one sensor.
+struct SensorStream {
+  std::string name;
+  std::string type;
+  std::string site;
+  Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();  ///< true reference frame in W
+  std::vector<sim::SensorSample> clean;      ///< as the model produced them
+  std::vector<sim::SensorSample> delivered;  ///< after scheduled faults: what a consumer gets
+  std::vector<uint32_t> delivered_faults;    ///< active fault bits per delivered sample
+  /// IMU only: the true biases (gyro, accel) of each clean sample.
+  std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> imu_biases;
+};
+
+}  // namespace tofu::harness

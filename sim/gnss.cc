@@ -1,0 +1,203 @@
+#include "sim/gnss.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <utility>
+
+namespace tofu::sim {
+namespace {
+
+// Position in W of a point fixed in B at p_B_s, at t + tau (rigid-body kinematics,
+// second-order extrapolation over tau < one physics step):
+//   p_Ws = p_WB + R_WB r,  v_Ws = v_WB + R_WB (omega x r),
+//   a_Ws = a_WB + R_WB (alpha x r + omega x (omega x r)).
+Eigen::Vector3d MountPointPosition(const TruthState& x, const Eigen::Vector3d& r, double tau_s) {
+  const Eigen::Matrix3d R_WB = x.q_WB.toRotationMatrix();
+  const Eigen::Vector3d& w = x.omega_WB_B;
+  const Eigen::Vector3d v = x.v_WB_W + R_WB * w.cross(r);
+  const Eigen::Vector3d a = x.a_WB_W + R_WB * (x.alpha_WB_B.cross(r) + w.cross(w.cross(r)));
+  return x.p_WB + R_WB * r + v * tau_s + 0.5 * a * tau_s * tau_s;
+}
+
+// Index of a fix type's brown-error state (none has no state).
+int BrownIndex(GnssFix fix) {
+  switch (fix) {
+    case GnssFix::kSingle: return 0;
+    case GnssFix::kFloat: return 1;
+    case GnssFix::kFixed: return 2;
+    case GnssFix::kNone: break;
+  }
+  return -1;
+}
+
+constexpr GnssFix kFixTypes[3] = {GnssFix::kSingle, GnssFix::kFloat, GnssFix::kFixed};
+
+}  // namespace
+
+GnssModel::GnssModel(std::string name, const GnssOptions& options, const World& world,
+                     uint64_t seed)
+    : name_(std::move(name)),
+      options_(options),
+      stream_(seed, "sensor/" + name_),
+      period_ns_(core::PeriodFromRate(options.rate_hz)),
+      latency_ns_(core::SecondsToTime(options.latency_s)),
+      time_to_fix_ns_(core::SecondsToTime(options.time_to_fix_s)) {
+  const std::string who = "gnss '" + name_ + "': ";
+  const MountSite* mount = world.robot().FindSite(options_.site);
+  if (mount == nullptr) {
+    throw std::invalid_argument(who + "robot has no site '" + options_.site + "'");
+  }
+  p_B_s_ = mount->p_B_s;
+  if (!(period_ns_ > 0)) throw std::invalid_argument(who + "rate_hz must be positive");
+  if (!(options_.min_satellites_single >= 4 &&
+        options_.min_satellites_single <= options_.min_satellites_float &&
+        options_.min_satellites_float <= options_.min_satellites_fixed)) {
+    throw std::invalid_argument(
+        who + "expected 4 <= min_satellites_single <= min_satellites_float <= "
+              "min_satellites_fixed");
+  }
+  if (options_.satellite_count < 0) throw std::invalid_argument(who + "satellite_count < 0");
+
+  T_WS_ = Eigen::Isometry3d::Identity();
+  T_WS_.translation() = options_.enu_origin_W_m;
+  T_WS_.linear() =
+      Eigen::AngleAxisd(options_.enu_yaw_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+
+  // The sky: uniform over the cap above the mask (area element d(sin el) d az).
+  core::RandomStream sky(seed, "sensor/" + name_ + "/sky");
+  const double sin_mask = std::sin(options_.elevation_mask_rad);
+  for (int i = 0; i < options_.satellite_count; ++i) {
+    const double az = sky.Uniform(0.0, 2.0 * 3.14159265358979323846);
+    const double sin_el = sky.Uniform(sin_mask, 1.0);
+    const double cos_el = std::sqrt(std::max(0.0, 1.0 - sin_el * sin_el));
+    sky_S_.emplace_back(cos_el * std::cos(az), cos_el * std::sin(az), sin_el);
+  }
+
+  // Correlated errors start in their stationary distribution (no warm-up transient).
+  for (const GnssFix fix : kFixTypes) {
+    const GnssFixErrorOptions& e = ErrorOptions(fix);
+    const double s = std::sqrt(e.correlated_fraction);
+    const Eigen::Vector3d sigma(e.std_horizontal_m, e.std_horizontal_m, e.std_vertical_m);
+    Eigen::Vector3d b;
+    for (int k = 0; k < 3; ++k) b(k) = s * sigma(k) * stream_.Normal();
+    brown_S_[BrownIndex(fix)] = b;
+  }
+  for (int k = 0; k < 3; ++k) multipath_unit_(k) = stream_.Normal();
+}
+
+const GnssFixErrorOptions& GnssModel::ErrorOptions(GnssFix fix) const {
+  switch (fix) {
+    case GnssFix::kSingle: return options_.single;
+    case GnssFix::kFloat: return options_.rtk_float;
+    case GnssFix::kFixed:
+    case GnssFix::kNone: break;
+  }
+  return options_.rtk_fixed;
+}
+
+void GnssModel::AdvanceErrors(double dt_s) {
+  // Exact discretisation of dx = -x/tau dt + sigma sqrt(2/tau) dW:
+  //   x_k+1 = phi x_k + sigma sqrt(1 - phi^2) n_k, phi = e^(-dt/tau).
+  for (const GnssFix fix : kFixTypes) {
+    const GnssFixErrorOptions& e = ErrorOptions(fix);
+    const double phi = std::exp(-dt_s / e.correlation_time_s);
+    const double s = std::sqrt(e.correlated_fraction) * std::sqrt(1.0 - phi * phi);
+    const Eigen::Vector3d sigma(e.std_horizontal_m, e.std_horizontal_m, e.std_vertical_m);
+    Eigen::Vector3d& b = brown_S_[BrownIndex(fix)];
+    for (int k = 0; k < 3; ++k) b(k) = phi * b(k) + s * sigma(k) * stream_.Normal();
+  }
+  const double phi = std::exp(-dt_s / options_.multipath_correlation_time_s);
+  const double s = std::sqrt(1.0 - phi * phi);
+  for (int k = 0; k < 3; ++k) multipath_unit_(k) = phi * multipath_unit_(k) + s * stream_.Normal();
+}
+
+void GnssModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
+  const TruthState& x = input.truth;
+  const core::Time t_ns = x.t_ns;
+  const core::Time dt_ns = input.world.timestep_ns();
+  const Eigen::Matrix3d R_WS = T_WS_.linear();
+
+  while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
+  for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
+    const core::Time ts_ns = next_sample_ns_;
+    const Eigen::Vector3d p_Ws = MountPointPosition(x, p_B_s_, core::TimeToSeconds(ts_ns - t_ns));
+
+    // Sky visibility: one ray per satellite against structure and ground.
+    int visible = 0;
+    for (const Eigen::Vector3d& dir_S : sky_S_) {
+      const std::optional<RayHit> hit = input.world.CastRay(p_Ws, R_WS * dir_S, kRayScene);
+      if (!hit || hit->distance_m > options_.sky_ray_length_m) ++visible;
+    }
+    visible_ = visible;
+    const double blocked_fraction =
+        sky_S_.empty() ? 1.0
+                       : static_cast<double>(options_.satellite_count - visible) /
+                             static_cast<double>(options_.satellite_count);
+
+    // Fix type; RTK fixed needs min_satellites_fixed continuously for time_to_fix_s.
+    if (visible >= options_.min_satellites_fixed) {
+      if (!fixable_since_ns_) {
+        fixable_since_ns_ = (first_epoch_ && options_.fixed_at_start) ? ts_ns - time_to_fix_ns_
+                                                                      : ts_ns;
+      }
+    } else {
+      fixable_since_ns_.reset();
+    }
+    first_epoch_ = false;
+    if (visible < options_.min_satellites_single) {
+      fix_ = GnssFix::kNone;
+    } else if (visible < options_.min_satellites_float) {
+      fix_ = GnssFix::kSingle;
+    } else if (fixable_since_ns_ && ts_ns - *fixable_since_ns_ >= time_to_fix_ns_) {
+      fix_ = GnssFix::kFixed;
+    } else {
+      fix_ = GnssFix::kFloat;
+    }
+
+    // Error processes advance at every epoch, with or without a fix.
+    if (last_epoch_ns_) AdvanceErrors(core::TimeToSeconds(ts_ns - *last_epoch_ns_));
+    last_epoch_ns_ = ts_ns;
+
+    uint32_t conditions = kConditionNone;
+    switch (fix_) {
+      case GnssFix::kNone: conditions = kNoFix; break;
+      case GnssFix::kSingle: conditions = kSingleFix; break;
+      case GnssFix::kFloat: conditions = kFloatFix; break;
+      case GnssFix::kFixed: break;
+    }
+    if (fix_ != GnssFix::kNone && blocked_fraction >= options_.multipath_min_blocked_fraction &&
+        blocked_fraction > 0.0) {
+      conditions |= kMultipath;
+    }
+    conditions_ = conditions;
+    if (fix_ == GnssFix::kNone) continue;
+
+    // Reported position: truth + white + brown + multipath; reported covariance is the
+    // fix type's stated one.
+    const GnssFixErrorOptions& e = ErrorOptions(fix_);
+    const Eigen::Vector3d sigma(e.std_horizontal_m, e.std_horizontal_m, e.std_vertical_m);
+    const double white_scale = std::sqrt(1.0 - e.correlated_fraction);
+    Eigen::Vector3d white;
+    for (int k = 0; k < 3; ++k) white(k) = white_scale * sigma(k) * stream_.Normal();
+    const Eigen::Vector3d multipath = blocked_fraction * e.multipath_std_m * multipath_unit_;
+
+    const Eigen::Vector3d p_Ss = R_WS.transpose() * (p_Ws - T_WS_.translation());
+    core::PositionMeasurement measured;
+    measured.p_Ss = p_Ss + white + brown_S_[BrownIndex(fix_)] + multipath;
+    measured.covariance = sigma.cwiseAbs2().asDiagonal();
+    core::PositionMeasurement truth;
+    truth.p_Ss = p_Ss;
+    truth.covariance = Eigen::Matrix3d::Zero();
+
+    SensorSample sample;
+    sample.t_ns = ts_ns;
+    sample.arrival_ns = ts_ns + latency_ns_;
+    sample.measured = measured;
+    sample.truth = truth;
+    sample.conditions = conditions;
+    out->push_back(std::move(sample));
+  }
+}
+
+}  // namespace tofu::sim

@@ -1,0 +1,342 @@
+#include "sim/lidar_odometry.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <utility>
+
+#include <Eigen/Eigenvalues>
+
+#include "core/lie.h"
+
+namespace tofu::sim {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+/// Fractional part of the golden ratio: successive multiples fill [0, 1) evenly.
+constexpr double kGoldenFraction = 0.6180339887498949;
+
+// Pose and velocities of the mount frame s at t + tau (tau < one physics step), by
+// rigid-body kinematics with the lever arm r = p_B_s and a second-order extrapolation:
+//   R_WB(tau) = R_WB Exp(omega tau + alpha tau^2 / 2),  p_WB(tau) = p + v tau + a tau^2 / 2,
+//   p_Ws = p_WB + R_WB r,  v_Ws = v_WB + R_WB (omega x r),  R_Ws = R_WB R_Bs,
+//   omega_s = R_Bs^T omega.
+struct MountMotion {
+  Eigen::Vector3d p_Ws;
+  Eigen::Matrix3d R_Ws;
+  Eigen::Vector3d v_Ws_W;
+  Eigen::Vector3d omega_s_s;
+};
+
+MountMotion MountMotionAt(const TruthState& x, const Eigen::Isometry3d& T_B_s, double tau_s) {
+  const Eigen::Vector3d omega_B = x.omega_WB_B + x.alpha_WB_B * tau_s;
+  Eigen::Matrix3d R_WB = x.q_WB.toRotationMatrix();
+  Eigen::Vector3d p_WB = x.p_WB;
+  Eigen::Vector3d v_WB = x.v_WB_W;
+  if (tau_s != 0.0) {
+    R_WB = R_WB * core::ExpSO3(x.omega_WB_B * tau_s + 0.5 * x.alpha_WB_B * tau_s * tau_s);
+    p_WB += x.v_WB_W * tau_s + 0.5 * x.a_WB_W * tau_s * tau_s;
+    v_WB += x.a_WB_W * tau_s;
+  }
+  const Eigen::Vector3d r = T_B_s.translation();
+  const Eigen::Matrix3d R_Bs = T_B_s.linear();
+  MountMotion m;
+  m.p_Ws = p_WB + R_WB * r;
+  m.R_Ws = R_WB * R_Bs;
+  m.v_Ws_W = v_WB + R_WB * omega_B.cross(r);
+  m.omega_s_s = R_Bs.transpose() * omega_B;
+  return m;
+}
+
+void Require(bool ok, const std::string& name, const std::string& what) {
+  if (!ok) throw std::invalid_argument("lidar odometry '" + name + "': " + what);
+}
+
+}  // namespace
+
+LidarOdometryModel::LidarOdometryModel(std::string name, const LidarOdometryOptions& options,
+                                       const World& world, uint64_t seed)
+    : name_(std::move(name)),
+      options_(options),
+      stream_(seed, "sensor/" + name_),
+      period_ns_(options.rate_hz > 0.0 ? core::PeriodFromRate(options.rate_hz) : 0),
+      latency_ns_(core::SecondsToTime(options.latency_s)) {
+  const MountSite* mount = world.robot().FindSite(options_.site);
+  Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
+  T_B_s_ = Eigen::Isometry3d::Identity();
+  T_B_s_.translation() = mount->p_B_s;
+  T_B_s_.linear() = mount->q_B_s.normalized().toRotationMatrix();
+
+  Require(period_ns_ > 0, name_, "rate_hz must be positive");
+  Require(options_.latency_s >= 0.0, name_, "latency_s must be >= 0");
+  Require(options_.azimuth_count >= 1 && options_.elevation_count >= 1, name_,
+          "the scan needs at least one azimuth and one elevation");
+  Require(options_.elevation_min_rad >= -0.5 * kPi &&
+              options_.elevation_min_rad <= options_.elevation_max_rad &&
+              options_.elevation_max_rad <= 0.5 * kPi,
+          name_, "elevations must satisfy -90 <= min <= max <= 90 deg");
+  Require(options_.min_range_m >= 0.0 && options_.min_range_m < options_.max_range_m, name_,
+          "ranges must satisfy 0 <= min < max");
+  Require(options_.range_noise_m >= 0.0, name_, "range_noise_m must be >= 0");
+  Require(options_.divergence_time_constant_s > 0.0, name_,
+          "divergence_time_constant_s must be positive");
+  Require(options_.max_reported_position_std_m > 0.0 &&
+              options_.max_reported_rotation_std_rad > 0.0,
+          name_, "the largest reported standard deviations must be positive");
+
+  if (options_.p_WS_m) T_WS_.translation() = *options_.p_WS_m;
+  if (options_.q_WS) T_WS_.linear() = options_.q_WS->normalized().toRotationMatrix();
+}
+
+LidarScanGeometry LidarOdometryModel::AnalyseScan(const World& world,
+                                                  const Eigen::Isometry3d& T_Ws,
+                                                  int64_t scan_index) const {
+  const int azimuths = options_.azimuth_count;
+  const int elevations = options_.elevation_count;
+  const Eigen::Vector3d origin_W = T_Ws.translation();
+  const Eigen::Matrix3d R_Ws = T_Ws.linear();
+  const double azimuth_step = 2.0 * kPi / azimuths;
+  const double phase = kGoldenFraction * static_cast<double>(scan_index % 1000003);
+  const double azimuth_offset = (phase - std::floor(phase)) * azimuth_step;
+
+  // Unscaled information S = sum J^T J, J = [(p x n)^T, n^T] (H = S / sigma^2).
+  LidarScanGeometry g;
+  g.ray_count = azimuths * elevations;
+  Eigen::Matrix<double, 6, 6> S = Eigen::Matrix<double, 6, 6>::Zero();
+  for (int j = 0; j < elevations; ++j) {
+    const double e = elevations == 1
+                         ? 0.5 * (options_.elevation_min_rad + options_.elevation_max_rad)
+                         : options_.elevation_min_rad +
+                               (options_.elevation_max_rad - options_.elevation_min_rad) * j /
+                                   (elevations - 1);
+    const double ce = std::cos(e), se = std::sin(e);
+    for (int i = 0; i < azimuths; ++i) {
+      const double a = azimuth_offset + azimuth_step * i;
+      const Eigen::Vector3d u_s(ce * std::cos(a), ce * std::sin(a), se);
+      const std::optional<RayHit> hit = world.CastRay(origin_W, R_Ws * u_s, kRayScene);
+      if (!hit || hit->distance_m < options_.min_range_m ||
+          hit->distance_m > options_.max_range_m) {
+        continue;
+      }
+      ++g.return_count;
+      const Eigen::Vector3d p = hit->point_W - origin_W;
+      Eigen::Matrix<double, 6, 1> J;
+      J << p.cross(hit->normal_W), hit->normal_W;
+      S.selfadjointView<Eigen::Lower>().rankUpdate(J);
+    }
+  }
+  S = S.selfadjointView<Eigen::Lower>();
+
+  // Report H = S / sigma^2 (a vanishing sigma gives the geometry with unit weight).
+  const double sigma = options_.range_noise_m;
+  const double weight = sigma > 0.0 ? 1.0 / (sigma * sigma) : 1.0;
+  g.information_W = weight * S;
+
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> full(g.information_W);
+  g.eigenvalues = full.eigenvalues();
+  g.eigenvectors = full.eigenvectors();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> rotation(
+      g.information_W.topLeftCorner<3, 3>());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> translation(
+      g.information_W.bottomRightCorner<3, 3>());
+  g.rotation_eigenvalues = rotation.eigenvalues();
+  g.rotation_axes_W = rotation.eigenvectors();
+  g.translation_eigenvalues = translation.eigenvalues();
+  g.translation_directions_W = translation.eigenvectors();
+
+  // Degenerate: eigenvalue * sigma^2 (= effective number of constraining returns) below
+  // the threshold (Zhang, Kaess & Singh 2016, with the threshold in returns).
+  g.degenerate = false;
+  for (int k = 0; k < 3; ++k) {
+    g.translation_degenerate[k] =
+        !(g.translation_eigenvalues[k] > 0.0) ||
+        g.translation_eigenvalues[k] / weight < options_.degenerate_translation_threshold;
+    g.rotation_degenerate[k] =
+        !(g.rotation_eigenvalues[k] > 0.0) ||
+        g.rotation_eigenvalues[k] / weight < options_.degenerate_rotation_threshold_m2;
+    g.degenerate = g.degenerate || g.translation_degenerate[k];
+  }
+  g.few_returns = g.return_count < options_.min_returns;
+  return g;
+}
+
+void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
+  const TruthState& x = input.truth;
+  const core::Time t_ns = x.t_ns;
+  const core::Time dt_ns = input.world.timestep_ns();
+  const double dt_s = core::TimeToSeconds(dt_ns);
+  const MountMotion now = MountMotionAt(x, T_B_s_, 0.0);
+
+  // The odometry frame starts where the LiDAR boots (unless configured).
+  if (!started_) {
+    if (!options_.p_WS_m) T_WS_.translation() = now.p_Ws;
+    if (!options_.q_WS) T_WS_.linear() = now.R_Ws;
+    started_ = true;
+    previous_p_Ws_ = now.p_Ws;
+  }
+  const Eigen::Matrix3d R_WS = T_WS_.linear();
+  const Eigen::Vector3d p_WS = T_WS_.translation();
+
+  // Motion since the last step along the latest scan's eigen-directions.
+  const Eigen::Vector3d step_W = now.p_Ws - previous_p_Ws_;
+  previous_p_Ws_ = now.p_Ws;
+  const Eigen::Vector3d rotation_W = now.R_Ws * now.omega_s_s * dt_s;
+  distance_m_ += step_W.norm();
+  if (have_geometry_) {
+    for (int k = 0; k < 3; ++k) {
+      translation_path_m_[k] += std::abs(geometry_.translation_directions_W.col(k).dot(step_W));
+      rotation_path_rad_[k] += std::abs(geometry_.rotation_axes_W.col(k).dot(rotation_W));
+    }
+  }
+  // The path is integrated with the drifted attitude: dp += (R_err - I) dp_Ss.
+  dp_S_ += (R_err_ - Eigen::Matrix3d::Identity()) * (R_WS.transpose() * step_W);
+  // Too few returns: the filter diverges exponentially.
+  if (diverging_) {
+    v_div_S_ *= std::exp(dt_s / options_.divergence_time_constant_s);
+    dp_S_ += v_div_S_ * dt_s;
+  }
+
+  // Scans whose time of validity falls in [t, t + dt).
+  while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
+  for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
+    const core::Time ts_ns = next_sample_ns_;
+    const MountMotion at = MountMotionAt(x, T_B_s_, core::TimeToSeconds(ts_ns - t_ns));
+    Eigen::Isometry3d T_Ws = Eigen::Isometry3d::Identity();
+    T_Ws.linear() = at.R_Ws;
+    T_Ws.translation() = at.p_Ws;
+
+    // Drift accumulated since the previous scan, along that scan's directions. Draws
+    // depend on the options only (not on the geometry or the motion), so a seed gives the
+    // same noise sequence whatever the robot does.
+    const bool translation_walk = options_.position_random_walk_m_per_sqrtm > 0.0 ||
+                                  options_.degenerate_position_random_walk_m_per_sqrtm > 0.0;
+    const bool rotation_walk = options_.rotation_random_walk_rad_per_sqrtm > 0.0 ||
+                               options_.degenerate_rotation_random_walk_rad_per_sqrtrad > 0.0;
+    if (have_geometry_) {
+      Eigen::Vector3d drift_W = Eigen::Vector3d::Zero();
+      Eigen::Vector3d theta_W = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 3; ++k) {
+        if (translation_walk) {
+          const double sigma_p = (geometry_.translation_degenerate[k]
+                                      ? options_.degenerate_position_random_walk_m_per_sqrtm
+                                      : options_.position_random_walk_m_per_sqrtm) *
+                                 std::sqrt(translation_path_m_[k]);
+          drift_W += geometry_.translation_directions_W.col(k) * sigma_p * stream_.Normal();
+        }
+        if (rotation_walk) {
+          const double sigma_r =
+              geometry_.rotation_degenerate[k]
+                  ? options_.degenerate_rotation_random_walk_rad_per_sqrtrad *
+                        std::sqrt(rotation_path_rad_[k])
+                  : options_.rotation_random_walk_rad_per_sqrtm * std::sqrt(distance_m_);
+          theta_W += geometry_.rotation_axes_W.col(k) * sigma_r * stream_.Normal();
+        }
+      }
+      dp_S_ += R_WS.transpose() * drift_W;
+      R_err_ = core::ExpSO3(R_WS.transpose() * theta_W) * R_err_;
+    }
+    translation_path_m_.setZero();
+    rotation_path_rad_.setZero();
+    distance_m_ = 0.0;
+
+    geometry_ = AnalyseScan(input.world, T_Ws, scan_index_++);
+    have_geometry_ = true;
+    if (geometry_.few_returns && !diverging_) {
+      diverging_ = true;
+      const double sigma = options_.divergence_velocity_mps;
+      v_div_S_ = sigma * Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+    } else if (!geometry_.few_returns) {
+      diverging_ = false;
+      v_div_S_.setZero();
+    }
+
+    // Truth of the scan instant.
+    core::PoseMeasurement truth;
+    truth.p_Ss = R_WS.transpose() * (at.p_Ws - p_WS);
+    const Eigen::Matrix3d R_Ss = R_WS.transpose() * at.R_Ws;
+    truth.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_Ss));
+    truth.covariance.setZero();
+    truth.has_twist = true;
+    truth.v_s_s_mps = at.R_Ws.transpose() * at.v_Ws_W;
+    truth.omega_s_s_radps = at.omega_s_s;
+    truth.twist_covariance.setZero();
+
+    // White registration noise N(0, H^-1) along the constrained eigen-directions of each
+    // block: sigma_r sum_k u_k n_k / sqrt(lambda_k sigma_r^2).
+    const double sigma_range = options_.range_noise_m;
+    Eigen::Vector3d noise_p_W = Eigen::Vector3d::Zero();
+    Eigen::Vector3d noise_theta_W = Eigen::Vector3d::Zero();
+    if (sigma_range > 0.0) {
+      for (int k = 0; k < 3; ++k) {
+        const double n_p = stream_.Normal();
+        const double n_r = stream_.Normal();
+        if (!geometry_.translation_degenerate[k]) {
+          noise_p_W += geometry_.translation_directions_W.col(k) * n_p /
+                       std::sqrt(geometry_.translation_eigenvalues[k]);
+        }
+        if (!geometry_.rotation_degenerate[k]) {
+          noise_theta_W += geometry_.rotation_axes_W.col(k) * n_r /
+                           std::sqrt(geometry_.rotation_eigenvalues[k]);
+        }
+      }
+    }
+
+    core::PoseMeasurement measured;
+    measured.p_Ss = truth.p_Ss + dp_S_ + R_WS.transpose() * noise_p_W;
+    const Eigen::Matrix3d R_hat = R_err_ * R_Ss;
+    Eigen::Matrix3d R_meas = R_hat;
+    if (sigma_range > 0.0) R_meas = R_hat * core::ExpSO3(at.R_Ws.transpose() * noise_theta_W);
+    measured.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_meas));
+
+    // Reported covariance: regularised inverse information, mapped from W axes to
+    // [dtheta in s (right perturbation); dp in S].
+    Eigen::Matrix<double, 6, 1> prior_information;
+    const double s_rot = options_.max_reported_rotation_std_rad;
+    const double s_pos = options_.max_reported_position_std_m;
+    prior_information << Eigen::Vector3d::Constant(1.0 / (s_rot * s_rot)),
+        Eigen::Vector3d::Constant(1.0 / (s_pos * s_pos));
+    Eigen::Matrix<double, 6, 6> information = geometry_.information_W;
+    information.diagonal() += prior_information;
+    const Eigen::Matrix<double, 6, 6> covariance_W =
+        information.selfadjointView<Eigen::Lower>().ldlt().solve(
+            Eigen::Matrix<double, 6, 6>::Identity());
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+    A.topLeftCorner<3, 3>() = at.R_Ws.transpose();
+    A.bottomRightCorner<3, 3>() = R_WS.transpose();
+    measured.covariance = A * covariance_W * A.transpose();
+    measured.covariance = 0.5 * (measured.covariance + measured.covariance.transpose());
+
+    measured.has_twist = true;
+    measured.v_s_s_mps = truth.v_s_s_mps + R_hat.transpose() * v_div_S_;
+    if (options_.velocity_noise_mps > 0.0) {
+      measured.v_s_s_mps += options_.velocity_noise_mps *
+                            Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+    }
+    measured.omega_s_s_radps = truth.omega_s_s_radps;
+    if (options_.angular_rate_noise_radps > 0.0) {
+      measured.omega_s_s_radps +=
+          options_.angular_rate_noise_radps *
+          Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+    }
+    Eigen::Matrix<double, 6, 1> twist_variance;
+    twist_variance << Eigen::Vector3d::Constant(options_.velocity_noise_mps *
+                                                options_.velocity_noise_mps),
+        Eigen::Vector3d::Constant(options_.angular_rate_noise_radps *
+                                  options_.angular_rate_noise_radps);
+    measured.twist_covariance = twist_variance.asDiagonal();
+
+    conditions_ = kConditionNone;
+    if (geometry_.degenerate) conditions_ |= kDegenerate;
+    if (geometry_.few_returns) conditions_ |= kFewReturns;
+
+    SensorSample sample;
+    sample.t_ns = ts_ns;
+    sample.arrival_ns = ts_ns + latency_ns_;
+    sample.measured = measured;
+    sample.truth = truth;
+    sample.conditions = conditions_;
+    out->push_back(std::move(sample));
+  }
+}
+
+}  // namespace tofu::sim
