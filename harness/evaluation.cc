@@ -1,7 +1,6 @@
 #include "harness/evaluation.h"
 
 #include <algorithm>
-#include <map>
 #include <cmath>
 #include <numbers>
 #include <stdexcept>
@@ -51,6 +50,69 @@ nlohmann::json OptionalNumber(const std::optional<double>& v) {
   return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
 }
 
+// Time the labels of `sensor` say `label` (source "condition") was active inside the
+// window [from, to] (the whole run without a window).
+double ConditionActiveSeconds(const RunRecord& record, const std::string& sensor,
+                              const std::string& label, double from_s, double to_s) {
+  double active_s = 0.0;
+  bool active = false;
+  double since_s = 0.0;
+  for (const LabelEvent& l : record.labels) {
+    if (l.sensor != sensor || l.label != label || l.source != "condition") continue;
+    const double t_s = core::TimeToSeconds(l.t_ns);
+    if (l.active && !active) {
+      active = true;
+      since_s = t_s;
+    } else if (!l.active && active) {
+      active_s += std::max(0.0, std::min(t_s, to_s) - std::max(since_s, from_s));
+      active = false;
+    }
+  }
+  if (active) active_s += std::max(0.0, to_s - std::max(since_s, from_s));
+  return active_s;
+}
+
+std::optional<double> SensorMetricValue(const RunRecord& record, const std::string& pattern,
+                                        const MetricArguments& args,
+                                        const std::optional<std::pair<double, double>>& window_s) {
+  const auto stream = std::find_if(record.sensors.begin(), record.sensors.end(),
+                                   [&](const SensorStream& s) { return s.name == args.sensor; });
+  if (stream == record.sensors.end()) return std::nullopt;
+  const double run_s = core::TimeToSeconds(record.physics_steps *
+                                           core::PeriodFromRate(record.scenario.physics.rate_hz));
+  const double from_s = window_s ? window_s->first : 0.0;
+  const double to_s = window_s ? std::min(window_s->second, run_s) : run_s;
+  if (pattern == "sensors.<sensor>.delivered_samples") {
+    size_t count = 0;
+    for (const sim::SensorSample& s : stream->delivered) count += InWindow(s.t_ns, window_s);
+    return static_cast<double>(count);
+  }
+  if (pattern == "sensors.<sensor>.condition.<condition>") {
+    if (to_s <= from_s) return std::nullopt;
+    return ConditionActiveSeconds(record, args.sensor, args.condition, from_s, to_s) /
+           (to_s - from_s);
+  }
+  if (pattern == "sensors.<sensor>.position_error_rms_m") {
+    double sum_squares = 0.0;
+    size_t count = 0;
+    for (const sim::SensorSample& s : stream->delivered) {
+      if (!InWindow(s.t_ns, window_s)) continue;
+      std::optional<Eigen::Vector3d> error;
+      if (const auto* m = std::get_if<core::PositionMeasurement>(&s.measured)) {
+        error = m->p_Ss - std::get<core::PositionMeasurement>(s.truth).p_Ss;
+      } else if (const auto* p = std::get_if<core::PoseMeasurement>(&s.measured)) {
+        error = p->p_Ss - std::get<core::PoseMeasurement>(s.truth).p_Ss;
+      }
+      if (!error) return std::nullopt;  // an IMU has no position
+      sum_squares += error->squaredNorm();
+      ++count;
+    }
+    if (count == 0) return std::nullopt;
+    return std::sqrt(sum_squares / static_cast<double>(count));
+  }
+  return std::nullopt;
+}
+
 }  // namespace
 
 std::optional<double> MetricValue(const RunRecord& record, const std::string& metric,
@@ -97,6 +159,9 @@ std::optional<double> MetricValue(const RunRecord& record, const std::string& me
     }
     return worst;
   }
+  if (const auto match = MatchMetric(metric); match && !match->second.sensor.empty()) {
+    return SensorMetricValue(record, match->first->name, match->second, window_s);
+  }
   throw std::invalid_argument("unknown metric '" + metric + "'");
 }
 
@@ -116,6 +181,7 @@ Evaluation Evaluate(const RunRecord& record) {
 
   nlohmann::json metrics = nlohmann::json::object();
   for (const MetricInfo& info : MetricCatalog()) {
+    if (info.name.find('<') != std::string::npos) continue;  // per sensor: see "sensors"
     metrics[info.name] = OptionalNumber(MetricValue(record, info.name, std::nullopt));
   }
   j["metrics"] = metrics;
@@ -154,27 +220,20 @@ Evaluation Evaluate(const RunRecord& record) {
                                            core::PeriodFromRate(sc.physics.rate_hz));
   for (const SensorStream& stream : record.sensors) {
     nlohmann::json conditions = nlohmann::json::object();
-    std::map<std::string, core::Time> active_since;
-    std::map<std::string, core::Time> active_ns;
-    for (const LabelEvent& l : record.labels) {
-      if (l.sensor != stream.name || l.source != "condition") continue;
-      if (l.active) {
-        active_since[l.label] = l.t_ns;
-      } else if (active_since.count(l.label) != 0) {
-        active_ns[l.label] += l.t_ns - active_since[l.label];
-        active_since.erase(l.label);
-      }
+    for (const sim::Condition c : sim::AllConditions()) {
+      const std::string name(sim::ConditionName(c));
+      const double active_s = ConditionActiveSeconds(record, stream.name, name, 0.0, run_s);
+      if (active_s > 0.0 && run_s > 0.0) conditions[name] = active_s / run_s;
     }
-    const core::Time end_ns = record.physics_steps * core::PeriodFromRate(sc.physics.rate_hz);
-    for (const auto& [label, since] : active_since) active_ns[label] += end_ns - since;
-    for (const auto& [label, ns] : active_ns) {
-      conditions[label] = run_s > 0.0 ? core::TimeToSeconds(ns) / run_s : 0.0;
-    }
-    sensors[stream.name] = {{"type", stream.type},
-                            {"site", stream.site},
-                            {"samples", stream.clean.size()},
-                            {"delivered", stream.delivered.size()},
-                            {"condition_time_fraction", conditions}};
+    sensors[stream.name] = {
+        {"type", stream.type},
+        {"site", stream.site},
+        {"samples", stream.clean.size()},
+        {"delivered", stream.delivered.size()},
+        {"condition_time_fraction", conditions},
+        {"position_error_rms_m",
+         OptionalNumber(SensorMetricValue(record, "sensors.<sensor>.position_error_rms_m",
+                                          MetricArguments{stream.name, ""}, std::nullopt))}};
   }
   j["sensors"] = sensors;
   size_t fault_labels = 0;

@@ -1,5 +1,7 @@
 #include "harness/metrics.h"
 
+#include "sim/sensor.h"
+
 namespace tofu::harness {
 
 const std::vector<MetricInfo>& MetricCatalog() {
@@ -18,15 +20,74 @@ const std::vector<MetricInfo>& MetricCatalog() {
       {"approach.max_standoff_error_m", "m",
        "largest |tool-tip distance to surface - standoff| at the end of approach segments",
        false},
+      {"sensors.<sensor>.delivered_samples", "count",
+       "samples the stream delivered (after scheduled faults)", true},
+      {"sensors.<sensor>.condition.<condition>", "fraction",
+       "fraction of the time the condition (e.g. occluded, no_fix, degenerate) was active",
+       true},
+      {"sensors.<sensor>.position_error_rms_m", "m",
+       "RMS of the true position error of the delivered samples (pose and position sensors)",
+       true},
   };
   return catalog;
 }
 
-const MetricInfo* FindMetric(std::string_view name) {
-  for (const MetricInfo& info : MetricCatalog()) {
-    if (info.name == name) return &info;
+namespace {
+
+bool IsIdentifier(std::string_view s) {
+  if (s.empty()) return false;
+  for (const char c : s) {
+    if (!((c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_')) return false;
   }
-  return nullptr;
+  return true;
+}
+
+bool IsConditionName(std::string_view s) {
+  for (const sim::Condition c : sim::AllConditions()) {
+    if (sim::ConditionName(c) == s) return true;
+  }
+  return false;
+}
+
+std::vector<std::string_view> SplitDots(std::string_view s) {
+  std::vector<std::string_view> parts;
+  size_t begin = 0;
+  while (true) {
+    const size_t dot = s.find('.', begin);
+    parts.push_back(s.substr(begin, dot == std::string_view::npos ? dot : dot - begin));
+    if (dot == std::string_view::npos) return parts;
+    begin = dot + 1;
+  }
+}
+
+}  // namespace
+
+std::optional<std::pair<const MetricInfo*, MetricArguments>> MatchMetric(std::string_view name) {
+  const std::vector<std::string_view> parts = SplitDots(name);
+  for (const MetricInfo& info : MetricCatalog()) {
+    const std::vector<std::string_view> pattern = SplitDots(info.name);
+    if (pattern.size() != parts.size()) continue;
+    MetricArguments args;
+    bool match = true;
+    for (size_t i = 0; i < parts.size() && match; ++i) {
+      if (pattern[i] == "<sensor>") {
+        match = IsIdentifier(parts[i]);
+        args.sensor = parts[i];
+      } else if (pattern[i] == "<condition>") {
+        match = IsConditionName(parts[i]);
+        args.condition = parts[i];
+      } else {
+        match = pattern[i] == parts[i];
+      }
+    }
+    if (match) return std::make_pair(&info, args);
+  }
+  return std::nullopt;
+}
+
+const MetricInfo* FindMetric(std::string_view name) {
+  const auto match = MatchMetric(name);
+  return match ? match->first : nullptr;
 }
 
 }  // namespace tofu::harness

@@ -4,7 +4,9 @@
 // exactly these.
 
 #include <string>
+#include <optional>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 namespace tofu::harness {
@@ -19,7 +21,19 @@ struct MetricInfo {
 /// Every metric known to the evaluator, in a stable order.
 const std::vector<MetricInfo>& MetricCatalog();
 
-/// The catalogue entry of `name`, or nullptr.
+/// The catalogue entry of `name`, or nullptr. Catalogue names may hold placeholders:
+/// `<sensor>` matches a stream name ([a-z0-9_]+) and `<condition>` a condition name
+/// (sim::ConditionName), e.g. "sensors.leica.condition.occluded".
 const MetricInfo* FindMetric(std::string_view name);
+
+/// The placeholders of a metric name filled in by FindMetric's match.
+struct MetricArguments {
+  std::string sensor;     ///< empty unless the metric is per sensor
+  std::string condition;  ///< empty unless the metric is per condition
+};
+
+/// Splits a concrete metric name ("sensors.gnss.condition.no_fix") into its catalogue
+/// entry and arguments; nullopt if it matches no entry.
+std::optional<std::pair<const MetricInfo*, MetricArguments>> MatchMetric(std::string_view name);
 
 }  // namespace tofu::harness

@@ -308,7 +308,7 @@ std::string MetricNames(bool windowable_only) {
   return names;
 }
 
-Expectation ReadExpectation(const YamlValue& item) {
+Expectation ReadExpectation(const YamlValue& item, const std::vector<SensorConfig>& sensors) {
   Expectation expectation;
   expectation.location = item.location();
   YamlMap map = item.Map({"metric", "min", "max", "window_s"});
@@ -324,6 +324,19 @@ Expectation ReadExpectation(const YamlValue& item) {
         fmt::format("unknown metric '{}'{}; known metrics: {}", expectation.metric,
                     suggestion.empty() ? "" : fmt::format(" (did you mean '{}'?)", suggestion),
                     MetricNames(false)));
+  }
+
+  // A per-sensor metric must name a sensor of the scenario.
+  const MetricArguments args = MatchMetric(expectation.metric)->second;
+  if (!args.sensor.empty() &&
+      std::none_of(sensors.begin(), sensors.end(),
+                   [&](const SensorConfig& c) { return c.name == args.sensor; })) {
+    std::vector<std::string> names;
+    for (const SensorConfig& c : sensors) names.push_back(c.name);
+    metric.Fail(fmt::format("metric '{}' names sensor '{}', which the scenario does not have "
+                            "(its sensors: {})",
+                            expectation.metric, args.sensor,
+                            names.empty() ? "none" : fmt::format("{}", fmt::join(names, ", "))));
   }
 
   const std::optional<YamlValue> min = map.Optional("min");
@@ -468,7 +481,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   }
   if (const auto expect = map.Optional("expect")) {
     for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
-      scenario.expect.push_back(ReadExpectation(item));
+      scenario.expect.push_back(ReadExpectation(item, scenario.sensors));
     }
   }
   map.Finish();

@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <iostream>
 #include <optional>
@@ -63,7 +64,11 @@ void PrintReport(const tofu::harness::RunRecord& record,
                c.max_penetration_m);
   }
   if (!evaluation.expectations.empty()) {
-    fmt::print("{:<36} {:>10} {:>10} {:>10}  {}\n", "expectation", "value", "min", "max",
+    size_t width = 12;
+    for (const auto& r : evaluation.expectations) {
+      width = std::max(width, r.expectation.metric.size() + (r.expectation.window_s ? 16 : 0));
+    }
+    fmt::print("{:<{}} {:>10} {:>10} {:>10}  {}\n", "expectation", width, "value", "min", "max",
                "result");
     for (const auto& r : evaluation.expectations) {
       std::string metric = r.expectation.metric;
@@ -71,7 +76,7 @@ void PrintReport(const tofu::harness::RunRecord& record,
         metric += fmt::format(" [{:g},{:g}]s", r.expectation.window_s->first,
                               r.expectation.window_s->second);
       }
-      fmt::print("{:<36} {:>10} {:>10} {:>10}  {}\n", metric, FormatValue(r.value),
+      fmt::print("{:<{}} {:>10} {:>10} {:>10}  {}\n", metric, width, FormatValue(r.value),
                  FormatValue(r.expectation.min), FormatValue(r.expectation.max),
                  r.passed ? "pass" : "FAIL");
     }
