@@ -8,8 +8,10 @@
 #include <stdexcept>
 
 #include <fmt/format.h>
+#include <yaml-cpp/yaml.h>
 
 #include "core/lie.h"
+#include "harness/sensor_config.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
 
@@ -89,43 +91,73 @@ std::string TrackingCsv(const RunRecord& record) {
   return fmt::to_string(out);
 }
 
-// Mounts and mass properties as the simulator built them: what a calibration of the
-// real robot would give the estimator.
-std::string CalibrationYaml(const RunRecord& record) {
-  const sim::RobotDescription& robot = record.robot;
-  std::string out = "# Robot calibration (ground truth), frames per DESIGN.md: T_BS = pose of\n"
-                    "# mount frame S in body frame B; quaternions [w, x, y, z].\n";
-  out += fmt::format("robot: {}\nmass_kg: {:.6f}\n", record.scenario.robot,
-                     robot.rigid_body.mass_kg);
-  const Eigen::Matrix3d& J = robot.rigid_body.inertia_B_kgm2;
-  out += fmt::format(
-      "inertia_B_kgm2: [[{:.6f}, {:.6f}, {:.6f}], [{:.6f}, {:.6f}, {:.6f}], [{:.6f}, {:.6f}, "
-      "{:.6f}]]\n",
-      J(0, 0), J(0, 1), J(0, 2), J(1, 0), J(1, 1), J(1, 2), J(2, 0), J(2, 1), J(2, 2));
-  out += fmt::format("p_B_CoM_m: [{:.6f}, {:.6f}, {:.6f}]\nmounts:\n", robot.p_B_CoM.x(),
-                     robot.p_B_CoM.y(), robot.p_B_CoM.z());
-  for (const sim::MountSite& site : robot.sites) {
-    out += fmt::format(
-        "  {}:\n    p_B_m: [{:.6f}, {:.6f}, {:.6f}]\n    q_B_wxyz: [{:.9f}, {:.9f}, {:.9f}, "
-        "{:.9f}]\n",
-        site.name, site.p_B_s.x(), site.p_B_s.y(), site.p_B_s.z(), site.q_B_s.w(),
-        site.q_B_s.x(), site.q_B_s.y(), site.q_B_s.z());
-  }
-  // The streams: their mount, and the true pose of their reference frame S in W (what
-  // frame alignment should find; an estimator is not given it).
-  if (!record.sensors.empty()) out += "sensors:\n";
-  for (const SensorStream& stream : record.sensors) {
-    const Eigen::Quaterniond q_WS = core::CanonicalQuat(Eigen::Quaterniond(stream.T_WS.linear()));
-    const Eigen::Vector3d p_WS = stream.T_WS.translation();
-    out += fmt::format(
-        "  {}:\n    type: {}\n    site: {}\n    true_T_WS:\n      p_W_m: [{:.6f}, {:.6f}, "
-        "{:.6f}]\n      q_W_wxyz: [{:.9f}, {:.9f}, {:.9f}, {:.9f}]\n",
-        stream.name, stream.type, stream.site, p_WS.x(), p_WS.y(), p_WS.z(), q_WS.w(), q_WS.x(),
-        q_WS.y(), q_WS.z());
-  }
-  return out;
+void EmitPose(YAML::Emitter& out, const std::string& key, const Eigen::Vector3d& p,
+              const Eigen::Quaterniond& q_in) {
+  const Eigen::Quaterniond q = core::CanonicalQuat(q_in.normalized());
+  out << YAML::Key << key << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "p_m" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (int k = 0; k < 3; ++k) out << fmt::format("{:.6f}", p(k));
+  out << YAML::EndSeq;
+  out << YAML::Key << "q_wxyz" << YAML::Value << YAML::Flow << YAML::BeginSeq
+      << fmt::format("{:.9f}", q.w()) << fmt::format("{:.9f}", q.x())
+      << fmt::format("{:.9f}", q.y()) << fmt::format("{:.9f}", q.z()) << YAML::EndSeq;
+  out << YAML::EndMap;
 }
 
+// What an estimator is given about the robot (mass properties, nominal mount extrinsics,
+// each sensor's nominal noise parameters), and, marked true_*, what it is not given but
+// scoring needs: the true extrinsics where a calibration error was configured and the
+// true pose of each sensor's reference frame in W.
+std::string CalibrationYaml(const RunRecord& record) {
+  const sim::RobotDescription& robot = record.robot;
+  YAML::Emitter out;
+  out << YAML::Comment("tofu calibration. T_B_s: pose of mount frame s in body frame B; "
+                       "T_WS: sensor reference frame S in W; quaternions [w, x, y, z].");
+  out << YAML::BeginMap;
+  out << YAML::Key << "robot" << YAML::Value << record.scenario.robot;
+  out << YAML::Key << "mass_kg" << YAML::Value << fmt::format("{:.6f}", robot.rigid_body.mass_kg);
+  out << YAML::Key << "inertia_B_kgm2" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (int r = 0; r < 3; ++r) {
+    out << YAML::Flow << YAML::BeginSeq;
+    for (int c = 0; c < 3; ++c) out << fmt::format("{:.6f}", robot.rigid_body.inertia_B_kgm2(r, c));
+    out << YAML::EndSeq;
+  }
+  out << YAML::EndSeq;
+  out << YAML::Key << "p_B_CoM_m" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (int k = 0; k < 3; ++k) out << fmt::format("{:.6f}", robot.p_B_CoM(k));
+  out << YAML::EndSeq;
+
+  out << YAML::Key << "mounts" << YAML::Value << YAML::BeginMap;
+  for (const sim::MountSite& site : robot.sites) EmitPose(out, site.name, site.p_B_s, site.q_B_s);
+  out << YAML::EndMap;
+
+  out << YAML::Key << "sensors" << YAML::Value << YAML::BeginMap;
+  for (size_t i = 0; i < record.sensors.size(); ++i) {
+    const SensorStream& stream = record.sensors[i];
+    const SensorConfig& config = record.scenario.sensors[i];
+    out << YAML::Key << stream.name << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "type" << YAML::Value << stream.type;
+    out << YAML::Key << "site" << YAML::Value << stream.site;
+    if (const sim::MountSite* site = robot.FindSite(stream.site)) {
+      Eigen::Isometry3d T_B_s_true = Eigen::Isometry3d::Identity();
+      T_B_s_true.linear() = site->q_B_s.toRotationMatrix();
+      T_B_s_true.translation() = site->p_B_s;
+      const Eigen::Isometry3d T_B_s = T_B_s_true * config.calibration_error;
+      EmitPose(out, "T_B_s", T_B_s.translation(), Eigen::Quaterniond(T_B_s.linear()));
+      if (config.calibration_error.matrix() != Eigen::Matrix4d::Identity()) {
+        EmitPose(out, "true_T_B_s", site->p_B_s, site->q_B_s);
+      }
+    }
+    EmitPose(out, "true_T_WS", stream.T_WS.translation(), Eigen::Quaterniond(stream.T_WS.linear()));
+    out << YAML::Key << "options" << YAML::Value << YAML::BeginMap;
+    internal::EmitSensorOptions(out, config.options);
+    out << YAML::EndMap;
+    out << YAML::EndMap;
+  }
+  out << YAML::EndMap;
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
+}
 
 // ---- sensor streams (one CSV per stream, EuRoC/ASL-style headers with units) ----
 

@@ -20,11 +20,7 @@
 #include "harness/metrics.h"
 #include "harness/config_io.h"
 #include "harness/fault_config.h"
-#include "harness/sensor_config_gnss.h"
-#include "harness/sensor_config_imu.h"
-#include "harness/sensor_config_lidar_odometry.h"
-#include "harness/sensor_config_total_station.h"
-#include "harness/sensor_config_vio.h"
+#include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 
 namespace tofu::harness {
@@ -58,17 +54,9 @@ std::vector<SensorConfig> ReadSensors(const YamlValue& value) {
           name, SensorTypeList()));
     }
     const YamlValue options = entry.Without("type");
-    SensorConfig config{name, sim::ImuOptions{}};
-    if (type == "imu") {
-      config.options = internal::ReadImuOptions(options);
-    } else if (type == "vio") {
-      config.options = internal::ReadVioOptions(options);
-    } else if (type == "lidar_odometry") {
-      config.options = internal::ReadLidarOdometryOptions(options);
-    } else if (type == "total_station") {
-      config.options = internal::ReadTotalStationOptions(options);
-    } else {
-      config.options = internal::ReadGnssOptions(options);
+    SensorConfig config{name, internal::ReadSensorOptions(type, options.Without("calibration_error"))};
+    if (const auto error = options.Peek("calibration_error")) {
+      config.calibration_error = internal::ReadCalibrationError(*error);
     }
     sensors.push_back(std::move(config));
   }
@@ -586,22 +574,8 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     for (const SensorConfig& sensor : scenario.sensors) {
       out << YAML::Key << sensor.name << YAML::Value << YAML::BeginMap;
       out << YAML::Key << "type" << YAML::Value << std::string(SensorTypeName(sensor.options));
-      std::visit(
-          [&out](const auto& options) {
-            using Options = std::decay_t<decltype(options)>;
-            if constexpr (std::is_same_v<Options, sim::ImuOptions>) {
-              internal::EmitImuOptions(out, options);
-            } else if constexpr (std::is_same_v<Options, sim::VioOptions>) {
-              internal::EmitVioOptions(out, options);
-            } else if constexpr (std::is_same_v<Options, sim::LidarOdometryOptions>) {
-              internal::EmitLidarOdometryOptions(out, options);
-            } else if constexpr (std::is_same_v<Options, sim::TotalStationOptions>) {
-              internal::EmitTotalStationOptions(out, options);
-            } else {
-              internal::EmitGnssOptions(out, options);
-            }
-          },
-          sensor.options);
+      internal::EmitSensorOptions(out, sensor.options);
+      internal::EmitCalibrationError(out, sensor.calibration_error);
       out << YAML::EndMap;
     }
     out << YAML::EndMap;

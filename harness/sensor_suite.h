@@ -38,6 +38,9 @@ inline constexpr std::array<std::string_view, 5> kSensorTypeNames = {
 struct SensorConfig {
   std::string name;  ///< stream name: [a-z0-9_]+, the key under `sensors:`
   SensorOptions options;
+  /// Error of the nominal extrinsics an estimator is given (calibration.yaml):
+  /// T_B_s_nominal = T_B_s_true * calibration_error. The simulation uses the truth.
+  Eigen::Isometry3d calibration_error = Eigen::Isometry3d::Identity();
 };
 
 std::string_view SensorTypeName(const SensorOptions& options);

@@ -360,9 +360,9 @@ YamlValue YamlValue::Without(std::string_view key) const {
     if (it->first.IsScalar() && it->first.Scalar() == key) continue;
     copy.force_insert(it->first, it->second);
   }
-  YamlValue result = *this;
-  result.node_ = copy;
-  return result;
+  // A new value: assigning to node_ would write through yaml-cpp's shared handle into
+  // the original document.
+  return YamlValue(copy, path_, file_, key_mark_);
 }
 
 std::vector<std::pair<std::string, YamlValue>> YamlValue::Entries() const {

@@ -8,6 +8,7 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
 
 #include "core/error.h"
 #include "harness/evaluation.h"
@@ -196,6 +197,38 @@ TEST(SensorSuite, FaultLabelsMatchTheScheduleAndStreamsAreWritten) {
   std::string vio_header;
   std::getline(vio, vio_header);
   EXPECT_EQ(vio_header.rfind("#timestamp [ns],arrival [ns],p_Ss_x [m]", 0), 0u) << vio_header;
+  std::filesystem::remove_all(out);
+}
+
+// calibration.yaml gives the estimator nominal extrinsics that are off by the configured
+// calibration error, beside the truth for scoring; the simulation itself uses the truth.
+TEST(SensorSuite, CalibrationErrorShiftsTheNominalExtrinsicsOnly) {
+  const Scenario scenario = ParseScenario(
+      BaseScenario("sensors:\n  vio:\n    calibration_error: {translation_m: [0.01, 0, 0], "
+                   "rpy_deg: [0, 0, 2]}\n"),
+      kLabel);
+  ASSERT_EQ(scenario.sensors.size(), 1u);
+  EXPECT_NEAR(scenario.sensors[0].calibration_error.translation().x(), 0.01, 1e-15);
+  // The resolved scenario keeps the error.
+  const Scenario reloaded = ParseScenario(ResolvedScenarioYaml(scenario), "resolved.yaml");
+  EXPECT_TRUE(reloaded.sensors[0].calibration_error.isApprox(scenario.sensors[0].calibration_error,
+                                                             1e-12));
+
+  const RunRecord record = Simulate(scenario);
+  const std::filesystem::path out = std::filesystem::path(::testing::TempDir()) / "calib_run";
+  WriteRunDirectory(record, Evaluate(record), out.string());
+  const YAML::Node calibration = YAML::LoadFile((out / "calibration.yaml").string());
+  const YAML::Node vio = calibration["sensors"]["vio"];
+  ASSERT_TRUE(vio["true_T_B_s"]) << "the truth is written beside the nominal value";
+  const sim::MountSite* site = record.robot.FindSite("vio_camera");
+  ASSERT_NE(site, nullptr);
+  const Eigen::Vector3d expected =
+      site->p_B_s + site->q_B_s.toRotationMatrix() * Eigen::Vector3d(0.01, 0, 0);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_NEAR(vio["T_B_s"]["p_m"][k].as<double>(), expected(k), 1e-6);
+    EXPECT_NEAR(vio["true_T_B_s"]["p_m"][k].as<double>(), site->p_B_s(k), 1e-6);
+  }
+  EXPECT_EQ(vio["options"]["rate_hz"].as<double>(), 200.0);
   std::filesystem::remove_all(out);
 }
 
