@@ -1,0 +1,72 @@
+#pragma once
+// Consistency metrics between two sensors' body velocities (Lanegger et al., "To Fuse or
+// Not to Fuse", Sec. 2.1): MAE (eq. 2), Pearson correlation (eq. 3), Kullback-Leibler
+// divergence between kernel density estimates (eq. 4) and the Cramér-von Mises distance
+// (eq. 5), each per axis over a sliding window and summed over the three axes.
+// Library code: no MuJoCo, no simulator, no I/O.
+
+#include <optional>
+#include <span>
+#include <string_view>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/time.h"
+
+namespace tofu::estimator {
+
+enum class ConsistencyMetric { kMae, kPcc, kKl, kCm };
+
+/// "mae", "pcc", "kl", "cm".
+std::string_view MetricName(ConsistencyMetric metric);
+std::optional<ConsistencyMetric> MetricFromName(std::string_view name);
+
+struct ConsistencyOptions {
+  core::Time window_ns = 1'000'000'000;  ///< samples with t in (t_eval - window, t_eval]
+  /// Centre and scale both samples of an axis by the pooled mean and standard deviation
+  /// before comparing (the paper's comparison figure); off by default.
+  bool standardize = false;
+  /// KL only: Silverman's rule-of-thumb bandwidth h = 0.9 min(sd, IQR/1.34) n^(-1/5),
+  /// multiplied by this factor (the paper notes KL's sensitivity to the bandwidth).
+  double kl_bandwidth_scale = 1.0;
+  /// Fewer samples than this in a window (either stream) makes the pair unavailable.
+  int min_samples = 3;
+};
+
+// ---- one-dimensional distances between two samples ----
+
+/// Cramér-von Mises distance of eq. (5), D = (2 ∫ (F_P(x) − F_Q(x))² dx)^½ between the
+/// empirical CDFs, computed exactly from the merged sorted samples in O(n log n).
+/// Both samples non-empty.
+double CramerVonMisesDistance(std::span<const double> p, std::span<const double> q);
+
+/// KL divergence D(P||Q) between Gaussian kernel density estimates of p and q, by
+/// quadrature over the union of the samples' support (bandwidths per ConsistencyOptions).
+double KlDivergence(std::span<const double> p, std::span<const double> q,
+                    double bandwidth_scale = 1.0);
+
+/// Mean absolute difference of paired samples (equal lengths).
+double MeanAbsoluteError(std::span<const double> x, std::span<const double> y);
+
+/// Pearson correlation coefficient of paired samples (equal lengths); 0 when either
+/// sample has zero variance.
+double PearsonCorrelation(std::span<const double> x, std::span<const double> y);
+
+// ---- velocity streams ----
+
+/// A velocity stream in a common frame, strictly increasing timestamps.
+struct VelocitySeries {
+  std::vector<core::Time> t_ns;
+  std::vector<Eigen::Vector3d> v_mps;
+};
+
+/// The metric between streams a and b over the window ending at t_eval_ns, per axis and
+/// summed over x, y, z. MAE and PCC pair each sample of a with b linearly interpolated at
+/// its time (samples of a outside b's span in the window are skipped). nullopt means
+/// "unavailable": a stream has fewer than min_samples samples in the window.
+std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocitySeries& b,
+                                        core::Time t_eval_ns, ConsistencyMetric metric,
+                                        const ConsistencyOptions& options = {});
+
+}  // namespace tofu::estimator
