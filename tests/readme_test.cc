@@ -4,6 +4,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -12,26 +13,49 @@
 namespace tofu::harness {
 namespace {
 
-std::string ReadmeYamlExample() {
+// The ```yaml blocks of README.md, in order.
+std::vector<std::string> ReadmeYamlBlocks() {
   std::ifstream in(std::string(TOFU_SOURCE_DIR) + "/README.md");
   std::stringstream text;
   text << in.rdbuf();
   const std::string readme = text.str();
   const std::string open = "```yaml\n";
-  const size_t begin = readme.find(open);
-  if (begin == std::string::npos) return {};
-  const size_t end = readme.find("```", begin + open.size());
-  return readme.substr(begin + open.size(), end - begin - open.size());
+  std::vector<std::string> blocks;
+  for (size_t begin = readme.find(open); begin != std::string::npos;
+       begin = readme.find(open, begin + 1)) {
+    const size_t end = readme.find("```", begin + open.size());
+    blocks.push_back(readme.substr(begin + open.size(), end - begin - open.size()));
+  }
+  return blocks;
 }
 
 TEST(Readme, ScenarioExampleIsValid) {
-  const std::string yaml = ReadmeYamlExample();
-  ASSERT_FALSE(yaml.empty()) << "README.md has no ```yaml block";
+  const std::vector<std::string> blocks = ReadmeYamlBlocks();
+  ASSERT_FALSE(blocks.empty()) << "README.md has no ```yaml block";
+  const std::string& yaml = blocks[0];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   EXPECT_EQ(scenario.name, "approach_wall");
   EXPECT_EQ(scenario.trajectory.segments.size(), 6u);
   EXPECT_EQ(scenario.expect.size(), 3u);
+}
+
+// The sensors-and-faults example is a fragment: valid once put into a scenario.
+TEST(Readme, SensorExampleIsValid) {
+  const std::vector<std::string> blocks = ReadmeYamlBlocks();
+  ASSERT_GE(blocks.size(), 2u);
+  const std::string yaml = R"(name: readme_sensors
+world: bridge
+duration_s: 60
+trajectory:
+  start: {position_m: [-9, 0, 3]}
+  segments:
+    - hover: {duration_s: 1}
+)" + blocks[1];
+  Scenario scenario;
+  ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
+  EXPECT_EQ(scenario.sensors.size(), 5u);
+  EXPECT_EQ(scenario.faults.size(), 4u);
 }
 
 }  // namespace
