@@ -244,6 +244,9 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   }
   std::stable_sort(record.labels.begin(), record.labels.end(),
                    [](const LabelEvent& a, const LabelEvent& b) { return a.t_ns < b.t_ns; });
+  if (scenario.consistency && !record.failure) {
+    record.consistency = EvaluateConsistency(record, *scenario.consistency);
+  }
   if (options.progress) options.progress(1.0);
   return record;
 }

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "core/time.h"
+#include "harness/consistency_eval.h"
 #include "harness/scenario.h"
 #include "harness/sensor_suite.h"
 #include "sim/trajectory.h"
@@ -62,6 +63,8 @@ struct RunRecord {
   std::vector<ApproachResult> approaches;
   std::vector<SensorStream> sensors;  ///< in the order of scenario.sensors
   std::vector<LabelEvent> labels;     ///< condition and fault transitions, by time
+  /// With scenario.consistency: the sensors' velocity consistency (consistency_eval.h).
+  std::optional<ConsistencyEvaluation> consistency;
   int64_t physics_steps = 0;
   double wall_time_s = 0.0;  ///< the only wall-clock figure; goes to timing.json
   /// Set when the simulation stopped early (MuJoCo bad state): what happened.

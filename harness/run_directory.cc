@@ -338,6 +338,30 @@ std::string EurocImuCsv(const SensorStream& imu) {
   return fmt::to_string(out);
 }
 
+std::string ConsistencyCsv(const ConsistencyEvaluation& eval) {
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out), "#timestamp [ns],pair,metric,value\n");
+  for (const ConsistencyRow& row : eval.rows) {
+    fmt::format_to(std::back_inserter(out), "{},{},{},", row.t_ns, row.pair,
+                   estimator::MetricName(row.metric));
+    if (row.value) fmt::format_to(std::back_inserter(out), "{:.6g}", *row.value);
+    fmt::format_to(std::back_inserter(out), "\n");
+  }
+  return fmt::to_string(out);
+}
+
+std::string AlignmentCsv(const ConsistencyEvaluation& eval) {
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out),
+                 "#timestamp [ns],sensor,rotation_error [deg],observable_rotation_dofs,"
+                 "rms_residual [m]\n");
+  for (const AlignmentRow& row : eval.alignment) {
+    fmt::format_to(std::back_inserter(out), "{},{},{:.4f},{},{:.5f}\n", row.t_ns, row.sensor,
+                   row.rotation_error_deg, row.observable_rotation_dofs, row.rms_residual_m);
+  }
+  return fmt::to_string(out);
+}
+
 std::string TimingJson(const RunRecord& record) {
   const double simulated_s = record.scenario.physics.rate_hz > 0.0
                                  ? static_cast<double>(record.physics_steps) /
@@ -380,6 +404,10 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
         WriteText(staging / "sensors" / "clean" / (stream.name + ".csv"), SensorCsv(stream, false));
       }
       WriteText(staging / "labels.csv", LabelsCsv(record));
+      if (record.consistency) {
+        WriteText(staging / "consistency.csv", ConsistencyCsv(*record.consistency));
+        WriteText(staging / "alignment.csv", AlignmentCsv(*record.consistency));
+      }
       // The EuRoC folder layout of the first IMU, so existing VIO tools read a run.
       for (const SensorStream& stream : record.sensors) {
         if (stream.type != "imu") continue;

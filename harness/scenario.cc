@@ -73,6 +73,34 @@ sim::SensorType MeasurementTypeOf(const SensorOptions& options) {
   }
 }
 
+ConsistencyConfig ReadConsistency(const YamlValue& value) {
+  ConsistencyConfig config;
+  YamlMap map = value.Map({"rate_hz", "window_s", "metrics", "standardize", "kl_bandwidth_scale",
+                           "alignment_window_s", "alignment_rate_hz",
+                           "differentiation_window_s"});
+  ReadNumber(map, "rate_hz", NumberRule::Between(0.1, 1000.0, "Hz"), &config.rate_hz);
+  ReadNumber(map, "window_s", NumberRule::Between(0.05, 60.0, "s"), &config.window_s);
+  if (const auto metrics = map.Optional("metrics")) {
+    config.metrics.clear();
+    for (const YamlValue& item : metrics->List(/*non_empty=*/true)) {
+      const auto metric = estimator::MetricFromName(item.String());
+      if (!metric) item.FailExpected("one of mae, pcc, kl, cm");
+      config.metrics.push_back(*metric);
+    }
+  }
+  ReadBool(map, "standardize", &config.standardize);
+  ReadNumber(map, "kl_bandwidth_scale", NumberRule::Between(0.01, 100.0, ""),
+             &config.kl_bandwidth_scale);
+  ReadNumber(map, "alignment_window_s", NumberRule::Between(1.0, 3600.0, "s"),
+             &config.alignment_window_s);
+  ReadNumber(map, "alignment_rate_hz", NumberRule::Between(0.1, 100.0, "Hz"),
+             &config.alignment_rate_hz);
+  ReadNumber(map, "differentiation_window_s", NumberRule::Between(0.01, 5.0, "s"),
+             &config.differentiation_window_s);
+  map.Finish();
+  return config;
+}
+
 // ---- sections ----
 
 // Also hands out the rate_hz value, which later checks of other rates may blame.
@@ -420,7 +448,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   const YamlValue root = internal::ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
-                          "sensors", "faults", "expect"});
+                          "sensors", "faults", "consistency", "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -466,6 +494,9 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
       sensor_types[sensor.name] = MeasurementTypeOf(sensor.options);
     }
     scenario.faults = internal::ReadFaults(*faults, scenario.duration_s, sensor_types);
+  }
+  if (const auto consistency = map.Optional("consistency")) {
+    scenario.consistency = ReadConsistency(*consistency);
   }
   if (const auto expect = map.Optional("expect")) {
     for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
@@ -587,6 +618,24 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     out << YAML::BeginSeq;
     for (const sim::FaultSpec& fault : scenario.faults) internal::EmitFaultSpec(out, fault);
     out << YAML::EndSeq;
+  }
+
+  if (scenario.consistency) {
+    const ConsistencyConfig& cc = *scenario.consistency;
+    out << YAML::Key << "consistency" << YAML::Value << YAML::BeginMap;
+    EmitNumber(out, "rate_hz", cc.rate_hz);
+    EmitNumber(out, "window_s", cc.window_s);
+    out << YAML::Key << "metrics" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+    for (const estimator::ConsistencyMetric m : cc.metrics) {
+      out << std::string(estimator::MetricName(m));
+    }
+    out << YAML::EndSeq;
+    out << YAML::Key << "standardize" << YAML::Value << cc.standardize;
+    EmitNumber(out, "kl_bandwidth_scale", cc.kl_bandwidth_scale);
+    EmitNumber(out, "alignment_window_s", cc.alignment_window_s);
+    EmitNumber(out, "alignment_rate_hz", cc.alignment_rate_hz);
+    EmitNumber(out, "differentiation_window_s", cc.differentiation_window_s);
+    out << YAML::EndMap;
   }
 
   out << YAML::Key << "expect" << YAML::Value;

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "harness/consistency_eval.h"
 #include "harness/sensor_suite.h"
 #include "sim/faults.h"
 #include "sim/controller.h"
@@ -62,6 +63,9 @@ struct Scenario {
   std::vector<SensorConfig> sensors;
   /// `faults:` scheduled faults, each on one sensor of `sensors`.
   std::vector<sim::FaultSpec> faults;
+  /// `consistency:` evaluate the consistency of the sensors' body velocities (off when
+  /// absent).
+  std::optional<ConsistencyConfig> consistency;
   std::vector<Expectation> expect;
 };
 

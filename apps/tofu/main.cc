@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/consistency_command.h"
 #include "harness/evaluation.h"
 #include "harness/metrics.h"
 #include "harness/run.h"
@@ -141,6 +142,20 @@ int main(int argc, char** argv) {
 
   CLI::App* metrics = app.add_subcommand("metrics", "List the metrics expectations can use");
 
+  CLI::App* consistency = app.add_subcommand(
+      "consistency", "Consistency metric between two velocity CSVs over a sliding window");
+  tofu::harness::ConsistencyCommandOptions cons;
+  consistency->add_option("--metric", cons.metric, "mae, pcc, kl or cm")->required();
+  consistency->add_option("--window", cons.window_s, "Window length [s]")->capture_default_str();
+  consistency->add_option("--rate", cons.rate_hz, "Evaluation rate [Hz]")->capture_default_str();
+  consistency->add_flag("--standardize", cons.standardize, "Pooled standardization per axis");
+  consistency->add_option("--kl-bandwidth-scale", cons.kl_bandwidth_scale,
+                          "KL only: factor on the Silverman bandwidth")->capture_default_str();
+  consistency->add_option("A", cons.path_a, "Velocity CSV of stream A")->required();
+  consistency->add_option("B", cons.path_b, "Velocity CSV of stream B")->required();
+  consistency->add_option("--out", cons.out_path, "Output CSV (default: stdout)");
+  consistency->footer(tofu::harness::kConsistencyHelp);
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -153,6 +168,10 @@ int main(int argc, char** argv) {
   try {
     if (*run) return RunCommand(scenario_path, out_dir, seed, quiet);
     if (*validate) return ValidateCommand(validate_paths);
+    if (*consistency) {
+      tofu::harness::RunConsistencyCommand(cons);
+      return tofu::core::kExitOk;
+    }
     if (*metrics) {
       for (const auto& m : tofu::harness::MetricCatalog()) {
         fmt::print("{:<36} [{}]{} {}\n", m.name, m.unit, m.windowable ? " (window_s)" : "",

@@ -1,0 +1,605 @@
+// The consistency metrics of Lanegger et al. (eq. 2-5), their window selection and the
+// consistency matrix. Hand-computed values and an independent brute-force integral.
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <limits>
+#include <optional>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <gtest/gtest.h>
+
+#include "core/random.h"
+#include "core/time.h"
+#include "estimator/consistency.h"
+#include "estimator/consistency_matrix.h"
+
+namespace tofu::estimator {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+std::vector<double> NormalSample(std::size_t n, double mean, double sd, const char* name) {
+  core::RandomStream random(1, name);
+  std::vector<double> x(n);
+  for (double& value : x) value = mean + sd * random.Normal();
+  return x;
+}
+
+// Reference for eq. (5), independent of the merge: both ECDFs evaluated by counting at
+// the midpoint of every interval between consecutive distinct merged values (where both
+// are constant), times the interval's length. O(K n).
+double BruteForceCramerVonMises(const std::vector<double>& p, const std::vector<double>& q) {
+  std::vector<double> knots = p;
+  knots.insert(knots.end(), q.begin(), q.end());
+  std::sort(knots.begin(), knots.end());
+  knots.erase(std::unique(knots.begin(), knots.end()), knots.end());
+  auto ecdf = [](const std::vector<double>& sample, double x) {
+    double count = 0.0;
+    for (const double value : sample) count += value <= x ? 1.0 : 0.0;
+    return count / static_cast<double>(sample.size());
+  };
+  double integral = 0.0;
+  for (std::size_t k = 0; k + 1 < knots.size(); ++k) {
+    const double mid = 0.5 * (knots[k] + knots[k + 1]);
+    const double diff = ecdf(p, mid) - ecdf(q, mid);
+    integral += diff * diff * (knots[k + 1] - knots[k]);
+  }
+  return std::sqrt(2.0 * integral);
+}
+
+// ---- Cramér-von Mises ----
+
+TEST(CramerVonMises, IdenticalSamplesGiveZero) {
+  const std::vector<double> p = NormalSample(50, 0.3, 1.0, "p");
+  EXPECT_EQ(CramerVonMisesDistance(p, p), 0.0);
+}
+
+TEST(CramerVonMises, TwoPointMassesGiveSqrtOfTwiceTheirDistance) {
+  // F_P − F_Q = ±1 on [a, b): D = (2 |a − b|)^½, whatever the multiplicities.
+  const std::vector<double> a = {0.7};
+  const std::vector<double> b = {-1.3};
+  EXPECT_NEAR(CramerVonMisesDistance(a, b), std::sqrt(2.0 * 2.0), 1e-15);
+  const std::vector<double> a3 = {0.7, 0.7, 0.7};
+  const std::vector<double> b2 = {2.2, 2.2};
+  EXPECT_NEAR(CramerVonMisesDistance(a3, b2), std::sqrt(2.0 * 1.5), 1e-15);
+}
+
+TEST(CramerVonMises, HandComputedTwoAgainstOne) {
+  // P = {0, 2}, Q = {1}: F_P − F_Q = 1/2 on [0, 1), −1/2 on [1, 2): ∫ = 1/2, D = 1.
+  EXPECT_NEAR(CramerVonMisesDistance(std::vector<double>{0.0, 2.0}, std::vector<double>{1.0}),
+              1.0, 1e-15);
+}
+
+TEST(CramerVonMises, IsSymmetric) {
+  const std::vector<double> p = NormalSample(40, 0.0, 1.0, "p");
+  const std::vector<double> q = NormalSample(70, 0.5, 2.0, "q");
+  EXPECT_DOUBLE_EQ(CramerVonMisesDistance(p, q), CramerVonMisesDistance(q, p));
+}
+
+TEST(CramerVonMises, IndependentOfSampleOrder) {
+  std::vector<double> p = NormalSample(40, 0.0, 1.0, "p");
+  const std::vector<double> q = NormalSample(70, 0.5, 2.0, "q");
+  const double d = CramerVonMisesDistance(p, q);
+  std::mt19937_64 engine(5);
+  std::shuffle(p.begin(), p.end(), engine);
+  EXPECT_EQ(CramerVonMisesDistance(p, q), d);
+  std::reverse(p.begin(), p.end());
+  EXPECT_EQ(CramerVonMisesDistance(p, q), d);
+}
+
+TEST(CramerVonMises, CommonShiftLeavesItUnchanged) {
+  std::vector<double> p = NormalSample(40, 0.0, 1.0, "p");
+  std::vector<double> q = NormalSample(70, 0.5, 2.0, "q");
+  const double d = CramerVonMisesDistance(p, q);
+  for (double& value : p) value += 3.25;
+  for (double& value : q) value += 3.25;
+  EXPECT_NEAR(CramerVonMisesDistance(p, q), d, 1e-12 * d);
+}
+
+TEST(CramerVonMises, ScalesWithTheSquareRootOfTheUnit) {
+  std::vector<double> p = NormalSample(40, 0.0, 1.0, "p");
+  std::vector<double> q = NormalSample(70, 0.5, 2.0, "q");
+  const double d = CramerVonMisesDistance(p, q);
+  for (double& value : p) value *= 4.0;
+  for (double& value : q) value *= 4.0;
+  EXPECT_NEAR(CramerVonMisesDistance(p, q), 2.0 * d, 1e-12 * d);
+}
+
+TEST(CramerVonMises, EqualsBruteForceIntegralWithUnequalSizesAndTies) {
+  core::RandomStream random(3, "cm_brute_force");
+  for (int trial = 0; trial < 20; ++trial) {
+    const auto n = static_cast<std::size_t>(5 + trial * 7);
+    const auto m = static_cast<std::size_t>(3 + trial * 11);
+    std::vector<double> p(n);
+    std::vector<double> q(m);
+    // Values on a 0.1 grid so that ties within and across the samples are common.
+    for (double& value : p) value = std::round(10.0 * random.Normal()) / 10.0;
+    for (double& value : q) value = std::round(10.0 * (0.3 + 1.5 * random.Normal())) / 10.0;
+    const double reference = BruteForceCramerVonMises(p, q);
+    ASSERT_GT(reference, 0.0);
+    EXPECT_NEAR(CramerVonMisesDistance(p, q), reference, 1e-9 * reference)
+        << "n = " << n << ", m = " << m;
+  }
+}
+
+TEST(CramerVonMises, EmptySampleIsNaNAndNonFiniteValuesAreIgnored) {
+  EXPECT_TRUE(std::isnan(CramerVonMisesDistance(std::vector<double>{}, std::vector<double>{1.0})));
+  EXPECT_NEAR(CramerVonMisesDistance(std::vector<double>{0.0, kNaN}, std::vector<double>{2.0}),
+              2.0, 1e-15);
+}
+
+TEST(CramerVonMises, SortedKernelMatchesAndTerminatesOnBadInput) {
+  std::vector<double> p = NormalSample(40, 0.0, 1.0, "p");
+  std::vector<double> q = NormalSample(70, 0.5, 2.0, "q");
+  const double d = CramerVonMisesDistance(p, q);
+  std::sort(p.begin(), p.end());
+  std::sort(q.begin(), q.end());
+  EXPECT_EQ(CramerVonMisesDistanceSorted(p, q), d);
+  // Broken preconditions (NaN, unsorted) give a meaningless value but never hang.
+  const std::vector<double> bad = {kNaN, 3.0, -1.0, kNaN};
+  const std::vector<double> good = {0.0, 1.0};
+  (void)CramerVonMisesDistanceSorted(bad, good);
+  (void)CramerVonMisesDistanceSorted(good, bad);
+  EXPECT_TRUE(std::isnan(CramerVonMisesDistanceSorted(good, std::vector<double>{})));
+}
+
+// ---- Kullback-Leibler ----
+
+TEST(KlDivergence, IdenticalSamplesGiveZero) {
+  const std::vector<double> p = NormalSample(100, 0.0, 1.0, "p");
+  EXPECT_NEAR(KlDivergence(p, p), 0.0, 1e-12);
+}
+
+TEST(KlDivergence, GrowsWithTheShiftOfOneSample) {
+  const std::vector<double> p = NormalSample(200, 0.0, 1.0, "p");
+  double previous = 0.0;
+  for (const double shift : {0.1, 0.3, 1.0, 3.0}) {
+    std::vector<double> q = p;
+    for (double& value : q) value += shift;
+    const double kl = KlDivergence(p, q);
+    EXPECT_GT(kl, previous) << "shift " << shift;
+    EXPECT_TRUE(std::isfinite(kl));
+    previous = kl;
+  }
+  // Small shifts: close to the Gaussian value shift² / (2 (sd² + h²)), h Silverman's.
+  std::vector<double> q = p;
+  for (double& value : q) value += 0.1;
+  EXPECT_NEAR(KlDivergence(p, q), 0.01 / (2.0 * 1.1), 0.002);
+}
+
+TEST(KlDivergence, BandwidthScaleChangesIt) {
+  const std::vector<double> p = NormalSample(200, 0.0, 1.0, "p");
+  std::vector<double> q = p;
+  for (double& value : q) value += 0.5;
+  const double narrow = KlDivergence(p, q, 0.5);
+  const double nominal = KlDivergence(p, q, 1.0);
+  const double wide = KlDivergence(p, q, 2.0);
+  EXPECT_GT(narrow, nominal * 1.05);
+  EXPECT_GT(nominal, wide * 1.05);
+}
+
+TEST(KlDivergence, StaysFiniteForDisjointSamples) {
+  const std::vector<double> p = NormalSample(50, 0.0, 1.0, "p");
+  const std::vector<double> q = NormalSample(50, 100.0, 1.0, "q");
+  const double kl = KlDivergence(p, q);
+  EXPECT_TRUE(std::isfinite(kl));
+  EXPECT_GT(kl, 10.0);  // saturated at the density floor, log(1e10) ~ 23
+}
+
+// ---- MAE and PCC ----
+
+TEST(MeanAbsoluteError, HandComputed) {
+  const std::vector<double> x = {1.0, 2.0, 3.0, 4.0};
+  const std::vector<double> y = {1.5, 1.0, 3.0, 6.0};
+  EXPECT_DOUBLE_EQ(MeanAbsoluteError(x, y), (0.5 + 1.0 + 0.0 + 2.0) / 4.0);
+}
+
+TEST(PearsonCorrelation, HandComputed) {
+  const std::vector<double> x = {1.0, 2.0, 3.0, 4.0};
+  const std::vector<double> y = {2.0, 4.0, 5.0, 9.0};
+  // dx = (−1.5, −0.5, 0.5, 1.5), dy = (−3, −1, 0, 4): sxy = 11, sxx = 5, syy = 26.
+  EXPECT_NEAR(PearsonCorrelation(x, y), 11.0 / std::sqrt(5.0 * 26.0), 1e-15);
+  const std::vector<double> line = {3.0, 1.0, -1.0, -3.0};
+  EXPECT_NEAR(PearsonCorrelation(x, line), -1.0, 1e-15);
+  const std::vector<double> constant = {2.0, 2.0, 2.0, 2.0};
+  EXPECT_EQ(PearsonCorrelation(x, constant), 0.0);
+}
+
+// ---- WindowConsistency ----
+
+// Samples every 100 ms from 0 to 2 s; value k on x, −2k on y, k² on z.
+VelocitySeries Ramp(double scale, double offset) {
+  VelocitySeries s;
+  for (int k = 0; k <= 20; ++k) {
+    s.t_ns.push_back(k * 100'000'000);
+    const double x = scale * k + offset;
+    s.v_mps.emplace_back(x, -2.0 * x, x * x);
+  }
+  return s;
+}
+
+std::vector<double> Axis(const VelocitySeries& s, int axis, int first, int last) {
+  std::vector<double> out;
+  for (int k = first; k <= last; ++k) out.push_back(s.v_mps[static_cast<std::size_t>(k)][axis]);
+  return out;
+}
+
+TEST(WindowConsistency, SelectsExactlyTheSamplesInTheHalfOpenWindow) {
+  const VelocitySeries a = Ramp(1.0, 0.0);
+  const VelocitySeries b = Ramp(1.3, 0.4);
+  ConsistencyOptions options;
+  options.window_ns = 500'000'000;
+  // t_eval = 1.0 s lands on sample 10; (0.5 s, 1.0 s] holds samples 6..10.
+  const core::Time t_eval = 1'000'000'000;
+  double expected_cm = 0.0;
+  for (int axis = 0; axis < 3; ++axis) {
+    expected_cm += CramerVonMisesDistance(Axis(a, axis, 6, 10), Axis(b, axis, 6, 10));
+  }
+  const auto cm = WindowConsistency(a, b, t_eval, ConsistencyMetric::kCm, options);
+  ASSERT_TRUE(cm.has_value());
+  EXPECT_NEAR(*cm, expected_cm, 1e-12 * expected_cm);
+  // Samples 5 or 11 in the window would change it.
+  double with_five = 0.0;
+  for (int axis = 0; axis < 3; ++axis) {
+    with_five += CramerVonMisesDistance(Axis(a, axis, 5, 10), Axis(b, axis, 5, 10));
+  }
+  EXPECT_GT(std::abs(with_five - expected_cm), 1e-3);
+  // MAE on equal stamps: per axis the mean |a − b| of samples 6..10.
+  double expected_mae = 0.0;
+  for (int axis = 0; axis < 3; ++axis) {
+    expected_mae += MeanAbsoluteError(Axis(a, axis, 6, 10), Axis(b, axis, 6, 10));
+  }
+  const auto mae = WindowConsistency(a, b, t_eval, ConsistencyMetric::kMae, options);
+  ASSERT_TRUE(mae.has_value());
+  EXPECT_NEAR(*mae, expected_mae, 1e-12 * expected_mae);
+  // One nanosecond earlier, sample 10 leaves and sample 5 enters.
+  double shifted = 0.0;
+  for (int axis = 0; axis < 3; ++axis) {
+    shifted += CramerVonMisesDistance(Axis(a, axis, 5, 9), Axis(b, axis, 5, 9));
+  }
+  const auto cm_earlier = WindowConsistency(a, b, t_eval - 1, ConsistencyMetric::kCm, options);
+  ASSERT_TRUE(cm_earlier.has_value());
+  EXPECT_NEAR(*cm_earlier, shifted, 1e-12 * shifted);
+}
+
+TEST(WindowConsistency, MaeAndPccPairWithLinearlyInterpolatedB) {
+  // b: v = t (seconds) at 0.05, 0.15, ...; a: v = t + 0.2 at 0.1, 0.2, ...: every a
+  // sample inside b's span pairs with b(t) = t exactly, so MAE = 0.2 per axis.
+  VelocitySeries a;
+  VelocitySeries b;
+  for (int k = 0; k < 20; ++k) {
+    const double tb = 0.05 + 0.1 * k;
+    b.t_ns.push_back(core::SecondsToTime(tb));
+    b.v_mps.emplace_back(tb, 2.0 * tb, -tb);
+    const double ta = 0.1 * (k + 1);
+    a.t_ns.push_back(core::SecondsToTime(ta));
+    a.v_mps.emplace_back(ta + 0.2, 2.0 * ta + 0.2, -ta + 0.2);
+  }
+  ConsistencyOptions options;
+  options.window_ns = 1'000'000'000;
+  const auto mae = WindowConsistency(a, b, core::SecondsToTime(1.5), ConsistencyMetric::kMae,
+                                     options);
+  ASSERT_TRUE(mae.has_value());
+  EXPECT_NEAR(*mae, 3 * 0.2, 1e-9);
+  const auto pcc = WindowConsistency(a, b, core::SecondsToTime(1.5), ConsistencyMetric::kPcc,
+                                     options);
+  ASSERT_TRUE(pcc.has_value());
+  EXPECT_NEAR(*pcc, 3.0, 1e-9);
+}
+
+TEST(WindowConsistency, UnavailableWhenAStreamHasTooFewSamples) {
+  const VelocitySeries a = Ramp(1.0, 0.0);
+  VelocitySeries b = Ramp(1.0, 0.1);
+  ConsistencyOptions options;
+  options.window_ns = 300'000'000;
+  options.min_samples = 3;
+  // (0.7 s, 1.0 s] holds three samples of each.
+  for (const ConsistencyMetric metric : {ConsistencyMetric::kMae, ConsistencyMetric::kPcc,
+                                         ConsistencyMetric::kKl, ConsistencyMetric::kCm}) {
+    EXPECT_TRUE(WindowConsistency(a, b, 1'000'000'000, metric, options).has_value());
+    options.min_samples = 4;
+    EXPECT_FALSE(WindowConsistency(a, b, 1'000'000'000, metric, options).has_value());
+    options.min_samples = 3;
+  }
+  // Past the end of b's data: unavailable, not zero.
+  EXPECT_FALSE(WindowConsistency(a, b, 3'000'000'000, ConsistencyMetric::kCm, options));
+  // An empty stream.
+  EXPECT_FALSE(WindowConsistency(a, VelocitySeries{}, 1'000'000'000, ConsistencyMetric::kCm,
+                                 options));
+  // Non-finite samples do not count.
+  b.v_mps[9].y() = kNaN;
+  EXPECT_FALSE(WindowConsistency(a, b, 1'000'000'000, ConsistencyMetric::kCm, options));
+}
+
+TEST(WindowConsistency, StandardisationMakesTheMetricScaleFree) {
+  // A pair and a scaled (and offset) copy of the same pair, e.g. the same data in other
+  // units: raw CM differs by √scale, standardised (pooled mean and sd) it is the same.
+  const VelocitySeries a = Ramp(1.0, 0.0);
+  const VelocitySeries b = Ramp(1.1, 0.3);
+  VelocitySeries a_scaled = a;
+  VelocitySeries b_scaled = b;
+  for (auto& v : a_scaled.v_mps) v = 9.0 * v + Eigen::Vector3d(1.0, -2.0, 3.0);
+  for (auto& v : b_scaled.v_mps) v = 9.0 * v + Eigen::Vector3d(1.0, -2.0, 3.0);
+  ConsistencyOptions raw;
+  ConsistencyOptions standardized;
+  standardized.standardize = true;
+  const core::Time t = 1'500'000'000;
+  for (const ConsistencyMetric metric : {ConsistencyMetric::kMae, ConsistencyMetric::kKl,
+                                         ConsistencyMetric::kCm}) {
+    const double d_raw = *WindowConsistency(a, b, t, metric, raw);
+    const double d_raw_scaled = *WindowConsistency(a_scaled, b_scaled, t, metric, raw);
+    const double d_std = *WindowConsistency(a, b, t, metric, standardized);
+    const double d_std_scaled = *WindowConsistency(a_scaled, b_scaled, t, metric, standardized);
+    EXPECT_NEAR(d_std_scaled, d_std, 1e-9 * d_std) << MetricName(metric);
+    if (metric != ConsistencyMetric::kKl) {  // KL is scale-free even raw
+      EXPECT_GT(std::abs(d_raw_scaled - d_raw), 0.5 * d_raw) << MetricName(metric);
+    }
+  }
+  // Standardised, a copy of a stream is consistent with it.
+  EXPECT_NEAR(*WindowConsistency(a, a, t, ConsistencyMetric::kCm, standardized), 0.0, 1e-15);
+}
+
+// ---- ConsistencyMatrix ----
+
+// Noise-free velocity of a smooth motion plus an optional offset.
+Eigen::Vector3d Motion(core::Time t_ns) {
+  const double t = core::TimeToSeconds(t_ns);
+  return {std::sin(t), 0.5 * std::cos(1.3 * t), 0.2 * t};
+}
+
+TEST(ConsistencyMatrix, PairsAreOrderedAndIndexed) {
+  const ConsistencyMatrix matrix({"a", "b", "c", "d"});
+  ASSERT_EQ(matrix.Values().size(), 6u);
+  int index = 0;
+  for (int i = 0; i < 4; ++i) {
+    for (int j = i + 1; j < 4; ++j) {
+      EXPECT_EQ(ConsistencyMatrix::PairIndex(i, j, 4), index);
+      EXPECT_EQ(matrix.Values()[static_cast<std::size_t>(index)].i, i);
+      EXPECT_EQ(matrix.Values()[static_cast<std::size_t>(index)].j, j);
+      ++index;
+    }
+  }
+  EXPECT_EQ(matrix.StreamIndex("c"), 2);
+  EXPECT_FALSE(matrix.StreamIndex("x").has_value());
+}
+
+TEST(ConsistencyMatrix, EmptyStreamIsUnavailable) {
+  ConsistencyMatrix matrix({"vio", "lio", "gnss"});
+  for (const auto& pair : matrix.Values()) EXPECT_FALSE(pair.value.has_value());
+  for (core::Time t = 0; t <= 2'000'000'000; t += 10'000'000) {
+    matrix.Add(0, t, Motion(t));
+    matrix.Add(1, t + 3'000'000, Motion(t + 3'000'000));
+  }
+  matrix.Evaluate(2'000'000'000);
+  ASSERT_TRUE(matrix.Value(0, 1).has_value());
+  EXPECT_LT(*matrix.Value(1, 0), 0.05);
+  EXPECT_FALSE(matrix.Value(0, 2).has_value());
+  EXPECT_FALSE(matrix.Value(2, 1).has_value());
+  EXPECT_FALSE(matrix.Value(1, 1).has_value());
+  EXPECT_FALSE(matrix.Value(0, 7).has_value());
+  // A stream whose samples all left the window is unavailable again.
+  matrix.Evaluate(3'500'000'000);
+  EXPECT_FALSE(matrix.Value(0, 1).has_value());
+}
+
+TEST(ConsistencyMatrix, RejectsAndCountsNanAndOutOfOrderSamples) {
+  ConsistencyMatrix matrix({"a", "b"});
+  ConsistencyMatrix clean({"a", "b"});
+  for (core::Time t = 0; t <= 1'000'000'000; t += 20'000'000) {
+    for (int s = 0; s < 2; ++s) {
+      const Eigen::Vector3d v = Motion(t) + Eigen::Vector3d(0.1 * s, 0.0, 0.0);
+      EXPECT_EQ(matrix.Add(s, t, v), AddResult::kAccepted);
+      clean.Add(s, t, v);
+    }
+  }
+  EXPECT_EQ(matrix.Add(0, 1'010'000'000, Eigen::Vector3d(kNaN, 0.0, 0.0)),
+            AddResult::kRejectedNonFinite);
+  EXPECT_EQ(matrix.Add(0, 1'020'000'000,
+                       Eigen::Vector3d(0.0, std::numeric_limits<double>::infinity(), 0.0)),
+            AddResult::kRejectedNonFinite);
+  EXPECT_EQ(matrix.Add(1, 1'000'000'000, Eigen::Vector3d::Zero()),
+            AddResult::kRejectedOutOfOrder);  // repeated stamp
+  EXPECT_EQ(matrix.Add(1, 500'000'000, Eigen::Vector3d::Zero()),
+            AddResult::kRejectedOutOfOrder);  // going back
+  EXPECT_EQ(matrix.Add(2, 1'100'000'000, Eigen::Vector3d::Zero()),
+            AddResult::kRejectedUnknownStream);
+  EXPECT_EQ(matrix.Add(-1, 1'100'000'000, Eigen::Vector3d::Zero()),
+            AddResult::kRejectedUnknownStream);
+  EXPECT_EQ(matrix.Counters(0).rejected_non_finite, 2);
+  EXPECT_EQ(matrix.Counters(0).rejected_out_of_order, 0);
+  EXPECT_EQ(matrix.Counters(1).rejected_out_of_order, 2);
+  EXPECT_EQ(matrix.Counters(1).rejected_non_finite, 0);
+  EXPECT_EQ(matrix.Counters(0).accepted, 51);
+  EXPECT_EQ(matrix.rejected_unknown_stream(), 2);
+  EXPECT_EQ(matrix.StoredSamples(0), 51u);
+  // Nothing rejected reached the value.
+  const double value = *matrix.Evaluate(1'000'000'000)[0].value;
+  EXPECT_TRUE(std::isfinite(value));
+  EXPECT_EQ(value, *clean.Evaluate(1'000'000'000)[0].value);
+}
+
+TEST(ConsistencyMatrix, DropsOldSamplesSoMemoryStaysBounded) {
+  ConsistencyMatrixOptions options;
+  options.history_ns = 2'000'000'000;
+  ConsistencyMatrix matrix({"fast", "slow"}, options);
+  VelocitySeries fast;
+  VelocitySeries slow;
+  const core::Time period = 5'000'000;  // 200 Hz
+  std::size_t most_stored = 0;
+  for (core::Time t = 0; t <= 100'000'000'000; t += period) {
+    matrix.Add(0, t, Motion(t));
+    fast.t_ns.push_back(t);
+    fast.v_mps.push_back(Motion(t));
+    if (t % 50'000'000 == 0) {  // 20 Hz
+      const Eigen::Vector3d v = Motion(t) + Eigen::Vector3d(0.05, 0.0, 0.0);
+      matrix.Add(1, t, v);
+      slow.t_ns.push_back(t);
+      slow.v_mps.push_back(v);
+    }
+    if (t % 100'000'000 == 0) matrix.Evaluate(t);  // 10 Hz
+    most_stored = std::max(most_stored, matrix.StoredSamples(0));
+  }
+  // At most ~2 histories of samples, never the 100 s that went through.
+  EXPECT_LE(most_stored, static_cast<std::size_t>(2 * 2 * 200 + 2));
+  EXPECT_EQ(matrix.Counters(0).dropped + static_cast<int64_t>(matrix.StoredSamples(0)),
+            matrix.Counters(0).accepted);
+  EXPECT_GT(matrix.Counters(0).dropped, 19'000);
+  // The windowed value is the one on the full series.
+  const core::Time t_end = 100'000'000'000;
+  const auto expected = WindowConsistency(fast, slow, t_end, ConsistencyMetric::kCm);
+  const auto value = matrix.Evaluate(t_end)[0].value;
+  ASSERT_TRUE(expected.has_value());
+  ASSERT_TRUE(value.has_value());
+  EXPECT_NEAR(*value, *expected, 1e-12);
+}
+
+TEST(ConsistencyMatrix, HardCapBoundsAStreamWithAbsurdRate) {
+  ConsistencyMatrixOptions options;
+  options.max_samples_per_stream = 1000;
+  ConsistencyMatrix matrix({"a", "b"}, options);
+  for (core::Time t = 0; t < 1'000'000'000; t += 100'000) matrix.Add(0, t, Motion(t));  // 10 kHz
+  EXPECT_LE(matrix.StoredSamples(0), 1000u);
+  EXPECT_EQ(matrix.Counters(0).accepted, 10'000);
+}
+
+TEST(ConsistencyMatrix, MatchesWindowConsistencyForEveryMetricAndStandardisation) {
+  // Streams at unequal rates with noise; the matrix's pre-sorted CM path and the other
+  // metrics agree with WindowConsistency.
+  const double rates_hz[] = {200.0, 200.0, 10.0, 20.0, 10.0, 30.0};
+  core::RandomStream random(9, "matrix");
+  std::vector<VelocitySeries> series(6);
+  for (std::size_t s = 0; s < series.size(); ++s) {
+    const core::Time period = core::PeriodFromRate(rates_hz[s]);
+    for (core::Time t = period; t <= 3'000'000'000; t += period) {
+      series[s].t_ns.push_back(t);
+      series[s].v_mps.push_back(Motion(t) + 0.05 * Eigen::Vector3d(random.Normal(),
+                                                                   random.Normal(),
+                                                                   random.Normal()) +
+                                Eigen::Vector3d(s == 4 ? 0.5 : 0.0, 0.0, 0.0));
+    }
+  }
+  for (const ConsistencyMetric metric : {ConsistencyMetric::kMae, ConsistencyMetric::kPcc,
+                                         ConsistencyMetric::kKl, ConsistencyMetric::kCm}) {
+    for (const bool standardize : {false, true}) {
+      ConsistencyMatrixOptions options;
+      options.metric = metric;
+      options.consistency.standardize = standardize;
+      ConsistencyMatrix matrix({"local", "vio", "lio", "ts", "gnss", "extra"}, options);
+      for (std::size_t s = 0; s < series.size(); ++s) {
+        for (std::size_t k = 0; k < series[s].t_ns.size(); ++k) {
+          matrix.Add(static_cast<int>(s), series[s].t_ns[k], series[s].v_mps[k]);
+        }
+      }
+      const core::Time t_eval = 2'750'000'000;
+      const auto& pairs = matrix.Evaluate(t_eval);
+      for (const auto& pair : pairs) {
+        const auto expected =
+            WindowConsistency(series[static_cast<std::size_t>(pair.i)],
+                              series[static_cast<std::size_t>(pair.j)], t_eval, metric,
+                              options.consistency);
+        ASSERT_EQ(pair.value.has_value(), expected.has_value());
+        ASSERT_TRUE(expected.has_value());
+        EXPECT_NEAR(*pair.value, *expected, 1e-9 * std::max(1.0, std::abs(*expected)))
+            << MetricName(metric) << " standardize " << standardize << " pair " << pair.i
+            << "," << pair.j;
+      }
+    }
+  }
+}
+
+TEST(ConsistencyMatrix, SlidingEvaluationsMatchWindowConsistency) {
+  // The matrix updates its sorted windows incrementally while the window slides forward;
+  // check every evaluation of a long run (forward steps, steps back, jumps past the
+  // window, samples arriving between evaluations, values with many ties) against
+  // WindowConsistency on the full series.
+  ConsistencyMatrixOptions options;
+  options.history_ns = 3'000'000'000;
+  for (const bool standardize : {false, true}) {
+    options.consistency.standardize = standardize;
+    ConsistencyMatrix matrix({"a", "b", "c"}, options);
+    std::vector<VelocitySeries> series(3);
+    const core::Time periods[] = {5'000'000, 50'000'000, 33'000'000};
+    core::RandomStream random(14, "sliding");
+    core::Time t_eval = 0;
+    int evaluations = 0;
+    for (core::Time t = 0; t <= 30'000'000'000; t += 1'000'000) {
+      for (std::size_t s = 0; s < 3; ++s) {
+        if (t % periods[s] != 0) continue;
+        // Rounded to 0.05 m/s so equal values are common.
+        const Eigen::Vector3d v =
+            (20.0 * (Motion(t) + 0.1 * Eigen::Vector3d(random.Normal(), random.Normal(),
+                                                       random.Normal())))
+                .array()
+                .round() /
+            20.0;
+        matrix.Add(static_cast<int>(s), t, v);
+        series[s].t_ns.push_back(t);
+        series[s].v_mps.push_back(v);
+      }
+      if (t % 100'000'000 != 0) continue;
+      // Mostly the newest time; sometimes 0.5 s back, or (for a while) lagging.
+      t_eval = (t % 2'300'000'000 == 0) ? t - 500'000'000 : t;
+      if (t > 20'000'000'000 && t < 21'000'000'000) continue;  // a pause, then a jump
+      const auto& pairs = matrix.Evaluate(t_eval);
+      ++evaluations;
+      for (const auto& pair : pairs) {
+        const auto expected = WindowConsistency(series[static_cast<std::size_t>(pair.i)],
+                                                series[static_cast<std::size_t>(pair.j)],
+                                                t_eval, ConsistencyMetric::kCm,
+                                                options.consistency);
+        ASSERT_EQ(pair.value.has_value(), expected.has_value()) << t_eval;
+        if (expected.has_value()) {
+          ASSERT_NEAR(*pair.value, *expected, 1e-9 * std::max(1.0, *expected))
+              << "t_eval " << t_eval << " pair " << pair.i << "," << pair.j;
+        }
+      }
+    }
+    EXPECT_GT(evaluations, 280);
+  }
+}
+
+TEST(ConsistencyMatrix, AFaultySensorShowsTheCrossPattern) {
+  // Four sensors, sensor 2 biased by 0.5 m/s on x: its row and column exceed the paper's
+  // 0.1 threshold, every other pair stays below it.
+  ConsistencyMatrix matrix({"s1", "s2", "s3", "s4"});
+  core::RandomStream random(10, "cross");
+  for (core::Time t = 0; t <= 2'000'000'000; t += 10'000'000) {
+    for (int s = 0; s < 4; ++s) {
+      const Eigen::Vector3d noise =
+          0.01 * Eigen::Vector3d(random.Normal(), random.Normal(), random.Normal());
+      const Eigen::Vector3d bias(s == 2 ? 0.5 : 0.0, 0.0, 0.0);
+      matrix.Add(s, t + s * 1'000'000, Motion(t) + noise + bias);
+    }
+  }
+  matrix.Evaluate(2'000'000'000);
+  for (int i = 0; i < 4; ++i) {
+    for (int j = i + 1; j < 4; ++j) {
+      ASSERT_TRUE(matrix.Value(i, j).has_value());
+      if (i == 2 || j == 2) {
+        EXPECT_GT(*matrix.Value(i, j), 0.1) << i << "," << j;
+      } else {
+        EXPECT_LT(*matrix.Value(i, j), 0.1) << i << "," << j;
+      }
+    }
+  }
+}
+
+TEST(ConsistencyMatrix, InvalidOptionsAndNamesThrow) {
+  ConsistencyMatrixOptions options;
+  options.history_ns = 100;  // shorter than the window
+  std::string why;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_NE(why.find("history_ns"), std::string::npos);
+  EXPECT_THROW(ConsistencyMatrix({"a", "b"}, options), std::invalid_argument);
+  EXPECT_THROW(ConsistencyMatrix({"a", "a"}), std::invalid_argument);
+  EXPECT_THROW(ConsistencyMatrix({"a", ""}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace tofu::estimator
