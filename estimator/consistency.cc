@@ -244,8 +244,11 @@ double KlDivergence(std::span<const double> p, std::span<const double> q,
                  static_cast<double>(kMaxGridIntervals)));
   intervals += intervals % 2;
   const double step = (hi - lo) / intervals;
-  EvaluateKde(s.p, h_p, lo, step, intervals, s.grid_p);
-  EvaluateKde(s.q, h_q, lo, step, intervals, s.grid_q);
+  // With the grid capped, a kernel much narrower than the other sample's spread (a
+  // near-constant axis, e.g. the vertical velocity in level flight) would fall between
+  // grid points and integrate to zero: widen kernels to two grid steps at least.
+  EvaluateKde(s.p, std::max(h_p, 2.0 * step), lo, step, intervals, s.grid_p);
+  EvaluateKde(s.q, std::max(h_q, 2.0 * step), lo, step, intervals, s.grid_q);
 
   // Floor q, then normalise both densities under the same Simpson weights, so the sum
   // below is a KL divergence of two discrete distributions (>= 0 by Gibbs' inequality).

@@ -184,6 +184,22 @@ TEST(KlDivergence, BandwidthScaleChangesIt) {
   EXPECT_GT(nominal, wide * 1.05);
 }
 
+TEST(KlDivergence, StaysFiniteForANearConstantSampleAgainstAWideOne) {
+  // A hovering axis (spread 1e-6) against a noisy sensor (spread 0.1): the narrow KDE must
+  // not vanish between the grid points of the wide one's support.
+  std::vector<double> narrow, wide;
+  for (int i = 0; i < 200; ++i) {
+    narrow.push_back(1e-6 * std::sin(0.37 * i));
+    wide.push_back(0.1 * std::sin(1.3 * i + 0.2) + 0.05 * std::cos(0.7 * i));
+  }
+  const double a = KlDivergence(narrow, wide);
+  const double b = KlDivergence(wide, narrow);
+  EXPECT_TRUE(std::isfinite(a)) << a;
+  EXPECT_TRUE(std::isfinite(b)) << b;
+  EXPECT_GT(a, 0.5);
+  EXPECT_GT(b, 0.5);
+}
+
 TEST(KlDivergence, StaysFiniteForDisjointSamples) {
   const std::vector<double> p = NormalSample(50, 0.0, 1.0, "p");
   const std::vector<double> q = NormalSample(50, 100.0, 1.0, "q");
