@@ -453,7 +453,8 @@ TEST_F(ConsistencyCliTest, NonPositiveWindowRateOrBandwidthIsBadInput) {
 
 // EuRoC V1_02 ground truth (200 Hz, Vicon): stream A is its velocity v_RS_R, stream B the
 // central differences of its positions p_RS_R subsampled to 20 Hz. Both describe the same
-// flight in the same frame, so the Cramér-von Mises distance stays small.
+// flight in the same frame, so the Cramér-von Mises distance stays small; a 0.3 m/s bias
+// on B's v_x raises it at every evaluation time.
 TEST_F(ConsistencyCliTest, EurocGroundTruthVelocityMatchesItsDifferentiatedPositions) {
   const fs::path source = fs::path(TOFU_SOURCE_DIR) /
                           "../shared/data/euroc_v1_02/mav0/state_groundtruth_estimate0/data.csv";
@@ -488,36 +489,55 @@ TEST_F(ConsistencyCliTest, EurocGroundTruthVelocityMatchesItsDifferentiatedPosit
   a << kHeader << "\n";
   for (const State& s : states)
     a << s.t_ns << "," << s.v[0] << "," << s.v[1] << "," << s.v[2] << "\n";
-  // B: every 10th sample (20 Hz), velocity by central differences of those positions.
+  // B: every 10th sample (20 Hz), velocity by central differences of those positions;
+  // B_biased: the same with 0.3 m/s added to v_x (a biased velocity sensor).
   std::vector<const State*> sub;
   for (size_t i = 0; i < states.size(); i += 10) sub.push_back(&states[i]);
-  std::ostringstream b;
-  b.precision(10);
-  b << kHeader << "\n";
+  std::ostringstream b, b_biased;
+  for (std::ostringstream* out : {&b, &b_biased}) {
+    out->precision(10);
+    *out << kHeader << "\n";
+  }
   for (size_t i = 1; i + 1 < sub.size(); ++i) {
     const double dt = static_cast<double>(sub[i + 1]->t_ns - sub[i - 1]->t_ns) * 1e-9;
     b << sub[i]->t_ns;
-    for (int axis = 0; axis < 3; ++axis)
-      b << "," << (sub[i + 1]->p[axis] - sub[i - 1]->p[axis]) / dt;
+    b_biased << sub[i]->t_ns;
+    for (int axis = 0; axis < 3; ++axis) {
+      const double v = (sub[i + 1]->p[axis] - sub[i - 1]->p[axis]) / dt;
+      b << "," << v;
+      b_biased << "," << (axis == 0 ? v + 0.3 : v);
+    }
     b << "\n";
+    b_biased << "\n";
   }
   WriteFile(work_ / "a.csv", a.str());
   WriteFile(work_ / "b.csv", b.str());
+  WriteFile(work_ / "b_biased.csv", b_biased.str());
 
   const Result r = Tofu("consistency --metric cm a.csv b.csv --out cm.csv");
   ASSERT_EQ(r.exit_code, 0) << r.err;
+  const Result biased = Tofu("consistency --metric cm a.csv b_biased.csv --out cm_biased.csv");
+  ASSERT_EQ(biased.exit_code, 0) << biased.err;
   const std::vector<Row> rows = ParseOutput(ReadFile(work_ / "cm.csv"), "cm");
+  const std::vector<Row> biased_rows = ParseOutput(ReadFile(work_ / "cm_biased.csv"), "cm");
   // About 83 s of overlap less the first window, at 10 Hz.
   ASSERT_GT(rows.size(), 800u);
-  std::vector<double> values;
-  for (const Row& row : rows) {
-    ASSERT_TRUE(row.value) << "no gap in this log, yet unavailable at " << row.t_ns;
-    values.push_back(*row.value);
+  ASSERT_EQ(biased_rows.size(), rows.size());
+  std::vector<double> values, biased_values;
+  for (size_t k = 0; k < rows.size(); ++k) {
+    ASSERT_TRUE(rows[k].value) << "no gap in this log, yet unavailable at " << rows[k].t_ns;
+    ASSERT_TRUE(biased_rows[k].value) << biased_rows[k].t_ns;
+    values.push_back(*rows[k].value);
+    biased_values.push_back(*biased_rows[k].value);
+    // The bias shows at every evaluation time, not only on average.
+    EXPECT_GT(*biased_rows[k].value, *rows[k].value) << rows[k].t_ns;
   }
   const double healthy = Median(values);
   EXPECT_LT(healthy, 0.1);
+  EXPECT_GT(Median(biased_values), 3.0 * healthy);
   std::cout << "EuRoC V1_02, cm of v_RS_R against differentiated p_RS_R: median " << healthy
-            << ", max " << *std::max_element(values.begin(), values.end()) << "\n";
+            << ", max " << *std::max_element(values.begin(), values.end())
+            << "; with a 0.3 m/s bias on v_x: median " << Median(biased_values) << "\n";
 }
 
 }  // namespace

@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# DESIGN.md layering: estimator/ never includes MuJoCo, sim/ or harness/; sim/ never
+# includes estimator/ or harness/; core/ includes nothing of the project but core/.
+set -u
+root="${1:?usage: layering_check.sh SOURCE_DIR}"
+status=0
+check() {  # dir, forbidden-include regex, why
+  local hits
+  hits=$(grep -rnE "#include [<\"]($2)" "$root/$1" --include='*.h' --include='*.cc' || true)
+  if [[ -n "$hits" ]]; then
+    echo "layering violation ($3):"
+    echo "$hits"
+    status=1
+  fi
+}
+check estimator 'mujoco/|sim/|harness/|apps/' "estimator depends on core, Eigen, Ceres only"
+check sim 'estimator/|harness/|apps/' "sim does not know who consumes its streams"
+check core 'mujoco/|sim/|harness/|estimator/|apps/|ceres/' "core is the vocabulary"
+[[ $status == 0 ]] && echo "layering ok"
+exit $status
