@@ -5,43 +5,12 @@
 #include <utility>
 
 #include "core/lie.h"
+#include "sim/mount_motion.h"
 
 namespace tofu::sim {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-// Pose and velocities of the mount frame s at t + tau (tau < one physics step), by
-// rigid-body kinematics with the lever arm r = p_B_s and a second-order extrapolation:
-//   R_WB(tau) = R_WB Exp(omega tau + alpha tau^2 / 2),  p_WB(tau) = p + v tau + a tau^2 / 2,
-//   p_Ws = p_WB + R_WB r,  v_Ws = v_WB + R_WB (omega x r),  R_Ws = R_WB R_Bs,
-//   omega_s = R_Bs^T omega.
-struct MountMotion {
-  Eigen::Vector3d p_Ws;
-  Eigen::Matrix3d R_Ws;
-  Eigen::Vector3d v_Ws_W;
-  Eigen::Vector3d omega_s_s;
-};
-
-MountMotion MountMotionAt(const TruthState& x, const Eigen::Isometry3d& T_B_s, double tau_s) {
-  const Eigen::Vector3d omega_B = x.omega_WB_B + x.alpha_WB_B * tau_s;
-  Eigen::Matrix3d R_WB = x.q_WB.toRotationMatrix();
-  Eigen::Vector3d p_WB = x.p_WB;
-  Eigen::Vector3d v_WB = x.v_WB_W;
-  if (tau_s != 0.0) {
-    R_WB = R_WB * core::ExpSO3(x.omega_WB_B * tau_s + 0.5 * x.alpha_WB_B * tau_s * tau_s);
-    p_WB += x.v_WB_W * tau_s + 0.5 * x.a_WB_W * tau_s * tau_s;
-    v_WB += x.a_WB_W * tau_s;
-  }
-  const Eigen::Vector3d r = T_B_s.translation();
-  const Eigen::Matrix3d R_Bs = T_B_s.linear();
-  MountMotion m;
-  m.p_Ws = p_WB + R_WB * r;
-  m.R_Ws = R_WB * R_Bs;
-  m.v_Ws_W = v_WB + R_WB * omega_B.cross(r);
-  m.omega_s_s = R_Bs.transpose() * omega_B;
-  return m;
-}
 
 void Require(bool ok, const std::string& name, const std::string& what) {
   if (!ok) throw std::invalid_argument("vio '" + name + "': " + what);
