@@ -23,6 +23,8 @@ case "${1:-}" in
     build
     scenario="${2:-scenarios/figure_eight_arena.yaml}"
     "$build_dir/tofu" run "$scenario" --out runs/demo
+    # A picture of the flight: path against the reference, tracking errors.
+    scripts/plot_run.py runs/demo --out runs/demo/tracking.png
     ;;
   test)
     build
