@@ -10,6 +10,20 @@ Eigen::Vector3d ClampNorm(const Eigen::Vector3d& v, double limit) {
   return n > limit ? Eigen::Vector3d(v * (limit / n)) : v;
 }
 
+// Advances an integrator and returns its term gain .* integral. Anti-windup twice: the
+// integrator sees the error clipped to +-band (a large transient does not wind it up),
+// and the term's norm is bounded by limit, the state clamped back to match.
+Eigen::Vector3d UpdateIntegral(const Eigen::Vector3d& error, const Eigen::Vector3d& gain,
+                               double band, double limit, double dt_s,
+                               Eigen::Vector3d* integral) {
+  *integral += dt_s * error.cwiseMax(-band).cwiseMin(band);
+  const Eigen::Vector3d term = ClampNorm(gain.cwiseProduct(*integral), limit);
+  for (int k = 0; k < 3; ++k) {
+    if (gain(k) > 0.0) (*integral)(k) = term(k) / gain(k);
+  }
+  return term;
+}
+
 }  // namespace
 
 GeometricController::GeometricController(const ControllerOptions& options,
@@ -33,15 +47,9 @@ Wrench GeometricController::Compute(const RobotState& state, const Reference& re
   // fully actuated, so the commanded force is realised in any attitude.
   const Eigen::Vector3d e_p = state.p_WB - reference.p_WB;
   const Eigen::Vector3d e_v = state.v_WB_W - reference.v_WB_W;
-  const Eigen::Vector3d Ki_p = options_.position_integral_gain_per_s3;
-  position_integral_ += dt_s * e_p.cwiseMax(-options_.integral_error_band_m)
-                                    .cwiseMin(options_.integral_error_band_m);
-  // Anti-windup: bound the integral's contribution, not the state, per axis gain.
-  const Eigen::Vector3d integral_term =
-      ClampNorm(Ki_p.cwiseProduct(position_integral_), options_.integral_limit_mps2);
-  for (int k = 0; k < 3; ++k) {
-    if (Ki_p(k) > 0.0) position_integral_(k) = integral_term(k) / Ki_p(k);
-  }
+  const Eigen::Vector3d integral_term = UpdateIntegral(
+      e_p, options_.position_integral_gain_per_s3, options_.integral_error_band_m,
+      options_.integral_limit_mps2, dt_s, &position_integral_);
   const Eigen::Vector3d a_cmd_W = reference.a_WB_W -
                                   options_.position_gain_per_s2.cwiseProduct(e_p) -
                                   options_.velocity_gain_per_s.cwiseProduct(e_v) - integral_term;
@@ -54,14 +62,9 @@ Wrench GeometricController::Compute(const RobotState& state, const Reference& re
   const Eigen::Vector3d omega_d_B = R_T_Rd * reference.omega_WB_B;
   const Eigen::Vector3d alpha_d_B = R_T_Rd * reference.alpha_WB_B;
   const Eigen::Vector3d e_omega = state.omega_WB_B - omega_d_B;
-  const Eigen::Vector3d Ki_R = options_.attitude_integral_gain_per_s3;
-  attitude_integral_ += dt_s * e_R.cwiseMax(-options_.attitude_integral_error_band_rad)
-                                    .cwiseMin(options_.attitude_integral_error_band_rad);
-  const Eigen::Vector3d attitude_integral_term =
-      ClampNorm(Ki_R.cwiseProduct(attitude_integral_), options_.attitude_integral_limit_radps2);
-  for (int k = 0; k < 3; ++k) {
-    if (Ki_R(k) > 0.0) attitude_integral_(k) = attitude_integral_term(k) / Ki_R(k);
-  }
+  const Eigen::Vector3d attitude_integral_term = UpdateIntegral(
+      e_R, options_.attitude_integral_gain_per_s3, options_.attitude_integral_error_band_rad,
+      options_.attitude_integral_limit_radps2, dt_s, &attitude_integral_);
   const Eigen::Matrix3d& J = params_.inertia_B_kgm2;
   const Eigen::Vector3d& w = state.omega_WB_B;
   const Eigen::Vector3d angular_acc_cmd = -options_.attitude_gain_per_s2.cwiseProduct(e_R) -
