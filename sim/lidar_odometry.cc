@@ -220,15 +220,8 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
     }
 
     // Truth of the scan instant.
-    core::PoseMeasurement truth;
-    truth.p_Ss = R_WS.transpose() * (at.p_Ws - p_WS);
+    const core::PoseMeasurement truth = TruePose(at, R_WS, p_WS);
     const Eigen::Matrix3d R_Ss = R_WS.transpose() * at.R_Ws;
-    truth.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_Ss));
-    truth.covariance.setZero();
-    truth.has_twist = true;
-    truth.v_s_s_mps = at.R_Ws.transpose() * at.v_Ws_W;
-    truth.omega_s_s_radps = at.omega_s_s;
-    truth.twist_covariance.setZero();
 
     // White registration noise N(0, H^-1) along the constrained eigen-directions of each
     // block: sigma_r sum_k u_k n_k / sqrt(lambda_k sigma_r^2).

@@ -24,4 +24,17 @@ MountMotion MountMotionAt(const TruthState& x, const Eigen::Isometry3d& T_B_s, d
   return m;
 }
 
+core::PoseMeasurement TruePose(const MountMotion& at, const Eigen::Matrix3d& R_WS,
+                               const Eigen::Vector3d& p_WS) {
+  core::PoseMeasurement truth;
+  truth.p_Ss = R_WS.transpose() * (at.p_Ws - p_WS);
+  truth.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_WS.transpose() * at.R_Ws));
+  truth.covariance.setZero();
+  truth.has_twist = true;
+  truth.v_s_s_mps = at.R_Ws.transpose() * at.v_Ws_W;
+  truth.omega_s_s_radps = at.omega_s_s;
+  truth.twist_covariance.setZero();
+  return truth;
+}
+
 }  // namespace tofu::sim

@@ -9,6 +9,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "core/measurement.h"
 #include "sim/world.h"
 
 namespace tofu::sim {
@@ -22,5 +23,10 @@ struct MountMotion {
 
 /// The mount T_B_s's motion tau_s seconds after the truth sample x.
 MountMotion MountMotionAt(const TruthState& x, const Eigen::Isometry3d& T_B_s, double tau_s);
+
+/// What a perfect odometry sensor with reference frame S (R_WS, p_WS in W) reports for the
+/// mount motion `at`: pose of s in S and body twist of s in s, zero covariances.
+core::PoseMeasurement TruePose(const MountMotion& at, const Eigen::Matrix3d& R_WS,
+                               const Eigen::Vector3d& p_WS);
 
 }  // namespace tofu::sim

@@ -198,15 +198,8 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
     const core::Time ts_ns = next_sample_ns_;
     const MountMotion at = MountMotionAt(x, T_B_s_, core::TimeToSeconds(ts_ns - t_ns));
 
-    core::PoseMeasurement truth;
-    truth.p_Ss = R_WS.transpose() * (at.p_Ws - p_WS);
+    const core::PoseMeasurement truth = TruePose(at, R_WS, p_WS);
     const Eigen::Matrix3d R_Ss = R_WS.transpose() * at.R_Ws;
-    truth.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_Ss));
-    truth.covariance.setZero();
-    truth.has_twist = true;
-    truth.v_s_s_mps = at.R_Ws.transpose() * at.v_Ws_W;
-    truth.omega_s_s_radps = at.omega_s_s;
-    truth.twist_covariance.setZero();
 
     core::PoseMeasurement measured;
     const Eigen::Matrix3d R_hat = R_err_ * R_Ss;
