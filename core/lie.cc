@@ -58,4 +58,23 @@ double RotationAngleBetween(const Eigen::Matrix3d& R_a, const Eigen::Matrix3d& R
   return LogSO3(R_a.transpose() * R_b).norm();
 }
 
+Eigen::Matrix3d RightJacobianSO3(const Eigen::Vector3d& phi) {
+  const double theta = phi.norm();
+  const Eigen::Matrix3d phi_hat = Hat(phi);
+  if (theta < 1e-5) return Eigen::Matrix3d::Identity() - 0.5 * phi_hat + phi_hat * phi_hat / 6.0;
+  const double theta2 = theta * theta;
+  return Eigen::Matrix3d::Identity() - (1.0 - std::cos(theta)) / theta2 * phi_hat +
+         (theta - std::sin(theta)) / (theta2 * theta) * phi_hat * phi_hat;
+}
+
+Eigen::Matrix3d InverseRightJacobianSO3(const Eigen::Vector3d& phi) {
+  const double theta = phi.norm();
+  const Eigen::Matrix3d phi_hat = Hat(phi);
+  if (theta < 1e-5) return Eigen::Matrix3d::Identity() + 0.5 * phi_hat + phi_hat * phi_hat / 12.0;
+  const double theta2 = theta * theta;
+  return Eigen::Matrix3d::Identity() + 0.5 * phi_hat +
+         (1.0 / theta2 - (1.0 + std::cos(theta)) / (2.0 * theta * std::sin(theta))) * phi_hat *
+             phi_hat;
+}
+
 }  // namespace tofu::core

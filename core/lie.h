@@ -34,4 +34,9 @@ Eigen::Matrix3d RotationFromRollPitchYaw(double roll_rad, double pitch_rad, doub
 /// Angle in radians of the rotation R_a^T R_b, in [0, pi].
 double RotationAngleBetween(const Eigen::Matrix3d& R_a, const Eigen::Matrix3d& R_b);
 
+/// Right Jacobian of SO(3): Exp(φ + δφ) ≈ Exp(φ) Exp(Jr(φ) δφ) (Forster et al. 2016, eq. 8).
+Eigen::Matrix3d RightJacobianSO3(const Eigen::Vector3d& phi);
+/// Its inverse: Log(Exp(φ) Exp(δφ)) ≈ φ + Jr⁻¹(φ) δφ (Forster et al. 2016, eq. 9).
+Eigen::Matrix3d InverseRightJacobianSO3(const Eigen::Vector3d& phi);
+
 }  // namespace tofu::core

@@ -50,6 +50,28 @@ TEST(Lie, RollPitchYawConvention) {
               0.3, 1e-12);
 }
 
+TEST(Lie, RightJacobianAndItsInverseMatchNumericDifferentiation) {
+  // Exp(φ + δ) = Exp(φ) Exp(Jr(φ) δ) and Log(Exp(φ) Exp(δ)) = φ + Jr⁻¹(φ) δ to first order,
+  // checked column by column with central differences, small to near-π angles.
+  const double h = 1e-6;
+  for (const Eigen::Vector3d& phi :
+       {Eigen::Vector3d(1e-7, -2e-7, 3e-7), Eigen::Vector3d(0.3, -0.2, 0.1),
+        Eigen::Vector3d(1.5, 2.0, -0.5), Eigen::Vector3d(0.0, 3.0, 0.1)}) {
+    Eigen::Matrix3d Jr_numeric, Jr_inv_numeric;
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector3d d = h * Eigen::Vector3d::Unit(k);
+      Jr_numeric.col(k) = (LogSO3(ExpSO3(phi).transpose() * ExpSO3(phi + d)) -
+                           LogSO3(ExpSO3(phi).transpose() * ExpSO3(phi - d))) / (2 * h);
+      Jr_inv_numeric.col(k) =
+          (LogSO3(ExpSO3(phi) * ExpSO3(d)) - LogSO3(ExpSO3(phi) * ExpSO3(-d))) / (2 * h);
+    }
+    EXPECT_LT((RightJacobianSO3(phi) - Jr_numeric).norm(), 1e-6) << phi.transpose();
+    EXPECT_LT((InverseRightJacobianSO3(phi) - Jr_inv_numeric).norm(), 1e-6) << phi.transpose();
+    EXPECT_LT((RightJacobianSO3(phi) * InverseRightJacobianSO3(phi) -
+               Eigen::Matrix3d::Identity()).norm(), 1e-9);
+  }
+}
+
 TEST(Time, ConversionsRoundToTheNearestNanosecond) {
   EXPECT_EQ(SecondsToTime(1.0), 1'000'000'000);
   EXPECT_EQ(SecondsToTime(0.001), 1'000'000);
