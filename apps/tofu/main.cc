@@ -17,6 +17,7 @@
 #include "harness/consistency_command.h"
 #include "harness/evaluation.h"
 #include "harness/metrics.h"
+#include "harness/replay.h"
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
@@ -156,6 +157,33 @@ int main(int argc, char** argv) {
   consistency->add_option("--out", cons.out_path, "Output CSV (default: stdout)");
   consistency->footer(tofu::harness::kConsistencyHelp);
 
+  CLI::App* estimate = app.add_subcommand(
+      "estimate", "Run the multi-graph estimator on recorded streams (run directory or real log)");
+  tofu::harness::EstimateCommandOptions est;
+  std::optional<std::string> est_out;
+  estimate->add_option("log", est.log_dir,
+                       "A tofu run directory (sensors/, calibration.yaml) or a real log "
+                       "(mav0/imu0/data.csv + *.tum pose streams)")
+      ->required();
+  estimate->add_option("--method", est.methods,
+                       "single:<sensor>, fuse:<a>+<b> or imu_only; repeatable "
+                       "(default: single:<s> for every sensor)");
+  estimate->add_option("--out", est_out, "Output directory (default: the log's)");
+  estimate->add_flag("--clean", est.use_clean_streams,
+                     "Replay the un-faulted streams (sensors/clean/) of a run directory");
+  estimate->add_flag("--quiet", est.quiet, "No progress bar and no table");
+  estimate->add_option("--window", est.window_s, "Fixed lag of the local graph [s] (0.5)");
+  estimate->add_option("--keyframe-rate", est.keyframe_rate_hz, "Keyframes per sensor [Hz] (30)");
+  estimate->add_option("--between-position-std", est.between_position_std_m,
+                       "Pose sensors: std of one relative position [m] (0.01)");
+  estimate->add_option("--between-rotation-std", est.between_rotation_std_rad,
+                       "Pose sensors: std of one relative rotation [rad] (0.01)");
+  estimate->add_option("--imu-noise-scale", est.imu_noise_scale,
+                       "Factor on the IMU white-noise densities");
+  estimate->add_option("--huber", est.huber_delta, "Huber loss on between factors [sigma] (off)");
+  estimate->add_option("--position-in-reference", est.between_position_in_reference,
+                       "Pose sensors: relative position in the sensor's frame (true/false)");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -171,6 +199,21 @@ int main(int argc, char** argv) {
     if (*consistency) {
       tofu::harness::RunConsistencyCommand(cons);
       return tofu::core::kExitOk;
+    }
+    if (*estimate) {
+      if (est_out) est.out_dir = *est_out;
+      std::optional<ProgressBar> bar;
+      std::string bar_method;
+      if (!est.quiet && isatty(STDERR_FILENO)) {
+        est.progress = [&](const std::string& method, double f) {
+          if (method != bar_method) {
+            bar.emplace("estimate " + method);
+            bar_method = method;
+          }
+          (*bar)(f);
+        };
+      }
+      return tofu::harness::RunEstimateCommand(est);
     }
     if (*metrics) {
       for (const auto& m : tofu::harness::MetricCatalog()) {

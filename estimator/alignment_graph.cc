@@ -1,0 +1,408 @@
+#include "estimator/alignment_graph.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <optional>
+#include <stdexcept>
+#include <utility>
+#include <vector>
+
+#include <ceres/loss_function.h>
+#include <ceres/problem.h>
+#include <ceres/solver.h>
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+#include "core/lie.h"
+#include "estimator/frame_alignment.h"
+
+namespace tofu::estimator {
+namespace {
+
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+/// R(q) v for q = (w, u) by the quadratic form (w² − u·u) v + 2 (u·v) u + 2 w (u × v):
+/// equal to the rotation for a unit q, and the extension off the unit sphere that the
+/// ambient Jacobian below differentiates (Ceres evaluates at unit q only, but the two
+/// must agree for the chain rule with the manifold's PlusJacobian to hold).
+Eigen::Vector3d RotateByQuaternion(const Eigen::Quaterniond& q, const Eigen::Vector3d& v) {
+  const Eigen::Vector3d u = q.vec();
+  const double w = q.w();
+  return (w * w - u.squaredNorm()) * v + 2.0 * u.dot(v) * u + 2.0 * w * u.cross(v);
+}
+
+Eigen::Isometry3d IsometryFromParameters(const double* x) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Map<const Eigen::Vector3d>(x);
+  T.linear() = Eigen::Map<const Eigen::Quaterniond>(x + 3).normalized().toRotationMatrix();
+  return T;
+}
+
+void ParametersFromIsometry(const Eigen::Isometry3d& T, double* x) {
+  Eigen::Map<Eigen::Vector3d> p(x);
+  Eigen::Map<Eigen::Quaterniond> q(x + 3);
+  p = T.translation();
+  q = core::CanonicalQuat(Eigen::Quaterniond(T.linear()).normalized());
+}
+
+/// Huber ρ(s) and ρ'(s) of Ceres (s = |r|², cost ½ρ); delta <= 0 means no loss.
+double HuberRho(double s, double delta) {
+  if (delta <= 0.0 || s <= delta * delta) return s;
+  return 2.0 * delta * std::sqrt(s) - delta * delta;
+}
+double HuberWeight(double s, double delta) {
+  if (delta <= 0.0 || s <= delta * delta) return 1.0;
+  return delta / std::sqrt(s);
+}
+
+bool AllFinite(const AlignmentPair& pair) {
+  return pair.p_A_measured.allFinite() && pair.covariance_A.allFinite() &&
+         pair.p_Ls_estimated.allFinite();
+}
+
+}  // namespace
+
+// ---- options ----
+
+bool AlignmentGraphOptions::IsValid(std::string* why) const {
+  auto fail = [why](const char* message) {
+    if (why != nullptr) *why = message;
+    return false;
+  };
+  if (window_ns <= 0) return fail("window_ns must be positive");
+  if (update_period_ns < 0) return fail("update_period_ns must not be negative");
+  if (min_pair_spacing_ns < 0) return fail("min_pair_spacing_ns must not be negative");
+  if (min_pairs < 3) return fail("min_pairs must be at least 3 (a rigid transform)");
+  if (!(position_std_m > 0.0) || !std::isfinite(position_std_m)) {
+    return fail("position_std_m must be positive and finite");
+  }
+  if (!(min_rotation_information > 0.0) || !std::isfinite(min_rotation_information)) {
+    return fail("min_rotation_information must be positive and finite");
+  }
+  if (!(huber_delta >= 0.0) || !std::isfinite(huber_delta)) {
+    return fail("huber_delta must be >= 0 and finite");
+  }
+  if (max_iterations < 1) return fail("max_iterations must be at least 1");
+  if (!(reinit_rms_residual_m > 0.0)) return fail("reinit_rms_residual_m must be positive");
+  return true;
+}
+
+// ---- cost function: paper eq. (9), whitened ----
+
+PositionAlignmentCost::PositionAlignmentCost(const Eigen::Vector3d& p_A_measured,
+                                             const Eigen::Vector3d& p_Ls,
+                                             const Eigen::Matrix3d& sqrt_information_A)
+    : p_A_measured_(p_A_measured), p_Ls_(p_Ls), sqrt_information_A_(sqrt_information_A) {}
+
+bool PositionAlignmentCost::Evaluate(double const* const* parameters, double* residuals,
+                                     double** jacobians) const {
+  const Eigen::Map<const Eigen::Vector3d> p_AL(parameters[0]);
+  const Eigen::Map<const Eigen::Quaterniond> q_AL(parameters[0] + 3);
+  Eigen::Map<Eigen::Vector3d> r(residuals);
+  r = sqrt_information_A_ * (p_A_measured_ - p_AL - RotateByQuaternion(q_AL, p_Ls_));
+  if (jacobians == nullptr || jacobians[0] == nullptr) return true;
+
+  // Ambient Jacobian of R(q) v (quadratic form above), columns x, y, z, w of Eigen's
+  // storage:  ∂/∂u = −2 v uᵀ + 2 (u·v) I + 2 u vᵀ − 2 w [v]×,  ∂/∂w = 2 w v + 2 u × v.
+  const Eigen::Vector3d u = q_AL.vec();
+  const double w = q_AL.w();
+  const Eigen::Vector3d& v = p_Ls_;
+  Eigen::Matrix<double, 3, 4> dRv_dq;
+  dRv_dq.leftCols<3>() = -2.0 * v * u.transpose() +
+                         2.0 * u.dot(v) * Eigen::Matrix3d::Identity() +
+                         2.0 * u * v.transpose() - 2.0 * w * core::Hat(v);
+  dRv_dq.col(3) = 2.0 * w * v + 2.0 * u.cross(v);
+  Eigen::Map<Eigen::Matrix<double, 3, 7, Eigen::RowMajor>> J(jacobians[0]);
+  J.leftCols<3>() = -sqrt_information_A_;
+  J.rightCols<4>() = -sqrt_information_A_ * dRv_dq;
+  return true;
+}
+
+Eigen::Matrix<double, 3, 6> PositionAlignmentCost::TangentJacobian(
+    const Eigen::Isometry3d& T_AL) const {
+  Eigen::Matrix<double, 3, 6> J;
+  J.leftCols<3>() = -sqrt_information_A_;
+  J.rightCols<3>() = sqrt_information_A_ * T_AL.linear() * core::Hat(p_Ls_);
+  return J;
+}
+
+Eigen::Vector3d PositionAlignmentCost::Residual(const Eigen::Isometry3d& T_AL) const {
+  return sqrt_information_A_ * (p_A_measured_ - T_AL * p_Ls_);
+}
+
+// ---- manifold: [p, q] with q ⊗ Exp(δθ) ----
+
+bool PoseRightPerturbationManifold::Plus(const double* x, const double* delta,
+                                         double* x_plus_delta) const {
+  const Eigen::Map<const Eigen::Vector3d> p(x);
+  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
+  const Eigen::Map<const Eigen::Vector3d> delta_p(delta);
+  const Eigen::Map<const Eigen::Vector3d> delta_theta(delta + 3);
+  Eigen::Map<Eigen::Vector3d> p_plus(x_plus_delta);
+  Eigen::Map<Eigen::Quaterniond> q_plus(x_plus_delta + 3);
+  p_plus = p + delta_p;
+  q_plus = (q * core::ExpQuat(delta_theta)).normalized();
+  return true;
+}
+
+bool PoseRightPerturbationManifold::PlusJacobian(const double* x, double* jacobian) const {
+  // d(q ⊗ [δθ/2; 1])/dδθ at 0: vector part ½(w I + [u]×), scalar part −½ uᵀ.
+  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
+  Eigen::Map<Eigen::Matrix<double, 7, 6, Eigen::RowMajor>> J(jacobian);
+  J.setZero();
+  J.topLeftCorner<3, 3>().setIdentity();
+  J.block<3, 3>(3, 3) = 0.5 * (q.w() * Eigen::Matrix3d::Identity() + core::Hat(q.vec()));
+  J.block<1, 3>(6, 3) = -0.5 * q.vec().transpose();
+  return true;
+}
+
+bool PoseRightPerturbationManifold::Minus(const double* y, const double* x,
+                                          double* y_minus_x) const {
+  const Eigen::Map<const Eigen::Vector3d> p_x(x);
+  const Eigen::Map<const Eigen::Vector3d> p_y(y);
+  const Eigen::Map<const Eigen::Quaterniond> q_x(x + 3);
+  const Eigen::Map<const Eigen::Quaterniond> q_y(y + 3);
+  Eigen::Map<Eigen::Vector3d> delta_p(y_minus_x);
+  Eigen::Map<Eigen::Vector3d> delta_theta(y_minus_x + 3);
+  delta_p = p_y - p_x;
+  delta_theta = core::LogQuat(q_x.conjugate() * q_y);
+  return true;
+}
+
+bool PoseRightPerturbationManifold::MinusJacobian(const double* x, double* jacobian) const {
+  // Log(q_x⁻¹ ⊗ q_y) ≈ 2 vec(q_x⁻¹ ⊗ q_y) near q_y = q_x; its vector part is linear in
+  // q_y: (w I − [u]×) u_y − u w_y. The left inverse of PlusJacobian.
+  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
+  Eigen::Map<Eigen::Matrix<double, 6, 7, Eigen::RowMajor>> J(jacobian);
+  J.setZero();
+  J.topLeftCorner<3, 3>().setIdentity();
+  J.block<3, 3>(3, 3) = 2.0 * (q.w() * Eigen::Matrix3d::Identity() - core::Hat(q.vec()));
+  J.block<3, 1>(3, 6) = -2.0 * q.vec();
+  return true;
+}
+
+// ---- the graph ----
+
+AlignmentGraph::AlignmentGraph(AlignmentGraphOptions options) : options_(std::move(options)) {
+  std::string why;
+  if (!options_.IsValid(&why)) throw std::invalid_argument("AlignmentGraphOptions: " + why);
+}
+
+bool AlignmentGraph::AddPair(const AlignmentPair& pair) {
+  // Validation: finite data, increasing time, a usable covariance.
+  if (!AllFinite(pair) || (has_input_ && pair.t_ns <= last_input_t_ns_)) {
+    ++rejected_pairs_;
+    return false;
+  }
+  Eigen::Matrix3d covariance_A = pair.covariance_A;
+  if (covariance_A.isZero(0.0)) {
+    covariance_A = options_.position_std_m * options_.position_std_m * Eigen::Matrix3d::Identity();
+  }
+  const Eigen::LLT<Eigen::Matrix3d> llt(0.5 * (covariance_A + covariance_A.transpose()));
+  if (llt.info() != Eigen::Success) {
+    ++rejected_pairs_;
+    return false;
+  }
+  // Σ = L Lᵀ ⇒ S = L⁻¹ gives Sᵀ S = Σ⁻¹.
+  const Eigen::Matrix3d sqrt_information_A =
+      llt.matrixL().solve(Eigen::Matrix3d::Identity());
+  if (!sqrt_information_A.allFinite()) {
+    ++rejected_pairs_;
+    return false;
+  }
+  has_input_ = true;
+  last_input_t_ns_ = pair.t_ns;
+
+  // Valid but not stored: frozen (circular, see header) or decimated to min spacing.
+  if (frozen_) {
+    ++dropped_frozen_pairs_;
+    return true;
+  }
+  if (has_stored_ && pair.t_ns - last_stored_t_ns_ < options_.min_pair_spacing_ns) {
+    ++decimated_pairs_;
+    return true;
+  }
+  pairs_.push_back({pair.t_ns, pair.p_A_measured, sqrt_information_A, pair.p_Ls_estimated});
+  has_stored_ = true;
+  last_stored_t_ns_ = pair.t_ns;
+  // Memory stays bounded by the window even if Update is not called.
+  DropOlderThan(pair.t_ns - options_.window_ns);
+  return true;
+}
+
+void AlignmentGraph::DropOlderThan(core::Time t_oldest_ns) {
+  while (!pairs_.empty() && pairs_.front().t_ns < t_oldest_ns) pairs_.pop_front();
+}
+
+bool AlignmentGraph::Update(core::Time now_ns) {
+  if (frozen_) return false;
+  if (has_solved_ && now_ns - last_solve_ns_ < options_.update_period_ns) return false;
+  DropOlderThan(now_ns - options_.window_ns);
+  if (static_cast<int>(pairs_.size()) < options_.min_pairs) return false;
+  return Solve(now_ns);
+}
+
+void AlignmentGraph::SetFrozen(bool frozen) {
+  frozen_ = frozen;
+  estimate_.frozen = frozen;
+}
+
+void AlignmentGraph::Reset() {
+  pairs_.clear();
+  estimate_ = AlignmentEstimate{};
+  estimate_.frozen = frozen_;
+  has_input_ = false;
+  has_stored_ = false;
+  has_solved_ = false;
+}
+
+double AlignmentGraph::RobustCost(const Eigen::Isometry3d& T_AL, double* rms_residual_m) const {
+  double cost = 0.0;
+  double sum_squares_m2 = 0.0;
+  for (const StoredPair& pair : pairs_) {
+    const Eigen::Vector3d error_A = pair.p_A_measured - T_AL * pair.p_Ls;
+    sum_squares_m2 += error_A.squaredNorm();
+    cost += HuberRho((pair.sqrt_information_A * error_A).squaredNorm(), options_.huber_delta);
+  }
+  if (rms_residual_m != nullptr) {
+    *rms_residual_m = std::sqrt(sum_squares_m2 / static_cast<double>(pairs_.size()));
+  }
+  return cost;
+}
+
+bool AlignmentGraph::Solve(core::Time now_ns) {
+  // Initial guess: warm start from the previous estimate; the closed form (Umeyama) when
+  // there is none or when the previous T_AL no longer fits the window. Of the two, the
+  // one with the lower robust cost (Umeyama is not robust to outliers).
+  std::optional<Eigen::Isometry3d> T_AL_guess;
+  double guess_cost = std::numeric_limits<double>::infinity();
+  bool try_closed_form = true;
+  if (estimate_.valid) {
+    double rms_m = 0.0;
+    guess_cost = RobustCost(estimate_.T_AL, &rms_m);
+    T_AL_guess = estimate_.T_AL;
+    try_closed_form = rms_m > options_.reinit_rms_residual_m;
+  }
+  if (try_closed_form) {
+    std::vector<Eigen::Vector3d> p_L;
+    std::vector<Eigen::Vector3d> p_A;
+    p_L.reserve(pairs_.size());
+    p_A.reserve(pairs_.size());
+    for (const StoredPair& pair : pairs_) {
+      p_L.push_back(pair.p_Ls);
+      p_A.push_back(pair.p_A_measured);
+    }
+    // Any non-zero spread is enough for a guess: with motion along a line the rotation
+    // about it is arbitrary, and the refinement leaves it there (no gradient).
+    if (const auto closed_form = AlignPositions(p_L, p_A, /*min_spread_m2=*/0.0)) {
+      if (RobustCost(closed_form->T_AL, nullptr) < guess_cost) T_AL_guess = closed_form->T_AL;
+    }
+  }
+  // Motion collapsed to a point and no previous estimate: start anywhere; the rotation
+  // comes out unobservable.
+  if (!T_AL_guess) T_AL_guess = Eigen::Isometry3d::Identity();
+
+  // Rebuilt on each update: ≤ 400 residuals of 3, one block of 7; the build is cheap
+  // next to the solve and avoids bookkeeping of removed residual blocks.
+  double x[7];
+  ParametersFromIsometry(*T_AL_guess, x);
+  PoseRightPerturbationManifold manifold;
+  ceres::HuberLoss huber(options_.huber_delta > 0.0 ? options_.huber_delta : 1.0);
+  ceres::LossFunction* loss = options_.huber_delta > 0.0 ? &huber : nullptr;
+  ceres::Problem::Options problem_options;
+  problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(problem_options);
+  problem.AddParameterBlock(x, 7, &manifold);
+  for (const StoredPair& pair : pairs_) {
+    problem.AddResidualBlock(
+        new PositionAlignmentCost(pair.p_A_measured, pair.p_Ls, pair.sqrt_information_A), loss,
+        x);
+  }
+  ceres::Solver::Options solver_options;
+  solver_options.linear_solver_type = ceres::DENSE_QR;
+  solver_options.max_num_iterations = options_.max_iterations;
+  solver_options.num_threads = 1;
+  solver_options.logging_type = ceres::SILENT;
+  solver_options.minimizer_progress_to_stdout = false;
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, &problem, &summary);
+  if (!summary.IsSolutionUsable()) return false;
+
+  const Eigen::Isometry3d T_AL = IsometryFromParameters(x);
+  estimate_.valid = true;
+  estimate_.T_AL = T_AL;
+  estimate_.pairs = static_cast<int>(pairs_.size());
+  estimate_.t_ns = now_ns;
+  estimate_.frozen = frozen_;
+  RobustCost(T_AL, &estimate_.rms_residual_m);
+  AnalyseObservability(T_AL);
+  has_solved_ = true;
+  last_solve_ns_ = now_ns;
+  return true;
+}
+
+void AlignmentGraph::AnalyseObservability(const Eigen::Isometry3d& T_AL) {
+  // Information at the solution, H = Σ w_i J_iᵀ J_i with the tangent Jacobian of eq. (9)
+  // and the Huber weight w_i = ρ'(|r_i|²) (the IRLS weight Ceres' solve used).
+  Matrix6d H = Matrix6d::Zero();
+  for (const StoredPair& pair : pairs_) {
+    const PositionAlignmentCost cost(pair.p_A_measured, pair.p_Ls, pair.sqrt_information_A);
+    const Eigen::Matrix<double, 3, 6> J = cost.TangentJacobian(T_AL);
+    const double weight = HuberWeight(cost.Residual(T_AL).squaredNorm(), options_.huber_delta);
+    H.noalias() += weight * J.transpose() * J;
+  }
+  const double n = static_cast<double>(pairs_.size());
+
+  // Marginalise δp (Schur complement): the rotation information with the translation
+  // estimated jointly. H_pp = Σ w SᵀS is positive definite for any pair.
+  const Eigen::Matrix3d H_pp = H.topLeftCorner<3, 3>();
+  const Eigen::Matrix3d H_pt = H.topRightCorner<3, 3>();
+  const Eigen::Matrix3d H_tt = H.bottomRightCorner<3, 3>();
+  const Eigen::LLT<Eigen::Matrix3d> llt_pp(H_pp);
+  const Eigen::Matrix3d K = llt_pp.solve(H_pt);  // H_pp⁻¹ H_pθ
+  Eigen::Matrix3d H_rot = H_tt - H_pt.transpose() * K;
+  H_rot = 0.5 * (H_rot + H_rot.transpose());
+
+  // Directions: eigen-decomposition (ascending), per pair so the threshold does not
+  // depend on the window length.
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(H_rot);
+  const Eigen::Vector3d lambda = eigen.eigenvalues();
+  const Eigen::Matrix3d V = eigen.eigenvectors();
+  estimate_.rotation_information_eigenvalues = lambda / n;
+  estimate_.rotation_information_directions = V;
+  estimate_.observable_rotation_dofs =
+      static_cast<int>((estimate_.rotation_information_eigenvalues.array() >
+                        options_.min_rotation_information)
+                           .count());
+
+  // Covariance of δθ by directions, 1/λ capped: an information-free direction gets a
+  // huge finite variance instead of inf (no NaN in the blocks below).
+  Eigen::Vector3d variance_rad2;
+  for (int k = 0; k < 3; ++k) {
+    variance_rad2(k) = lambda(k) > 1.0 / kUnobservableVariance ? 1.0 / lambda(k)
+                                                               : kUnobservableVariance;
+  }
+  const Eigen::Matrix3d Sigma_tt = V * variance_rad2.asDiagonal() * V.transpose();
+  // Block inverse of H through the Schur complement:
+  //   Σ_θθ = H_rot⁻¹, Σ_pθ = −H_pp⁻¹ H_pθ Σ_θθ, Σ_pp = H_pp⁻¹ + H_pp⁻¹ H_pθ Σ_θθ H_θp H_pp⁻¹.
+  const Eigen::Matrix3d H_pp_inverse = llt_pp.solve(Eigen::Matrix3d::Identity());
+  Matrix6d covariance;
+  covariance.bottomRightCorner<3, 3>() = Sigma_tt;
+  covariance.topRightCorner<3, 3>() = -K * Sigma_tt;
+  covariance.bottomLeftCorner<3, 3>() = covariance.topRightCorner<3, 3>().transpose();
+  covariance.topLeftCorner<3, 3>() = H_pp_inverse + K * Sigma_tt * K.transpose();
+  estimate_.covariance = 0.5 * (covariance + covariance.transpose());
+
+  // Yaw (rotation about L's z, δθ being in L): marginal information, i.e. the inverse of
+  // its variance with roll and pitch estimated jointly. The conditional e_zᵀ H_rot e_z
+  // would be wrong for motion along a tilted line: rotation about that line is free and
+  // has a yaw component, so yaw is undetermined although e_zᵀ H_rot e_z > 0.
+  const double yaw_variance_rad2 = Sigma_tt(2, 2);
+  estimate_.yaw_information_per_pair = 1.0 / (n * yaw_variance_rad2);
+  estimate_.yaw_observable =
+      estimate_.yaw_information_per_pair > options_.min_rotation_information;
+}
+
+}  // namespace tofu::estimator

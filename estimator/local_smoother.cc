@@ -1,0 +1,690 @@
+#include "estimator/local_smoother.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <deque>
+#include <map>
+
+#include <ceres/ceres.h>
+
+#include "core/lie.h"
+#include "estimator/local_factors.h"
+#include "estimator/marginalization.h"
+
+namespace tofu::estimator {
+namespace {
+
+struct ImuInterval {
+  core::Time t_begin_ns = 0;
+  core::Time t_end_ns = 0;
+  Eigen::Vector3d accel_I_mps2;
+  Eigen::Vector3d gyro_I_radps;
+};
+
+struct Keyframe {
+  core::Time t_ns = 0;
+  double pose[kPoseSize] = {0, 0, 0, 0, 0, 0, 1};        // p_LI, q_LI (x y z w)
+  double speed_bias[kSpeedBiasSize] = {0, 0, 0, 0, 0, 0, 0, 0, 0};  // v_L, b_a, b_g
+  bool imu_only = false;
+
+  NavState state() const {
+    NavState s;
+    s.p_LI = Eigen::Vector3d(pose[0], pose[1], pose[2]);
+    s.q_LI = Eigen::Quaterniond(pose[6], pose[3], pose[4], pose[5]).normalized();
+    s.v_L_mps = Eigen::Vector3d(speed_bias[0], speed_bias[1], speed_bias[2]);
+    return s;
+  }
+  ImuBias bias() const {
+    ImuBias b;
+    b.accel_mps2 = Eigen::Vector3d(speed_bias[3], speed_bias[4], speed_bias[5]);
+    b.gyro_radps = Eigen::Vector3d(speed_bias[6], speed_bias[7], speed_bias[8]);
+    return b;
+  }
+  void Set(const NavState& s, const ImuBias& b) {
+    const Eigen::Quaterniond q = s.q_LI.normalized();
+    pose[0] = s.p_LI.x(); pose[1] = s.p_LI.y(); pose[2] = s.p_LI.z();
+    pose[3] = q.x(); pose[4] = q.y(); pose[5] = q.z(); pose[6] = q.w();
+    for (int k = 0; k < 3; ++k) {
+      speed_bias[k] = s.v_L_mps[k];
+      speed_bias[3 + k] = b.accel_mps2[k];
+      speed_bias[6 + k] = b.gyro_radps[k];
+    }
+  }
+  KeyframeState Public() const { return KeyframeState{t_ns, state(), bias(), imu_only}; }
+};
+
+enum class FactorKind { kImu, kBiasWalk, kBetween, kPrior };
+
+struct Factor {
+  FactorKind kind = FactorKind::kPrior;
+  std::unique_ptr<ceres::CostFunction> cost;
+  std::unique_ptr<ceres::LossFunction> loss;
+  std::vector<Keyframe*> keyframes;
+  std::vector<MarginalBlock> blocks;
+  ceres::ResidualBlockId id = nullptr;
+};
+
+// The last measurement of a fused sensor that made (or reused) a keyframe: the start of
+// its next between factor.
+struct Chain {
+  Keyframe* keyframe = nullptr;
+  core::Time t_ns = 0;
+  Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d covariance_A = Eigen::Matrix3d::Identity();
+};
+
+struct PendingMeasurement {
+  bool is_pose = true;
+  int sensor = 0;
+  core::Time t_ns = 0;
+  Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_Is = Eigen::Isometry3d::Identity();
+  Eigen::Matrix<double, 6, 6> sqrt_information = Eigen::Matrix<double, 6, 6>::Identity();
+  Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d covariance_A = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d p_Is = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d R_LA = Eigen::Matrix3d::Identity();
+  bool position_in_reference = false;  ///< pose: displacement in A through R_LA
+  double min_std_m = 0.0;
+};
+
+bool Finite(const Keyframe& kf) {
+  for (double v : kf.pose) if (!std::isfinite(v)) return false;
+  for (double v : kf.speed_bias) if (!std::isfinite(v)) return false;
+  return true;
+}
+
+}  // namespace
+
+struct LocalSmoother::Impl {
+  explicit Impl(const LocalSmootherOptions& opts, LocalSmootherStats* s)
+      : options(opts), stats(s), problem(ProblemOptions()) {
+    gravity_L = Eigen::Vector3d(0, 0, -options.gravity_mps2);
+  }
+
+  static ceres::Problem::Options ProblemOptions() {
+    ceres::Problem::Options o;
+    o.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    o.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    o.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    o.enable_fast_removal = true;
+    return o;
+  }
+
+  LocalSmootherOptions options;
+  LocalSmootherStats* stats;
+  Eigen::Vector3d gravity_L;
+  ceres::Problem problem;
+  PoseManifold pose_manifold;
+  std::vector<std::unique_ptr<Keyframe>> keyframes;  // sorted by time
+  std::vector<std::unique_ptr<Factor>> factors;
+  std::deque<ImuInterval> imu;
+  bool has_last_raw = false;
+  core::Time last_raw_t_ns = 0;
+  Eigen::Vector3d last_raw_accel, last_raw_gyro;
+  std::map<int, Chain> chains;
+  std::vector<PendingMeasurement> pending;
+  bool dirty = false;
+  // Propagation of the newest keyframe to the newest IMU sample (the 200 Hz output).
+  std::optional<ImuPreintegration> propagation;
+  core::Time propagated_to_ns = 0;
+
+  core::Time newest_imu_ns() const { return imu.empty() ? INT64_MIN : imu.back().t_end_ns; }
+
+  // ---- IMU ----
+  ImuPreintegration Preintegrate(core::Time t_from, core::Time t_to, const ImuBias& bias) const {
+    ImuPreintegration pre(bias, options.imu_noise);
+    for (const ImuInterval& s : imu) {
+      if (s.t_end_ns <= t_from) continue;
+      if (s.t_begin_ns >= t_to) break;
+      const core::Time a = std::max(s.t_begin_ns, t_from);
+      const core::Time b = std::min(s.t_end_ns, t_to);
+      if (b > a) pre.Integrate(s.accel_I_mps2, s.gyro_I_radps, core::TimeToSeconds(b - a));
+    }
+    return pre;
+  }
+
+  void TrimImu() {
+    const core::Time keep_from =
+        keyframes.empty() ? newest_imu_ns() - options.pre_init_imu_buffer_ns
+                          : keyframes.front()->t_ns - options.window_ns / 4;
+    while (imu.size() > 1 && imu.front().t_end_ns < keep_from) imu.pop_front();
+  }
+
+  // ---- factors ----
+  Factor* AddFactor(FactorKind kind, std::unique_ptr<ceres::CostFunction> cost,
+                    std::unique_ptr<ceres::LossFunction> loss, std::vector<Keyframe*> kfs,
+                    std::vector<MarginalBlock> blocks) {
+    auto factor = std::make_unique<Factor>();
+    factor->kind = kind;
+    factor->cost = std::move(cost);
+    factor->loss = std::move(loss);
+    factor->keyframes = std::move(kfs);
+    factor->blocks = std::move(blocks);
+    std::vector<double*> data;
+    for (const MarginalBlock& b : factor->blocks) data.push_back(b.data);
+    factor->id = problem.AddResidualBlock(factor->cost.get(), factor->loss.get(), data);
+    factors.push_back(std::move(factor));
+    return factors.back().get();
+  }
+
+  MarginalBlock PoseBlock(Keyframe* kf) {
+    return MarginalBlock{kf->pose, kPoseSize, kPoseTangentSize, &pose_manifold};
+  }
+  static MarginalBlock SpeedBiasBlock(Keyframe* kf) {
+    return MarginalBlock{kf->speed_bias, kSpeedBiasSize, kSpeedBiasSize, nullptr};
+  }
+
+  void AddStateBlocks(Keyframe* kf) {
+    problem.AddParameterBlock(kf->pose, kPoseSize, &pose_manifold);
+    problem.AddParameterBlock(kf->speed_bias, kSpeedBiasSize);
+  }
+
+  void AddImuFactors(Keyframe* a, Keyframe* b) {
+    const ImuPreintegration pre = Preintegrate(a->t_ns, b->t_ns, a->bias());
+    AddFactor(FactorKind::kImu, std::make_unique<ImuFactor>(pre, gravity_L), nullptr, {a, b},
+              {PoseBlock(a), SpeedBiasBlock(a), PoseBlock(b), SpeedBiasBlock(b)});
+    AddFactor(FactorKind::kBiasWalk,
+              std::make_unique<BiasRandomWalkFactor>(core::TimeToSeconds(b->t_ns - a->t_ns),
+                                                     options.imu_noise),
+              nullptr, {a, b}, {SpeedBiasBlock(a), SpeedBiasBlock(b)});
+  }
+
+  void RemoveFactor(Factor* factor) {
+    problem.RemoveResidualBlock(factor->id);
+    factors.erase(std::find_if(factors.begin(), factors.end(),
+                               [&](const auto& f) { return f.get() == factor; }));
+  }
+
+  // ---- keyframes ----
+  Keyframe* FindKeyframe(core::Time t_ns) {
+    for (auto& kf : keyframes) {
+      if (std::llabs(kf->t_ns - t_ns) <= options.keyframe_merge_tolerance_ns) return kf.get();
+    }
+    return nullptr;
+  }
+
+  // A keyframe at t_ns: an existing one within the merge tolerance, a new one after the
+  // newest (predicted by the IMU), or one inserted between two (late measurement: the
+  // IMU factor between them is split in two). nullptr before the window.
+  Keyframe* KeyframeAt(core::Time t_ns, bool imu_only) {
+    if (Keyframe* existing = FindKeyframe(t_ns)) {
+      if (!imu_only) existing->imu_only = false;
+      return existing;
+    }
+    if (keyframes.empty() || t_ns < keyframes.front()->t_ns) return nullptr;
+    auto next = std::upper_bound(keyframes.begin(), keyframes.end(), t_ns,
+                                 [](core::Time t, const auto& kf) { return t < kf->t_ns; });
+    Keyframe* before = std::prev(next)->get();
+    Keyframe* after = next == keyframes.end() ? nullptr : next->get();
+    auto kf = std::make_unique<Keyframe>();
+    kf->t_ns = t_ns;
+    kf->imu_only = imu_only;
+    const ImuPreintegration pre = Preintegrate(before->t_ns, t_ns, before->bias());
+    kf->Set(pre.Predict(before->state(), before->bias(), gravity_L), before->bias());
+    Keyframe* raw = kf.get();
+    keyframes.insert(next, std::move(kf));
+    AddStateBlocks(raw);
+    if (after != nullptr) {
+      ++stats->late_keyframes;
+      std::vector<Factor*> split;
+      for (auto& f : factors) {
+        if ((f->kind == FactorKind::kImu || f->kind == FactorKind::kBiasWalk) &&
+            f->keyframes.size() == 2 && f->keyframes[0] == before && f->keyframes[1] == after) {
+          split.push_back(f.get());
+        }
+      }
+      for (Factor* f : split) RemoveFactor(f);
+      AddImuFactors(before, raw);
+      AddImuFactors(raw, after);
+    } else {
+      AddImuFactors(before, raw);
+    }
+    ++stats->keyframes;
+    dirty = true;
+    return raw;
+  }
+
+  bool ChainDue(int sensor, core::Time t_ns) const {
+    auto it = chains.find(sensor);
+    if (it == chains.end() || it->second.keyframe == nullptr) return true;
+    const auto min_spacing =
+        static_cast<core::Time>(0.9e9 / std::max(options.keyframe_rate_hz, 1e-3));
+    return t_ns - it->second.t_ns >= min_spacing;
+  }
+
+  MeasurementUse ApplyPose(const PendingMeasurement& m) {
+    if (!ChainDue(m.sensor, m.t_ns)) return MeasurementUse::kSkipped;
+    Keyframe* kf = KeyframeAt(m.t_ns, false);
+    if (kf == nullptr) {
+      ++stats->too_old_measurements;
+      return MeasurementUse::kTooOld;
+    }
+    Chain& chain = chains[m.sensor];
+    MeasurementUse use = MeasurementUse::kAnchor;
+    if (chain.keyframe != nullptr && chain.keyframe != kf) {
+      // Relative motion of I between the two times from the sensor's relative motion of s:
+      // T_IJ = T_Is (T_As,i⁻¹ T_As,j) T_Is⁻¹ (the lever arm and mount rotation of eq. 2).
+      const Eigen::Isometry3d T_IJ = m.T_Is * (chain.T_As.inverse() * m.T_As) * m.T_Is.inverse();
+      std::unique_ptr<ceres::LossFunction> loss;
+      if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+      Keyframe* a = chain.keyframe;
+      Keyframe* b = kf;
+      Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
+      if (m.position_in_reference) {
+        const Eigen::Matrix3d sqrt_information_p = m.sqrt_information.topLeftCorner<3, 3>();
+        sqrt_information.topRows<3>().setZero();
+        std::unique_ptr<ceres::LossFunction> position_loss;
+        if (options.huber_delta > 0) {
+          position_loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+        }
+        AddFactor(FactorKind::kBetween,
+                  std::make_unique<PositionBetweenFactor>(
+                      m.T_Is.translation(), m.R_LA, m.T_As.translation() - chain.T_As.translation(),
+                      sqrt_information_p),
+                  std::move(position_loss), {a, b}, {PoseBlock(a), PoseBlock(b)});
+      }
+      AddFactor(FactorKind::kBetween, std::make_unique<PoseBetweenFactor>(T_IJ, sqrt_information),
+                std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)});
+      use = MeasurementUse::kFactor;
+      dirty = true;
+    }
+    chain.keyframe = kf;
+    chain.t_ns = m.t_ns;
+    chain.T_As = m.T_As;
+    return use;
+  }
+
+  MeasurementUse ApplyPosition(const PendingMeasurement& m) {
+    if (!ChainDue(m.sensor, m.t_ns)) return MeasurementUse::kSkipped;
+    Keyframe* kf = KeyframeAt(m.t_ns, false);
+    if (kf == nullptr) {
+      ++stats->too_old_measurements;
+      return MeasurementUse::kTooOld;
+    }
+    Chain& chain = chains[m.sensor];
+    MeasurementUse use = MeasurementUse::kAnchor;
+    if (chain.keyframe != nullptr && chain.keyframe != kf) {
+      // Both ends' noise enters the displacement (white position noise).
+      Eigen::Matrix3d covariance = chain.covariance_A + m.covariance_A;
+      covariance = m.R_LA * covariance * m.R_LA.transpose();
+      covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
+      const Eigen::Matrix3d information = covariance.inverse();
+      const Eigen::Matrix3d sqrt_information =
+          Eigen::LLT<Eigen::Matrix3d>(information).matrixU();
+      std::unique_ptr<ceres::LossFunction> loss;
+      if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+      Keyframe* a = chain.keyframe;
+      Keyframe* b = kf;
+      AddFactor(FactorKind::kBetween,
+                std::make_unique<PositionBetweenFactor>(m.p_Is, m.R_LA, m.p_As - chain.p_As,
+                                                        sqrt_information),
+                std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)});
+      use = MeasurementUse::kFactor;
+      dirty = true;
+    }
+    chain.keyframe = kf;
+    chain.t_ns = m.t_ns;
+    chain.p_As = m.p_As;
+    chain.covariance_A = m.covariance_A;
+    return use;
+  }
+
+  MeasurementUse Apply(const PendingMeasurement& m) {
+    return m.is_pose ? ApplyPose(m) : ApplyPosition(m);
+  }
+
+  MeasurementUse Submit(PendingMeasurement m) {
+    if (keyframes.empty()) return MeasurementUse::kRejected;
+    if (m.t_ns > newest_imu_ns()) {
+      pending.push_back(std::move(m));
+      return MeasurementUse::kPending;
+    }
+    return Apply(m);
+  }
+
+  void ApplyDuePending() {
+    if (pending.empty()) return;
+    const core::Time imu_t = newest_imu_ns();
+    std::vector<PendingMeasurement> still;
+    for (PendingMeasurement& m : pending) {
+      if (m.t_ns <= imu_t) {
+        Apply(m);
+      } else {
+        still.push_back(std::move(m));
+      }
+    }
+    pending = std::move(still);
+  }
+
+  // ---- marginalisation ----
+  Keyframe* KeyframeOfBlock(const double* data) {
+    for (auto& kf : keyframes) {
+      if (kf->pose == data || kf->speed_bias == data) return kf.get();
+    }
+    return nullptr;
+  }
+
+  void MarginalizeOldest() {
+    Keyframe* old = keyframes.front().get();
+    std::vector<Factor*> touching;
+    for (auto& f : factors) {
+      if (std::find(f->keyframes.begin(), f->keyframes.end(), old) != f->keyframes.end()) {
+        touching.push_back(f.get());
+      }
+    }
+    std::optional<LinearPrior> prior;
+    if (options.marginalize) {
+      std::vector<MarginalFactor> linearised;
+      for (Factor* f : touching) linearised.push_back({f->cost.get(), f->loss.get(), f->blocks});
+      LinearPrior result;
+      if (Marginalize(linearised, {old->pose, old->speed_bias}, &result)) {
+        prior = std::move(result);
+      } else {
+        ++stats->marginalisation_failures;
+      }
+    }
+    for (Factor* f : touching) RemoveFactor(f);
+    problem.RemoveParameterBlock(old->pose);
+    problem.RemoveParameterBlock(old->speed_bias);
+    for (auto& [sensor, chain] : chains) {
+      if (chain.keyframe == old) chain.keyframe = nullptr;
+    }
+    keyframes.erase(keyframes.begin());
+    if (prior) {
+      std::vector<Keyframe*> kfs;
+      for (const MarginalBlock& b : prior->blocks) {
+        Keyframe* kf = KeyframeOfBlock(b.data);
+        if (std::find(kfs.begin(), kfs.end(), kf) == kfs.end()) kfs.push_back(kf);
+      }
+      std::vector<MarginalBlock> blocks = prior->blocks;
+      AddFactor(FactorKind::kPrior, std::make_unique<LinearPriorFactor>(std::move(*prior)),
+                nullptr, std::move(kfs), std::move(blocks));
+    } else if (!options.marginalize && !keyframes.empty()) {
+      // Without a prior nothing holds the gauge (position, yaw): hold the oldest pose.
+      problem.SetParameterBlockConstant(keyframes.front()->pose);
+    }
+  }
+
+  // ---- propagation ----
+  void RebuildPropagation() {
+    if (keyframes.empty()) {
+      propagation.reset();
+      return;
+    }
+    const Keyframe& newest = *keyframes.back();
+    propagation = Preintegrate(newest.t_ns, newest_imu_ns(), newest.bias());
+    propagated_to_ns = std::max(newest.t_ns, newest_imu_ns());
+  }
+};
+
+LocalSmoother::LocalSmoother(LocalSmootherOptions options)
+    : options_(options), impl_(std::make_unique<Impl>(options_, &stats_)) {}
+
+LocalSmoother::~LocalSmoother() = default;
+
+bool LocalSmoother::initialized() const { return !impl_->keyframes.empty(); }
+
+core::Time LocalSmoother::newest_imu_ns() const { return impl_->newest_imu_ns(); }
+
+void LocalSmoother::Reset() {
+  Impl& m = *impl_;
+  for (auto& f : m.factors) m.problem.RemoveResidualBlock(f->id);
+  m.factors.clear();
+  for (auto& kf : m.keyframes) {
+    m.problem.RemoveParameterBlock(kf->pose);
+    m.problem.RemoveParameterBlock(kf->speed_bias);
+  }
+  m.keyframes.clear();
+  m.chains.clear();
+  m.pending.clear();
+  m.propagation.reset();
+  m.dirty = false;
+}
+
+void LocalSmoother::Initialize(core::Time t_ns, const NavState& state, const ImuBias& bias,
+                               const InitialStatePrior& prior) {
+  Reset();
+  Impl& m = *impl_;
+  auto kf = std::make_unique<Keyframe>();
+  kf->t_ns = t_ns;
+  kf->Set(state, bias);
+  Keyframe* raw = kf.get();
+  m.keyframes.push_back(std::move(kf));
+  m.AddStateBlocks(raw);
+  Eigen::Matrix<double, 6, 1> pose_std;
+  pose_std << prior.position_std_m, prior.rotation_std_rad;
+  Eigen::Matrix<double, 9, 1> speed_bias_std;
+  speed_bias_std << Eigen::Vector3d::Constant(prior.velocity_std_mps),
+      Eigen::Vector3d::Constant(prior.accel_bias_std_mps2),
+      Eigen::Vector3d::Constant(prior.gyro_bias_std_radps);
+  const Eigen::Matrix<double, 6, 6> pose_sqrt_info = pose_std.cwiseInverse().asDiagonal();
+  const Eigen::Matrix<double, 9, 9> speed_bias_sqrt_info =
+      speed_bias_std.cwiseInverse().asDiagonal();
+  Eigen::Matrix<double, 7, 1> pose0;
+  std::copy(raw->pose, raw->pose + kPoseSize, pose0.data());
+  Eigen::Matrix<double, 9, 1> speed_bias0;
+  std::copy(raw->speed_bias, raw->speed_bias + kSpeedBiasSize, speed_bias0.data());
+  m.AddFactor(FactorKind::kPrior, std::make_unique<PosePriorFactor>(pose0.data(), pose_sqrt_info),
+              nullptr, {raw}, {m.PoseBlock(raw)});
+  m.AddFactor(FactorKind::kPrior,
+              std::make_unique<SpeedBiasPriorFactor>(speed_bias0, speed_bias_sqrt_info), nullptr,
+              {raw}, {Impl::SpeedBiasBlock(raw)});
+  ++stats_.keyframes;
+  m.RebuildPropagation();
+}
+
+void LocalSmoother::AddImu(core::Time t_ns, const Eigen::Vector3d& accel_I_mps2,
+                           const Eigen::Vector3d& gyro_I_radps) {
+  Impl& m = *impl_;
+  if (m.has_last_raw && t_ns > m.last_raw_t_ns) {
+    ImuInterval s;
+    s.t_begin_ns = m.last_raw_t_ns;
+    s.t_end_ns = t_ns;
+    if (options_.imu_samples_are_interval_averages) {
+      s.accel_I_mps2 = accel_I_mps2;
+      s.gyro_I_radps = gyro_I_radps;
+    } else {
+      s.accel_I_mps2 = 0.5 * (accel_I_mps2 + m.last_raw_accel);
+      s.gyro_I_radps = 0.5 * (gyro_I_radps + m.last_raw_gyro);
+    }
+    m.imu.push_back(s);
+    if (m.propagation && t_ns > m.propagated_to_ns) {
+      const core::Time a = std::max(s.t_begin_ns, m.propagated_to_ns);
+      m.propagation->Integrate(s.accel_I_mps2, s.gyro_I_radps, core::TimeToSeconds(t_ns - a));
+      m.propagated_to_ns = t_ns;
+    }
+  }
+  m.has_last_raw = true;
+  m.last_raw_t_ns = t_ns;
+  m.last_raw_accel = accel_I_mps2;
+  m.last_raw_gyro = gyro_I_radps;
+  if (!initialized()) {
+    m.TrimImu();
+    return;
+  }
+  m.ApplyDuePending();
+  // Keep the graph running while nothing is fused.
+  if (t_ns - m.keyframes.back()->t_ns >= options_.imu_only_keyframe_period_ns &&
+      m.pending.empty()) {
+    m.KeyframeAt(t_ns, true);
+  }
+}
+
+MeasurementUse LocalSmoother::AddPose(int sensor, core::Time t_ns, const Eigen::Isometry3d& T_As,
+                                      const Eigen::Isometry3d& T_Is,
+                                      const Eigen::Matrix<double, 6, 6>& between_sqrt_information,
+                                      const std::optional<Eigen::Matrix3d>& R_LA) {
+  if (!T_As.matrix().allFinite() || !between_sqrt_information.allFinite()) {
+    return MeasurementUse::kRejected;
+  }
+  PendingMeasurement p;
+  p.is_pose = true;
+  p.sensor = sensor;
+  p.t_ns = t_ns;
+  p.T_As = T_As;
+  p.T_Is = T_Is;
+  p.sqrt_information = between_sqrt_information;
+  if (R_LA) {
+    if (!R_LA->allFinite()) return MeasurementUse::kRejected;
+    p.position_in_reference = true;
+    p.R_LA = *R_LA;
+  }
+  return impl_->Submit(std::move(p));
+}
+
+MeasurementUse LocalSmoother::AddPosition(int sensor, core::Time t_ns, const Eigen::Vector3d& p_As,
+                                          const Eigen::Matrix3d& covariance_A,
+                                          const Eigen::Vector3d& p_Is, const Eigen::Matrix3d& R_LA,
+                                          double min_std_m) {
+  if (!p_As.allFinite() || !covariance_A.allFinite() || !R_LA.allFinite()) {
+    return MeasurementUse::kRejected;
+  }
+  PendingMeasurement p;
+  p.is_pose = false;
+  p.sensor = sensor;
+  p.t_ns = t_ns;
+  p.p_As = p_As;
+  p.covariance_A = covariance_A;
+  p.p_Is = p_Is;
+  p.R_LA = R_LA;
+  p.min_std_m = min_std_m;
+  return impl_->Submit(std::move(p));
+}
+
+void LocalSmoother::EndChain(int sensor) {
+  impl_->chains.erase(sensor);
+  auto& pending = impl_->pending;
+  pending.erase(std::remove_if(pending.begin(), pending.end(),
+                               [&](const PendingMeasurement& m) { return m.sensor == sensor; }),
+                pending.end());
+}
+
+bool LocalSmoother::Update() {
+  Impl& m = *impl_;
+  if (m.keyframes.empty() || !m.dirty) return false;
+  // Snapshot to revert a bad solve.
+  std::vector<std::pair<std::array<double, kPoseSize>, std::array<double, kSpeedBiasSize>>> saved;
+  for (auto& kf : m.keyframes) {
+    std::pair<std::array<double, kPoseSize>, std::array<double, kSpeedBiasSize>> s;
+    std::copy(kf->pose, kf->pose + kPoseSize, s.first.begin());
+    std::copy(kf->speed_bias, kf->speed_bias + kSpeedBiasSize, s.second.begin());
+    saved.push_back(s);
+  }
+  ceres::Solver::Options solver;
+  solver.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  solver.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
+  solver.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  solver.max_num_iterations = options_.max_iterations;
+  solver.max_solver_time_in_seconds = options_.max_solver_time_s;
+  solver.num_threads = 1;
+  solver.logging_type = ceres::SILENT;
+  solver.minimizer_progress_to_stdout = false;
+  ceres::Solver::Summary summary;
+  const auto start = std::chrono::steady_clock::now();
+  ceres::Solve(solver, &m.problem, &summary);
+  stats_.solve_time_s.push_back(
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  ++stats_.solves;
+  if (summary.termination_type == ceres::NO_CONVERGENCE) {
+    if (summary.iterations.size() >= static_cast<std::size_t>(options_.max_iterations)) {
+      ++stats_.iteration_cap_hits;
+    } else {
+      ++stats_.time_cap_hits;
+    }
+  }
+  bool good = summary.termination_type != ceres::FAILURE && std::isfinite(summary.final_cost);
+  for (auto& kf : m.keyframes) {
+    if (!good) break;
+    const NavState s = kf->state();
+    const ImuBias b = kf->bias();
+    good = Finite(*kf) && s.v_L_mps.norm() <= options_.max_speed_mps &&
+           b.accel_mps2.norm() <= options_.max_accel_bias_mps2 &&
+           b.gyro_radps.norm() <= options_.max_gyro_bias_radps;
+  }
+  if (!good) {
+    ++stats_.bad_solves;
+    for (std::size_t i = 0; i < m.keyframes.size(); ++i) {
+      std::copy(saved[i].first.begin(), saved[i].first.end(), m.keyframes[i]->pose);
+      std::copy(saved[i].second.begin(), saved[i].second.end(), m.keyframes[i]->speed_bias);
+    }
+  }
+  m.dirty = false;
+  const core::Time newest = m.keyframes.back()->t_ns;
+  while (m.keyframes.size() > 2 && m.keyframes.front()->t_ns < newest - options_.window_ns) {
+    m.MarginalizeOldest();
+  }
+  m.TrimImu();
+  m.RebuildPropagation();
+  return good;
+}
+
+std::optional<NavState> LocalSmoother::PredictWithImu(core::Time t_from, const NavState& state,
+                                                      const ImuBias& bias,
+                                                      core::Time t_to) const {
+  const Impl& m = *impl_;
+  if (m.imu.empty() || t_from < m.imu.front().t_begin_ns || t_to > m.newest_imu_ns() ||
+      t_to < t_from) {
+    return std::nullopt;
+  }
+  return m.Preintegrate(t_from, t_to, bias).Predict(state, bias, m.gravity_L);
+}
+
+std::optional<KeyframeState> LocalSmoother::NewestKeyframe() const {
+  if (impl_->keyframes.empty()) return std::nullopt;
+  return impl_->keyframes.back()->Public();
+}
+
+std::optional<KeyframeState> LocalSmoother::Propagated() const {
+  const Impl& m = *impl_;
+  if (m.keyframes.empty() || !m.propagation) return std::nullopt;
+  const Keyframe& newest = *m.keyframes.back();
+  KeyframeState out;
+  out.t_ns = std::max(newest.t_ns, m.propagated_to_ns);
+  out.bias = newest.bias();
+  out.state = m.propagation->Predict(newest.state(), out.bias, m.gravity_L);
+  out.imu_only = newest.imu_only;
+  return out;
+}
+
+std::vector<KeyframeState> LocalSmoother::Keyframes() const {
+  std::vector<KeyframeState> out;
+  for (const auto& kf : impl_->keyframes) out.push_back(kf->Public());
+  return out;
+}
+
+std::optional<Eigen::Matrix<double, 15, 15>> LocalSmoother::NewestCovariance() const {
+  Impl& m = *impl_;
+  if (m.keyframes.empty()) return std::nullopt;
+  // Information matrix of the whole window in the tangent space, inverted for the newest
+  // keyframe's 15 columns: Σ = H⁻¹ (Laplace approximation at the current estimate).
+  ceres::Problem::EvaluateOptions evaluate;
+  for (auto& kf : m.keyframes) {
+    if (!m.problem.IsParameterBlockConstant(kf->pose)) evaluate.parameter_blocks.push_back(kf->pose);
+    evaluate.parameter_blocks.push_back(kf->speed_bias);
+  }
+  ceres::CRSMatrix jacobian;
+  if (!m.problem.Evaluate(evaluate, nullptr, nullptr, nullptr, &jacobian)) return std::nullopt;
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
+  for (int row = 0; row < jacobian.num_rows; ++row) {
+    for (int k = jacobian.rows[row]; k < jacobian.rows[row + 1]; ++k) {
+      J(row, jacobian.cols[k]) = jacobian.values[k];
+    }
+  }
+  const Eigen::MatrixXd H = J.transpose() * J;
+  const int n = static_cast<int>(H.rows());
+  if (n < 15) return std::nullopt;
+  Eigen::MatrixXd unit = Eigen::MatrixXd::Zero(n, 15);
+  unit.bottomRows(15).setIdentity();
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(H);
+  if (ldlt.info() != Eigen::Success) return std::nullopt;
+  const Eigen::MatrixXd columns = ldlt.solve(unit);
+  Eigen::Matrix<double, 15, 15> covariance = columns.bottomRows(15);
+  covariance = 0.5 * (covariance + covariance.transpose()).eval();
+  if (!covariance.allFinite()) return std::nullopt;
+  return covariance;
+}
+
+}  // namespace tofu::estimator

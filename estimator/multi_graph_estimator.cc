@@ -1,0 +1,513 @@
+#include "estimator/multi_graph_estimator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+
+#include "core/lie.h"
+
+namespace tofu::estimator {
+namespace {
+
+struct SensorState {
+  SensorSpec spec;
+  int id = 0;
+  std::unique_ptr<AlignmentGraph> graph;
+  std::optional<Eigen::Isometry3d> known_T_AL;   ///< given by the caller
+  std::optional<Eigen::Isometry3d> frozen_T_AL;  ///< held while fused (co-dependence rule)
+  bool fused = false;
+  bool has_last = false;
+  core::Time last_t_ns = 0;
+};
+
+struct ImuSample {
+  core::Time t_ns;
+  Eigen::Vector3d accel_I_mps2;
+  Eigen::Vector3d gyro_I_radps;
+};
+
+struct RestState {
+  core::Time t_ns = 0;
+  NavState state;
+  ImuBias bias;
+};
+
+struct PendingPair {
+  SensorState* sensor = nullptr;
+  core::Time t_ns = 0;
+  Eigen::Vector3d p_A;
+  Eigen::Matrix3d covariance_A;
+};
+
+// Yaw of a rotation about the z axis of its parent frame (ZYX convention).
+double Yaw(const Eigen::Matrix3d& R) { return std::atan2(R(1, 0), R(0, 0)); }
+
+bool Finite(const core::Measurement& value) {
+  return std::visit(
+      [](const auto& m) {
+        using T = std::decay_t<decltype(m)>;
+        if constexpr (std::is_same_v<T, core::ImuMeasurement>) {
+          return m.acc_I_mps2.allFinite() && m.gyro_I_radps.allFinite();
+        } else if constexpr (std::is_same_v<T, core::PoseMeasurement>) {
+          return m.p_Ss.allFinite() && m.q_Ss.coeffs().allFinite() &&
+                 m.q_Ss.coeffs().norm() > 0.5 && m.covariance.allFinite();
+        } else {
+          return m.p_Ss.allFinite() && m.covariance.allFinite();
+        }
+      },
+      value);
+}
+
+}  // namespace
+
+struct MultiGraphEstimator::Impl {
+  Impl(std::string imu, std::vector<SensorSpec> specs, const MultiGraphEstimatorOptions& opts)
+      : options(opts), imu_name(std::move(imu)), smoother(opts.local) {
+    int id = 0;
+    for (SensorSpec& spec : specs) {
+      auto s = std::make_unique<SensorState>();
+      s->spec = std::move(spec);
+      s->id = id++;
+      s->graph = std::make_unique<AlignmentGraph>(options.alignment);
+      counters.streams[s->spec.name];
+      sensors.push_back(std::move(s));
+    }
+    counters.streams[imu_name];
+  }
+
+  MultiGraphEstimatorOptions options;
+  std::string imu_name;
+  LocalSmoother smoother;
+  std::vector<std::unique_ptr<SensorState>> sensors;
+  std::vector<std::string> fused_names;
+  EstimatorCounters counters;
+  std::vector<EstimatorOutput> outputs;
+
+  bool has_imu = false;
+  core::Time last_imu_ns = 0;
+  Eigen::Vector3d last_gyro = Eigen::Vector3d::Zero();
+  core::Time next_output_ns = INT64_MIN;
+  std::deque<ImuSample> recent_imu;                   // the rest-detection window
+  std::optional<RestState> rest;
+  std::deque<std::pair<core::Time, NavState>> history;  // propagated local estimate
+  std::vector<PendingPair> pending_pairs;
+  std::optional<core::StampedMeasurement> pending_init;
+  core::Time last_fused_ns = INT64_MIN;
+  core::Time last_covariance_ns = INT64_MIN;
+  std::int64_t bad_solves_seen = 0;
+  std::int64_t solves_seen = 0;
+
+  SensorState* Find(const std::string& name) {
+    for (auto& s : sensors) {
+      if (s->spec.name == name) return s.get();
+    }
+    return nullptr;
+  }
+
+  // ---- gating ----
+  bool Gate(const std::string& name, core::Time t_ns, bool finite, bool* has_last,
+            core::Time* last_t_ns) {
+    StreamGateCounters& c = counters.streams[name];
+    if (!finite) {
+      ++c.rejected_non_finite;
+      return false;
+    }
+    if (*has_last && t_ns == *last_t_ns) {
+      ++c.rejected_duplicate;
+      return false;
+    }
+    if (*has_last && t_ns < *last_t_ns) {
+      ++c.rejected_out_of_order;
+      return false;
+    }
+    *has_last = true;
+    *last_t_ns = t_ns;
+    ++c.accepted;
+    return true;
+  }
+
+  // ---- rest detection (before the graph exists) ----
+  void UpdateRest(const ImuSample& sample) {
+    recent_imu.push_back(sample);
+    while (!recent_imu.empty() && recent_imu.front().t_ns < sample.t_ns - options.static_window_ns) {
+      recent_imu.pop_front();
+    }
+    if (smoother.initialized()) return;
+    if (recent_imu.size() < 10 ||
+        recent_imu.back().t_ns - recent_imu.front().t_ns < options.static_window_ns * 9 / 10) {
+      return;
+    }
+    Eigen::Vector3d accel_mean = Eigen::Vector3d::Zero(), gyro_mean = Eigen::Vector3d::Zero();
+    for (const ImuSample& s : recent_imu) {
+      accel_mean += s.accel_I_mps2;
+      gyro_mean += s.gyro_I_radps;
+    }
+    const double n = static_cast<double>(recent_imu.size());
+    accel_mean /= n;
+    gyro_mean /= n;
+    Eigen::Vector3d accel_var = Eigen::Vector3d::Zero(), gyro_var = Eigen::Vector3d::Zero();
+    for (const ImuSample& s : recent_imu) {
+      accel_var += (s.accel_I_mps2 - accel_mean).cwiseAbs2();
+      gyro_var += (s.gyro_I_radps - gyro_mean).cwiseAbs2();
+    }
+    const double accel_std = std::sqrt((accel_var / n).maxCoeff());
+    const double gyro_std = std::sqrt((gyro_var / n).maxCoeff());
+    if (accel_std > options.static_max_accel_std_mps2 ||
+        gyro_std > options.static_max_gyro_std_radps) {
+      return;
+    }
+    // At rest the specific force is −g expressed in I: it fixes roll and pitch (yaw is a
+    // gauge choice made later), and the mean gyro is its bias.
+    RestState r;
+    r.t_ns = sample.t_ns;
+    r.state.q_LI = Eigen::Quaterniond::FromTwoVectors(accel_mean, Eigen::Vector3d::UnitZ());
+    r.state.p_LI.setZero();
+    r.state.v_L_mps.setZero();
+    r.bias.gyro_radps = gyro_mean;
+    r.bias.accel_mps2.setZero();
+    rest = r;
+  }
+
+  // ---- initialisation at the first fused measurement ----
+  void Initialize(SensorState& sensor, const core::StampedMeasurement& m) {
+    const core::Time t = m.t_ns;
+    NavState state;
+    ImuBias bias;
+    InitialStatePrior prior;
+    std::optional<NavState> from_rest;
+    if (rest && t - rest->t_ns <= options.max_rest_age_ns && t >= rest->t_ns) {
+      from_rest = smoother.PredictWithImu(rest->t_ns, rest->state, rest->bias, t);
+    }
+    if (from_rest) {
+      state = *from_rest;
+      bias = rest->bias;
+      prior = options.prior_from_rest;
+      // The unknown accelerometer bias has been integrated since the rest state.
+      const double age_s = core::TimeToSeconds(t - rest->t_ns);
+      prior.velocity_std_mps += prior.accel_bias_std_mps2 * age_s;
+    } else {
+      // In motion: gravity from the mean specific force of the last window (biased by the
+      // mean acceleration, hence the loose prior).
+      Eigen::Vector3d accel_mean = Eigen::Vector3d::Zero();
+      for (const ImuSample& s : recent_imu) accel_mean += s.accel_I_mps2;
+      if (recent_imu.empty() || accel_mean.norm() < 1e-6) accel_mean = Eigen::Vector3d::UnitZ();
+      state.q_LI = Eigen::Quaterniond::FromTwoVectors(accel_mean, Eigen::Vector3d::UnitZ());
+      prior = options.prior_in_motion;
+    }
+    // Gauge: yaw and origin of L from the first fused sensor.
+    const Eigen::Isometry3d& T_Is = sensor.spec.T_I_s;
+    Eigen::Matrix3d R_LI = state.q_LI.toRotationMatrix();
+    if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
+      const Eigen::Matrix3d R_AI = pose->q_Ss.normalized().toRotationMatrix() *
+                                   T_Is.linear().transpose();
+      const Eigen::Matrix3d R_yaw =
+          Eigen::AngleAxisd(Yaw(R_AI) - Yaw(R_LI), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      R_LI = R_yaw * R_LI;
+      state.v_L_mps = R_yaw * state.v_L_mps;
+      state.q_LI = Eigen::Quaterniond(R_LI);
+      state.p_LI = pose->p_Ss - R_AI * T_Is.translation();
+      Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
+      T_As.linear() = pose->q_Ss.normalized().toRotationMatrix();
+      T_As.translation() = pose->p_Ss;
+      Eigen::Isometry3d T_LI = Eigen::Isometry3d::Identity();
+      T_LI.linear() = R_LI;
+      T_LI.translation() = state.p_LI;
+      sensor.frozen_T_AL = T_As * T_Is.inverse() * T_LI.inverse();
+    } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
+      // A levelled reference frame: L := A in rotation (yaw gauge), origin at the sensor's.
+      const Eigen::Matrix3d R_yaw =
+          Eigen::AngleAxisd(-Yaw(R_LI), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      R_LI = R_yaw * R_LI;
+      state.v_L_mps = R_yaw * state.v_L_mps;
+      state.q_LI = Eigen::Quaterniond(R_LI);
+      state.p_LI = position->p_Ss - R_LI * T_Is.translation();
+      Eigen::Isometry3d T_AL = Eigen::Isometry3d::Identity();
+      sensor.frozen_T_AL = T_AL;
+    }
+    smoother.Initialize(t, state, bias, prior);
+    last_fused_ns = t;
+  }
+
+  // ---- fusion of one measurement of a fused sensor ----
+  void Fuse(SensorState& sensor, const core::StampedMeasurement& m) {
+    if (!smoother.initialized()) {
+      if (smoother.newest_imu_ns() < m.t_ns) {
+        pending_init = m;  // wait for the IMU to reach it
+        return;
+      }
+      Initialize(sensor, m);
+    }
+    MeasurementUse use = MeasurementUse::kRejected;
+    if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
+      Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
+      T_As.linear() = pose->q_Ss.normalized().toRotationMatrix();
+      T_As.translation() = pose->p_Ss;
+      Eigen::Matrix<double, 6, 1> std_dev;
+      std_dev << Eigen::Vector3d::Constant(sensor.spec.between_position_std_m),
+          Eigen::Vector3d::Constant(sensor.spec.between_rotation_std_rad);
+      const Eigen::Matrix<double, 6, 6> sqrt_information = std_dev.cwiseInverse().asDiagonal();
+      std::optional<Eigen::Matrix3d> R_LA;
+      if (sensor.spec.between_position_in_reference) {
+        const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
+        if (T_AL) R_LA = T_AL->linear().transpose();
+      }
+      use = smoother.AddPose(sensor.id, m.t_ns, T_As, sensor.spec.T_I_s, sqrt_information, R_LA);
+    } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
+      const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
+      if (!T_AL) {
+        ++counters.streams[sensor.spec.name].not_fused_unaligned;
+        return;
+      }
+      use = smoother.AddPosition(sensor.id, m.t_ns, position->p_Ss, position->covariance,
+                                 sensor.spec.T_I_s.translation(), T_AL->linear().transpose(),
+                                 sensor.spec.min_position_std_m);
+    }
+    if (use == MeasurementUse::kFactor || use == MeasurementUse::kAnchor ||
+        use == MeasurementUse::kPending || use == MeasurementUse::kSkipped) {
+      last_fused_ns = std::max(last_fused_ns, m.t_ns);
+    }
+  }
+
+  std::optional<Eigen::Isometry3d> AlignmentOf(const SensorState& sensor) const {
+    if (sensor.known_T_AL) return sensor.known_T_AL;
+    if (sensor.frozen_T_AL) return sensor.frozen_T_AL;
+    const AlignmentEstimate& e = sensor.graph->estimate();
+    if (e.valid && e.observable_rotation_dofs == 3) return e.T_AL;
+    return std::nullopt;
+  }
+
+  // ---- alignment pairs: the sensor's position against the local estimate ----
+  std::optional<NavState> LocalAt(core::Time t_ns) const {
+    if (history.empty() || t_ns < history.front().first || t_ns > history.back().first) {
+      return std::nullopt;
+    }
+    auto after = std::lower_bound(history.begin(), history.end(), t_ns,
+                                  [](const auto& h, core::Time t) { return h.first < t; });
+    if (after->first == t_ns || after == history.begin()) return after->second;
+    auto before = std::prev(after);
+    const double u = static_cast<double>(t_ns - before->first) /
+                     static_cast<double>(after->first - before->first);
+    NavState s;
+    s.p_LI = (1 - u) * before->second.p_LI + u * after->second.p_LI;
+    s.v_L_mps = (1 - u) * before->second.v_L_mps + u * after->second.v_L_mps;
+    s.q_LI = before->second.q_LI.slerp(u, after->second.q_LI);
+    return s;
+  }
+
+  void AddPairs() {
+    std::vector<PendingPair> still;
+    for (const PendingPair& p : pending_pairs) {
+      if (!history.empty() && p.t_ns > history.back().first) {
+        still.push_back(p);
+        continue;
+      }
+      const std::optional<NavState> local = LocalAt(p.t_ns);
+      if (!local) continue;
+      AlignmentPair pair;
+      pair.t_ns = p.t_ns;
+      pair.p_A_measured = p.p_A;
+      pair.covariance_A = p.covariance_A;
+      pair.p_Ls_estimated = local->p_LI + local->q_LI * p.sensor->spec.T_I_s.translation();
+      p.sensor->graph->AddPair(pair);
+      p.sensor->graph->Update(p.t_ns);
+    }
+    pending_pairs = std::move(still);
+  }
+
+  // ---- IMU: propagation, solves, outputs ----
+  void HandleImu(core::Time t, const core::ImuMeasurement& imu) {
+    smoother.AddImu(t, imu.acc_I_mps2, imu.gyro_I_radps);
+    last_gyro = imu.gyro_I_radps;
+    UpdateRest(ImuSample{t, imu.acc_I_mps2, imu.gyro_I_radps});
+    if (pending_init && pending_init->t_ns <= t) {
+      const core::StampedMeasurement m = *pending_init;
+      pending_init.reset();
+      if (SensorState* s = Find(m.sensor); s != nullptr && s->fused) Fuse(*s, m);
+    }
+    if (!smoother.initialized()) return;
+    smoother.Update();
+    const LocalSmootherStats& st = smoother.stats();
+    if (st.solves != solves_seen) {
+      counters.consecutive_bad_solves =
+          st.bad_solves != bad_solves_seen ? counters.consecutive_bad_solves + 1 : 0;
+      solves_seen = st.solves;
+      bad_solves_seen = st.bad_solves;
+    }
+    const std::optional<KeyframeState> now = smoother.Propagated();
+    if (!now) return;
+    if (counters.consecutive_bad_solves >= options.max_consecutive_bad_solves ||
+        !now->state.p_LI.allFinite() || now->state.v_L_mps.norm() > options.local.max_speed_mps) {
+      Reinitialize();
+      return;
+    }
+    history.emplace_back(now->t_ns, now->state);
+    while (!history.empty() && history.front().first < t - 3 * core::kNanosecondsPerSecond) {
+      history.pop_front();
+    }
+    AddPairs();
+    if (next_output_ns == INT64_MIN) {
+      next_output_ns = (t / options.output_period_ns) * options.output_period_ns;
+    }
+    if (t >= next_output_ns) {
+      EstimatorOutput out;
+      out.t_ns = now->t_ns;
+      out.state = now->state;
+      out.bias = now->bias;
+      out.omega_I_radps = last_gyro - now->bias.gyro_radps;
+      out.initialized = true;
+      out.valid = t - last_fused_ns <= options.max_unfused_ns && !fused_names.empty();
+      out.fused = fused_names;
+      if (options.covariance_period_ns > 0 &&
+          t - last_covariance_ns >= options.covariance_period_ns) {
+        out.covariance = smoother.NewestCovariance();
+        last_covariance_ns = t;
+      }
+      outputs.push_back(std::move(out));
+      while (next_output_ns <= t) next_output_ns += options.output_period_ns;
+    }
+  }
+
+  // A graph that keeps failing starts afresh from its propagated state with loose priors.
+  void Reinitialize() {
+    ++counters.reinitialisations;
+    counters.consecutive_bad_solves = 0;
+    std::optional<KeyframeState> start;
+    for (auto it = history.rbegin(); it != history.rend(); ++it) {
+      if (it->second.p_LI.allFinite() && it->second.v_L_mps.norm() < options.local.max_speed_mps) {
+        start = KeyframeState{it->first, it->second, ImuBias{}, true};
+        break;
+      }
+    }
+    const core::Time t = smoother.newest_imu_ns();
+    NavState state;
+    if (start) {
+      const std::optional<NavState> predicted =
+          smoother.PredictWithImu(start->t_ns, start->state, ImuBias{}, t);
+      state = predicted ? *predicted : start->state;
+    }
+    if (!state.v_L_mps.allFinite() || state.v_L_mps.norm() > options.local.max_speed_mps) {
+      state.v_L_mps.setZero();
+    }
+    InitialStatePrior prior = options.prior_in_motion;
+    prior.position_std_m = Eigen::Vector3d::Constant(0.05);
+    smoother.Initialize(t, state, ImuBias{}, prior);
+    history.clear();
+    solves_seen = smoother.stats().solves;
+    bad_solves_seen = smoother.stats().bad_solves;
+  }
+};
+
+MultiGraphEstimator::MultiGraphEstimator(std::string imu_name, std::vector<SensorSpec> sensors,
+                                         MultiGraphEstimatorOptions options)
+    : impl_(std::make_unique<Impl>(std::move(imu_name), std::move(sensors), options)) {}
+
+MultiGraphEstimator::~MultiGraphEstimator() = default;
+
+void MultiGraphEstimator::Add(const core::StampedMeasurement& m) {
+  Impl& impl = *impl_;
+  const bool finite = Finite(m.value);
+  if (m.sensor == impl.imu_name) {
+    const auto* imu = std::get_if<core::ImuMeasurement>(&m.value);
+    if (imu == nullptr) {
+      ++impl.counters.unknown_stream;
+      return;
+    }
+    if (!impl.Gate(m.sensor, m.t_ns, finite, &impl.has_imu, &impl.last_imu_ns)) return;
+    impl.HandleImu(m.t_ns, *imu);
+    return;
+  }
+  SensorState* sensor = impl.Find(m.sensor);
+  const bool kind_matches =
+      sensor != nullptr &&
+      ((sensor->spec.kind == SensorKind::kPose && std::holds_alternative<core::PoseMeasurement>(m.value)) ||
+       (sensor->spec.kind == SensorKind::kPosition &&
+        std::holds_alternative<core::PositionMeasurement>(m.value)));
+  if (!kind_matches) {
+    ++impl.counters.unknown_stream;
+    return;
+  }
+  if (!impl.Gate(m.sensor, m.t_ns, finite, &sensor->has_last, &sensor->last_t_ns)) return;
+
+  // Alignment pair (not while frozen: the local estimate then follows this very sensor).
+  if (impl.smoother.initialized() && !sensor->fused) {
+    PendingPair pair;
+    pair.sensor = sensor;
+    pair.t_ns = m.t_ns;
+    if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
+      pair.p_A = pose->p_Ss;
+      pair.covariance_A = pose->covariance.bottomRightCorner<3, 3>();
+    } else {
+      const auto& position = std::get<core::PositionMeasurement>(m.value);
+      pair.p_A = position.p_Ss;
+      pair.covariance_A = position.covariance;
+    }
+    impl.pending_pairs.push_back(pair);
+    impl.AddPairs();
+  }
+  if (sensor->fused) impl.Fuse(*sensor, m);
+}
+
+bool MultiGraphEstimator::SetFusedSensors(const std::vector<std::string>& names) {
+  Impl& impl = *impl_;
+  bool all_known = true;
+  std::vector<std::string> fused;
+  for (const std::string& name : names) {
+    if (impl.Find(name) == nullptr) {
+      all_known = false;
+    } else if (std::find(fused.begin(), fused.end(), name) == fused.end()) {
+      fused.push_back(name);
+    }
+  }
+  for (auto& s : impl.sensors) {
+    const bool want = std::find(fused.begin(), fused.end(), s->spec.name) != fused.end();
+    if (want && !s->fused) {
+      // Co-dependence rule: T_AL is held at its current estimate while the sensor's
+      // positions constrain the local graph.
+      const AlignmentEstimate& e = s->graph->estimate();
+      if (!s->known_T_AL && e.valid && e.observable_rotation_dofs == 3) s->frozen_T_AL = e.T_AL;
+      s->graph->SetFrozen(true);
+    } else if (!want && s->fused) {
+      impl.smoother.EndChain(s->id);
+      s->graph->SetFrozen(false);
+      s->frozen_T_AL.reset();
+    }
+    s->fused = want;
+  }
+  impl.fused_names = fused;
+  return all_known;
+}
+
+const std::vector<std::string>& MultiGraphEstimator::fused_sensors() const {
+  return impl_->fused_names;
+}
+
+void MultiGraphEstimator::SetKnownAlignment(const std::string& sensor,
+                                            const Eigen::Isometry3d& T_AL) {
+  if (SensorState* s = impl_->Find(sensor)) s->known_T_AL = T_AL;
+}
+
+std::vector<EstimatorOutput> MultiGraphEstimator::TakeOutputs() {
+  std::vector<EstimatorOutput> out;
+  out.swap(impl_->outputs);
+  return out;
+}
+
+std::optional<Eigen::Isometry3d> MultiGraphEstimator::AlignmentOf(const std::string& sensor) const {
+  for (const auto& s : impl_->sensors) {
+    if (s->spec.name == sensor) return impl_->AlignmentOf(*s);
+  }
+  return std::nullopt;
+}
+
+const AlignmentGraph* MultiGraphEstimator::AlignmentGraphOf(const std::string& sensor) const {
+  for (const auto& s : impl_->sensors) {
+    if (s->spec.name == sensor) return s->graph.get();
+  }
+  return nullptr;
+}
+
+const LocalSmoother& MultiGraphEstimator::local() const { return impl_->smoother; }
+
+const EstimatorCounters& MultiGraphEstimator::counters() const { return impl_->counters; }
+
+}  // namespace tofu::estimator

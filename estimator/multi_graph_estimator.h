@@ -1,0 +1,150 @@
+#pragma once
+// The loosely coupled multi-graph estimator of the seed paper (Lanegger et al., Sec. 2.2):
+// one local graph (LocalSmoother: IMU + the relative factors of the sensors chosen for
+// fusion) and one frame-alignment graph per sensor (AlignmentGraph: T_AL from the sensor's
+// positions against the local estimate). Which sensors constrain the local graph is the
+// caller's choice at any time (SetFusedSensors): consensus, a baseline, or none (IMU-only
+// propagation, flagged invalid after max_unfused_ns).
+//
+// Online use: timestamped measurements in (Add), estimates out at the output rate
+// (TakeOutputs). Bad data never throws: NaN/Inf values, out-of-order and duplicate
+// timestamps are rejected per stream and counted (monotonic gating per stream, as PX4's
+// EKF2 does for its sensor buffers).
+// Library code: Eigen + Ceres only.
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/measurement.h"
+#include "core/time.h"
+#include "estimator/alignment_graph.h"
+#include "estimator/imu_preintegration.h"
+#include "estimator/local_smoother.h"
+
+namespace tofu::estimator {
+
+enum class SensorKind { kPose, kPosition };
+
+/// A sensor the estimator can fuse.
+struct SensorSpec {
+  std::string name;
+  SensorKind kind = SensorKind::kPose;
+  /// Mount frame s in the IMU frame I (extrinsic calibration).
+  Eigen::Isometry3d T_I_s = Eigen::Isometry3d::Identity();
+  /// Pose sensors: weights of the pose between factor, the paper's concentration
+  /// parameters ω_o, ω_q (eq. 2) as the standard deviation of one relative measurement
+  /// between keyframes. Odometry's reported absolute covariance grows with its drift and
+  /// says nothing about its short-term relative accuracy, so it is not used here.
+  double between_position_std_m = 0.01;
+  double between_rotation_std_rad = 0.01;
+  /// Pose sensors: take the relative position in the sensor's reference frame A (through
+  /// the frozen R_AL) rather than in the body as the paper's eq. (2) does. A visual
+  /// odometry whose attitude is noisier than its positions (the common case) then does
+  /// not bend the fused path with its attitude errors.
+  bool between_position_in_reference = false;
+  /// Position sensors: floor on the std of one between factor (m), added to the stated
+  /// covariances of its two ends.
+  double min_position_std_m = 0.002;
+  /// Position sensors: the reference frame A is levelled (a total station, GNSS ENU). When
+  /// such a sensor is the first one fused, L is chosen with R_AL = I.
+  bool reference_is_gravity_aligned = true;
+};
+
+struct MultiGraphEstimatorOptions {
+  LocalSmootherOptions local;
+  AlignmentGraphOptions alignment;
+  core::Time output_period_ns = 5'000'000;  ///< 200 Hz output (paper)
+  /// IMU-only propagation longer than this (no fused measurement) flags the output invalid.
+  core::Time max_unfused_ns = 1'000'000'000;
+  /// Covariance of the newest keyframe attached to the outputs at most this often (0: never).
+  core::Time covariance_period_ns = 100'000'000;
+
+  // ---- initialisation ----
+  /// Rest detection over this window: per-axis std of gyro and accelerometer below the
+  /// thresholds. At rest, gravity fixes roll and pitch and the gyro mean is its bias.
+  core::Time static_window_ns = 500'000'000;
+  double static_max_gyro_std_radps = 0.05;
+  double static_max_accel_std_mps2 = 0.6;
+  /// Rest state older than this at the first fused measurement: initialise in motion.
+  core::Time max_rest_age_ns = 5'000'000'000;
+  InitialStatePrior prior_from_rest;
+  InitialStatePrior prior_in_motion = {Eigen::Vector3d::Constant(1e-3),
+                                       Eigen::Vector3d(0.1, 0.1, 1e-3), 2.0, 0.2, 0.01};
+  /// Consecutive bad solves after which the local graph is re-initialised from the
+  /// propagated state.
+  int max_consecutive_bad_solves = 3;
+};
+
+/// One output sample (200 Hz): the newest state propagated with the IMU.
+struct EstimatorOutput {
+  core::Time t_ns = 0;
+  NavState state;                  ///< T_LI and v_L
+  ImuBias bias;
+  Eigen::Vector3d omega_I_radps = Eigen::Vector3d::Zero();  ///< bias-corrected gyro
+  bool initialized = false;        ///< the local graph exists
+  bool valid = false;              ///< initialised and fused within max_unfused_ns
+  std::vector<std::string> fused;  ///< sensors constraining the local graph
+  /// [δp, δθ, δv, δb_a, δb_g] of the newest keyframe, when computed for this output.
+  std::optional<Eigen::Matrix<double, 15, 15>> covariance;
+};
+
+/// Per-stream gate counters.
+struct StreamGateCounters {
+  std::int64_t accepted = 0;
+  std::int64_t rejected_non_finite = 0;
+  std::int64_t rejected_out_of_order = 0;
+  std::int64_t rejected_duplicate = 0;
+  std::int64_t not_fused_unaligned = 0;  ///< fused position sensor without a usable T_AL
+};
+
+struct EstimatorCounters {
+  std::map<std::string, StreamGateCounters> streams;
+  std::int64_t unknown_stream = 0;
+  std::int64_t reinitialisations = 0;
+  std::int64_t consecutive_bad_solves = 0;
+};
+
+class MultiGraphEstimator {
+ public:
+  MultiGraphEstimator(std::string imu_name, std::vector<SensorSpec> sensors,
+                      MultiGraphEstimatorOptions options = {});
+  ~MultiGraphEstimator();
+  MultiGraphEstimator(const MultiGraphEstimator&) = delete;
+  MultiGraphEstimator& operator=(const MultiGraphEstimator&) = delete;
+
+  /// Any measurement of a known stream, in arrival order. Never throws for bad data.
+  void Add(const core::StampedMeasurement& measurement);
+
+  /// The sensors that constrain the local graph from now on. Unknown names are ignored
+  /// (returns false). A sensor leaving the set ends its chain of between factors.
+  bool SetFusedSensors(const std::vector<std::string>& names);
+  const std::vector<std::string>& fused_sensors() const;
+
+  /// A known T_AL (e.g. the ground truth handed to the naive baseline), used instead of
+  /// the sensor's alignment graph.
+  void SetKnownAlignment(const std::string& sensor, const Eigen::Isometry3d& T_AL);
+
+  /// Outputs produced since the last call.
+  std::vector<EstimatorOutput> TakeOutputs();
+
+  /// T_AL of a sensor in use: the known one, the one frozen at fusion start, or the
+  /// alignment graph's. nullopt when none is valid.
+  std::optional<Eigen::Isometry3d> AlignmentOf(const std::string& sensor) const;
+  const AlignmentGraph* AlignmentGraphOf(const std::string& sensor) const;
+
+  const LocalSmoother& local() const;
+  const EstimatorCounters& counters() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tofu::estimator

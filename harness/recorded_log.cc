@@ -1,0 +1,856 @@
+#include "harness/recorded_log.h"
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <string_view>
+#include <system_error>
+#include <utility>
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <yaml-cpp/yaml.h>
+
+#include "core/error.h"
+#include "harness/trajectory_metrics.h"
+
+namespace tofu::harness {
+namespace {
+
+namespace fs = std::filesystem;
+using core::InputError;
+using core::Time;
+
+// ---- text and CSV ----
+
+std::string Quoted(std::string_view s) {
+  constexpr size_t kMax = 60;
+  if (s.size() <= kMax) return fmt::format("'{}'", s);
+  return fmt::format("'{}...'", s.substr(0, kMax));
+}
+
+bool IsBlank(char c) { return c == ' ' || c == '\t'; }
+
+std::string_view Trim(std::string_view s) {
+  while (!s.empty() && IsBlank(s.front())) s.remove_prefix(1);
+  while (!s.empty() && (IsBlank(s.back()) || s.back() == '\r')) s.remove_suffix(1);
+  return s;
+}
+
+std::string ReadWholeFile(const fs::path& path) {
+  std::FILE* file = std::fopen(path.c_str(), "rb");
+  if (file == nullptr) {
+    throw InputError({path.string()}, "", fmt::format("cannot open: {}", std::strerror(errno)));
+  }
+  std::string text;
+  std::error_code ec;
+  const auto size = fs::file_size(path, ec);
+  if (!ec) text.reserve(size);
+  std::array<char, 1 << 16> buffer;
+  size_t n = 0;
+  while ((n = std::fread(buffer.data(), 1, buffer.size(), file)) > 0) text.append(buffer.data(), n);
+  const bool failed = std::ferror(file) != 0;
+  std::fclose(file);
+  if (failed) throw InputError({path.string()}, "", "cannot read the file");
+  // A UTF-8 byte-order mark (spreadsheet exports) is not part of the header.
+  if (text.compare(0, 3, "\xEF\xBB\xBF") == 0) text.erase(0, 3);
+  return text;
+}
+
+// The key of a header field: "#timestamp [ns]" -> "timestamp", " p_RS_R_x [m]" -> "p_RS_R_x".
+std::string_view ColumnKey(std::string_view field) {
+  field = Trim(field);
+  if (!field.empty() && field.front() == '#') field = Trim(field.substr(1));
+  const size_t bracket = field.find('[');
+  if (bracket != std::string_view::npos) field = Trim(field.substr(0, bracket));
+  return field;
+}
+
+// One comma-separated file with a header line; columns are looked up by key. Rows are
+// visited with Next(); field accessors throw InputError naming file, line, column.
+class CsvFile {
+ public:
+  CsvFile(fs::path path, std::string expected_header)
+      : path_(std::move(path)), name_(path_.string()), text_(ReadWholeFile(path_)) {
+    std::string_view line;
+    if (!NextLine(line) || Trim(line).empty()) {
+      throw InputError({name_, 1, 0}, "",
+                       fmt::format("missing header: {}, expected a header line like '{}'",
+                                   text_.empty() ? "the file is empty" : "line 1 is blank",
+                                   expected_header));
+    }
+    Split(line);
+    for (const Field& f : fields_) {
+      raw_names_.emplace_back(Trim(f.text));
+      keys_.emplace_back(ColumnKey(f.text));
+    }
+    const bool has_timestamp = std::find(keys_.begin(), keys_.end(), "timestamp") != keys_.end();
+    if (Trim(line).front() != '#' && !has_timestamp) {
+      throw InputError({name_, 1, 1}, "",
+                       fmt::format("missing header: expected a header line like '{}' (columns "
+                                   "named, '#timestamp [ns]' first), got {}",
+                                   expected_header, Quoted(line)));
+    }
+    if (!has_timestamp) {
+      throw InputError({name_, 1, 1}, "",
+                       fmt::format("header has no 'timestamp' column, expected a header like "
+                                   "'{}'",
+                                   expected_header));
+    }
+  }
+
+  const std::string& name() const { return name_; }
+  const std::vector<std::string>& keys() const { return keys_; }
+  size_t RowsUpperBound() const {
+    return static_cast<size_t>(std::count(text_.begin(), text_.end(), '\n')) + 1;
+  }
+
+  /// Index of the column `key`, or -1.
+  int Find(std::string_view key) const {
+    const auto it = std::find(keys_.begin(), keys_.end(), key);
+    return it == keys_.end() ? -1 : static_cast<int>(it - keys_.begin());
+  }
+  /// Index of the column `key`; InputError at the header if it is missing.
+  int Require(std::string_view key, std::string_view what) const {
+    const int index = Find(key);
+    if (index < 0) {
+      throw InputError({name_, 1, 0}, "",
+                       fmt::format("header: missing column '{}' ({})", key, what));
+    }
+    return index;
+  }
+
+  /// Advances to the next non-blank data line; false at the end.
+  bool Next() {
+    std::string_view line;
+    while (NextLine(line)) {
+      if (Trim(line).empty()) continue;
+      Split(line);
+      if (fields_.size() != keys_.size()) {
+        const size_t n = fields_.size();
+        throw InputError(
+            {name_, line_, 0}, "",
+            fmt::format("expected {} comma-separated fields as in the header, got {} ({})",
+                        keys_.size(), n,
+                        n < keys_.size()
+                            ? fmt::format("column {} '{}' and later are missing", n + 1,
+                                          raw_names_[n])
+                            : fmt::format("extra field after the last column '{}'",
+                                          raw_names_.back())));
+      }
+      return true;
+    }
+    return false;
+  }
+  int line() const { return line_; }
+
+  std::string_view Text(int column) const { return Trim(fields_[column].text); }
+  bool Empty(int column) const { return Text(column).empty(); }
+
+  Time Integer(int column) const {
+    const std::string_view s = Text(column);
+    Time value = 0;
+    const char* first = s.data();
+    const char* last = first + s.size();
+    if (first != last && *first == '+') ++first;
+    const auto [end, ec] = std::from_chars(first, last, value);
+    if (ec != std::errc() || end != last || s.empty()) {
+      throw Error(column, fmt::format("expected an integer timestamp in ns{}, got {}",
+                                      ec == std::errc::result_out_of_range ? " (64-bit)" : "",
+                                      Quoted(s)));
+    }
+    return value;
+  }
+
+  /// A number; "nan"/"inf" parse (and pass through), an empty or other field throws.
+  double Number(int column) const {
+    const std::string_view s = Text(column);
+    double value = 0.0;
+    const char* first = s.data();
+    const char* last = first + s.size();
+    if (first != last && *first == '+') ++first;  // from_chars rejects a leading '+'
+    const auto [end, ec] = std::from_chars(first, last, value);
+    if (s.empty()) throw Error(column, "empty field, expected a number");
+    if (end != last || (ec != std::errc() && ec != std::errc::result_out_of_range)) {
+      throw Error(column, fmt::format("expected a number, got {}", Quoted(s)));
+    }
+    if (ec == std::errc::result_out_of_range) {
+      // Beyond the double range: an underflow to 0 or an overflow to +-Inf, as strtod.
+      value = std::strtod(std::string(s).c_str(), nullptr);
+    }
+    return value;
+  }
+
+  InputError Error(int column, const std::string& message) const {
+    return InputError({name_, line_, fields_[column].column}, "",
+                      fmt::format("column '{}': {}", raw_names_[column], message));
+  }
+
+ private:
+  struct Field {
+    std::string_view text;
+    int column = 0;  // 1-based character column in the line
+  };
+
+  bool NextLine(std::string_view& line) {
+    if (pos_ >= text_.size()) return false;
+    const size_t end = std::min(text_.find('\n', pos_), text_.size());
+    line = std::string_view(text_).substr(pos_, end - pos_);
+    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    pos_ = end + 1;
+    ++line_;
+    return true;
+  }
+
+  void Split(std::string_view line) {
+    fields_.clear();
+    size_t start = 0;
+    while (true) {
+      const size_t comma = line.find(',', start);
+      const size_t end = comma == std::string_view::npos ? line.size() : comma;
+      fields_.push_back({line.substr(start, end - start), static_cast<int>(start) + 1});
+      if (comma == std::string_view::npos) return;
+      start = comma + 1;
+    }
+  }
+
+  fs::path path_;
+  std::string name_;
+  std::string text_;
+  std::vector<std::string> raw_names_;
+  std::vector<std::string> keys_;
+  std::vector<Field> fields_;
+  size_t pos_ = 0;
+  int line_ = 0;
+};
+
+// Columns of a 3-vector "<prefix>x,<prefix>y,<prefix>z" (or w first for quaternions).
+template <size_t N>
+std::array<int, N> RequireAll(const CsvFile& csv, std::string_view prefix,
+                              std::string_view suffixes, std::string_view what) {
+  std::array<int, N> columns{};
+  for (size_t i = 0; i < N; ++i) {
+    columns[i] = csv.Require(fmt::format("{}{}", prefix, suffixes[i]), what);
+  }
+  return columns;
+}
+
+// The N(N+1)/2 columns <prefix>rk (row-major upper triangle, as run_directory.cc writes
+// them); empty if none of them is in the header, InputError if only some are.
+template <int N>
+std::vector<int> UpperTriangleColumns(const CsvFile& csv, std::string_view prefix) {
+  std::vector<int> columns;
+  std::string missing;
+  for (int r = 0; r < N; ++r) {
+    for (int k = r; k < N; ++k) {
+      const std::string key = fmt::format("{}{}{}", prefix, r, k);
+      const int c = csv.Find(key);
+      if (c < 0 && missing.empty()) missing = key;
+      columns.push_back(c);
+    }
+  }
+  const bool any = std::any_of(columns.begin(), columns.end(), [](int c) { return c >= 0; });
+  if (!any) return {};
+  if (!missing.empty()) {
+    throw InputError({csv.name(), 1, 0}, "",
+                     fmt::format("header: has {}* columns but not '{}': expected all {} "
+                                 "upper-triangle entries {}00..{}{}{}",
+                                 prefix, missing, N * (N + 1) / 2, prefix, prefix, N - 1, N - 1));
+  }
+  return columns;
+}
+
+template <int N>
+Eigen::Matrix<double, N, N> ReadUpperTriangle(const CsvFile& csv, const std::vector<int>& cols) {
+  Eigen::Matrix<double, N, N> c;
+  size_t i = 0;
+  for (int r = 0; r < N; ++r) {
+    for (int k = r; k < N; ++k) {
+      c(r, k) = c(k, r) = csv.Number(cols[i++]);
+    }
+  }
+  return c;
+}
+
+Eigen::Quaterniond NormalisedIfFinite(double w, double x, double y, double z) {
+  Eigen::Quaterniond q(w, x, y, z);
+  const double norm = q.norm();
+  if (std::isfinite(norm) && norm > 0.0) q.coeffs() /= norm;
+  return q;
+}
+
+// Where the rows of a stream go while reading.
+struct Sink {
+  std::vector<core::StampedMeasurement>* measurements;
+  std::vector<Time>* arrival_ns;
+};
+
+// Columns no estimator may see: the recorder's ground-truth labels.
+bool IsLabelColumn(std::string_view key) {
+  return key.substr(0, 4) == "err_" || key == "conditions" || key == "faults";
+}
+
+// What a header should look like, for messages.
+constexpr std::string_view kSensorHeader =
+    "#timestamp [ns],w_RS_S_x [rad s^-1],... (IMU) or #timestamp [ns],arrival [ns],"
+    "p_Ss_x [m],... (pose, position)";
+
+// One sensors/<name>.csv (or EuRoC imu0/data.csv): its kind from the header, every row
+// into `sink`. Returns the kind and the row count; notes what it ignored.
+std::pair<StreamKind, size_t> ReadSensorCsv(const fs::path& path, const std::string& name,
+                                            const RecordedLogOptions& options, Sink sink,
+                                            std::vector<std::string>& notes) {
+  CsvFile csv(path, std::string(kSensorHeader));
+  StreamKind kind;
+  if (csv.Find("w_RS_S_x") >= 0) {
+    kind = StreamKind::kImu;
+  } else if (csv.Find("p_Ss_x") >= 0 && csv.Find("q_Ss_w") >= 0) {
+    kind = StreamKind::kPose;
+  } else if (csv.Find("p_Ss_x") >= 0) {
+    kind = StreamKind::kPosition;
+  } else {
+    throw InputError({csv.name(), 1, 0}, "",
+                     "header: cannot tell the stream kind: expected the columns "
+                     "w_RS_S_x/y/z + a_RS_S_x/y/z (IMU), p_Ss_x/y/z + q_Ss_w/x/y/z (pose) or "
+                     "p_Ss_x/y/z (position)");
+  }
+
+  const int t_col = csv.Require("timestamp", "time of validity in ns");
+  const int arrival_col = csv.Find("arrival");
+  size_t rows = 0;
+  const size_t reserve = csv.RowsUpperBound();
+  sink.measurements->reserve(sink.measurements->size() + reserve);
+  sink.arrival_ns->reserve(sink.arrival_ns->size() + reserve);
+  const auto push = [&](Time t, core::Measurement&& value) {
+    const Time arrival = arrival_col >= 0 ? csv.Integer(arrival_col) : t;
+    sink.measurements->push_back({name, t, std::move(value)});
+    sink.arrival_ns->push_back(arrival);
+    ++rows;
+  };
+
+  // Which columns a kind reads (prefix match), to note the ones it ignores.
+  std::vector<std::string> read_prefixes = {"timestamp", "arrival"};
+  bool defaulted_covariance = false;
+  bool defaulted_twist_covariance = false;
+  if (kind == StreamKind::kImu) {
+    const auto w = RequireAll<3>(csv, "w_RS_S_", "xyz", "IMU angular rate in rad/s");
+    const auto a = RequireAll<3>(csv, "a_RS_S_", "xyz", "IMU specific force in m/s^2");
+    read_prefixes.insert(read_prefixes.end(), {"w_RS_S_", "a_RS_S_"});
+    while (csv.Next()) {
+      const Time t = csv.Integer(t_col);
+      core::ImuMeasurement m;
+      m.gyro_I_radps = {csv.Number(w[0]), csv.Number(w[1]), csv.Number(w[2])};
+      m.acc_I_mps2 = {csv.Number(a[0]), csv.Number(a[1]), csv.Number(a[2])};
+      push(t, m);
+    }
+  } else if (kind == StreamKind::kPose) {
+    const auto p = RequireAll<3>(csv, "p_Ss_", "xyz", "position of s in S in m");
+    const auto q = RequireAll<4>(csv, "q_Ss_", "wxyz", "attitude of s in S, Hamilton");
+    read_prefixes.insert(read_prefixes.end(), {"p_Ss_", "q_Ss_"});
+    // Twist: all six columns or none; per row all six fields or all empty.
+    std::array<int, 6> twist{};
+    const bool has_twist_columns = csv.Find("v_s_x") >= 0 || csv.Find("omega_s_x") >= 0;
+    if (has_twist_columns) {
+      const auto v = RequireAll<3>(csv, "v_s_", "xyz", "twist: velocity of s in s, m/s");
+      const auto o = RequireAll<3>(csv, "omega_s_", "xyz", "twist: angular rate of s, rad/s");
+      twist = {v[0], v[1], v[2], o[0], o[1], o[2]};
+      read_prefixes.insert(read_prefixes.end(), {"v_s_", "omega_s_"});
+    }
+    const std::vector<int> cov = UpperTriangleColumns<6>(csv, "cov_pose_");
+    const std::vector<int> cov_twist = UpperTriangleColumns<6>(csv, "cov_twist_");
+    read_prefixes.insert(read_prefixes.end(), {"cov_pose_", "cov_twist_"});
+    while (csv.Next()) {
+      const Time t = csv.Integer(t_col);
+      core::PoseMeasurement m;
+      m.p_Ss = {csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2])};
+      m.q_Ss = NormalisedIfFinite(csv.Number(q[0]), csv.Number(q[1]), csv.Number(q[2]),
+                                  csv.Number(q[3]));
+      if (cov.empty()) {
+        m.covariance = options.default_pose_covariance;
+        defaulted_covariance = true;
+      } else {
+        m.covariance = ReadUpperTriangle<6>(csv, cov);
+      }
+      if (has_twist_columns) {
+        const int empty = static_cast<int>(
+            std::count_if(twist.begin(), twist.end(), [&](int c) { return csv.Empty(c); }));
+        if (empty != 0 && empty != 6) {
+          const int c = *std::find_if(twist.begin(), twist.end(),
+                                      [&](int k) { return csv.Empty(k); });
+          throw csv.Error(c, "empty twist field, expected a number: the twist (v_s_*, "
+                             "omega_s_*) is six numbers or six empty fields");
+        }
+        if (empty == 0) {
+          m.has_twist = true;
+          m.v_s_s_mps = {csv.Number(twist[0]), csv.Number(twist[1]), csv.Number(twist[2])};
+          m.omega_s_s_radps = {csv.Number(twist[3]), csv.Number(twist[4]), csv.Number(twist[5])};
+          if (cov_twist.empty()) {
+            defaulted_twist_covariance = true;
+          } else {
+            m.twist_covariance = ReadUpperTriangle<6>(csv, cov_twist);
+          }
+        }
+      }
+      push(t, std::move(m));
+    }
+  } else {
+    const auto p = RequireAll<3>(csv, "p_Ss_", "xyz", "position of s in S in m");
+    const std::vector<int> cov = UpperTriangleColumns<3>(csv, "cov_p_");
+    read_prefixes.insert(read_prefixes.end(), {"p_Ss_", "cov_p_"});
+    while (csv.Next()) {
+      const Time t = csv.Integer(t_col);
+      core::PositionMeasurement m;
+      m.p_Ss = {csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2])};
+      if (cov.empty()) {
+        m.covariance = options.default_position_covariance;
+        defaulted_covariance = true;
+      } else {
+        m.covariance = ReadUpperTriangle<3>(csv, cov);
+      }
+      push(t, std::move(m));
+    }
+  }
+
+  // Notes: what was assumed, what was left unread.
+  if (arrival_col < 0) notes.push_back(fmt::format("{}: no arrival column, arrival = t", name));
+  if (defaulted_covariance) {
+    notes.push_back(fmt::format("{}: no covariance columns, the default covariance is used", name));
+  }
+  if (defaulted_twist_covariance) {
+    notes.push_back(fmt::format("{}: twist without cov_twist_* columns, identity assumed", name));
+  }
+  std::vector<std::string> labels;
+  std::vector<std::string> unknown;
+  for (const std::string& key : csv.keys()) {
+    const bool read = std::any_of(read_prefixes.begin(), read_prefixes.end(),
+                                  [&](const std::string& prefix) {
+                                    return key.compare(0, prefix.size(), prefix) == 0;
+                                  });
+    if (read) continue;
+    (IsLabelColumn(key) ? labels : unknown).push_back(key);
+  }
+  if (!labels.empty()) {
+    notes.push_back(fmt::format("{}: ground-truth label columns not read ({} columns: err_*, "
+                                "conditions, faults)",
+                                name, labels.size()));
+  }
+  if (!unknown.empty()) {
+    notes.push_back(fmt::format("{}: unknown columns ignored: {}", name, fmt::join(unknown, ", ")));
+  }
+  return {kind, rows};
+}
+
+// Ground truth CSV: T_WX from the columns <p>_x.. and <q>_w.., composed with T_XI.
+std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::string_view p_prefix,
+                                                std::string_view q_prefix,
+                                                const Eigen::Isometry3d& T_X_I) {
+  CsvFile csv(path, fmt::format("#timestamp [ns],{}x [m],{}y [m],{}z [m],{}w [],{}x [],{}y [],"
+                                "{}z [],...",
+                                p_prefix, p_prefix, p_prefix, q_prefix, q_prefix, q_prefix,
+                                q_prefix));
+  const int t_col = csv.Require("timestamp", "time in ns");
+  const auto p = RequireAll<3>(csv, p_prefix, "xyz", "ground-truth position in m");
+  const auto q = RequireAll<4>(csv, q_prefix, "wxyz", "ground-truth attitude, Hamilton");
+  const Eigen::Quaterniond q_X_I(T_X_I.linear());
+  const bool identity = T_X_I.isApprox(Eigen::Isometry3d::Identity(), 0.0);
+  std::vector<GroundTruthPose> out;
+  out.reserve(csv.RowsUpperBound());
+  while (csv.Next()) {
+    GroundTruthPose g;
+    g.t_ns = csv.Integer(t_col);
+    const Eigen::Vector3d p_WX(csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2]));
+    const Eigen::Quaterniond q_WX =
+        NormalisedIfFinite(csv.Number(q[0]), csv.Number(q[1]), csv.Number(q[2]), csv.Number(q[3]));
+    if (identity) {
+      g.p_WI = p_WX;
+      g.q_WI = q_WX;
+    } else {
+      g.p_WI = p_WX + q_WX * T_X_I.translation();
+      g.q_WI = (q_WX * q_X_I).normalized();
+    }
+    if (g.q_WI.w() < 0.0) g.q_WI.coeffs() *= -1.0;
+    out.push_back(g);
+  }
+  return out;
+}
+
+// ---- calibration.yaml ----
+
+struct SensorCalibration {
+  std::optional<Eigen::Isometry3d> T_B_s;       // nominal mount (what an estimator is given)
+  std::optional<Eigen::Isometry3d> true_T_B_s;  // only where a calibration error was set
+  YAML::Node options;
+};
+
+struct Calibration {
+  bool present = false;
+  std::map<std::string, SensorCalibration> sensors;
+};
+
+InputError YamlError(const std::string& file, const YAML::Mark& mark, const std::string& key,
+                     const std::string& message) {
+  return InputError({file, mark.is_null() ? 0 : mark.line + 1, mark.is_null() ? 0 : mark.column + 1},
+                    key, message);
+}
+
+double YamlNumber(const YAML::Node& node, const std::string& file, const std::string& key) {
+  if (!node.IsScalar()) throw YamlError(file, node.Mark(), key, "expected a number");
+  try {
+    return node.as<double>();
+  } catch (const YAML::Exception&) {
+    throw YamlError(file, node.Mark(), key,
+                    fmt::format("expected a number, got '{}'", node.Scalar()));
+  }
+}
+
+// {p_m: [x, y, z], q_wxyz: [w, x, y, z]} as an isometry.
+Eigen::Isometry3d YamlPose(const YAML::Node& node, const std::string& file, const std::string& key) {
+  if (!node.IsMap()) {
+    throw YamlError(file, node.Mark(), key, "expected a map {p_m: [x, y, z], q_wxyz: [w, x, y, z]}");
+  }
+  const auto vector = [&](const char* name, size_t n) {
+    const YAML::Node v = node[name];
+    const std::string sub = key + "." + name;
+    if (!v || !v.IsSequence() || v.size() != n) {
+      throw YamlError(file, v ? v.Mark() : node.Mark(), sub,
+                      fmt::format("expected a list of {} numbers", n));
+    }
+    std::vector<double> out;
+    for (size_t i = 0; i < n; ++i) out.push_back(YamlNumber(v[i], file, fmt::format("{}[{}]", sub, i)));
+    return out;
+  };
+  const std::vector<double> p = vector("p_m", 3);
+  const std::vector<double> q = vector("q_wxyz", 4);
+  Eigen::Quaterniond quat(q[0], q[1], q[2], q[3]);
+  if (!(quat.norm() > 0.5 && quat.norm() < 1.5)) {
+    throw YamlError(file, node["q_wxyz"].Mark(), key + ".q_wxyz",
+                    "expected a unit quaternion [w, x, y, z]");
+  }
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = quat.normalized().toRotationMatrix();
+  T.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
+  return T;
+}
+
+Calibration ReadCalibration(const fs::path& path) {
+  Calibration cal;
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return cal;
+  cal.present = true;
+  const std::string file = path.string();
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(file);
+  } catch (const YAML::Exception& e) {
+    throw YamlError(file, e.mark, "", fmt::format("not valid YAML: {}", e.msg));
+  }
+  const YAML::Node sensors = root.IsMap() ? root["sensors"] : YAML::Node();
+  if (!sensors) return cal;
+  if (!sensors.IsMap()) {
+    throw YamlError(file, sensors.Mark(), "sensors", "expected a map of sensor name to calibration");
+  }
+  for (const auto& entry : sensors) {
+    const std::string name = entry.first.as<std::string>();
+    const YAML::Node& node = entry.second;
+    const std::string key = "sensors." + name;
+    if (!node.IsMap()) throw YamlError(file, node.Mark(), key, "expected a map");
+    SensorCalibration s;
+    if (node["T_B_s"]) s.T_B_s = YamlPose(node["T_B_s"], file, key + ".T_B_s");
+    if (node["true_T_B_s"]) s.true_T_B_s = YamlPose(node["true_T_B_s"], file, key + ".true_T_B_s");
+    s.options = node["options"];
+    cal.sensors[name] = s;
+  }
+  return cal;
+}
+
+// The four IMU noise densities from sensors.<imu>.options; nullopt (and a note) if absent.
+std::optional<RecordedImuNoise> ReadImuNoise(const Calibration& cal, const std::string& imu,
+                                             const fs::path& path,
+                                             std::vector<std::string>& notes) {
+  const auto it = cal.sensors.find(imu);
+  if (it == cal.sensors.end() || !it->second.options || !it->second.options.IsMap()) {
+    notes.push_back(fmt::format("IMU noise densities: none (no sensors.{}.options in "
+                                "calibration.yaml)",
+                                imu));
+    return std::nullopt;
+  }
+  const YAML::Node& options = it->second.options;
+  RecordedImuNoise noise;
+  const std::array<std::pair<const char*, double*>, 4> keys = {
+      {{"gyro_noise_density_radps_per_sqrthz", &noise.gyro_noise_density_radps_per_sqrthz},
+       {"accel_noise_density_mps2_per_sqrthz", &noise.accel_noise_density_mps2_per_sqrthz},
+       {"gyro_random_walk_radps2_per_sqrthz", &noise.gyro_random_walk_radps2_per_sqrthz},
+       {"accel_random_walk_mps3_per_sqrthz", &noise.accel_random_walk_mps3_per_sqrthz}}};
+  std::vector<std::string> missing;
+  for (const auto& [key, out] : keys) {
+    const YAML::Node v = options[key];
+    if (!v) {
+      missing.emplace_back(key);
+      continue;
+    }
+    *out = YamlNumber(v, path.string(), fmt::format("sensors.{}.options.{}", imu, key));
+  }
+  if (!missing.empty()) {
+    notes.push_back(fmt::format("IMU noise densities: none (sensors.{}.options lacks {})", imu,
+                                fmt::join(missing, ", ")));
+    return std::nullopt;
+  }
+  notes.push_back(fmt::format("IMU noise densities from calibration.yaml sensors.{}.options", imu));
+  return noise;
+}
+
+// ---- assembling the log ----
+
+// A stream to read: its name, file and how to read it.
+struct Source {
+  std::string name;
+  fs::path file;
+  bool tum = false;
+};
+
+bool IsReservedTum(const std::string& stem) {
+  return stem == "groundtruth" || stem.rfind("estimate_", 0) == 0;
+}
+
+// Sorts measurements (and arrival_ns) by (arrival, stream rank, t, read order) in place.
+void SortByArrival(RecordedLog& log, const std::vector<size_t>& stream_end) {
+  const size_t n = log.measurements.size();
+  struct Key {
+    Time arrival;
+    uint32_t rank;
+    Time t;
+    uint32_t index;
+  };
+  std::vector<Key> keys(n);
+  uint32_t rank = 0;
+  for (size_t i = 0; i < n; ++i) {
+    while (rank < stream_end.size() && i >= stream_end[rank]) ++rank;
+    keys[i] = {log.arrival_ns[i], rank, log.measurements[i].t_ns, static_cast<uint32_t>(i)};
+  }
+  std::sort(keys.begin(), keys.end(), [](const Key& a, const Key& b) {
+    if (a.arrival != b.arrival) return a.arrival < b.arrival;
+    if (a.rank != b.rank) return a.rank < b.rank;
+    if (a.t != b.t) return a.t < b.t;
+    return a.index < b.index;
+  });
+  // Apply the permutation (destination k takes source keys[k].index) cycle by cycle, so
+  // that the large measurement vector is never copied.
+  std::vector<Time> arrival(n);
+  for (size_t k = 0; k < n; ++k) arrival[k] = log.arrival_ns[keys[k].index];
+  log.arrival_ns = std::move(arrival);
+  std::vector<bool> done(n, false);
+  for (size_t start = 0; start < n; ++start) {
+    if (done[start] || keys[start].index == start) {
+      done[start] = true;
+      continue;
+    }
+    core::StampedMeasurement held = std::move(log.measurements[start]);
+    size_t k = start;
+    while (true) {
+      done[k] = true;
+      const size_t source = keys[k].index;
+      if (source == start) {
+        log.measurements[k] = std::move(held);
+        break;
+      }
+      log.measurements[k] = std::move(log.measurements[source]);
+      k = source;
+    }
+  }
+}
+
+}  // namespace
+
+const char* StreamKindName(StreamKind kind) {
+  switch (kind) {
+    case StreamKind::kImu: return "imu";
+    case StreamKind::kPose: return "pose";
+    case StreamKind::kPosition: return "position";
+  }
+  return "?";
+}
+
+RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions& options) {
+  std::error_code ec;
+  if (!fs::exists(directory, ec)) {
+    throw InputError({directory.string()}, "",
+                     "no such directory, expected a tofu run directory (sensors/*.csv) or an "
+                     "EuRoC-style log (mav0/imu0/data.csv, *.tum)");
+  }
+  if (!fs::is_directory(directory, ec)) {
+    throw InputError({directory.string()}, "",
+                     "not a directory, expected a tofu run directory or an EuRoC-style log");
+  }
+  RecordedLog log;
+  log.directory = directory;
+
+  // Which layout, which files.
+  std::vector<Source> sources;
+  const bool run_directory = fs::is_directory(directory / "sensors", ec);
+  fs::path ground_truth_file;
+  if (run_directory) {
+    const fs::path folder =
+        options.use_clean_streams ? directory / "sensors" / "clean" : directory / "sensors";
+    if (!fs::is_directory(folder, ec)) {
+      throw InputError({folder.string()}, "",
+                       "no such folder: use_clean_streams needs sensors/clean/<name>.csv");
+    }
+    for (const auto& entry : fs::directory_iterator(folder)) {
+      if (entry.is_regular_file() && entry.path().extension() == ".csv") {
+        sources.push_back({entry.path().stem().string(), entry.path(), false});
+      }
+    }
+    log.notes.push_back(fmt::format("layout: tofu run directory, streams from {}",
+                                    options.use_clean_streams ? "sensors/clean/*.csv (un-faulted)"
+                                                              : "sensors/*.csv"));
+    ground_truth_file = directory / "groundtruth.csv";
+  } else {
+    const fs::path imu = directory / "mav0" / "imu0" / "data.csv";
+    if (fs::is_regular_file(imu, ec)) sources.push_back({"imu", imu, false});
+    for (const auto& entry : fs::directory_iterator(directory)) {
+      if (!entry.is_regular_file() || entry.path().extension() != ".tum") continue;
+      const std::string stem = entry.path().stem().string();
+      if (IsReservedTum(stem)) {
+        log.notes.push_back(fmt::format("{}: not read (a tofu output, not a sensor stream)",
+                                        entry.path().filename().string()));
+        continue;
+      }
+      sources.push_back({stem, entry.path(), true});
+    }
+    log.notes.push_back("layout: EuRoC-style log (mav0/imu0/data.csv as 'imu', *.tum as pose "
+                        "streams)");
+    ground_truth_file = directory / "mav0" / "state_groundtruth_estimate0" / "data.csv";
+  }
+  std::sort(sources.begin(), sources.end(),
+            [](const Source& a, const Source& b) { return a.name < b.name; });
+  for (size_t i = 1; i < sources.size(); ++i) {
+    if (sources[i].name == sources[i - 1].name) {
+      throw InputError({sources[i].file.string()}, "",
+                       fmt::format("stream name '{}' is also used by {}", sources[i].name,
+                                   sources[i - 1].file.string()));
+    }
+  }
+  if (sources.empty() && options.require_imu) {
+    throw InputError({directory.string()}, "",
+                     "no IMU stream found: expected sensors/<name>.csv (tofu run directory) or "
+                     "mav0/imu0/data.csv (EuRoC)");
+  }
+
+  // Every stream, in name order.
+  std::vector<size_t> stream_end;
+  const Sink sink{&log.measurements, &log.arrival_ns};
+  for (const Source& source : sources) {
+    RecordedStream stream;
+    stream.name = source.name;
+    stream.file = source.file;
+    if (source.tum) {
+      const std::vector<PoseSample> poses = ReadTumTrajectory(source.file);
+      log.measurements.reserve(log.measurements.size() + poses.size());
+      log.arrival_ns.reserve(log.arrival_ns.size() + poses.size());
+      for (const PoseSample& s : poses) {
+        core::PoseMeasurement m;
+        m.p_Ss = s.p;
+        m.q_Ss = s.q;
+        m.covariance = options.default_pose_covariance;
+        log.measurements.push_back({source.name, s.t_ns, std::move(m)});
+        log.arrival_ns.push_back(s.t_ns);
+      }
+      stream.kind = StreamKind::kPose;
+      stream.rows = poses.size();
+      log.notes.push_back(fmt::format("{}: TUM pose stream, arrival = t, default covariance",
+                                      source.name));
+    } else {
+      const auto [kind, rows] = ReadSensorCsv(source.file, source.name, options, sink, log.notes);
+      stream.kind = kind;
+      stream.rows = rows;
+    }
+    log.notes.push_back(fmt::format("{}: {} stream, {} rows from {}", stream.name,
+                                    StreamKindName(stream.kind), stream.rows,
+                                    fs::relative(stream.file, directory).string()));
+    log.streams.push_back(std::move(stream));
+    stream_end.push_back(log.measurements.size());
+  }
+
+  // The IMU: the only IMU stream, else the one named "imu", else the first by name.
+  std::vector<const RecordedStream*> imus;
+  for (const RecordedStream& s : log.streams) {
+    if (s.kind == StreamKind::kImu) imus.push_back(&s);
+  }
+  if (imus.empty()) {
+    if (options.require_imu) {
+      throw InputError({directory.string()}, "",
+                       fmt::format("no IMU stream found among {} stream(s): expected a CSV "
+                                   "with columns w_RS_S_x/y/z, a_RS_S_x/y/z ({})",
+                                   log.streams.size(),
+                                   run_directory ? "sensors/<name>.csv" : "mav0/imu0/data.csv"));
+    }
+    log.notes.push_back("no IMU stream");
+  } else {
+    const auto named = std::find_if(imus.begin(), imus.end(),
+                                    [](const RecordedStream* s) { return s->name == "imu"; });
+    log.imu_stream = (named != imus.end() ? *named : imus.front())->name;
+    if (imus.size() > 1) {
+      log.notes.push_back(fmt::format("{} IMU streams; '{}' is the IMU frame I", imus.size(),
+                                      log.imu_stream));
+    }
+  }
+
+  // Mounts: T_I_s = T_B_I^-1 T_B_s (nominal mounts).
+  const Calibration cal = ReadCalibration(directory / "calibration.yaml");
+  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_B_I_true = Eigen::Isometry3d::Identity();
+  if (!cal.present) {
+    log.notes.push_back("no calibration.yaml: identity mounts");
+  } else {
+    const auto imu = cal.sensors.find(log.imu_stream);
+    if (!log.imu_stream.empty() && imu != cal.sensors.end() && imu->second.T_B_s) {
+      T_B_I = *imu->second.T_B_s;
+      T_B_I_true = imu->second.true_T_B_s ? *imu->second.true_T_B_s : T_B_I;
+    } else {
+      log.notes.push_back("calibration.yaml: no IMU mount, T_B_I = identity");
+    }
+    for (RecordedStream& s : log.streams) {
+      const auto it = cal.sensors.find(s.name);
+      if (it == cal.sensors.end() || !it->second.T_B_s) {
+        log.notes.push_back(fmt::format("{}: no mount in calibration.yaml, T_I_s = identity",
+                                        s.name));
+        continue;
+      }
+      s.T_I_s = T_B_I.inverse() * *it->second.T_B_s;
+    }
+    log.notes.push_back("mounts: T_I_s = T_B_I^-1 T_B_s from calibration.yaml");
+  }
+  if (!log.imu_stream.empty()) {
+    if (cal.present) {
+      log.imu_noise = ReadImuNoise(cal, log.imu_stream, directory / "calibration.yaml", log.notes);
+    } else {
+      log.notes.push_back("IMU noise densities: none (no calibration.yaml)");
+    }
+  }
+
+  // Ground truth of the IMU frame.
+  if (fs::is_regular_file(ground_truth_file, ec)) {
+    if (run_directory) {
+      log.ground_truth = ReadGroundTruthCsv(ground_truth_file, "p_WB_", "q_WB_", T_B_I_true);
+      log.notes.push_back("ground truth: groundtruth.csv (T_WB) x T_B_I (true IMU mount)");
+    } else {
+      log.ground_truth = ReadGroundTruthCsv(ground_truth_file, "p_RS_R_", "q_RS_",
+                                            Eigen::Isometry3d::Identity());
+      log.notes.push_back("ground truth: mav0/state_groundtruth_estimate0/data.csv (T_WI)");
+    }
+  } else {
+    log.notes.push_back(fmt::format("no ground truth ({} not found)",
+                                    fs::relative(ground_truth_file, directory).string()));
+  }
+
+  SortByArrival(log, stream_end);
+  return log;
+}
+
+}  // namespace tofu::harness

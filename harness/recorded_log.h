@@ -1,0 +1,120 @@
+#pragma once
+// Recorded sensor streams read back from a directory into the measurement vocabulary of
+// core/measurement.h, for replay through an estimator (`tofu estimate RUN_DIR`) and for
+// evaluation against the ground truth recorded alongside. Two layouts, detected
+// automatically:
+//
+// (a) a tofu run directory (DESIGN.md, "Run directory"), recognised by its sensors/
+//     folder: sensors/<name>.csv, one stream each (sensors/clean/<name>.csv, the streams
+//     before fault injection, with RecordedLogOptions::use_clean_streams), the stream's
+//     kind told by its header columns; mounts and IMU noise densities from
+//     calibration.yaml; ground truth from groundtruth.csv (T_WB, moved to the IMU frame).
+//     The err_*, conditions and faults columns are ground-truth labels and never read.
+// (b) a real-robot / EuRoC ASL layout: mav0/imu0/data.csv is the stream "imu"; every
+//     *.tum file directly in the directory is a pose stream named after its stem (except
+//     groundtruth.tum and estimate_*.tum, which tofu writes itself); ground truth from
+//     mav0/state_groundtruth_estimate0/data.csv (the IMU frame S in the Vicon world R,
+//     i.e. T_WI). A calibration.yaml there supplies mounts as in (a).
+//
+// CSV columns are found by name (the header's text before " [unit]", without '#'), so
+// extra columns are ignored. Reading is strict about form and lenient about values: a
+// malformed file is a core::InputError naming file, line, column and the expected form,
+// while a NaN/Inf value or an out-of-order stamp is passed through for the estimator to
+// reject and count (DESIGN.md, "Errors").
+
+#include <cstddef>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/measurement.h"
+#include "core/time.h"
+
+namespace tofu::harness {
+
+/// What a stream measures, told from its header (IMU: w_RS_S_x..., pose: p_Ss_x and
+/// q_Ss_w, position: p_Ss_x without q) or from its layout (EuRoC imu0, TUM).
+enum class StreamKind { kImu, kPose, kPosition };
+
+/// Name of a kind for notes and messages: "imu", "pose", "position".
+const char* StreamKindName(StreamKind kind);
+
+struct RecordedStream {
+  std::string name;
+  StreamKind kind = StreamKind::kImu;
+  std::filesystem::path file;
+  /// Mount frame s of the sensor in the IMU frame I: T_I_s = T_B_I^-1 T_B_s with the
+  /// nominal mounts T_B_s of calibration.yaml (what an estimator is given, not the true
+  /// ones); T_B_I = identity without an IMU mount, T_B_s = identity without the sensor's.
+  Eigen::Isometry3d T_I_s = Eigen::Isometry3d::Identity();
+  std::size_t rows = 0;  ///< data rows read (= measurements of this stream)
+};
+
+/// IMU noise densities as calibration.yaml gives them (the IMU sensor's options).
+struct RecordedImuNoise {
+  double gyro_noise_density_radps_per_sqrthz = 0.0;
+  double accel_noise_density_mps2_per_sqrthz = 0.0;
+  double gyro_random_walk_radps2_per_sqrthz = 0.0;
+  double accel_random_walk_mps3_per_sqrthz = 0.0;
+};
+
+/// Pose of the IMU frame I in the ground-truth world W.
+struct GroundTruthPose {
+  core::Time t_ns = 0;
+  Eigen::Vector3d p_WI = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_WI = Eigen::Quaterniond::Identity();
+};
+
+struct RecordedLogOptions {
+  /// Layout (a): read sensors/clean/<name>.csv (the un-faulted streams) instead.
+  bool use_clean_streams = false;
+  /// Without an IMU stream, ReadRecordedLog throws (an estimator replay needs one); false
+  /// reads the other streams anyway (imu_stream is then empty).
+  bool require_imu = true;
+  /// Covariance of [delta_theta; delta_p] (rad^2, m^2) for pose streams that carry none
+  /// (TUM files, CSVs without cov_pose_* columns).
+  Eigen::Matrix<double, 6, 6> default_pose_covariance =
+      (Eigen::Matrix<double, 6, 1>() << 0.01 * 0.01, 0.01 * 0.01, 0.01 * 0.01, 0.02 * 0.02,
+       0.02 * 0.02, 0.02 * 0.02)
+          .finished()
+          .asDiagonal();
+  /// Covariance of positions (m^2) for position streams without cov_p_* columns.
+  Eigen::Matrix3d default_position_covariance = 0.02 * 0.02 * Eigen::Matrix3d::Identity();
+};
+
+struct RecordedLog {
+  std::filesystem::path directory;
+  std::string imu_stream;               ///< name of the IMU stream (empty only if not required)
+  std::vector<RecordedStream> streams;  ///< sorted by name
+  /// Every sample of every stream in arrival order (what an online estimator sees), ties
+  /// broken by stream name, then time of validity, then row. t_ns = time of validity.
+  std::vector<core::StampedMeasurement> measurements;
+  std::vector<core::Time> arrival_ns;   ///< parallel to measurements
+  /// From calibration.yaml (the IMU sensor's options) when all four densities are there.
+  std::optional<RecordedImuNoise> imu_noise;
+  /// Pose of the IMU frame I in W, in file order; empty without ground truth. Layout (a):
+  /// T_WI = T_WB T_B_I with the IMU's true mount (true_T_B_s when calibration.yaml has one).
+  std::vector<GroundTruthPose> ground_truth;
+  std::vector<std::string> notes;       ///< what was read and what was assumed
+};
+
+/// Reads the recorded streams of `directory` (layout (a) or (b) above).
+///
+/// Pose rows: twist (v_s_*, omega_s_*) present and non-empty -> has_twist; covariances
+/// from the cov_pose_ij / cov_twist_ij / cov_p_ij columns (upper triangle, row-major, as
+/// run_directory.cc writes them), else the options' defaults. Quaternions are normalised
+/// when finite and non-zero. Arrival from the `arrival` column when present, else t.
+///
+/// Throws core::InputError (file, 1-based line and column, column name, expected form)
+/// for a missing directory, no recognisable stream, no IMU stream (unless
+/// !options.require_imu), a missing or unknown header, a row whose field count differs
+/// from the header's, an empty or non-numeric field (timestamps: integers in ns; TUM:
+/// decimal seconds), and a malformed calibration.yaml. Empty streams are allowed.
+RecordedLog ReadRecordedLog(const std::filesystem::path& directory,
+                            const RecordedLogOptions& options = {});
+
+}  // namespace tofu::harness

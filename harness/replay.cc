@@ -1,0 +1,424 @@
+#include "harness/replay.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <numeric>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "estimator/velocity.h"
+
+namespace tofu::harness {
+namespace {
+
+const RecordedStream* FindStream(const RecordedLog& log, const std::string& name) {
+  for (const RecordedStream& s : log.streams) {
+    if (s.name == name) return &s;
+  }
+  return nullptr;
+}
+
+std::string KnownSensors(const RecordedLog& log) {
+  std::string known;
+  for (const RecordedStream& s : log.streams) {
+    if (s.kind == StreamKind::kImu) continue;
+    known += (known.empty() ? "" : ", ") + s.name;
+  }
+  return known.empty() ? std::string("(none)") : known;
+}
+
+double Percentile(std::vector<double> values, double fraction) {
+  if (values.empty()) return 0.0;
+  std::sort(values.begin(), values.end());
+  const auto index = static_cast<std::size_t>(
+      std::min<double>(values.size() - 1, std::ceil(fraction * values.size()) - 1));
+  return values[index];
+}
+
+// Atomic write: a reader never sees a half-written file.
+void WriteFileAtomically(const std::filesystem::path& path, const std::string& content) {
+  const std::filesystem::path staging = path.string() + ".partial";
+  {
+    std::ofstream out(staging, std::ios::binary | std::ios::trunc);
+    if (!out) throw core::InputError({staging.string()}, "", "cannot write this file");
+    out << content;
+  }
+  std::filesystem::rename(staging, path);
+}
+
+std::string EstimateCsv(const ReplayResult& result) {
+  std::string csv =
+      "#timestamp [ns],p_LI_x [m],p_LI_y [m],p_LI_z [m],q_LI_w [],q_LI_x [],q_LI_y [],"
+      "q_LI_z [],v_L_x [m s^-1],v_L_y [m s^-1],v_L_z [m s^-1],b_a_x [m s^-2],b_a_y [m s^-2],"
+      "b_a_z [m s^-2],b_g_x [rad s^-1],b_g_y [rad s^-1],b_g_z [rad s^-1],std_p_x [m],"
+      "std_p_y [m],std_p_z [m],valid,fused\n";
+  for (const estimator::EstimatorOutput& o : result.outputs) {
+    Eigen::Quaterniond q = o.state.q_LI.normalized();
+    if (q.w() < 0) q.coeffs() *= -1.0;
+    std::string fused;
+    for (const std::string& f : o.fused) fused += (fused.empty() ? "" : "+") + f;
+    std::string std_p = ",,";
+    if (o.covariance) {
+      std_p = fmt::format("{:.6f},{:.6f},{:.6f}", std::sqrt((*o.covariance)(0, 0)),
+                          std::sqrt((*o.covariance)(1, 1)), std::sqrt((*o.covariance)(2, 2)));
+    }
+    csv += fmt::format(
+        "{},{:.6f},{:.6f},{:.6f},{:.9f},{:.9f},{:.9f},{:.9f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f},"
+        "{:.6f},{:.7f},{:.7f},{:.7f},{},{},{}\n",
+        o.t_ns, o.state.p_LI.x(), o.state.p_LI.y(), o.state.p_LI.z(), q.w(), q.x(), q.y(), q.z(),
+        o.state.v_L_mps.x(), o.state.v_L_mps.y(), o.state.v_L_mps.z(), o.bias.accel_mps2.x(),
+        o.bias.accel_mps2.y(), o.bias.accel_mps2.z(), o.bias.gyro_radps.x(),
+        o.bias.gyro_radps.y(), o.bias.gyro_radps.z(), std_p, o.valid ? 1 : 0, fused);
+  }
+  return csv;
+}
+
+std::string SafeFileName(const std::string& method) {
+  std::string out = method;
+  for (char& c : out) {
+    if (c == ':' || c == '+' || c == '/' || c == ' ') c = '_';
+  }
+  return out;
+}
+
+// Datasheet white-noise densities describe an IMU at rest; on a flying multicopter,
+// rotor vibration, its aliasing and the unmodelled scale/misalignment errors make the
+// effective noise one to two orders larger. Visual-inertial systems configure EuRoC's
+// ADIS16448 accordingly (VINS-Mono: 0.08 m/s²/√Hz and 0.004 rad/s/√Hz, i.e. 40x and 24x
+// the datasheet). 20x is measured here on EuRoC V1_02 (docs/RESULTS.md: ATE against the
+// scale); a calibration.yaml next to the log replaces all of this.
+constexpr double kUncalibratedImuNoiseScale = 20.0;
+
+}  // namespace
+
+ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log) {
+  ReplayMethod method;
+  method.name = name;
+  auto require = [&](const std::string& sensor) {
+    const RecordedStream* s = FindStream(log, sensor);
+    if (s == nullptr || s->kind == StreamKind::kImu) {
+      throw core::InputError(
+          {log.directory.string()}, "--method",
+          fmt::format("method '{}': no sensor stream '{}' (known: {}); expected "
+                      "single:<sensor>, fuse:<a>+<b> or imu_only",
+                      name, sensor, KnownSensors(log)));
+    }
+    method.fused.push_back(sensor);
+  };
+  if (name == "imu_only") return method;
+  if (name.rfind("single:", 0) == 0) {
+    require(name.substr(7));
+    return method;
+  }
+  if (name.rfind("fuse:", 0) == 0) {
+    std::stringstream list(name.substr(5));
+    std::string sensor;
+    while (std::getline(list, sensor, '+')) require(sensor);
+    if (!method.fused.empty()) return method;
+  }
+  throw core::InputError(
+      {log.directory.string()}, "--method",
+      fmt::format("method '{}': expected single:<sensor>, fuse:<a>+<b> or imu_only (sensors: {})",
+                  name, KnownSensors(log)));
+}
+
+estimator::MultiGraphEstimatorOptions DefaultEstimatorOptions(const RecordedLog& log) {
+  estimator::MultiGraphEstimatorOptions options;
+  // Without a calibration (a real log): the ADIS16448 densities that tofu's simulated IMU
+  // also uses, inflated for flight (see kUncalibratedImuNoiseScale).
+  options.local.imu_noise.gyro_noise_density_radps_per_sqrthz *= kUncalibratedImuNoiseScale;
+  options.local.imu_noise.accel_noise_density_mps2_per_sqrthz *= kUncalibratedImuNoiseScale;
+  if (log.imu_noise) {
+    options.local.imu_noise.gyro_noise_density_radps_per_sqrthz =
+        log.imu_noise->gyro_noise_density_radps_per_sqrthz;
+    options.local.imu_noise.accel_noise_density_mps2_per_sqrthz =
+        log.imu_noise->accel_noise_density_mps2_per_sqrthz;
+    options.local.imu_noise.gyro_random_walk_radps2_per_sqrthz =
+        log.imu_noise->gyro_random_walk_radps2_per_sqrthz;
+    options.local.imu_noise.accel_random_walk_mps3_per_sqrthz =
+        log.imu_noise->accel_random_walk_mps3_per_sqrthz;
+  }
+  // tofu's simulated IMU reports each interval's average; recorded real IMUs (EuRoC's
+  // ADIS16448) are taken as instantaneous samples.
+  options.local.imu_samples_are_interval_averages =
+      std::filesystem::exists(log.directory / "sensors");
+  // Replays are reproducible: no wall-time cap on the solver (it would make the result
+  // depend on the machine); the iteration cap still holds.
+  options.local.max_solver_time_s = 1e6;
+  return options;
+}
+
+std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
+  std::vector<estimator::SensorSpec> specs;
+  for (const RecordedStream& s : log.streams) {
+    if (s.kind == StreamKind::kImu) continue;
+    estimator::SensorSpec spec;
+    spec.name = s.name;
+    spec.kind = s.kind == StreamKind::kPose ? estimator::SensorKind::kPose
+                                             : estimator::SensorKind::kPosition;
+    spec.T_I_s = s.T_I_s;
+    specs.push_back(spec);
+  }
+  return specs;
+}
+
+ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
+                    const estimator::MultiGraphEstimatorOptions& options,
+                    const std::vector<estimator::SensorSpec>& sensors,
+                    const std::function<void(double)>& progress) {
+  estimator::MultiGraphEstimator estimator(log.imu_stream, sensors, options);
+  estimator.SetFusedSensors(method.fused);
+  ReplayResult result;
+  result.method = method;
+  const auto start = std::chrono::steady_clock::now();
+  const std::size_t n = log.measurements.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    estimator.Add(log.measurements[i]);
+    if (progress && (i % 4096 == 0 || i + 1 == n)) progress(static_cast<double>(i + 1) / n);
+    for (estimator::EstimatorOutput& o : estimator.TakeOutputs()) {
+      result.outputs.push_back(std::move(o));
+    }
+  }
+  result.wall_time_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (!log.measurements.empty()) {
+    auto [lo, hi] = std::minmax_element(
+        log.measurements.begin(), log.measurements.end(),
+        [](const auto& a, const auto& b) { return a.t_ns < b.t_ns; });
+    result.log_duration_s = core::TimeToSeconds(hi->t_ns - lo->t_ns);
+  }
+  result.counters = estimator.counters();
+  result.solver = estimator.local().stats();
+  for (const RecordedStream& s : log.streams) {
+    if (const estimator::AlignmentGraph* g = estimator.AlignmentGraphOf(s.name)) {
+      result.alignment[s.name] = g->estimate();
+    }
+  }
+  return result;
+}
+
+std::vector<PoseSample> OutputTrajectory(const ReplayResult& result) {
+  std::vector<PoseSample> trajectory;
+  for (const estimator::EstimatorOutput& o : result.outputs) {
+    if (!o.valid) continue;
+    trajectory.push_back(PoseSample{o.t_ns, o.state.p_LI, o.state.q_LI.normalized()});
+  }
+  return trajectory;
+}
+
+std::vector<LocalConsistencySeries> LocalConsistency(
+    const RecordedLog& log, const ReplayResult& result, estimator::ConsistencyMetric metric,
+    const estimator::ConsistencyOptions& options, double rate_hz) {
+  std::vector<LocalConsistencySeries> out;
+  if (result.outputs.empty()) return out;
+  for (const RecordedStream& stream : log.streams) {
+    if (stream.kind == StreamKind::kImu) continue;
+    // The stream's samples, in time order of validity.
+    std::vector<core::Time> t;
+    std::vector<Eigen::Vector3d> p_A;
+    std::vector<Eigen::Quaterniond> q_As;
+    for (const core::StampedMeasurement& m : log.measurements) {
+      if (m.sensor != stream.name) continue;
+      if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
+        t.push_back(m.t_ns);
+        p_A.push_back(pose->p_Ss);
+        q_As.push_back(pose->q_Ss);
+      } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
+        t.push_back(m.t_ns);
+        p_A.push_back(position->p_Ss);
+      }
+    }
+    std::vector<std::size_t> order(t.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::stable_sort(order.begin(), order.end(), [&](auto a, auto b) { return t[a] < t[b]; });
+    std::vector<core::Time> t_sorted;
+    std::vector<Eigen::Vector3d> p_sorted;
+    std::vector<Eigen::Quaterniond> q_sorted;
+    for (std::size_t k : order) {
+      t_sorted.push_back(t[k]);
+      p_sorted.push_back(p_A[k]);
+      if (!q_As.empty()) q_sorted.push_back(q_As[k]);
+    }
+    estimator::DifferentiationOptions diff;
+    const estimator::VelocitySeries v_A = estimator::DifferentiatePositions(t_sorted, p_sorted, diff);
+
+    // Local estimate at the mount, in s, at the output times.
+    estimator::VelocitySeries local;
+    const Eigen::Matrix3d R_Is = stream.T_I_s.linear();
+    const Eigen::Vector3d p_Is = stream.T_I_s.translation();
+    for (const estimator::EstimatorOutput& o : result.outputs) {
+      if (!o.valid) continue;
+      const Eigen::Matrix3d R_LI = o.state.q_LI.toRotationMatrix();
+      local.t_ns.push_back(o.t_ns);
+      local.v_mps.push_back(R_Is.transpose() *
+                            (R_LI.transpose() * o.state.v_L_mps + o.omega_I_radps.cross(p_Is)));
+    }
+    if (local.t_ns.size() < 2) continue;
+
+    // The sensor's velocity in s: rotated by its own attitude (pose streams), or by the
+    // local attitude and the final alignment (position streams).
+    estimator::VelocitySeries sensor;
+    const auto alignment = result.alignment.find(stream.name);
+    for (std::size_t k = 0; k < v_A.t_ns.size(); ++k) {
+      const core::Time tk = v_A.t_ns[k];
+      Eigen::Matrix3d R_As;
+      if (!q_sorted.empty()) {
+        const auto it = std::lower_bound(t_sorted.begin(), t_sorted.end(), tk);
+        R_As = q_sorted[static_cast<std::size_t>(it - t_sorted.begin())].normalized().toRotationMatrix();
+      } else {
+        if (alignment == result.alignment.end() || !alignment->second.valid) break;
+        const auto it = std::lower_bound(local.t_ns.begin(), local.t_ns.end(), tk);
+        if (it == local.t_ns.end()) break;
+        const estimator::EstimatorOutput* o = nullptr;
+        for (const estimator::EstimatorOutput& out_k : result.outputs) {
+          if (out_k.valid && out_k.t_ns == *it) { o = &out_k; break; }
+        }
+        if (o == nullptr) continue;
+        R_As = alignment->second.T_AL.linear() * o->state.q_LI.toRotationMatrix() * R_Is;
+      }
+      sensor.t_ns.push_back(tk);
+      sensor.v_mps.push_back(R_As.transpose() * v_A.v_mps[k]);
+    }
+    if (sensor.t_ns.size() < 2) continue;
+
+    LocalConsistencySeries series;
+    series.sensor = stream.name;
+    const core::Time period = core::PeriodFromRate(rate_hz);
+    const core::Time t0 = std::max(sensor.t_ns.front(), local.t_ns.front()) + options.window_ns;
+    const core::Time t1 = std::min(sensor.t_ns.back(), local.t_ns.back());
+    for (core::Time te = t0; te <= t1; te += period) {
+      series.t_ns.push_back(te);
+      series.value.push_back(estimator::WindowConsistency(sensor, local, te, metric, options));
+    }
+    out.push_back(std::move(series));
+  }
+  return out;
+}
+
+int RunEstimateCommand(const EstimateCommandOptions& options) {
+  RecordedLogOptions read;
+  read.use_clean_streams = options.use_clean_streams;
+  const RecordedLog log = ReadRecordedLog(options.log_dir, read);
+  std::vector<ReplayMethod> methods;
+  if (options.methods.empty()) {
+    for (const RecordedStream& s : log.streams) {
+      if (s.kind != StreamKind::kImu) methods.push_back(ParseReplayMethod("single:" + s.name, log));
+    }
+  } else {
+    for (const std::string& m : options.methods) methods.push_back(ParseReplayMethod(m, log));
+  }
+  const std::filesystem::path out_dir = options.out_dir.value_or(options.log_dir);
+  std::filesystem::create_directories(out_dir);
+  estimator::MultiGraphEstimatorOptions estimator_options = DefaultEstimatorOptions(log);
+  if (options.window_s) estimator_options.local.window_ns = core::SecondsToTime(*options.window_s);
+  if (options.keyframe_rate_hz) estimator_options.local.keyframe_rate_hz = *options.keyframe_rate_hz;
+  if (options.huber_delta) estimator_options.local.huber_delta = *options.huber_delta;
+  if (options.imu_noise_scale) {
+    estimator_options.local.imu_noise.gyro_noise_density_radps_per_sqrthz *= *options.imu_noise_scale;
+    estimator_options.local.imu_noise.accel_noise_density_mps2_per_sqrthz *= *options.imu_noise_scale;
+  }
+  std::vector<estimator::SensorSpec> specs = SensorSpecsOf(log);
+  for (estimator::SensorSpec& spec : specs) {
+    if (options.between_position_std_m) spec.between_position_std_m = *options.between_position_std_m;
+    if (options.between_rotation_std_rad) spec.between_rotation_std_rad = *options.between_rotation_std_rad;
+    if (options.between_position_in_reference) {
+      spec.between_position_in_reference = *options.between_position_in_reference;
+    }
+  }
+  if (!options.quiet) {
+    for (const std::string& note : log.notes) fmt::print("note: {}\n", note);
+    fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10}\n", "method", "ATE [m]",
+               "rot [deg]", "RPE1s [m]", "valid", "x RT", "solve [ms]", "p99 [ms]");
+  }
+  for (const ReplayMethod& method : methods) {
+    std::function<void(double)> progress;
+    if (options.progress) progress = [&](double f) { options.progress(method.name, f); };
+    const ReplayResult result = Replay(log, method, estimator_options, specs, progress);
+    const std::string stem = "estimate_" + SafeFileName(method.name);
+    WriteFileAtomically(out_dir / (stem + ".csv"), EstimateCsv(result));
+    const std::vector<PoseSample> trajectory = OutputTrajectory(result);
+    WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
+
+    nlohmann::ordered_json j;
+    j["method"] = method.name;
+    j["fused"] = method.fused;
+    j["outputs"] = result.outputs.size();
+    j["valid_outputs"] = trajectory.size();
+    std::optional<TrajectoryErrors> errors;
+    if (!log.ground_truth.empty() && trajectory.size() > 10) {
+      std::vector<PoseSample> truth;
+      for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+      errors = EvaluateTrajectory(trajectory, truth);
+      j["ate"] = {{"alignment", "se3"},
+                  {"matched", errors->matched},
+                  {"position_rmse_m", errors->ate_position_rmse_m},
+                  {"position_max_m", errors->ate_position_max_m},
+                  {"rotation_rmse_deg", errors->rotation_rmse_deg},
+                  {"rpe_delta_s", errors->rpe_delta_s},
+                  {"rpe_translation_rmse_m", errors->rpe_translation_rmse_m},
+                  {"rpe_rotation_rmse_deg", errors->rpe_rotation_rmse_deg}};
+    }
+    nlohmann::ordered_json streams;
+    for (const auto& [name, c] : result.counters.streams) {
+      streams[name] = {{"accepted", c.accepted},
+                       {"rejected_non_finite", c.rejected_non_finite},
+                       {"rejected_out_of_order", c.rejected_out_of_order},
+                       {"rejected_duplicate", c.rejected_duplicate},
+                       {"not_fused_unaligned", c.not_fused_unaligned}};
+    }
+    j["streams"] = streams;
+    j["solver"] = {{"solves", result.solver.solves},
+                   {"keyframes", result.solver.keyframes},
+                   {"late_keyframes", result.solver.late_keyframes},
+                   {"too_old_measurements", result.solver.too_old_measurements},
+                   {"iteration_cap_hits", result.solver.iteration_cap_hits},
+                   {"time_cap_hits", result.solver.time_cap_hits},
+                   {"bad_solves", result.solver.bad_solves},
+                   {"marginalisation_failures", result.solver.marginalisation_failures},
+                   {"reinitialisations", result.counters.reinitialisations}};
+    nlohmann::ordered_json alignment;
+    for (const auto& [name, a] : result.alignment) {
+      const Eigen::Quaterniond q(a.T_AL.linear());
+      alignment[name] = {{"valid", a.valid},
+                         {"p_AL_m", {a.T_AL.translation().x(), a.T_AL.translation().y(),
+                                     a.T_AL.translation().z()}},
+                         {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}},
+                         {"observable_rotation_dofs", a.observable_rotation_dofs},
+                         {"yaw_observable", a.yaw_observable},
+                         {"rms_residual_m", a.rms_residual_m},
+                         {"pairs", a.pairs}};
+    }
+    j["alignment"] = alignment;
+    WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
+
+    const double mean_ms = result.solver.solve_time_s.empty()
+                               ? 0.0
+                               : 1e3 * std::accumulate(result.solver.solve_time_s.begin(),
+                                                       result.solver.solve_time_s.end(), 0.0) /
+                                     result.solver.solve_time_s.size();
+    const double p99_ms = 1e3 * Percentile(result.solver.solve_time_s, 0.99);
+    nlohmann::ordered_json timing = {
+        {"wall_time_s", result.wall_time_s},
+        {"real_time_factor", result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0},
+        {"solve_mean_ms", mean_ms},
+        {"solve_p99_ms", p99_ms}};
+    WriteFileAtomically(out_dir / ("timing_" + stem + ".json"), timing.dump(2) + "\n");
+    if (!options.quiet) {
+      fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8.0f} {:>10.3f} {:>10.3f}\n", method.name,
+                 errors ? fmt::format("{:.4f}", errors->ate_position_rmse_m) : "n/a",
+                 errors ? fmt::format("{:.3f}", errors->rotation_rmse_deg) : "n/a",
+                 errors ? fmt::format("{:.4f}", errors->rpe_translation_rmse_m) : "n/a",
+                 fmt::format("{}/{}", trajectory.size(), result.outputs.size()),
+                 result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0,
+                 mean_ms, p99_ms);
+    }
+  }
+  return 0;
+}
+
+}  // namespace tofu::harness

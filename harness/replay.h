@@ -1,0 +1,99 @@
+#pragma once
+// Replay of recorded streams (a tofu run directory or a real robot's log, see
+// recorded_log.h) through the multi-graph estimator, one method at a time, and the
+// evaluation of what it produced: trajectory errors against the ground truth and the
+// consistency of each sensor's velocity with the local estimate (seed paper Sec. 2.1).
+// Used by `tofu estimate RUN_DIR`.
+
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "estimator/alignment_graph.h"
+#include "estimator/consistency.h"
+#include "estimator/local_smoother.h"
+#include "estimator/multi_graph_estimator.h"
+#include "harness/recorded_log.h"
+#include "harness/trajectory_metrics.h"
+
+namespace tofu::harness {
+
+/// What a method fuses. Names: "single:<sensor>" (one sensor all the time), "fuse:<a>+<b>"
+/// (several all the time), "imu_only" (nothing: IMU propagation from the first state).
+struct ReplayMethod {
+  std::string name;
+  std::vector<std::string> fused;
+};
+
+/// Parses a method name against the log's streams; throws core::InputError naming the
+/// method, the unknown sensor and the known ones.
+ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log);
+
+/// Estimator options for a log: IMU noise from its calibration when known, the IMU sample
+/// convention of its layout (tofu's simulated IMU averages over each interval; a real
+/// log's samples are instantaneous).
+estimator::MultiGraphEstimatorOptions DefaultEstimatorOptions(const RecordedLog& log);
+/// Sensor specifications (kinds, mounts) of the log's non-IMU streams.
+std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log);
+
+struct ReplayResult {
+  ReplayMethod method;
+  std::vector<estimator::EstimatorOutput> outputs;
+  estimator::EstimatorCounters counters;
+  estimator::LocalSmootherStats solver;
+  std::map<std::string, estimator::AlignmentEstimate> alignment;  ///< at the end
+  double wall_time_s = 0.0;
+  double log_duration_s = 0.0;
+};
+
+/// Runs one method over the whole log in arrival order. `progress` (may be null) is
+/// called with the fraction done.
+ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
+                    const estimator::MultiGraphEstimatorOptions& options,
+                    const std::vector<estimator::SensorSpec>& sensors,
+                    const std::function<void(double)>& progress = nullptr);
+
+/// The valid outputs as a trajectory of T_LI.
+std::vector<PoseSample> OutputTrajectory(const ReplayResult& result);
+
+/// Body velocity of each sensor's mount from its own stream and from the local estimate
+/// (v_s = R_Isᵀ (R_LIᵀ v_L + ω_I × p_Is)), compared with a consistency metric over a
+/// sliding window at `rate_hz`. Pose streams are differentiated in their own frame A and
+/// rotated by their own attitude; position streams need R_As, taken from the local
+/// estimate and the estimator's final T_AL.
+struct LocalConsistencySeries {
+  std::string sensor;
+  std::vector<core::Time> t_ns;
+  std::vector<std::optional<double>> value;
+};
+std::vector<LocalConsistencySeries> LocalConsistency(
+    const RecordedLog& log, const ReplayResult& result, estimator::ConsistencyMetric metric,
+    const estimator::ConsistencyOptions& options, double rate_hz);
+
+/// `tofu estimate` as a function: reads the log, runs every method, writes
+/// estimate_<method>.csv/.tum and estimate_<method>.json into out_dir (default: the log's
+/// directory), prints a table. Returns the process exit code.
+struct EstimateCommandOptions {
+  std::filesystem::path log_dir;
+  std::optional<std::filesystem::path> out_dir;
+  std::vector<std::string> methods;  ///< empty: single:<s> for every non-IMU stream
+  bool use_clean_streams = false;
+  bool quiet = false;
+  /// Overrides of the estimator's defaults (unset: keep them).
+  std::optional<double> window_s;
+  std::optional<double> keyframe_rate_hz;
+  std::optional<double> between_position_std_m;
+  std::optional<double> between_rotation_std_rad;
+  std::optional<double> huber_delta;
+  std::optional<bool> between_position_in_reference;
+  /// Factor on the IMU's white-noise densities (after calibration or defaults).
+  std::optional<double> imu_noise_scale;
+  /// Progress of each method (the CLI draws a bar); may be empty.
+  std::function<void(const std::string& method, double fraction)> progress;
+};
+int RunEstimateCommand(const EstimateCommandOptions& options);
+
+}  // namespace tofu::harness

@@ -1,0 +1,478 @@
+#include "harness/trajectory_metrics.h"
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <iterator>
+#include <stdexcept>
+#include <string>
+#include <system_error>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
+#include <fmt/format.h>
+
+#include "core/error.h"
+#include "core/lie.h"
+
+namespace tofu::harness {
+namespace {
+
+namespace fs = std::filesystem;
+using core::InputError;
+using core::Time;
+
+constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// ---- TUM text ----
+
+constexpr int kTumFields = 8;
+constexpr std::array<std::string_view, kTumFields> kTumColumns = {
+    "t [s]", "x [m]", "y [m]", "z [m]", "qx", "qy", "qz", "qw"};
+
+std::string Quoted(std::string_view s) {
+  constexpr size_t kMax = 60;
+  if (s.size() <= kMax) return fmt::format("'{}'", s);
+  return fmt::format("'{}...'", s.substr(0, kMax));
+}
+
+std::string ReadTextFile(const fs::path& path, std::string_view what) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) {
+    throw InputError({path.string()}, "", fmt::format("no such file, expected {}", what));
+  }
+  if (fs::is_directory(path, ec)) {
+    throw InputError({path.string()}, "", fmt::format("is a directory, expected {}", what));
+  }
+  std::FILE* file = std::fopen(path.c_str(), "rb");
+  if (file == nullptr) {
+    throw InputError({path.string()}, "",
+                     fmt::format("cannot open {}: {}", what, std::strerror(errno)));
+  }
+  std::string text;
+  const auto size = fs::file_size(path, ec);
+  if (!ec) text.reserve(size);
+  std::array<char, 1 << 16> buffer;
+  size_t n = 0;
+  while ((n = std::fread(buffer.data(), 1, buffer.size(), file)) > 0) text.append(buffer.data(), n);
+  const bool failed = std::ferror(file) != 0;
+  std::fclose(file);
+  if (failed) throw InputError({path.string()}, "", fmt::format("cannot read {}", what));
+  return text;
+}
+
+bool IsBlank(char c) { return c == ' ' || c == '\t' || c == '\r'; }
+
+double ParseTumNumber(std::string_view field, const std::string& file, int line, int column,
+                      int index) {
+  double value = 0.0;
+  const char* first = field.data();
+  const char* last = first + field.size();
+  if (first != last && *first == '+') ++first;  // from_chars rejects a leading '+'
+  const auto [end, ec] = std::from_chars(first, last, value);
+  if (ec == std::errc::result_out_of_range) {
+    throw InputError({file, line, column}, "",
+                     fmt::format("column {} ({}): {} is out of the range of a double", index + 1,
+                                 kTumColumns[index], Quoted(field)));
+  }
+  if (ec != std::errc() || end != last) {
+    throw InputError({file, line, column}, "",
+                     fmt::format("column {} ({}): expected a number, got {}", index + 1,
+                                 kTumColumns[index], Quoted(field)));
+  }
+  return value;
+}
+
+// ---- evaluation helpers ----
+
+bool IsFinite(const PoseSample& s) {
+  return s.p.allFinite() && s.q.coeffs().allFinite();
+}
+
+std::vector<PoseSample> SortedFinite(const std::vector<PoseSample>& in, size_t* non_finite) {
+  std::vector<PoseSample> out;
+  out.reserve(in.size());
+  for (const PoseSample& s : in) {
+    if (IsFinite(s)) {
+      out.push_back(s);
+      out.back().q.normalize();
+    } else if (non_finite != nullptr) {
+      ++*non_finite;
+    }
+  }
+  std::stable_sort(out.begin(), out.end(),
+                   [](const PoseSample& a, const PoseSample& b) { return a.t_ns < b.t_ns; });
+  return out;
+}
+
+// Ground truth at t: the sample at t, or position lerp and attitude slerp between the two
+// samples around t when both are within `max_gap`. `gt` is sorted, without duplicates.
+std::optional<PoseSample> InterpolateAt(const std::vector<PoseSample>& gt, Time t, Time max_gap) {
+  const auto it = std::lower_bound(gt.begin(), gt.end(), t,
+                                   [](const PoseSample& s, Time v) { return s.t_ns < v; });
+  if (it != gt.end() && it->t_ns == t) return *it;
+  if (it == gt.begin() || it == gt.end()) return std::nullopt;
+  const PoseSample& a = *(it - 1);
+  const PoseSample& b = *it;
+  if (t - a.t_ns > max_gap || b.t_ns - t > max_gap) return std::nullopt;
+  const double alpha =
+      static_cast<double>(t - a.t_ns) / static_cast<double>(b.t_ns - a.t_ns);
+  PoseSample s;
+  s.t_ns = t;
+  s.p = a.p + alpha * (b.p - a.p);
+  s.q = a.q.slerp(alpha, b.q).normalized();
+  return s;
+}
+
+// Closest rotation to M in the Frobenius sense (the chordal mean when M = sum of R_i).
+Eigen::Matrix3d ProjectToSO3(const Eigen::Matrix3d& M) {
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  if ((svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0) D(2, 2) = -1.0;
+  return svd.matrixU() * D * svd.matrixV().transpose();
+}
+
+struct Pair {
+  Time t_ns;
+  PoseSample estimate;  // T_LI
+  PoseSample truth;     // T_WI
+};
+
+// T_W_L from the pairs inside the alignment range (see TrajectoryErrorOptions).
+Eigen::Isometry3d Align(const std::vector<const Pair*>& pairs, const TrajectoryErrorOptions& options,
+                        bool* from_attitude) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  *from_attitude = false;
+  if (options.alignment == TrajectoryAlignment::kNone || pairs.empty()) return T;
+  const double n = static_cast<double>(pairs.size());
+
+  // Centroids, centred cross-covariance H = sum a b^T (a: estimate, b: truth), the truth's
+  // scatter, and the sum of attitude offsets R_WI R_LI^T.
+  Eigen::Vector3d mu_est = Eigen::Vector3d::Zero();
+  Eigen::Vector3d mu_true = Eigen::Vector3d::Zero();
+  for (const Pair* p : pairs) {
+    mu_est += p->estimate.p;
+    mu_true += p->truth.p;
+  }
+  mu_est /= n;
+  mu_true /= n;
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d attitude_sum = Eigen::Matrix3d::Zero();
+  for (const Pair* p : pairs) {
+    const Eigen::Vector3d a = p->estimate.p - mu_est;
+    const Eigen::Vector3d b = p->truth.p - mu_true;
+    H += a * b.transpose();
+    scatter += b * b.transpose();
+    attitude_sum +=
+        p->truth.q.toRotationMatrix() * p->estimate.q.toRotationMatrix().transpose();
+  }
+  scatter /= n;
+  const double min_variance = options.min_alignment_spread_m * options.min_alignment_spread_m;
+
+  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+  if (options.alignment == TrajectoryAlignment::kSE3) {
+    // Horn/Umeyama without scale: R = V diag(1, 1, det(V U^T)) U^T for H = U S V^T,
+    // determined when the positions span a plane (second principal variance).
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(scatter);
+    if (pairs.size() >= 3 && eig.eigenvalues()(1) >= min_variance) {
+      R = ProjectToSO3(H.transpose());
+    } else {
+      R = ProjectToSO3(attitude_sum);
+      *from_attitude = true;
+    }
+  } else {
+    // 4-DoF: yaw maximising sum b^T Rz(psi) a over the horizontal components,
+    // psi = atan2(sum(a_x b_y - a_y b_x), sum(a_x b_x + a_y b_y)); needs horizontal spread.
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(scatter.topLeftCorner<2, 2>());
+    double yaw = 0.0;
+    if (pairs.size() >= 2 && eig.eigenvalues()(1) >= min_variance) {
+      yaw = std::atan2(H(0, 1) - H(1, 0), H(0, 0) + H(1, 1));
+    } else {
+      // Projection of the attitude offsets onto rotations about z.
+      yaw = std::atan2(attitude_sum(1, 0) - attitude_sum(0, 1),
+                       attitude_sum(0, 0) + attitude_sum(1, 1));
+      *from_attitude = true;
+    }
+    R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  }
+  T.linear() = R;
+  T.translation() = mu_true - R * mu_est;
+  return T;
+}
+
+double Rms(const std::vector<double>& v) {
+  if (v.empty()) return kNaN;
+  double sum = 0.0;
+  for (const double x : v) sum += x * x;
+  return std::sqrt(sum / static_cast<double>(v.size()));
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return kNaN;
+  const size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
+  if (v.size() % 2 == 1) return v[mid];
+  const double upper = v[mid];
+  const double lower = *std::max_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid));
+  return 0.5 * (lower + upper);
+}
+
+Eigen::Isometry3d ToIsometry(const PoseSample& s) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = s.q.toRotationMatrix();
+  T.translation() = s.p;
+  return T;
+}
+
+}  // namespace
+
+std::optional<Time> ParseSecondsAsNanoseconds(std::string_view text) {
+  // value = 0.d1 d2 d3 ... x 10^point, d1 != 0; only the first digits matter: an int64 of
+  // ns has at most 19 digits, one more decides the rounding.
+  constexpr int kKeep = 24;
+  std::array<uint8_t, kKeep> digits{};
+  int kept = 0;
+  long point = 0;
+  bool started = false;
+  bool any_digit = false;
+  size_t i = 0;
+  const size_t n = text.size();
+  bool negative = false;
+  if (i < n && (text[i] == '+' || text[i] == '-')) negative = text[i++] == '-';
+  bool before_point = true;
+  for (; i < n; ++i) {
+    const char c = text[i];
+    if (c == '.') {
+      if (!before_point) return std::nullopt;
+      before_point = false;
+      continue;
+    }
+    if (c < '0' || c > '9') break;
+    any_digit = true;
+    if (!started && c == '0') {
+      if (!before_point) --point;
+      continue;
+    }
+    started = true;
+    if (kept < kKeep) digits[kept++] = static_cast<uint8_t>(c - '0');
+    if (before_point) ++point;
+  }
+  if (!any_digit) return std::nullopt;
+  if (i < n && (text[i] == 'e' || text[i] == 'E')) {
+    ++i;
+    bool exp_negative = false;
+    if (i < n && (text[i] == '+' || text[i] == '-')) exp_negative = text[i++] == '-';
+    if (i >= n || text[i] < '0' || text[i] > '9') return std::nullopt;
+    long exponent = 0;
+    for (; i < n && text[i] >= '0' && text[i] <= '9'; ++i) {
+      if (exponent < 1'000'000) exponent = exponent * 10 + (text[i] - '0');
+    }
+    point += exp_negative ? -exponent : exponent;
+  }
+  if (i != n) return std::nullopt;
+  if (!started) return Time{0};
+
+  // ns = 0.d1 d2 ... x 10^(point + 9): the first `whole` digits, rounded by the next one.
+  const long whole = point + 9;
+  if (whole > 19) return std::nullopt;  // >= 10^19 ns, beyond int64
+  uint64_t magnitude = 0;
+  for (long k = 0; k < whole; ++k) magnitude = magnitude * 10 + (k < kept ? digits[k] : 0u);
+  if (whole >= 0 && whole < kept && digits[whole] >= 5) ++magnitude;
+  constexpr uint64_t kMax = static_cast<uint64_t>(std::numeric_limits<Time>::max());
+  if (magnitude > kMax + (negative ? 1u : 0u)) return std::nullopt;
+  if (negative) return magnitude == kMax + 1 ? std::numeric_limits<Time>::min()
+                                             : -static_cast<Time>(magnitude);
+  return static_cast<Time>(magnitude);
+}
+
+std::string FormatNanosecondsAsSeconds(Time t_ns) {
+  const uint64_t a = t_ns < 0 ? uint64_t{0} - static_cast<uint64_t>(t_ns)
+                              : static_cast<uint64_t>(t_ns);
+  constexpr uint64_t kNs = static_cast<uint64_t>(core::kNanosecondsPerSecond);
+  return fmt::format("{}{}.{:09d}", t_ns < 0 ? "-" : "", a / kNs, a % kNs);
+}
+
+std::vector<PoseSample> ReadTumTrajectory(const fs::path& file) {
+  const std::string name = file.string();
+  const std::string text =
+      ReadTextFile(file, "a TUM trajectory 't[s] x y z qx qy qz qw' per line");
+  std::vector<PoseSample> poses;
+  poses.reserve(static_cast<size_t>(std::count(text.begin(), text.end(), '\n')) + 1);
+
+  std::array<std::string_view, kTumFields> fields;
+  std::array<int, kTumFields> columns{};
+  // A UTF-8 byte-order mark (spreadsheet exports) is not part of the first line.
+  size_t pos = text.compare(0, 3, "\xEF\xBB\xBF") == 0 ? 3 : 0;
+  int line_number = 0;
+  while (pos < text.size()) {
+    const size_t end = std::min(text.find('\n', pos), text.size());
+    const std::string_view line(text.data() + pos, end - pos);
+    pos = end + 1;
+    ++line_number;
+
+    // Whitespace-separated fields; '#' starts a comment line.
+    int count = 0;
+    size_t k = 0;
+    while (k < line.size()) {
+      while (k < line.size() && IsBlank(line[k])) ++k;
+      if (k >= line.size()) break;
+      if (count == 0 && line[k] == '#') break;
+      const size_t start = k;
+      while (k < line.size() && !IsBlank(line[k])) ++k;
+      if (count < kTumFields) {
+        fields[count] = line.substr(start, k - start);
+        columns[count] = static_cast<int>(start) + 1;
+      }
+      ++count;
+    }
+    if (count == 0) continue;  // blank or comment
+    if (count != kTumFields) {
+      throw InputError(
+          {name, line_number, 0}, "",
+          fmt::format("expected {} whitespace-separated fields 't[s] x y z qx qy qz qw', got "
+                      "{}{}",
+                      kTumFields, count,
+                      count < kTumFields
+                          ? fmt::format(" (column {} '{}' is missing)", count + 1,
+                                        kTumColumns[count])
+                          : std::string(" (extra fields after column 8 'qw')")));
+    }
+    PoseSample s;
+    const std::optional<Time> t = ParseSecondsAsNanoseconds(fields[0]);
+    if (!t) {
+      throw InputError({name, line_number, columns[0]}, "",
+                       fmt::format("column 1 ({}): expected a time in seconds (decimal or "
+                                   "scientific notation, finite, within the int64 ns range), "
+                                   "got {}",
+                                   kTumColumns[0], Quoted(fields[0])));
+    }
+    s.t_ns = *t;
+    std::array<double, 7> v{};
+    for (int f = 1; f < kTumFields; ++f) {
+      v[f - 1] = ParseTumNumber(fields[f], name, line_number, columns[f], f);
+    }
+    s.p = Eigen::Vector3d(v[0], v[1], v[2]);
+    s.q = Eigen::Quaterniond(v[6], v[3], v[4], v[5]);  // w, x, y, z
+    const double norm = s.q.norm();
+    if (std::isfinite(norm) && norm > 0.0) s.q.coeffs() /= norm;
+    poses.push_back(s);
+  }
+  return poses;
+}
+
+void WriteTumTrajectory(const fs::path& file, const std::vector<PoseSample>& poses) {
+  fmt::memory_buffer out;
+  for (const PoseSample& s : poses) {
+    const Eigen::Quaterniond q = s.q.w() < 0.0 ? Eigen::Quaterniond(-s.q.coeffs()) : s.q;
+    fmt::format_to(std::back_inserter(out), "{} {:.6f} {:.6f} {:.6f} {:.9f} {:.9f} {:.9f} {:.9f}\n",
+                   FormatNanosecondsAsSeconds(s.t_ns), s.p.x(), s.p.y(), s.p.z(), q.x(), q.y(),
+                   q.z(), q.w());
+  }
+  std::FILE* f = std::fopen(file.c_str(), "wb");
+  if (f == nullptr) {
+    throw std::runtime_error(
+        fmt::format("cannot write {}: {}", file.string(), std::strerror(errno)));
+  }
+  const size_t written = std::fwrite(out.data(), 1, out.size(), f);
+  const bool ok = written == out.size() && std::fclose(f) == 0;
+  if (!ok) throw std::runtime_error(fmt::format("cannot write {}", file.string()));
+}
+
+TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
+                                    const std::vector<PoseSample>& ground_truth,
+                                    const TrajectoryErrorOptions& options) {
+  TrajectoryErrors r;
+  r.rpe_delta_s = core::TimeToSeconds(options.rpe_delta_ns);
+
+  // Ground truth sorted, finite, one sample per stamp (the first).
+  std::vector<PoseSample> gt = SortedFinite(ground_truth, nullptr);
+  gt.erase(std::unique(gt.begin(), gt.end(),
+                       [](const PoseSample& a, const PoseSample& b) { return a.t_ns == b.t_ns; }),
+           gt.end());
+  const std::vector<PoseSample> est = SortedFinite(estimate, &r.skipped_non_finite);
+
+  // Match every estimate sample with interpolated ground truth.
+  std::vector<Pair> pairs;
+  pairs.reserve(est.size());
+  for (const PoseSample& e : est) {
+    const std::optional<PoseSample> truth =
+        InterpolateAt(gt, e.t_ns, options.max_interpolation_gap_ns);
+    if (!truth) {
+      ++r.skipped_no_ground_truth;
+      continue;
+    }
+    pairs.push_back({e.t_ns, e, *truth});
+  }
+  r.matched = pairs.size();
+
+  // Alignment from the pairs inside the alignment range.
+  std::vector<const Pair*> in_range;
+  for (const Pair& p : pairs) {
+    if (p.t_ns >= options.align_from_ns && p.t_ns <= options.align_to_ns) in_range.push_back(&p);
+  }
+  r.aligned_on = in_range.size();
+  r.T_W_L = Align(in_range, options, &r.alignment_from_attitude);
+
+  // ATE and attitude error per matched sample.
+  const Eigen::Matrix3d R_WL = r.T_W_L.linear();
+  r.t_ns.reserve(pairs.size());
+  r.t_s.reserve(pairs.size());
+  r.position_error_m.reserve(pairs.size());
+  r.rotation_error_deg.reserve(pairs.size());
+  for (const Pair& p : pairs) {
+    const Eigen::Vector3d p_W = r.T_W_L * p.estimate.p;
+    const Eigen::Matrix3d R_WI = R_WL * p.estimate.q.toRotationMatrix();
+    r.t_ns.push_back(p.t_ns);
+    r.t_s.push_back(core::TimeToSeconds(p.t_ns));
+    r.position_error_m.push_back((p_W - p.truth.p).norm());
+    r.rotation_error_deg.push_back(
+        core::RotationAngleBetween(p.truth.q.toRotationMatrix(), R_WI) * kDegPerRad);
+  }
+  if (pairs.empty()) {
+    r.ate_position_rmse_m = r.ate_position_mean_m = r.ate_position_median_m =
+        r.ate_position_max_m = r.rotation_rmse_deg = r.rotation_max_deg = kNaN;
+  } else {
+    double sum = 0.0;
+    for (const double e : r.position_error_m) sum += e;
+    r.ate_position_rmse_m = Rms(r.position_error_m);
+    r.ate_position_mean_m = sum / static_cast<double>(pairs.size());
+    r.ate_position_median_m = Median(r.position_error_m);
+    r.ate_position_max_m = *std::max_element(r.position_error_m.begin(), r.position_error_m.end());
+    r.rotation_rmse_deg = Rms(r.rotation_error_deg);
+    r.rotation_max_deg =
+        *std::max_element(r.rotation_error_deg.begin(), r.rotation_error_deg.end());
+  }
+
+  // RPE over rpe_delta_ns: E = (T_true,i^-1 T_true,j)^-1 (T_est,i^-1 T_est,j).
+  std::vector<double> rpe_translation;
+  std::vector<double> rpe_rotation;
+  if (options.rpe_delta_ns > 0) {
+    for (size_t i = 0; i < pairs.size(); ++i) {
+      const Time target = pairs[i].t_ns + options.rpe_delta_ns;
+      const auto it = std::lower_bound(pairs.begin() + static_cast<std::ptrdiff_t>(i), pairs.end(),
+                                       target, [](const Pair& p, Time v) { return p.t_ns < v; });
+      if (it == pairs.end()) break;
+      if (it->t_ns - target > options.rpe_tolerance_ns) continue;
+      const Eigen::Isometry3d d_true =
+          ToIsometry(pairs[i].truth).inverse() * ToIsometry(it->truth);
+      const Eigen::Isometry3d d_est =
+          ToIsometry(pairs[i].estimate).inverse() * ToIsometry(it->estimate);
+      const Eigen::Isometry3d E = d_true.inverse() * d_est;
+      rpe_translation.push_back(E.translation().norm());
+      rpe_rotation.push_back(core::LogSO3(E.linear()).norm() * kDegPerRad);
+    }
+  }
+  r.rpe_pairs = rpe_translation.size();
+  r.rpe_translation_rmse_m = Rms(rpe_translation);
+  r.rpe_rotation_rmse_deg = Rms(rpe_rotation);
+  return r;
+}
+
+}  // namespace tofu::harness
