@@ -579,6 +579,7 @@ bool LocalSmoother::Update() {
   solver.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
   solver.max_num_iterations = options_.max_iterations;
   solver.max_solver_time_in_seconds = options_.max_solver_time_s;
+  solver.function_tolerance = options_.function_tolerance;
   solver.num_threads = 1;
   solver.logging_type = ceres::SILENT;
   solver.minimizer_progress_to_stdout = false;

@@ -824,6 +824,25 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
       }
       s.T_I_s = T_B_I.inverse() * *it->second.T_B_s;
     }
+    for (RecordedStream& s : log.streams) {
+      const auto it = cal.sensors.find(s.name);
+      if (it == cal.sensors.end() || !it->second.options || !it->second.options.IsMap()) continue;
+      const YAML::Node& o = it->second.options;
+      const std::string file = (directory / "calibration.yaml").string();
+      const std::string key = "sensors." + s.name + ".options.";
+      if (o["position_noise_m"]) {
+        s.position_noise_m = YamlNumber(o["position_noise_m"], file, key + "position_noise_m");
+      }
+      if (o["rotation_noise_deg"]) {
+        s.rotation_noise_rad =
+            YamlNumber(o["rotation_noise_deg"], file, key + "rotation_noise_deg") * M_PI / 180.0;
+      }
+      if (o["position_random_walk_m_per_sqrtm"]) {
+        s.position_random_walk_m_per_sqrtm =
+            YamlNumber(o["position_random_walk_m_per_sqrtm"], file,
+                       key + "position_random_walk_m_per_sqrtm");
+      }
+    }
     log.notes.push_back("mounts: T_I_s = T_B_I^-1 T_B_s from calibration.yaml");
   }
   if (!log.imu_stream.empty()) {

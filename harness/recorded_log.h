@@ -52,6 +52,12 @@ struct RecordedStream {
   /// ones); T_B_I = identity without an IMU mount, T_B_s = identity without the sensor's.
   Eigen::Isometry3d T_I_s = Eigen::Isometry3d::Identity();
   std::size_t rows = 0;  ///< data rows read (= measurements of this stream)
+  /// Odometry noise from calibration.yaml (sensors.<name>.options) when stated: white
+  /// noise per sample (position_noise_m, rotation_noise_deg) and drift
+  /// (position_random_walk_m_per_sqrtm). They set the weights of the between factors.
+  std::optional<double> position_noise_m;
+  std::optional<double> rotation_noise_rad;
+  std::optional<double> position_random_walk_m_per_sqrtm;
 };
 
 /// IMU noise densities as calibration.yaml gives them (the IMU sensor's options).

@@ -32,7 +32,8 @@ struct ReplayMethod {
 /// method, the unknown sensor and the known ones.
 ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log);
 
-/// Estimator options for a log: IMU noise from its calibration when known, the IMU sample
+/// Estimator options for a log: IMU noise from its calibration when known (else the
+/// ADIS16448 datasheet), inflated 10x for flight (rotor vibration), the IMU sample
 /// convention of its layout (tofu's simulated IMU averages over each interval; a real
 /// log's samples are instantaneous).
 estimator::MultiGraphEstimatorOptions DefaultEstimatorOptions(const RecordedLog& log);
@@ -89,7 +90,8 @@ struct EstimateCommandOptions {
   std::optional<double> between_rotation_std_rad;
   std::optional<double> huber_delta;
   std::optional<bool> between_position_in_reference;
-  /// Factor on the IMU's white-noise densities (after calibration or defaults).
+  /// Factor from the at-rest (calibration or datasheet) IMU white-noise densities to the
+  /// in-flight ones the estimator uses (default 10, see DefaultEstimatorOptions).
   std::optional<double> imu_noise_scale;
   /// Progress of each method (the CLI draws a bar); may be empty.
   std::function<void(const std::string& method, double fraction)> progress;
