@@ -72,9 +72,9 @@ Eigen::Matrix3d InverseRightJacobianSO3(const Eigen::Vector3d& phi) {
   const Eigen::Matrix3d phi_hat = Hat(phi);
   if (theta < 1e-5) return Eigen::Matrix3d::Identity() + 0.5 * phi_hat + phi_hat * phi_hat / 12.0;
   const double theta2 = theta * theta;
+  // (1 + cos θ) / sin θ written as cot(θ/2): finite at θ = π, where the former is 0/0.
   return Eigen::Matrix3d::Identity() + 0.5 * phi_hat +
-         (1.0 / theta2 - (1.0 + std::cos(theta)) / (2.0 * theta * std::sin(theta))) * phi_hat *
-             phi_hat;
+         (1.0 / theta2 - 1.0 / (2.0 * theta * std::tan(0.5 * theta))) * phi_hat * phi_hat;
 }
 
 }  // namespace tofu::core

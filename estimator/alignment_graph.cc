@@ -16,6 +16,7 @@
 
 #include "core/lie.h"
 #include "estimator/frame_alignment.h"
+#include "estimator/local_factors.h"
 
 namespace tofu::estimator {
 namespace {
@@ -129,57 +130,6 @@ Eigen::Matrix<double, 3, 6> PositionAlignmentCost::TangentJacobian(
 
 Eigen::Vector3d PositionAlignmentCost::Residual(const Eigen::Isometry3d& T_AL) const {
   return sqrt_information_A_ * (p_A_measured_ - T_AL * p_Ls_);
-}
-
-// ---- manifold: [p, q] with q ⊗ Exp(δθ) ----
-
-bool PoseRightPerturbationManifold::Plus(const double* x, const double* delta,
-                                         double* x_plus_delta) const {
-  const Eigen::Map<const Eigen::Vector3d> p(x);
-  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
-  const Eigen::Map<const Eigen::Vector3d> delta_p(delta);
-  const Eigen::Map<const Eigen::Vector3d> delta_theta(delta + 3);
-  Eigen::Map<Eigen::Vector3d> p_plus(x_plus_delta);
-  Eigen::Map<Eigen::Quaterniond> q_plus(x_plus_delta + 3);
-  p_plus = p + delta_p;
-  q_plus = (q * core::ExpQuat(delta_theta)).normalized();
-  return true;
-}
-
-bool PoseRightPerturbationManifold::PlusJacobian(const double* x, double* jacobian) const {
-  // d(q ⊗ [δθ/2; 1])/dδθ at 0: vector part ½(w I + [u]×), scalar part −½ uᵀ.
-  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
-  Eigen::Map<Eigen::Matrix<double, 7, 6, Eigen::RowMajor>> J(jacobian);
-  J.setZero();
-  J.topLeftCorner<3, 3>().setIdentity();
-  J.block<3, 3>(3, 3) = 0.5 * (q.w() * Eigen::Matrix3d::Identity() + core::Hat(q.vec()));
-  J.block<1, 3>(6, 3) = -0.5 * q.vec().transpose();
-  return true;
-}
-
-bool PoseRightPerturbationManifold::Minus(const double* y, const double* x,
-                                          double* y_minus_x) const {
-  const Eigen::Map<const Eigen::Vector3d> p_x(x);
-  const Eigen::Map<const Eigen::Vector3d> p_y(y);
-  const Eigen::Map<const Eigen::Quaterniond> q_x(x + 3);
-  const Eigen::Map<const Eigen::Quaterniond> q_y(y + 3);
-  Eigen::Map<Eigen::Vector3d> delta_p(y_minus_x);
-  Eigen::Map<Eigen::Vector3d> delta_theta(y_minus_x + 3);
-  delta_p = p_y - p_x;
-  delta_theta = core::LogQuat(q_x.conjugate() * q_y);
-  return true;
-}
-
-bool PoseRightPerturbationManifold::MinusJacobian(const double* x, double* jacobian) const {
-  // Log(q_x⁻¹ ⊗ q_y) ≈ 2 vec(q_x⁻¹ ⊗ q_y) near q_y = q_x; its vector part is linear in
-  // q_y: (w I − [u]×) u_y − u w_y. The left inverse of PlusJacobian.
-  const Eigen::Map<const Eigen::Quaterniond> q(x + 3);
-  Eigen::Map<Eigen::Matrix<double, 6, 7, Eigen::RowMajor>> J(jacobian);
-  J.setZero();
-  J.topLeftCorner<3, 3>().setIdentity();
-  J.block<3, 3>(3, 3) = 2.0 * (q.w() * Eigen::Matrix3d::Identity() - core::Hat(q.vec()));
-  J.block<3, 1>(3, 6) = -2.0 * q.vec();
-  return true;
 }
 
 // ---- the graph ----
@@ -307,7 +257,7 @@ bool AlignmentGraph::Solve(core::Time now_ns) {
   // next to the solve and avoids bookkeeping of removed residual blocks.
   double x[7];
   ParametersFromIsometry(*T_AL_guess, x);
-  PoseRightPerturbationManifold manifold;
+  PoseManifold manifold;
   ceres::HuberLoss huber(options_.huber_delta > 0.0 ? options_.huber_delta : 1.0);
   ceres::LossFunction* loss = options_.huber_delta > 0.0 ? &huber : nullptr;
   ceres::Problem::Options problem_options;

@@ -97,7 +97,8 @@ struct AlignmentEstimate {
 
 /// Paper eq. (9) for one pair, whitened: r = S (p̄_A − (p_AL + R_AL p_Ls)), S = Σ^{-1/2}
 /// (any S with SᵀS = Σ⁻¹). One parameter block of 7: [p_AL (3, m), q_AL (4, Eigen
-/// x, y, z, w)], used with PoseRightPerturbationManifold. Analytic Jacobians.
+/// x, y, z, w)], used with PoseManifold (estimator/local_factors.h: the same
+/// [p, q] block and right perturbation as the local graph's poses). Analytic Jacobians.
 class PositionAlignmentCost final : public ceres::SizedCostFunction<3, 7> {
  public:
   PositionAlignmentCost(const Eigen::Vector3d& p_A_measured, const Eigen::Vector3d& p_Ls,
@@ -107,7 +108,7 @@ class PositionAlignmentCost final : public ceres::SizedCostFunction<3, 7> {
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override;
 
-  /// Jacobian in the tangent space [δp, δθ] of PoseRightPerturbationManifold:
+  /// Jacobian in the tangent space [δp, δθ] of PoseManifold:
   ///   ∂r/∂δp = −S,   ∂r/∂δθ = S R_AL [p_Ls]×   (from R_AL Exp(δθ) p_Ls ≈ R_AL(p_Ls + δθ × p_Ls)).
   Eigen::Matrix<double, 3, 6> TangentJacobian(const Eigen::Isometry3d& T_AL) const;
 
@@ -118,19 +119,6 @@ class PositionAlignmentCost final : public ceres::SizedCostFunction<3, 7> {
   Eigen::Vector3d p_A_measured_;
   Eigen::Vector3d p_Ls_;
   Eigen::Matrix3d sqrt_information_A_;
-};
-
-/// Manifold of [p (3), q (4, Eigen x, y, z, w, unit)] with the tangent [δp, δθ]:
-///   Plus(x, δ) = [p + δp, q ⊗ Exp(δθ)]   (right perturbation: δθ in the rotated frame L),
-///   Minus(y, x) = [p_y − p_x, Log(q_x⁻¹ ⊗ q_y)].
-class PoseRightPerturbationManifold final : public ceres::Manifold {
- public:
-  int AmbientSize() const override { return 7; }
-  int TangentSize() const override { return 6; }
-  bool Plus(const double* x, const double* delta, double* x_plus_delta) const override;
-  bool PlusJacobian(const double* x, double* jacobian) const override;
-  bool Minus(const double* y, const double* x, double* y_minus_x) const override;
-  bool MinusJacobian(const double* x, double* jacobian) const override;
 };
 
 class AlignmentGraph {

@@ -3,6 +3,7 @@
 // the sliding window, and robustness.
 
 #include "estimator/alignment_graph.h"
+#include "estimator/local_factors.h"
 
 #include <cmath>
 #include <cstdint>
@@ -120,7 +121,7 @@ TEST(PositionAlignmentCost, TangentJacobianMatchesCentralDifferencesAtLargeRotat
   const Eigen::Vector3d p_Ls(2.5, -1.2, 1.7);
   const Eigen::Vector3d p_A(0.3, 4.0, -2.0);
   const PositionAlignmentCost cost(p_A, p_Ls, S);
-  const PoseRightPerturbationManifold manifold;
+  const PoseManifold manifold;
 
   for (const Eigen::Isometry3d& T : LargeRotationPoses()) {
     const Eigen::Matrix<double, 7, 1> x = Parameters(T);
@@ -159,42 +160,6 @@ TEST(PositionAlignmentCost, TangentJacobianMatchesCentralDifferencesAtLargeRotat
     EXPECT_LT((cost.TangentJacobian(T) - J_numeric).cwiseAbs().maxCoeff(), 1e-7 * scale);
   }
 }
-
-TEST(PoseRightPerturbationManifold, PlusMinusAndTheirJacobiansAreConsistent) {
-  const PoseRightPerturbationManifold manifold;
-  Eigen::Matrix<double, 6, 1> delta;
-  delta << 0.3, -0.2, 0.1, 0.4, -0.7, 0.25;
-  for (const Eigen::Isometry3d& T : LargeRotationPoses()) {
-    const Eigen::Matrix<double, 7, 1> x = Parameters(T);
-    Eigen::Matrix<double, 7, 1> y;
-    Eigen::Matrix<double, 6, 1> back;
-    manifold.Plus(x.data(), delta.data(), y.data());
-    manifold.Minus(y.data(), x.data(), back.data());
-    EXPECT_LT((back - delta).norm(), 1e-12);
-    // Plus is the right perturbation: R_y = R_x Exp(δθ).
-    const Eigen::Matrix3d R_y = Eigen::Quaterniond(y.tail<4>()).toRotationMatrix();
-    EXPECT_LT((R_y - T.linear() * core::ExpSO3(delta.tail<3>())).norm(), 1e-12);
-
-    Eigen::Matrix<double, 7, 6, Eigen::RowMajor> J_plus;
-    Eigen::Matrix<double, 6, 7, Eigen::RowMajor> J_minus;
-    manifold.PlusJacobian(x.data(), J_plus.data());
-    manifold.MinusJacobian(x.data(), J_minus.data());
-    EXPECT_LT(((J_minus * J_plus) - Eigen::Matrix<double, 6, 6>::Identity()).norm(), 1e-12);
-    // PlusJacobian against central differences of Plus.
-    const double h = 1e-6;
-    for (int k = 0; k < 6; ++k) {
-      Eigen::Matrix<double, 6, 1> d = Eigen::Matrix<double, 6, 1>::Zero();
-      Eigen::Matrix<double, 7, 1> x_plus, x_minus;
-      d(k) = h;
-      manifold.Plus(x.data(), d.data(), x_plus.data());
-      d(k) = -h;
-      manifold.Plus(x.data(), d.data(), x_minus.data());
-      EXPECT_LT(((x_plus - x_minus) / (2.0 * h) - J_plus.col(k)).norm(), 1e-8);
-    }
-  }
-}
-
-// ---- the paper's metric evaluation ----
 
 TEST(AlignmentGraph, PaperEvaluationYawUnobservableInVerticalFlightThenRecovered) {
   const Eigen::Isometry3d T_AL = PaperOffset();

@@ -70,6 +70,8 @@ TEST(Lie, RightJacobianAndItsInverseMatchNumericDifferentiation) {
     EXPECT_LT((RightJacobianSO3(phi) * InverseRightJacobianSO3(phi) -
                Eigen::Matrix3d::Identity()).norm(), 1e-9);
   }
+  // Exactly π: finite (the (1 + cos θ)/sin θ form is 0/0 there).
+  EXPECT_TRUE(InverseRightJacobianSO3(Eigen::Vector3d(0, 0, std::numbers::pi)).allFinite());
 }
 
 TEST(Time, ConversionsRoundToTheNearestNanosecond) {
