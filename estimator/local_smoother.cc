@@ -580,6 +580,10 @@ bool LocalSmoother::Update() {
   solver.max_num_iterations = options_.max_iterations;
   solver.max_solver_time_in_seconds = options_.max_solver_time_s;
   solver.function_tolerance = options_.function_tolerance;
+  // The window is warm-started (new states predicted by the IMU, the others at their last
+  // optimum): start almost as Gauss-Newton. LM's default radius (1e4) damps the first
+  // steps so much that two thirds of the solves ran into the iteration cap.
+  solver.initial_trust_region_radius = options_.initial_trust_region_radius;
   solver.num_threads = 1;
   solver.logging_type = ceres::SILENT;
   solver.minimizer_progress_to_stdout = false;
@@ -589,6 +593,7 @@ bool LocalSmoother::Update() {
   stats_.solve_time_s.push_back(
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   ++stats_.solves;
+  stats_.iterations += static_cast<std::int64_t>(summary.iterations.size()) - 1;
   if (summary.termination_type == ceres::NO_CONVERGENCE) {
     if (summary.iterations.size() >= static_cast<std::size_t>(options_.max_iterations)) {
       ++stats_.iteration_cap_hits;

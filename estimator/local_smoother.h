@@ -55,6 +55,7 @@ struct LocalSmootherOptions {
   /// Relative cost decrease below which a solve stops. A warm-started window converges in
   /// two or three Gauss-Newton steps; what LM does after that moves states by micrometres.
   double function_tolerance = 1e-5;
+  double initial_trust_region_radius = 1e8;
   /// > 0: Huber loss on the between factors, in standard deviations.
   double huber_delta = 0.0;
 
@@ -87,6 +88,7 @@ struct LocalSmootherStats {
   std::int64_t late_keyframes = 0;        ///< inserted before the newest keyframe
   std::int64_t too_old_measurements = 0;  ///< older than the window: not used
   std::int64_t solves = 0;
+  std::int64_t iterations = 0;            ///< Levenberg-Marquardt iterations, all solves
   std::int64_t iteration_cap_hits = 0;
   std::int64_t time_cap_hits = 0;
   std::int64_t bad_solves = 0;            ///< non-finite or out-of-limits result, reverted

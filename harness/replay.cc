@@ -383,6 +383,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     }
     j["streams"] = streams;
     j["solver"] = {{"solves", result.solver.solves},
+                   {"iterations", result.solver.iterations},
                    {"keyframes", result.solver.keyframes},
                    {"late_keyframes", result.solver.late_keyframes},
                    {"too_old_measurements", result.solver.too_old_measurements},
