@@ -74,6 +74,11 @@ std::vector<LocalConsistencySeries> LocalConsistency(
     const RecordedLog& log, const ReplayResult& result, estimator::ConsistencyMetric metric,
     const estimator::ConsistencyOptions& options, double rate_hz);
 
+/// A pose stream on its own as a trajectory of the IMU frame, T_AI = T_As T_Is⁻¹, within
+/// [from_ns, to_ns]: the reference fused methods are compared with.
+std::vector<PoseSample> RawPoseTrajectory(const RecordedLog& log, const RecordedStream& stream,
+                                          core::Time from_ns, core::Time to_ns);
+
 /// `tofu estimate` as a function: reads the log, runs every method, writes
 /// estimate_<method>.csv/.tum and estimate_<method>.json into out_dir (default: the log's
 /// directory), prints a table. Returns the process exit code.

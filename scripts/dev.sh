@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The two commands of README.md:
-#   scripts/dev.sh demo   install what is missing, build, fly the default scenario
+#   scripts/dev.sh demo   install what is missing, build, fly the default scenario, run
+#                         the estimator on the real EuRoC excerpt (../shared/data)
 #   scripts/dev.sh test   install what is missing, build, run the whole test suite
 # Environment: BUILD_DIR (default build), TOFU_SANITIZE=1 for an ASan+UBSan build.
 set -euo pipefail
@@ -25,6 +26,12 @@ case "${1:-}" in
     "$build_dir/tofu" run "$scenario" --out runs/demo
     # A picture of the flight: path against the reference, tracking errors.
     scripts/plot_run.py runs/demo --out runs/demo/tracking.png
+    # The estimator on real data: EuRoC V1_02 (IMU + a visual pose estimate), if present.
+    euroc="$root/../shared/data/euroc_v1_02"
+    if [[ -d "$euroc" ]]; then
+      "$build_dir/tofu" estimate "$euroc" --out runs/euroc
+      scripts/plot_estimate.py runs/euroc --out runs/euroc/estimate.png
+    fi
     ;;
   test)
     build
