@@ -1,0 +1,159 @@
+// The multi-graph estimator as a whole (estimator/multi_graph_estimator.h) on a simulated
+// no-fault flight: initialisation in motion, switching the fused sensor at run time, the
+// alignment graph of a sensor that is not fused, and the gate for streams it does not know.
+
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "estimator/multi_graph_estimator.h"
+#include "harness/recorded_log.h"
+#include "harness/replay.h"
+#include "harness/trajectory_metrics.h"
+
+namespace tofu {
+namespace {
+
+namespace fs = std::filesystem;
+
+class MultiGraphEstimatorTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    run_dir_ = new fs::path(fs::temp_directory_path() / "tofu_multi_graph_estimator_test");
+    fs::remove_all(*run_dir_);
+    const std::string command = std::string(TOFU_BINARY) + " run " + TOFU_SOURCE_DIR +
+                                "/scenarios/estimator_arena.yaml --quiet --out " +
+                                run_dir_->string();
+    ASSERT_EQ(std::system(command.c_str()), 0) << command;
+    log_ = new harness::RecordedLog(harness::ReadRecordedLog(*run_dir_));
+  }
+  static void TearDownTestSuite() {
+    fs::remove_all(*run_dir_);
+    delete log_;
+    delete run_dir_;
+  }
+
+  static std::vector<harness::PoseSample> Truth() {
+    std::vector<harness::PoseSample> truth;
+    for (const auto& g : log_->ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+    return truth;
+  }
+
+  static fs::path* run_dir_;
+  static harness::RecordedLog* log_;
+};
+
+fs::path* MultiGraphEstimatorTest::run_dir_ = nullptr;
+harness::RecordedLog* MultiGraphEstimatorTest::log_ = nullptr;
+
+TEST_F(MultiGraphEstimatorTest, InitialisesInMotionWhenTheLogStartsMidFlight) {
+  // Drop the first 10 s (hover and take-off of the figure-eight): no rest to start from.
+  harness::RecordedLog cut = *log_;
+  cut.measurements.clear();
+  cut.arrival_ns.clear();
+  const core::Time start_ns = 10'000'000'000;
+  for (std::size_t i = 0; i < log_->measurements.size(); ++i) {
+    if (log_->measurements[i].t_ns < start_ns) continue;
+    cut.measurements.push_back(log_->measurements[i]);
+    cut.arrival_ns.push_back(log_->arrival_ns[i]);
+  }
+  const harness::ReplayResult result =
+      harness::Replay(cut, harness::ParseReplayMethod("single:vio", cut),
+                      harness::DefaultEstimatorOptions(cut), harness::SensorSpecsOf(cut));
+  ASSERT_FALSE(result.outputs.empty());
+  EXPECT_LT(result.outputs.front().t_ns, start_ns + 200'000'000)
+      << "the first output comes right after the first VIO sample";
+  // Converged after 5 s: the loose in-motion prior (velocity 2 m/s) was corrected.
+  harness::TrajectoryErrorOptions options;
+  options.align_from_ns = start_ns + 5'000'000'000;
+  std::vector<harness::PoseSample> late;
+  for (const auto& p : harness::OutputTrajectory(result)) {
+    if (p.t_ns >= options.align_from_ns) late.push_back(p);
+  }
+  const harness::TrajectoryErrors errors = harness::EvaluateTrajectory(late, Truth(), options);
+  EXPECT_LT(errors.ate_position_rmse_m, 0.05);
+  EXPECT_LT(errors.rotation_rmse_deg, 1.5);
+  EXPECT_EQ(result.counters.reinitialisations, 0);
+}
+
+TEST_F(MultiGraphEstimatorTest, SwitchingTheFusedSensorKeepsTheEstimateContinuous) {
+  const harness::RecordedLog& log = *log_;
+  estimator::MultiGraphEstimator estimator(log.imu_stream, harness::SensorSpecsOf(log),
+                                           harness::DefaultEstimatorOptions(log));
+  estimator.SetFusedSensors({"leica"});
+  std::vector<estimator::EstimatorOutput> outputs;
+  double max_step_m = 0.0;
+  core::Time max_step_t_ns = 0;
+  int phase = 0;
+  for (const core::StampedMeasurement& m : log.measurements) {
+    // VIO from 20 s, the total station back from 40 s: each switch freezes the incoming
+    // sensor's T_AL at its alignment graph's estimate (paper: co-dependence rule).
+    if (m.t_ns >= 20'000'000'000 && phase == 0) {
+      ASSERT_TRUE(estimator.SetFusedSensors({"vio"}));
+      phase = 1;
+    }
+    if (m.t_ns >= 40'000'000'000 && phase == 1) {
+      ASSERT_TRUE(estimator.SetFusedSensors({"leica"}));
+      phase = 2;
+    }
+    estimator.Add(m);
+    for (auto& o : estimator.TakeOutputs()) {
+      if (!outputs.empty()) {
+        const double dt_s = 1e-9 * static_cast<double>(o.t_ns - outputs.back().t_ns);
+        // A 200 Hz output at ≤ 1.5 m/s moves ≤ 1 cm per sample unless the estimate jumps.
+        // (The first second is the initial convergence: cm-level corrections are expected.)
+        if (dt_s < 0.02 && o.t_ns > 2'000'000'000) {
+          const double step = (o.state.p_LI - outputs.back().state.p_LI).norm();
+          if (step > max_step_m) max_step_t_ns = o.t_ns;
+          max_step_m = std::max(max_step_m, step);
+        }
+      }
+      outputs.push_back(std::move(o));
+    }
+  }
+  EXPECT_LT(max_step_m, 0.02) << "the estimate jumped at t = " << 1e-9 * max_step_t_ns << " s";
+  std::vector<harness::PoseSample> trajectory;
+  for (const auto& o : outputs) {
+    EXPECT_TRUE(o.valid);
+    trajectory.push_back({o.t_ns, o.state.p_LI, o.state.q_LI});
+  }
+  const harness::TrajectoryErrors errors = harness::EvaluateTrajectory(trajectory, Truth());
+  EXPECT_LT(errors.ate_position_rmse_m, 0.03);
+  EXPECT_EQ(estimator.counters().reinitialisations, 0);
+}
+
+TEST_F(MultiGraphEstimatorTest, AlignmentGraphOfAnUnfusedSensorExplainsItsPositions) {
+  // VIO fused; the total station's graph estimates T_AL from its positions against the
+  // local estimate. Horizontal figure-eights: all three rotations observable.
+  const harness::ReplayResult result = harness::Replay(
+      *log_, harness::ParseReplayMethod("single:vio", *log_),
+      harness::DefaultEstimatorOptions(*log_), harness::SensorSpecsOf(*log_));
+  const estimator::AlignmentEstimate& leica = result.alignment.at("leica");
+  ASSERT_TRUE(leica.valid);
+  EXPECT_EQ(leica.observable_rotation_dofs, 3);
+  EXPECT_TRUE(leica.yaw_observable);
+  // Residual = the local estimate's drift over the 20 s window plus 3 mm of station noise.
+  EXPECT_LT(leica.rms_residual_m, 0.02);
+  // The total station's frame is levelled and L is gravity-aligned: T_AL's rotation is a
+  // yaw only, up to the local estimate's tilt error (< 1 deg).
+  const Eigen::Vector3d z_A_of_L = leica.T_AL.linear() * Eigen::Vector3d::UnitZ();
+  EXPECT_GT(z_A_of_L.z(), std::cos(1.0 * M_PI / 180.0));
+}
+
+TEST_F(MultiGraphEstimatorTest, CountsStreamsItDoesNotKnowAndWrongKinds) {
+  estimator::MultiGraphEstimator estimator(log_->imu_stream, harness::SensorSpecsOf(*log_),
+                                           harness::DefaultEstimatorOptions(*log_));
+  EXPECT_FALSE(estimator.SetFusedSensors({"vio", "no_such_sensor"}));
+  EXPECT_EQ(estimator.fused_sensors(), std::vector<std::string>{"vio"});
+  estimator.Add({"no_such_sensor", 1000, core::PositionMeasurement{}});
+  estimator.Add({"vio", 2000, core::PositionMeasurement{}});  // vio is a pose stream
+  estimator.Add({log_->imu_stream, 3000, core::PoseMeasurement{}});
+  EXPECT_EQ(estimator.counters().unknown_stream, 3);
+  EXPECT_EQ(estimator.counters().streams.at("vio").accepted, 0);
+}
+
+}  // namespace
+}  // namespace tofu
