@@ -6,6 +6,8 @@
 #include <deque>
 #include <map>
 
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
 #include <ceres/ceres.h>
 
 #include "core/lie.h"
@@ -147,6 +149,7 @@ struct LocalSmoother::Impl {
   }
 
   void TrimImu() {
+    if (imu.empty()) return;
     const core::Time keep_from =
         keyframes.empty() ? newest_imu_ns() - options.pre_init_imu_buffer_ns
                           : keyframes.front()->t_ns - options.window_ns / 4;
@@ -673,18 +676,23 @@ std::optional<Eigen::Matrix<double, 15, 15>> LocalSmoother::NewestCovariance() c
   }
   ceres::CRSMatrix jacobian;
   if (!m.problem.Evaluate(evaluate, nullptr, nullptr, nullptr, &jacobian)) return std::nullopt;
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
+  // Sparse all the way: the window's information is block-banded, a dense JᵀJ of its
+  // ~300 columns would cost tens of megaflops per call.
+  std::vector<Eigen::Triplet<double>> entries;
+  entries.reserve(jacobian.values.size());
   for (int row = 0; row < jacobian.num_rows; ++row) {
     for (int k = jacobian.rows[row]; k < jacobian.rows[row + 1]; ++k) {
-      J(row, jacobian.cols[k]) = jacobian.values[k];
+      entries.emplace_back(row, jacobian.cols[k], jacobian.values[k]);
     }
   }
-  const Eigen::MatrixXd H = J.transpose() * J;
+  Eigen::SparseMatrix<double> J(jacobian.num_rows, jacobian.num_cols);
+  J.setFromTriplets(entries.begin(), entries.end());
+  const Eigen::SparseMatrix<double> H = J.transpose() * J;
   const int n = static_cast<int>(H.rows());
   if (n < 15) return std::nullopt;
   Eigen::MatrixXd unit = Eigen::MatrixXd::Zero(n, 15);
   unit.bottomRows(15).setIdentity();
-  const Eigen::LDLT<Eigen::MatrixXd> ldlt(H);
+  const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt(H);
   if (ldlt.info() != Eigen::Success) return std::nullopt;
   const Eigen::MatrixXd columns = ldlt.solve(unit);
   Eigen::Matrix<double, 15, 15> covariance = columns.bottomRows(15);

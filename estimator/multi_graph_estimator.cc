@@ -92,8 +92,8 @@ struct MultiGraphEstimator::Impl {
   std::deque<std::pair<core::Time, NavState>> history;  // propagated local estimate
   std::vector<PendingPair> pending_pairs;
   std::optional<core::StampedMeasurement> pending_init;
-  core::Time last_fused_ns = INT64_MIN;
-  core::Time last_covariance_ns = INT64_MIN;
+  std::optional<core::Time> last_fused_ns;
+  std::optional<core::Time> last_covariance_ns;
   std::int64_t bad_solves_seen = 0;
   std::int64_t solves_seen = 0;
 
@@ -264,7 +264,7 @@ struct MultiGraphEstimator::Impl {
     }
     if (use == MeasurementUse::kFactor || use == MeasurementUse::kAnchor ||
         use == MeasurementUse::kPending || use == MeasurementUse::kSkipped) {
-      last_fused_ns = std::max(last_fused_ns, m.t_ns);
+      last_fused_ns = std::max(last_fused_ns.value_or(m.t_ns), m.t_ns);
     }
   }
 
@@ -355,10 +355,11 @@ struct MultiGraphEstimator::Impl {
       out.bias = now->bias;
       out.omega_I_radps = last_gyro - now->bias.gyro_radps;
       out.initialized = true;
-      out.valid = t - last_fused_ns <= options.max_unfused_ns && !fused_names.empty();
+      out.valid = last_fused_ns && t - *last_fused_ns <= options.max_unfused_ns &&
+                  !fused_names.empty();
       out.fused = fused_names;
       if (options.covariance_period_ns > 0 &&
-          t - last_covariance_ns >= options.covariance_period_ns) {
+          (!last_covariance_ns || t - *last_covariance_ns >= options.covariance_period_ns)) {
         out.covariance = smoother.NewestCovariance();
         last_covariance_ns = t;
       }
