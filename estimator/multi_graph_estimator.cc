@@ -236,6 +236,8 @@ struct MultiGraphEstimator::Impl {
         return;
       }
       Initialize(sensor, m);
+    } else if (last_fused_ns && m.t_ns - *last_fused_ns > options.max_unfused_ns) {
+      RestartAfterGap(m.t_ns);
     }
     MeasurementUse use = MeasurementUse::kRejected;
     if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
@@ -366,6 +368,32 @@ struct MultiGraphEstimator::Impl {
       outputs.push_back(std::move(out));
       while (next_output_ns <= t) next_output_ns += options.output_period_ns;
     }
+  }
+
+  // The first fused measurement after a long IMU-only stretch: the graph's velocity and
+  // its linearisation points have drifted far, and solving the old window against the new
+  // relative factors takes many iterations with half-solved (jumping) outputs between
+  // them. Start a new window at the propagated state instead: position and yaw keep their
+  // values (no jump in the gauge directions), velocity gets the loose in-motion prior, the
+  // biases keep their estimates.
+  void RestartAfterGap(core::Time t_ns) {
+    const std::optional<KeyframeState> newest = smoother.NewestKeyframe();
+    if (!newest) return;
+    NavState state = newest->state;
+    if (t_ns > newest->t_ns) {
+      if (const auto predicted = smoother.PredictWithImu(newest->t_ns, newest->state, newest->bias, t_ns)) {
+        state = *predicted;
+      }
+    } else {
+      t_ns = newest->t_ns;
+    }
+    InitialStatePrior prior = options.prior_in_motion;
+    prior.accel_bias_std_mps2 = options.prior_from_rest.accel_bias_std_mps2;
+    prior.gyro_bias_std_radps = options.prior_from_rest.gyro_bias_std_radps;
+    smoother.Initialize(t_ns, state, newest->bias, prior);
+    ++counters.restarts_after_gap;
+    solves_seen = smoother.stats().solves;
+    bad_solves_seen = smoother.stats().bad_solves;
   }
 
   // A graph that keeps failing starts afresh from its propagated state with loose priors.

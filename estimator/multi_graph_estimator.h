@@ -108,6 +108,9 @@ struct EstimatorCounters {
   std::map<std::string, StreamGateCounters> streams;
   std::int64_t unknown_stream = 0;
   std::int64_t reinitialisations = 0;
+  /// New local windows started because a fused measurement came after more than
+  /// max_unfused_ns of IMU-only propagation.
+  std::int64_t restarts_after_gap = 0;
   std::int64_t consecutive_bad_solves = 0;
 };
 

@@ -281,7 +281,17 @@ std::vector<LocalConsistencySeries> LocalConsistency(
       p_sorted.push_back(p_A[k]);
       if (!q_As.empty()) q_sorted.push_back(q_As[k]);
     }
+    // The fit needs neighbours on both sides of every sample: a half window of at least
+    // 1.5 sample periods (estimator/velocity.h), e.g. 150 ms for a 10 Hz visual stream.
     estimator::DifferentiationOptions diff;
+    if (t_sorted.size() >= 3) {
+      std::vector<core::Time> spacing;
+      for (std::size_t k = 1; k < t_sorted.size(); ++k) spacing.push_back(t_sorted[k] - t_sorted[k - 1]);
+      std::nth_element(spacing.begin(), spacing.begin() + spacing.size() / 2, spacing.end());
+      const core::Time period_ns = spacing[spacing.size() / 2];
+      diff.half_window_ns = std::max(diff.half_window_ns, period_ns * 3 / 2 + period_ns / 10);
+      diff.max_gap_ns = std::max(diff.max_gap_ns, 3 * period_ns);
+    }
     const estimator::VelocitySeries v_A = estimator::DifferentiatePositions(t_sorted, p_sorted, diff);
 
     // Local estimate at the mount, in s, at the output times.
@@ -427,7 +437,8 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
                    {"time_cap_hits", result.solver.time_cap_hits},
                    {"bad_solves", result.solver.bad_solves},
                    {"marginalisation_failures", result.solver.marginalisation_failures},
-                   {"reinitialisations", result.counters.reinitialisations}};
+                   {"reinitialisations", result.counters.reinitialisations},
+                   {"restarts_after_gap", result.counters.restarts_after_gap}};
     nlohmann::ordered_json alignment;
     for (const auto& [name, a] : result.alignment) {
       const Eigen::Quaterniond q(a.T_AL.linear());
