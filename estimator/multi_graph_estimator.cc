@@ -4,6 +4,8 @@
 #include <cmath>
 #include <deque>
 
+#include <Eigen/Eigenvalues>
+
 #include "core/lie.h"
 
 namespace tofu::estimator {
@@ -224,6 +226,7 @@ struct MultiGraphEstimator::Impl {
       Eigen::Isometry3d T_AL = Eigen::Isometry3d::Identity();
       sensor.frozen_T_AL = T_AL;
     }
+    sensor.graph->SetFrozen(true);
     smoother.Initialize(t, state, bias, prior);
     last_fused_ns = t;
   }
@@ -255,6 +258,15 @@ struct MultiGraphEstimator::Impl {
       }
       use = smoother.AddPose(sensor.id, m.t_ns, T_As, sensor.spec.T_I_s, sqrt_information, R_LA);
     } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
+      // A position sensor fused before its T_AL was known: its graph kept collecting pairs
+      // (it constrained nothing yet); freeze it the moment T_AL is fully observable.
+      if (!sensor.graph->frozen() && !sensor.frozen_T_AL && !sensor.known_T_AL) {
+        const AlignmentEstimate& e = sensor.graph->estimate();
+        if (Usable(e)) {
+          sensor.frozen_T_AL = e.T_AL;
+          sensor.graph->SetFrozen(true);
+        }
+      }
       const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
       if (!T_AL) {
         ++counters.streams[sensor.spec.name].not_fused_unaligned;
@@ -270,11 +282,22 @@ struct MultiGraphEstimator::Impl {
     }
   }
 
+  // An alignment good enough to put a sensor's positions into the local graph: all three
+  // rotations observable and known to max_alignment_rotation_std_rad, and positions
+  // explained to max_alignment_rms_m. Fusing on the first observable estimate (10 pairs,
+  // 0.5 s) froze a T_AL that could be off by tens of degrees.
+  bool Usable(const AlignmentEstimate& e) const {
+    if (!e.valid || e.observable_rotation_dofs != 3) return false;
+    const double rotation_variance = e.covariance.bottomRightCorner<3, 3>().eigenvalues().real().maxCoeff();
+    return rotation_variance <= options.max_alignment_rotation_std_rad * options.max_alignment_rotation_std_rad &&
+           e.rms_residual_m <= options.max_alignment_rms_m;
+  }
+
   std::optional<Eigen::Isometry3d> AlignmentOf(const SensorState& sensor) const {
     if (sensor.known_T_AL) return sensor.known_T_AL;
     if (sensor.frozen_T_AL) return sensor.frozen_T_AL;
     const AlignmentEstimate& e = sensor.graph->estimate();
-    if (e.valid && e.observable_rotation_dofs == 3) return e.T_AL;
+    if (Usable(e)) return e.T_AL;
     return std::nullopt;
   }
 
@@ -308,7 +331,11 @@ struct MultiGraphEstimator::Impl {
       AlignmentPair pair;
       pair.t_ns = p.t_ns;
       pair.p_A_measured = p.p_A;
-      pair.covariance_A = p.covariance_A;
+      // The local estimate is uncertain too (its drift over the window, cm): without that
+      // a millimetre-precise total station would call hover jitter "observable" rotation.
+      pair.covariance_A = p.covariance_A + Eigen::Matrix3d::Identity() *
+                                               (options.alignment_local_position_std_m *
+                                                options.alignment_local_position_std_m);
       pair.p_Ls_estimated = local->p_LI + local->q_LI * p.sensor->spec.T_I_s.translation();
       p.sensor->graph->AddPair(pair);
       p.sensor->graph->Update(p.t_ns);
@@ -458,7 +485,7 @@ void MultiGraphEstimator::Add(const core::StampedMeasurement& m) {
   if (!impl.Gate(m.sensor, m.t_ns, finite, &sensor->has_last, &sensor->last_t_ns)) return;
 
   // Alignment pair (not while frozen: the local estimate then follows this very sensor).
-  if (impl.smoother.initialized() && !sensor->fused) {
+  if (impl.smoother.initialized() && !sensor->graph->frozen()) {
     PendingPair pair;
     pair.sensor = sensor;
     pair.t_ns = m.t_ns;
@@ -491,10 +518,12 @@ bool MultiGraphEstimator::SetFusedSensors(const std::vector<std::string>& names)
     const bool want = std::find(fused.begin(), fused.end(), s->spec.name) != fused.end();
     if (want && !s->fused) {
       // Co-dependence rule: T_AL is held at its current estimate while the sensor's
-      // positions constrain the local graph.
+      // positions constrain the local graph. A position sensor without a usable T_AL yet
+      // constrains nothing: its graph keeps estimating until it has one (see Fuse).
       const AlignmentEstimate& e = s->graph->estimate();
-      if (!s->known_T_AL && e.valid && e.observable_rotation_dofs == 3) s->frozen_T_AL = e.T_AL;
-      s->graph->SetFrozen(true);
+      if (!s->known_T_AL && impl.Usable(e)) s->frozen_T_AL = e.T_AL;
+      const bool aligned = s->known_T_AL || s->frozen_T_AL;
+      s->graph->SetFrozen(aligned || s->spec.kind == SensorKind::kPose);
     } else if (!want && s->fused) {
       impl.smoother.EndChain(s->id);
       s->graph->SetFrozen(false);

@@ -77,6 +77,13 @@ struct MultiGraphEstimatorOptions {
   InitialStatePrior prior_from_rest;
   InitialStatePrior prior_in_motion = {Eigen::Vector3d::Constant(1e-3),
                                        Eigen::Vector3d(0.1, 0.1, 1e-3), 2.0, 0.2, 0.01};
+  /// A position sensor is fused only with a T_AL whose rotation std is below this and
+  /// whose window rms residual is below max_alignment_rms_m (then frozen, paper Sec. 2.2).
+  double max_alignment_rotation_std_rad = 0.5 * 3.14159265358979 / 180.0;
+  double max_alignment_rms_m = 0.05;
+  /// Uncertainty of the local estimate's positions over an alignment window, added to each
+  /// pair's sensor covariance.
+  double alignment_local_position_std_m = 0.02;
   /// Consecutive bad solves after which the local graph is re-initialised from the
   /// propagated state.
   int max_consecutive_bad_solves = 3;
