@@ -129,6 +129,9 @@ struct LocalSmoother::Impl {
   std::map<int, Chain> chains;
   std::vector<PendingMeasurement> pending;
   bool dirty = false;
+  // Between factors added since the last good solve: a bad solve removes them (a wild
+  // measurement must not stay in the window and be folded into the prior).
+  std::vector<Factor*> unconfirmed_between;
   // Propagation of the newest keyframe to the newest IMU sample (the 200 Hz output).
   std::optional<ImuPreintegration> propagation;
   core::Time propagated_to_ns = 0;
@@ -196,6 +199,9 @@ struct LocalSmoother::Impl {
   }
 
   void RemoveFactor(Factor* factor) {
+    unconfirmed_between.erase(
+        std::remove(unconfirmed_between.begin(), unconfirmed_between.end(), factor),
+        unconfirmed_between.end());
     problem.RemoveResidualBlock(factor->id);
     factors.erase(std::find_if(factors.begin(), factors.end(),
                                [&](const auto& f) { return f.get() == factor; }));
@@ -283,14 +289,16 @@ struct LocalSmoother::Impl {
         if (options.huber_delta > 0) {
           position_loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
         }
-        AddFactor(FactorKind::kBetween,
-                  std::make_unique<PositionBetweenFactor>(
-                      m.T_Is.translation(), m.R_LA, m.T_As.translation() - chain.T_As.translation(),
-                      sqrt_information_p),
-                  std::move(position_loss), {a, b}, {PoseBlock(a), PoseBlock(b)});
+        unconfirmed_between.push_back(AddFactor(
+            FactorKind::kBetween,
+            std::make_unique<PositionBetweenFactor>(
+                m.T_Is.translation(), m.R_LA, m.T_As.translation() - chain.T_As.translation(),
+                sqrt_information_p),
+            std::move(position_loss), {a, b}, {PoseBlock(a), PoseBlock(b)}));
       }
-      AddFactor(FactorKind::kBetween, std::make_unique<PoseBetweenFactor>(T_IJ, sqrt_information),
-                std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)});
+      unconfirmed_between.push_back(
+          AddFactor(FactorKind::kBetween, std::make_unique<PoseBetweenFactor>(T_IJ, sqrt_information),
+                    std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)}));
       use = MeasurementUse::kFactor;
       dirty = true;
     }
@@ -321,10 +329,11 @@ struct LocalSmoother::Impl {
       if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
       Keyframe* a = chain.keyframe;
       Keyframe* b = kf;
-      AddFactor(FactorKind::kBetween,
-                std::make_unique<PositionBetweenFactor>(m.p_Is, m.R_LA, m.p_As - chain.p_As,
-                                                        sqrt_information),
-                std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)});
+      unconfirmed_between.push_back(
+          AddFactor(FactorKind::kBetween,
+                    std::make_unique<PositionBetweenFactor>(m.p_Is, m.R_LA, m.p_As - chain.p_As,
+                                                            sqrt_information),
+                    std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)}));
       use = MeasurementUse::kFactor;
       dirty = true;
     }
@@ -436,6 +445,7 @@ void LocalSmoother::Reset() {
   Impl& m = *impl_;
   for (auto& f : m.factors) m.problem.RemoveResidualBlock(f->id);
   m.factors.clear();
+  m.unconfirmed_between.clear();
   for (auto& kf : m.keyframes) {
     m.problem.RemoveParameterBlock(kf->pose);
     m.problem.RemoveParameterBlock(kf->speed_bias);
@@ -619,7 +629,17 @@ bool LocalSmoother::Update() {
       std::copy(saved[i].first.begin(), saved[i].first.end(), m.keyframes[i]->pose);
       std::copy(saved[i].second.begin(), saved[i].second.end(), m.keyframes[i]->speed_bias);
     }
+    // The measurements that made the solve go wrong leave with it; their sensors' chains
+    // restart at the next measurement.
+    const std::vector<Factor*> discard = std::move(m.unconfirmed_between);
+    m.unconfirmed_between.clear();
+    for (Factor* f : discard) {
+      ++stats_.discarded_between_factors;
+      m.RemoveFactor(f);
+    }
+    m.chains.clear();
   }
+  m.unconfirmed_between.clear();
   m.dirty = false;
   const core::Time newest = m.keyframes.back()->t_ns;
   while (m.keyframes.size() > 2 && m.keyframes.front()->t_ns < newest - options_.window_ns) {

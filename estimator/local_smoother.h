@@ -92,6 +92,7 @@ struct LocalSmootherStats {
   std::int64_t iteration_cap_hits = 0;
   std::int64_t time_cap_hits = 0;
   std::int64_t bad_solves = 0;            ///< non-finite or out-of-limits result, reverted
+  std::int64_t discarded_between_factors = 0;  ///< removed with a bad solve
   std::int64_t marginalisation_failures = 0;
   std::vector<double> solve_time_s;       ///< wall time of each solve (for benchmarks)
 };
