@@ -4,6 +4,11 @@
 function(tofu_set_warnings target)
   target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow=local)
   if(TOFU_SANITIZE)
+    # Eigen turns EIGEN_MALLOC_ALREADY_ALIGNED off under ASan, which makes our objects free
+    # with its hand-made aligned allocator what the prebuilt libceres allocated with plain
+    # malloc (an Eigen ABI mismatch, reported by ASan as a heap-buffer-overflow). glibc's
+    # and ASan's malloc both align to 16 bytes on x86-64, so keep Eigen's default.
+    target_compile_definitions(${target} PRIVATE EIGEN_MALLOC_ALREADY_ALIGNED=1)
     target_compile_options(${target} PRIVATE -fsanitize=address,undefined -fno-omit-frame-pointer)
     target_link_options(${target} PRIVATE -fsanitize=address,undefined)
   endif()
