@@ -264,7 +264,46 @@ struct LocalSmoother::Impl {
     return t_ns - it->second.t_ns >= min_spacing;
   }
 
-  MeasurementUse ApplyPose(const PendingMeasurement& m) {
+  // A between factor of a fused sensor from keyframe a to b; it stays "unconfirmed" until
+  // a solve with it succeeds.
+  void AddBetween(std::unique_ptr<ceres::CostFunction> cost, Keyframe* a, Keyframe* b) {
+    std::unique_ptr<ceres::LossFunction> loss;
+    if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+    unconfirmed_between.push_back(AddFactor(FactorKind::kBetween, std::move(cost),
+                                            std::move(loss), {a, b},
+                                            {PoseBlock(a), PoseBlock(b)}));
+  }
+
+  // Pose: r^o (eq. 2), optionally with the position part as r^p in A.
+  void AddPoseBetween(const Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
+    // Relative motion of I between the two times from the sensor's relative motion of s:
+    // T_IJ = T_Is (T_As,i⁻¹ T_As,j) T_Is⁻¹ (the lever arm and mount rotation of eq. 2).
+    const Eigen::Isometry3d T_IJ = m.T_Is * (chain.T_As.inverse() * m.T_As) * m.T_Is.inverse();
+    Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
+    if (m.position_in_reference) {
+      sqrt_information.topRows<3>().setZero();
+      AddBetween(std::make_unique<PositionBetweenFactor>(
+                     m.T_Is.translation(), m.R_LA,
+                     m.T_As.translation() - chain.T_As.translation(),
+                     m.sqrt_information.topLeftCorner<3, 3>()),
+                 chain.keyframe, kf);
+    }
+    AddBetween(std::make_unique<PoseBetweenFactor>(T_IJ, sqrt_information), chain.keyframe, kf);
+  }
+
+  // Position: r^p (eq. 3); both ends' noise enters the displacement (white position noise).
+  void AddPositionBetween(const Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
+    Eigen::Matrix3d covariance = chain.covariance_A + m.covariance_A;
+    covariance = m.R_LA * covariance * m.R_LA.transpose();
+    covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
+    const Eigen::Matrix3d sqrt_information =
+        Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
+    AddBetween(std::make_unique<PositionBetweenFactor>(m.p_Is, m.R_LA, m.p_As - chain.p_As,
+                                                       sqrt_information),
+               chain.keyframe, kf);
+  }
+
+  MeasurementUse Apply(const PendingMeasurement& m) {
     if (!ChainDue(m.sensor, m.t_ns)) return MeasurementUse::kSkipped;
     Keyframe* kf = KeyframeAt(m.t_ns, false);
     if (kf == nullptr) {
@@ -274,78 +313,20 @@ struct LocalSmoother::Impl {
     Chain& chain = chains[m.sensor];
     MeasurementUse use = MeasurementUse::kAnchor;
     if (chain.keyframe != nullptr && chain.keyframe != kf) {
-      // Relative motion of I between the two times from the sensor's relative motion of s:
-      // T_IJ = T_Is (T_As,i⁻¹ T_As,j) T_Is⁻¹ (the lever arm and mount rotation of eq. 2).
-      const Eigen::Isometry3d T_IJ = m.T_Is * (chain.T_As.inverse() * m.T_As) * m.T_Is.inverse();
-      std::unique_ptr<ceres::LossFunction> loss;
-      if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
-      Keyframe* a = chain.keyframe;
-      Keyframe* b = kf;
-      Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
-      if (m.position_in_reference) {
-        const Eigen::Matrix3d sqrt_information_p = m.sqrt_information.topLeftCorner<3, 3>();
-        sqrt_information.topRows<3>().setZero();
-        std::unique_ptr<ceres::LossFunction> position_loss;
-        if (options.huber_delta > 0) {
-          position_loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
-        }
-        unconfirmed_between.push_back(AddFactor(
-            FactorKind::kBetween,
-            std::make_unique<PositionBetweenFactor>(
-                m.T_Is.translation(), m.R_LA, m.T_As.translation() - chain.T_As.translation(),
-                sqrt_information_p),
-            std::move(position_loss), {a, b}, {PoseBlock(a), PoseBlock(b)}));
+      if (m.is_pose) {
+        AddPoseBetween(chain, kf, m);
+      } else {
+        AddPositionBetween(chain, kf, m);
       }
-      unconfirmed_between.push_back(
-          AddFactor(FactorKind::kBetween, std::make_unique<PoseBetweenFactor>(T_IJ, sqrt_information),
-                    std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)}));
       use = MeasurementUse::kFactor;
       dirty = true;
     }
     chain.keyframe = kf;
     chain.t_ns = m.t_ns;
     chain.T_As = m.T_As;
-    return use;
-  }
-
-  MeasurementUse ApplyPosition(const PendingMeasurement& m) {
-    if (!ChainDue(m.sensor, m.t_ns)) return MeasurementUse::kSkipped;
-    Keyframe* kf = KeyframeAt(m.t_ns, false);
-    if (kf == nullptr) {
-      ++stats->too_old_measurements;
-      return MeasurementUse::kTooOld;
-    }
-    Chain& chain = chains[m.sensor];
-    MeasurementUse use = MeasurementUse::kAnchor;
-    if (chain.keyframe != nullptr && chain.keyframe != kf) {
-      // Both ends' noise enters the displacement (white position noise).
-      Eigen::Matrix3d covariance = chain.covariance_A + m.covariance_A;
-      covariance = m.R_LA * covariance * m.R_LA.transpose();
-      covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
-      const Eigen::Matrix3d information = covariance.inverse();
-      const Eigen::Matrix3d sqrt_information =
-          Eigen::LLT<Eigen::Matrix3d>(information).matrixU();
-      std::unique_ptr<ceres::LossFunction> loss;
-      if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
-      Keyframe* a = chain.keyframe;
-      Keyframe* b = kf;
-      unconfirmed_between.push_back(
-          AddFactor(FactorKind::kBetween,
-                    std::make_unique<PositionBetweenFactor>(m.p_Is, m.R_LA, m.p_As - chain.p_As,
-                                                            sqrt_information),
-                    std::move(loss), {a, b}, {PoseBlock(a), PoseBlock(b)}));
-      use = MeasurementUse::kFactor;
-      dirty = true;
-    }
-    chain.keyframe = kf;
-    chain.t_ns = m.t_ns;
     chain.p_As = m.p_As;
     chain.covariance_A = m.covariance_A;
     return use;
-  }
-
-  MeasurementUse Apply(const PendingMeasurement& m) {
-    return m.is_pose ? ApplyPose(m) : ApplyPosition(m);
   }
 
   MeasurementUse Submit(PendingMeasurement m) {
