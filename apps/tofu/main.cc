@@ -21,6 +21,7 @@
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
+#include "renders/render_command.h"
 
 namespace {
 
@@ -184,6 +185,33 @@ int main(int argc, char** argv) {
   estimate->add_option("--position-in-reference", est.between_position_in_reference,
                        "Pose sensors: relative position in the sensor's frame (true/false)");
 
+  CLI::App* render = app.add_subcommand(
+      "render", "Render a run off-screen (EGL): its failure events, or one instant");
+  tofu::renders::RenderCommandOptions rend;
+  render->add_option("run_dir", rend.run_dir, "A tofu run directory")->required();
+  CLI::Option* render_events =
+      render->add_flag("--events", rend.events, "Keyframe + clip of every failure event (default)");
+  render->add_option("--at", rend.at_s, "One PNG of this instant [s]")->excludes(render_events);
+  render->add_option("--size", rend.size, "Frame size WxH [px]")->capture_default_str();
+  render->add_option("--fps", rend.fps, "Clip frame rate")->capture_default_str();
+  render->add_option("--camera", rend.camera, "chase, overview or a model camera")
+      ->capture_default_str();
+  render->add_option("--out", rend.out, "Output directory (--events) or PNG (--at)");
+  render->add_option("--method", rend.methods, "Ghost of this method; repeatable (default: all)");
+  render->add_option("--metric", rend.metric, "Consistency metric shown (default: the first)");
+  render->add_option("--error-bound", rend.error_bound_m, "Position error event bound [m]")
+      ->capture_default_str();
+  render->add_option("--clip-half", rend.clip_half_s, "Clip span around an event [s]")
+      ->capture_default_str();
+  render->add_flag("--shadows", rend.shadows, "Shadow maps (slower on a CPU)");
+  render->add_flag("--reflections", rend.reflections, "Floor reflections (slower on a CPU)");
+  render->add_flag("--lidar", rend.lidar_hits, "Draw the LiDAR's hits");
+  render->add_flag("--sky", rend.gnss_sky, "Draw the GNSS satellite rays");
+  render->add_flag("--no-clips", rend.no_clips, "Keyframes only");
+  render->add_option("--egl-platform", rend.egl_platform, "auto, surfaceless or device");
+  render->add_flag("--quiet", rend.quiet, "No progress and no listing");
+  render->footer(tofu::renders::kRenderHelp);
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -214,6 +242,20 @@ int main(int argc, char** argv) {
         };
       }
       return tofu::harness::RunEstimateCommand(est);
+    }
+    if (*render) {
+      std::optional<ProgressBar> bar;
+      if (!rend.quiet && isatty(STDERR_FILENO)) {
+        bar.emplace("render");
+        rend.progress = [&bar](double f) { (*bar)(f); };
+      }
+      try {
+        return tofu::renders::RunRenderCommand(rend);
+      } catch (const tofu::renders::RenderUnavailableError& e) {
+        // Not the user's files but the machine: still bad input to fix, not a failed run.
+        fmt::print(stderr, "tofu: error: {}\n", e.what());
+        return tofu::core::kExitBadInput;
+      }
     }
     if (*metrics) {
       for (const auto& m : tofu::harness::MetricCatalog()) {

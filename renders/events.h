@@ -1,0 +1,43 @@
+#pragma once
+// Failure events of a run, chosen automatically: fault onset (labels.csv), detection (a
+// sensor entering `excluded` in decisions.csv), sensor switch (a change of `fused`),
+// error above a bound (errors.csv or estimate_<method>_errors.csv), collision
+// (summary.json). Each becomes a clip of +- 2 s and a keyframe PNG.
+
+#include <string>
+#include <vector>
+
+#include "core/time.h"
+#include "renders/run_data.h"
+
+namespace tofu::renders {
+
+enum class EventKind { kFaultOnset, kDetection, kSensorSwitch, kErrorAboveBound, kCollision };
+
+/// "fault_onset", "detection", "sensor_switch", "error_above_bound", "collision".
+const char* EventKindName(EventKind kind);
+
+struct RenderEvent {
+  core::Time t_ns = 0;
+  EventKind kind = EventKind::kFaultOnset;
+  std::string subject;  ///< the sensor (fault, detection), method (switch, error) or geom
+  std::string detail;   ///< one line for the overlay: "vio divergence", "gnss excluded"
+  /// File-name stem: "<kind>_<subject>_<t in ms>".
+  std::string Slug() const;
+};
+
+struct EventOptions {
+  double error_bound_m = 0.5;  ///< position error above this is an event (rising edge)
+  /// After a crossing, the error must fall below bound * rearm_fraction before the next.
+  double rearm_fraction = 0.8;
+  size_t max_per_kind = 4;  ///< the earliest of each kind (a flapping switch floods)
+  size_t max_events = 12;
+
+  /// Throws core::InputError naming the broken constraint.
+  void Validate() const;
+};
+
+/// The events of a run, in time order (ties: kind, then subject).
+std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& options = {});
+
+}  // namespace tofu::renders

@@ -1,0 +1,575 @@
+#include "renders/run_data.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include <yaml-cpp/yaml.h>
+
+#include "core/error.h"
+#include "renders/csv_table.h"
+
+namespace tofu::renders {
+namespace {
+
+namespace fs = std::filesystem;
+using core::InputError;
+
+// ---- YAML ----
+
+YAML::Node LoadYaml(const fs::path& path) {
+  if (!fs::is_regular_file(path)) {
+    throw InputError({path.string()}, "", "missing: expected the file of a tofu run directory");
+  }
+  try {
+    return YAML::LoadFile(path.string());
+  } catch (const YAML::Exception& e) {
+    throw InputError({path.string(), e.mark.line + 1, e.mark.column + 1}, "", e.msg);
+  }
+}
+
+[[noreturn]] void FailYaml(const fs::path& path, const YAML::Node& node, const std::string& key,
+                           const std::string& message) {
+  const YAML::Mark mark = node.Mark();
+  throw InputError({path.string(), mark.line >= 0 ? mark.line + 1 : 0,
+                    mark.column >= 0 ? mark.column + 1 : 0},
+                   key, message);
+}
+
+double YamlDouble(const fs::path& path, const YAML::Node& node, const std::string& key) {
+  try {
+    const double v = node.as<double>();
+    if (!std::isfinite(v)) FailYaml(path, node, key, "expected a finite number");
+    return v;
+  } catch (const YAML::Exception&) {
+    FailYaml(path, node, key, "expected a number");
+  }
+}
+
+// {p_m: [x, y, z], q_wxyz: [w, x, y, z]} -> T.
+Eigen::Isometry3d YamlPose(const fs::path& path, const YAML::Node& node, const std::string& key) {
+  const YAML::Node p = node["p_m"];
+  const YAML::Node q = node["q_wxyz"];
+  if (!node.IsMap() || !p.IsSequence() || p.size() != 3 || !q.IsSequence() || q.size() != 4) {
+    FailYaml(path, node, key, "expected {p_m: [x, y, z], q_wxyz: [w, x, y, z]}");
+  }
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  for (int k = 0; k < 3; ++k) T.translation()(k) = YamlDouble(path, p[k], key + ".p_m");
+  Eigen::Quaterniond quat(YamlDouble(path, q[0], key + ".q_wxyz"),
+                          YamlDouble(path, q[1], key + ".q_wxyz"),
+                          YamlDouble(path, q[2], key + ".q_wxyz"),
+                          YamlDouble(path, q[3], key + ".q_wxyz"));
+  if (quat.norm() < 1e-9) FailYaml(path, q, key + ".q_wxyz", "expected a unit quaternion");
+  T.linear() = quat.normalized().toRotationMatrix();
+  return T;
+}
+
+std::string YamlString(const fs::path& path, const YAML::Node& node, const std::string& key) {
+  if (!node || !node.IsScalar()) {
+    FailYaml(path, node ? node : YAML::Node(), key, "expected a string");
+  }
+  return node.as<std::string>();
+}
+
+// ---- text ----
+
+std::vector<std::string> SplitPlus(std::string_view text) {
+  std::vector<std::string> out;
+  size_t start = 0;
+  while (start <= text.size() && !text.empty()) {
+    const size_t plus = text.find('+', start);
+    const std::string_view item =
+        text.substr(start, plus == std::string_view::npos ? std::string_view::npos : plus - start);
+    if (!item.empty()) out.emplace_back(item);
+    if (plus == std::string_view::npos) break;
+    start = plus + 1;
+  }
+  return out;
+}
+
+std::string SafeFileName(const std::string& method) {
+  std::string out = method;
+  for (char& c : out) {
+    if (c == ':' || c == '+' || c == '/' || c == ' ') c = '_';
+  }
+  return out;
+}
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+Eigen::Quaterniond ReadQuaternion(const CsvTable& csv, size_t row, const int (&cols)[4]) {
+  Eigen::Quaterniond q(csv.Double(row, cols[0]), csv.Double(row, cols[1]),
+                       csv.Double(row, cols[2]), csv.Double(row, cols[3]));
+  if (!(q.norm() > 1e-9)) return Eigen::Quaterniond::Identity();
+  return q.normalized();
+}
+
+// ---- the files ----
+
+void ReadScenario(RunData& run) {
+  const fs::path path = run.directory / "scenario.yaml";
+  const YAML::Node root = LoadYaml(path);
+  if (!root.IsMap()) FailYaml(path, root, "", "expected a mapping (the resolved scenario)");
+  run.scenario_name = YamlString(path, root["name"], "name");
+  run.world = YamlString(path, root["world"], "world");
+  if (root["robot"]) run.robot = YamlString(path, root["robot"], "robot");
+}
+
+void ReadGroundTruth(RunData& run) {
+  const CsvTable csv(run.directory / "groundtruth.csv",
+                     "#timestamp [ns],p_WB_x [m],p_WB_y [m],p_WB_z [m],q_WB_w [],q_WB_x [],"
+                     "q_WB_y [],q_WB_z [],...");
+  const int t = csv.Require("timestamp");
+  const int p[3] = {csv.Require("p_WB_x"), csv.Require("p_WB_y"), csv.Require("p_WB_z")};
+  const int q[4] = {csv.Require("q_WB_w"), csv.Require("q_WB_x"), csv.Require("q_WB_y"),
+                    csv.Require("q_WB_z")};
+  run.groundtruth.reserve(csv.rows());
+  for (size_t r = 0; r < csv.rows(); ++r) {
+    TimedPose pose;
+    pose.t_ns = csv.Int(r, t);
+    if (!run.groundtruth.empty() && pose.t_ns <= run.groundtruth.back().t_ns) {
+      throw InputError({csv.file(), csv.Line(r), 1}, "",
+                       "timestamps must increase strictly (ground truth is written in order)");
+    }
+    pose.p_W = Eigen::Vector3d(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
+    pose.q_W = ReadQuaternion(csv, r, q);
+    run.groundtruth.push_back(pose);
+  }
+  if (run.groundtruth.empty()) {
+    throw InputError({csv.file(), 2, 0}, "", "no ground-truth rows: nothing to render");
+  }
+}
+
+struct SensorCalibration {
+  std::string type;
+  std::string site;
+  Eigen::Isometry3d T_B_s = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d true_T_WS = Eigen::Isometry3d::Identity();
+};
+
+std::map<std::string, SensorCalibration> ReadCalibration(RunData& run) {
+  const fs::path path = run.directory / "calibration.yaml";
+  const YAML::Node root = LoadYaml(path);
+  if (!root.IsMap()) FailYaml(path, root, "", "expected a mapping (tofu calibration)");
+  if (const YAML::Node mounts = root["mounts"]) {
+    for (const auto& item : mounts) {
+      const std::string name = item.first.as<std::string>();
+      run.mounts[name] = YamlPose(path, item.second, "mounts." + name);
+    }
+  }
+  std::map<std::string, SensorCalibration> sensors;
+  if (const YAML::Node list = root["sensors"]) {
+    for (const auto& item : list) {
+      const std::string name = item.first.as<std::string>();
+      const std::string key = "sensors." + name;
+      SensorCalibration c;
+      c.type = YamlString(path, item.second["type"], key + ".type");
+      c.site = item.second["site"] ? YamlString(path, item.second["site"], key + ".site") : "";
+      if (item.second["T_B_s"]) c.T_B_s = YamlPose(path, item.second["T_B_s"], key + ".T_B_s");
+      if (item.second["true_T_WS"]) {
+        c.true_T_WS = YamlPose(path, item.second["true_T_WS"], key + ".true_T_WS");
+      }
+      sensors[name] = c;
+    }
+  }
+  // The estimates are of the IMU frame I: its nominal mount (what the estimator is given).
+  bool imu_found = false;
+  for (const auto& [name, c] : sensors) {
+    if (c.type != "imu") continue;
+    run.T_BI = c.T_B_s;
+    imu_found = true;
+    break;
+  }
+  if (!imu_found && run.mounts.count("imu") != 0) run.T_BI = run.mounts.at("imu");
+  return sensors;
+}
+
+void ReadSensors(RunData& run, const std::map<std::string, SensorCalibration>& calibration) {
+  const fs::path folder = run.directory / "sensors";
+  if (!fs::is_directory(folder)) return;
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_regular_file() && entry.path().extension() == ".csv") files.push_back(entry.path());
+  }
+  std::sort(files.begin(), files.end());
+  for (const fs::path& file : files) {
+    const std::string name = file.stem().string();
+    const auto cal = calibration.find(name);
+    if (cal == calibration.end()) {
+      run.notes.push_back(fmt::format("sensors/{}.csv: not in calibration.yaml, not drawn", name));
+      continue;
+    }
+    if (cal->second.type == "imu") continue;  // nothing to place in W
+    const CsvTable csv(file, "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m],...,"
+                             "conditions,faults");
+    SensorTrack track;
+    track.name = name;
+    track.type = cal->second.type;
+    track.site = cal->second.site;
+    track.true_T_WS = cal->second.true_T_WS;
+    const int t = csv.Require("timestamp");
+    const int p[3] = {csv.Require("p_Ss_x"), csv.Require("p_Ss_y"), csv.Require("p_Ss_z")};
+    const int conditions = csv.Find("conditions");
+    const int faults = csv.Find("faults");
+    for (size_t r = 0; r < csv.rows(); ++r) {
+      const Eigen::Vector3d p_Ss(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
+      if (!p_Ss.allFinite()) continue;  // a faulted NaN sample: nothing to place
+      track.t_ns.push_back(csv.Int(r, t));
+      track.p_W.push_back(track.true_T_WS * p_Ss);
+      track.conditions.emplace_back(conditions >= 0 ? csv.Text(r, conditions) : "");
+      track.faults.emplace_back(faults >= 0 ? csv.Text(r, faults) : "");
+    }
+    run.sensors.push_back(std::move(track));
+  }
+}
+
+void ReadLabels(RunData& run) {
+  const fs::path path = run.directory / "labels.csv";
+  if (!fs::exists(path)) return;
+  const CsvTable csv(path, "#timestamp [ns],sensor,label,source,active");
+  const int t = csv.Require("timestamp");
+  const int sensor = csv.Require("sensor");
+  const int label = csv.Require("label");
+  const int source = csv.Require("source");
+  const int active = csv.Require("active");
+  for (size_t r = 0; r < csv.rows(); ++r) {
+    LabelRow row;
+    row.t_ns = csv.Int(r, t);
+    row.sensor = csv.Text(r, sensor);
+    row.label = csv.Text(r, label);
+    row.source = csv.Text(r, source);
+    const int64_t a = csv.Int(r, active);
+    if (a != 0 && a != 1) {
+      throw InputError({csv.file(), csv.Line(r), 0}, "", "column 'active': expected 0 or 1");
+    }
+    row.active = a == 1;
+    run.labels.push_back(row);
+  }
+  std::stable_sort(run.labels.begin(), run.labels.end(),
+                   [](const LabelRow& a, const LabelRow& b) { return a.t_ns < b.t_ns; });
+}
+
+nlohmann::json LoadJson(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError({path.string()}, "", "cannot open");
+  try {
+    return nlohmann::json::parse(in);
+  } catch (const nlohmann::json::parse_error& e) {
+    // nlohmann reports a byte offset; find its line and column.
+    std::ifstream again(path, std::ios::binary);
+    std::string text((std::istreambuf_iterator<char>(again)), std::istreambuf_iterator<char>());
+    int line = 1;
+    int column = 1;
+    for (size_t i = 0; i + 1 < e.byte && i < text.size(); ++i) {
+      if (text[i] == '\n') {
+        ++line;
+        column = 1;
+      } else {
+        ++column;
+      }
+    }
+    throw InputError({path.string(), line, column}, "", fmt::format("malformed JSON: {}", e.what()));
+  }
+}
+
+void ReadSummary(RunData& run) {
+  const fs::path path = run.directory / "summary.json";
+  if (!fs::exists(path)) return;
+  const nlohmann::json j = LoadJson(path);
+  if (!j.contains("collisions")) return;
+  const nlohmann::json& list = j["collisions"];
+  if (!list.is_array()) throw InputError({path.string()}, "collisions", "expected an array");
+  for (size_t i = 0; i < list.size(); ++i) {
+    const nlohmann::json& c = list[i];
+    const std::string key = fmt::format("collisions[{}]", i);
+    if (!c.is_object() || !c.contains("start_s") || !c["start_s"].is_number()) {
+      throw InputError({path.string()}, key, "expected {start_s: number, ...}");
+    }
+    CollisionRow row;
+    row.t_ns = core::SecondsToTime(c["start_s"].get<double>());
+    if (c.contains("robot_geom") && c["robot_geom"].is_string()) row.robot_geom = c["robot_geom"];
+    if (c.contains("structure_geom") && c["structure_geom"].is_string()) {
+      row.structure_geom = c["structure_geom"];
+    }
+    run.collisions.push_back(row);
+  }
+}
+
+// T_WL of an estimate json ({"T_WL": {"p_m": [...], "q_wxyz": [...]}}), if there.
+std::optional<Eigen::Isometry3d> JsonPose(const fs::path& path, const nlohmann::json& j,
+                                          const std::string& key) {
+  if (!j.contains(key)) return std::nullopt;
+  const nlohmann::json& pose = j[key];
+  const bool ok = pose.is_object() && pose.contains("p_m") && pose.contains("q_wxyz") &&
+                  pose["p_m"].is_array() && pose["p_m"].size() == 3 &&
+                  pose["q_wxyz"].is_array() && pose["q_wxyz"].size() == 4;
+  if (!ok) throw InputError({path.string()}, key, "expected {p_m: [x,y,z], q_wxyz: [w,x,y,z]}");
+  for (const auto& v : pose["p_m"]) {
+    if (!v.is_number()) throw InputError({path.string()}, key + ".p_m", "expected numbers");
+  }
+  for (const auto& v : pose["q_wxyz"]) {
+    if (!v.is_number()) throw InputError({path.string()}, key + ".q_wxyz", "expected numbers");
+  }
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(pose["p_m"][0], pose["p_m"][1], pose["p_m"][2]);
+  const Eigen::Quaterniond q(pose["q_wxyz"][0], pose["q_wxyz"][1], pose["q_wxyz"][2],
+                             pose["q_wxyz"][3]);
+  if (q.norm() < 1e-9) throw InputError({path.string()}, key + ".q_wxyz", "expected a unit quaternion");
+  T.linear() = q.normalized().toRotationMatrix();
+  return T;
+}
+
+Eigen::Isometry3d ToIsometry(const TimedPose& pose) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = pose.q_W.toRotationMatrix();
+  T.translation() = pose.p_W;
+  return T;
+}
+
+void ReadErrorsFile(RunData& run, const fs::path& path, const std::string& method_of_file) {
+  const CsvTable csv(path, method_of_file.empty()
+                               ? "#timestamp [ns],method,position_error [m],rotation_error [deg],"
+                                 "valid,nees"
+                               : "#timestamp [ns],position_error [m],rotation_error [deg],...");
+  const int t = csv.Require("timestamp");
+  const int method = method_of_file.empty() ? csv.Require("method") : -1;
+  const int position = csv.Require("position_error");
+  const int rotation = csv.Find("rotation_error");
+  const int valid = csv.Find("valid");
+  for (size_t r = 0; r < csv.rows(); ++r) {
+    if (valid >= 0 && csv.Text(r, valid) == "0") continue;
+    ErrorRow row;
+    row.t_ns = csv.Int(r, t);
+    row.method = method >= 0 ? std::string(csv.Text(r, method)) : method_of_file;
+    row.position_error_m = csv.Double(r, position, true);
+    row.rotation_error_deg = rotation >= 0 ? csv.Double(r, rotation, true) : 0.0;
+    if (std::isfinite(row.position_error_m)) run.errors.push_back(row);
+  }
+}
+
+void ReadEstimates(RunData& run) {
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(run.directory)) {
+    const std::string name = entry.path().filename().string();
+    if (entry.is_regular_file() && name.rfind("estimate_", 0) == 0 && EndsWith(name, ".csv") &&
+        !EndsWith(name, "_errors.csv")) {
+      files.push_back(entry.path());
+    }
+  }
+  std::sort(files.begin(), files.end());
+  const bool errors_csv = fs::exists(run.directory / "errors.csv");
+  for (const fs::path& file : files) {
+    const std::string stem = file.stem().string();
+    MethodEstimate estimate;
+    estimate.method = stem.substr(std::string("estimate_").size());
+    const fs::path json_path = run.directory / (stem + ".json");
+    std::optional<Eigen::Isometry3d> T_WL;
+    if (fs::exists(json_path)) {
+      const nlohmann::json j = LoadJson(json_path);
+      if (j.contains("method") && j["method"].is_string()) estimate.method = j["method"];
+      T_WL = JsonPose(json_path, j, "T_WL");
+    }
+    const CsvTable csv(file, "#timestamp [ns],p_LI_x [m],p_LI_y [m],p_LI_z [m],q_LI_w [],"
+                             "q_LI_x [],q_LI_y [],q_LI_z [],...,valid,fused");
+    const int t = csv.Require("timestamp");
+    const int p[3] = {csv.Require("p_LI_x"), csv.Require("p_LI_y"), csv.Require("p_LI_z")};
+    const int q[4] = {csv.Require("q_LI_w"), csv.Require("q_LI_x"), csv.Require("q_LI_y"),
+                      csv.Require("q_LI_z")};
+    const int valid = csv.Find("valid");
+    const int fused = csv.Find("fused");
+    std::vector<TimedPose> T_LI;
+    for (size_t r = 0; r < csv.rows(); ++r) {
+      if (valid >= 0 && csv.Text(r, valid) != "1") continue;
+      TimedPose pose;
+      pose.t_ns = csv.Int(r, t);
+      pose.p_W = Eigen::Vector3d(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
+      pose.q_W = ReadQuaternion(csv, r, q);
+      if (!pose.p_W.allFinite()) continue;
+      if (!T_LI.empty() && pose.t_ns <= T_LI.back().t_ns) continue;
+      T_LI.push_back(pose);
+      estimate.fused.emplace_back(fused >= 0 ? csv.Text(r, fused) : "");
+    }
+    if (T_LI.empty()) {
+      run.notes.push_back(fmt::format("{}: no valid estimate, no ghost", file.filename().string()));
+      continue;
+    }
+    // L -> W: the evaluation's alignment when the json has it, else the first valid
+    // estimate against ground truth (the estimator starts in L = its first pose).
+    if (T_WL) {
+      estimate.T_WL = *T_WL;
+      estimate.alignment_source = fmt::format("T_WL of {}", json_path.filename().string());
+    } else {
+      const Eigen::Isometry3d T_WB0 = ToIsometry(InterpolatePose(run.groundtruth, T_LI.front().t_ns));
+      const Eigen::Isometry3d T_LI0 = ToIsometry(T_LI.front());
+      estimate.T_WL = T_WB0 * run.T_BI * T_LI0.inverse();
+      estimate.alignment_source = "first valid sample against ground truth";
+    }
+    const Eigen::Isometry3d T_IB = run.T_BI.inverse();
+    for (const TimedPose& pose : T_LI) {
+      const Eigen::Isometry3d T_WB = estimate.T_WL * ToIsometry(pose) * T_IB;
+      TimedPose ghost;
+      ghost.t_ns = pose.t_ns;
+      ghost.p_W = T_WB.translation();
+      ghost.q_W = Eigen::Quaterniond(T_WB.linear()).normalized();
+      estimate.T_WB.push_back(ghost);
+    }
+    if (!errors_csv) {
+      const fs::path errors = run.directory / (stem + "_errors.csv");
+      if (fs::exists(errors)) ReadErrorsFile(run, errors, estimate.method);
+    }
+    run.notes.push_back(fmt::format("ghost '{}': {} poses, L->W from {}", estimate.method,
+                                    estimate.T_WB.size(), estimate.alignment_source));
+    run.estimates.push_back(std::move(estimate));
+  }
+  std::sort(run.estimates.begin(), run.estimates.end(),
+            [](const MethodEstimate& a, const MethodEstimate& b) { return a.method < b.method; });
+  if (errors_csv) ReadErrorsFile(run, run.directory / "errors.csv", "");
+}
+
+void ReadDecisions(RunData& run) {
+  const fs::path path = run.directory / "decisions.csv";
+  if (!fs::exists(path)) return;
+  const CsvTable csv(path, "#timestamp [ns],method,fused,excluded,unavailable,reason", true);
+  const int t = csv.Require("timestamp");
+  const int method = csv.Require("method");
+  const int fused = csv.Require("fused");
+  const int excluded = csv.Require("excluded");
+  const int unavailable = csv.Find("unavailable");
+  const int reason = csv.Find("reason");
+  for (size_t r = 0; r < csv.rows(); ++r) {
+    DecisionRow row;
+    row.t_ns = csv.Int(r, t);
+    row.method = csv.Text(r, method);
+    row.fused = SplitPlus(csv.Text(r, fused));
+    row.excluded = SplitPlus(csv.Text(r, excluded));
+    if (unavailable >= 0) row.unavailable = SplitPlus(csv.Text(r, unavailable));
+    if (reason >= 0) row.reason = csv.Text(r, reason);
+    run.decisions.push_back(std::move(row));
+  }
+  std::stable_sort(run.decisions.begin(), run.decisions.end(),
+                   [](const DecisionRow& a, const DecisionRow& b) { return a.t_ns < b.t_ns; });
+}
+
+void ReadConsistencyFile(RunData& run, const fs::path& path, const std::string& method) {
+  const CsvTable csv(path, "#timestamp [ns],pair,metric,value");
+  const int t = csv.Require("timestamp");
+  const int pair = csv.Require("pair");
+  const int metric = csv.Require("metric");
+  const int value = csv.Require("value");
+  std::vector<ConsistencyRow>& rows = run.consistency[method];
+  for (size_t r = 0; r < csv.rows(); ++r) {
+    ConsistencyRow row;
+    row.t_ns = csv.Int(r, t);
+    const std::string_view text = csv.Text(r, pair);
+    const size_t dash = text.find('-');
+    if (dash == std::string_view::npos || dash == 0 || dash + 1 == text.size()) {
+      throw InputError({csv.file(), csv.Line(r), 0}, "",
+                       fmt::format("column 'pair': expected 'a-b', got '{}'", text));
+    }
+    row.a = text.substr(0, dash);
+    row.b = text.substr(dash + 1);
+    row.metric = csv.Text(r, metric);
+    row.value = csv.Double(r, value, true);
+    rows.push_back(std::move(row));
+  }
+}
+
+void ReadConsistency(RunData& run) {
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(run.directory)) {
+    const std::string name = entry.path().filename().string();
+    if (entry.is_regular_file() && name.rfind("consistency", 0) == 0 && EndsWith(name, ".csv")) {
+      files.push_back(entry.path());
+    }
+  }
+  std::sort(files.begin(), files.end());
+  for (const fs::path& file : files) {
+    const std::string stem = file.stem().string();
+    std::string method;
+    if (stem != "consistency") {
+      if (stem.rfind("consistency_", 0) != 0) continue;
+      method = stem.substr(std::string("consistency_").size());
+      // The file name is the method's safe form; name it as the estimate does.
+      for (const MethodEstimate& e : run.estimates) {
+        if (SafeFileName(e.method) == method) method = e.method;
+      }
+    }
+    ReadConsistencyFile(run, file, method);
+  }
+}
+
+}  // namespace
+
+TimedPose InterpolatePose(const std::vector<TimedPose>& poses, core::Time t_ns) {
+  if (t_ns <= poses.front().t_ns) return poses.front();
+  if (t_ns >= poses.back().t_ns) return poses.back();
+  const auto after = std::lower_bound(
+      poses.begin(), poses.end(), t_ns,
+      [](const TimedPose& p, core::Time t) { return p.t_ns < t; });
+  const TimedPose& b = *after;
+  if (b.t_ns == t_ns) return b;
+  const TimedPose& a = *(after - 1);
+  const double u = static_cast<double>(t_ns - a.t_ns) / static_cast<double>(b.t_ns - a.t_ns);
+  TimedPose out;
+  out.t_ns = t_ns;
+  out.p_W = (1.0 - u) * a.p_W + u * b.p_W;
+  out.q_W = a.q_W.slerp(u, b.q_W).normalized();
+  return out;
+}
+
+const SensorTrack* RunData::FindSensor(const std::string& name) const {
+  for (const SensorTrack& s : sensors) {
+    if (s.name == name) return &s;
+  }
+  return nullptr;
+}
+
+bool RunData::LabelActive(const std::string& sensor, const std::string& label,
+                          core::Time t_ns) const {
+  bool active = false;
+  for (const LabelRow& row : labels) {
+    if (row.t_ns > t_ns) break;
+    if (row.sensor == sensor && row.label == label) active = row.active;
+  }
+  return active;
+}
+
+std::vector<std::string> RunData::ActiveFaults(const std::string& sensor, core::Time t_ns) const {
+  std::map<std::string, bool> state;
+  for (const LabelRow& row : labels) {
+    if (row.t_ns > t_ns) break;
+    if (row.sensor == sensor && row.source == "fault") state[row.label] = row.active;
+  }
+  std::vector<std::string> active;
+  for (const auto& [label, on] : state) {
+    if (on) active.push_back(label);
+  }
+  return active;
+}
+
+RunData ReadRunData(const fs::path& directory) {
+  if (!fs::is_directory(directory)) {
+    throw InputError({directory.string()}, "",
+                     "not a directory: expected a tofu run directory (`tofu run SCENARIO --out "
+                     "DIR` writes one)");
+  }
+  RunData run;
+  run.directory = directory;
+  ReadScenario(run);
+  ReadGroundTruth(run);
+  const auto calibration = ReadCalibration(run);
+  ReadSensors(run, calibration);
+  ReadLabels(run);
+  ReadSummary(run);
+  ReadEstimates(run);
+  ReadDecisions(run);
+  ReadConsistency(run);
+  return run;
+}
+
+}  // namespace tofu::renders

@@ -1,0 +1,888 @@
+#include "renders/scene_renderer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <optional>
+#include <set>
+
+#include <fmt/format.h>
+#include <mujoco/mujoco.h>
+
+#include "core/error.h"
+#include "harness/scenario.h"
+#include "harness/sensor_suite.h"
+#include "sim/gnss.h"
+#include "sim/world.h"
+
+namespace tofu::renders {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDegToRad = kPi / 180.0;
+constexpr int kMaxSceneGeoms = 12000;
+
+// Free-camera fields of view: the chase camera frames the robot, the overview the run.
+constexpr double kChaseFovyDeg = 50.0;
+constexpr double kOverviewFovyDeg = 60.0;
+constexpr double kChaseDistance_m = 2.8;
+constexpr double kChaseElevationDeg = -18.0;
+constexpr double kOverviewElevationDeg = -35.0;
+// A chase camera stays this far in front of a wall behind it [m].
+constexpr double kCameraWallClearance_m = 0.3;
+// Opacity of a wall cut away because it stands between the camera and the robot.
+constexpr float kCutawayAlpha = 0.1f;
+// A ghost is drawn only where its estimate is dense: no interpolation across gaps [s].
+constexpr core::Time kGhostMaxGap_ns = 500'000'000;
+// A sensor's marker disappears when its last sample is older than this [s].
+constexpr core::Time kMarkerMaxAge_ns = 1'000'000'000;
+
+using Rgba = std::array<float, 4>;
+
+constexpr Rgba kClearGreen = {0.10f, 0.85f, 0.20f, 1.0f};
+constexpr Rgba kBlockedRed = {0.95f, 0.10f, 0.10f, 1.0f};
+
+// Sensor marker colours (no magenta: that hue belongs to the first ghost).
+Rgba SensorColor(size_t index) {
+  static constexpr std::array<Rgba, 6> kPalette = {{{0.10f, 0.55f, 1.00f, 1.0f},
+                                                    {1.00f, 0.60f, 0.05f, 1.0f},
+                                                    {0.00f, 0.85f, 0.85f, 1.0f},
+                                                    {0.95f, 0.90f, 0.10f, 1.0f},
+                                                    {0.55f, 0.35f, 0.15f, 1.0f},
+                                                    {0.60f, 0.95f, 0.50f, 1.0f}}};
+  return kPalette[index % kPalette.size()];
+}
+
+Eigen::Isometry3d ToIsometry(const TimedPose& pose) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = pose.q_W.toRotationMatrix();
+  T.translation() = pose.p_W;
+  return T;
+}
+
+std::string Join(const std::vector<std::string>& items, const char* separator) {
+  std::string out;
+  for (const std::string& s : items) out += (out.empty() ? "" : separator) + s;
+  return out;
+}
+
+// Colour of a consistency value: green (consistent) through yellow to red; grey when
+// unavailable. `badness` in [0, 1].
+Rgba BadnessColor(double badness) {
+  if (!std::isfinite(badness)) return {0.35f, 0.35f, 0.38f, 1.0f};
+  const float u = static_cast<float>(std::clamp(badness, 0.0, 1.0));
+  if (u < 0.5f) return {0.15f + 1.6f * u, 0.75f, 0.25f, 1.0f};
+  return {0.95f, 0.75f - 1.2f * (u - 0.5f), 0.25f - 0.3f * (u - 0.5f), 1.0f};
+}
+
+}  // namespace
+
+void RenderOptions::Validate() const {
+  const auto fail = [](const std::string& key, const std::string& message) {
+    throw core::InputError({"render options"}, key, message);
+  };
+  if (width_px < 16 || height_px < 16 || width_px > 8192 || height_px > 8192) {
+    fail("--size", fmt::format("expected WxH with each side in [16, 8192], got {}x{}", width_px,
+                               height_px));
+  }
+  if (multisamples < 0 || multisamples > 16) fail("multisamples", "expected 0..16");
+  if (shadow_map_px < 256 || shadow_map_px > 8192) fail("shadow_map_px", "expected 256..8192");
+  if (!(trail_s >= 0.0 && trail_s <= 60.0)) fail("trail_s", "expected 0..60 s");
+  if (!(ghost_alpha > 0.0 && ghost_alpha <= 1.0)) fail("ghost_alpha", "expected (0, 1]");
+}
+
+std::array<float, 3> GhostColor(size_t method_index) {
+  static constexpr std::array<std::array<float, 3>, 4> kGhosts = {{{1.00f, 0.05f, 0.85f},
+                                                                   {0.55f, 0.25f, 1.00f},
+                                                                   {1.00f, 0.35f, 0.35f},
+                                                                   {0.30f, 0.95f, 1.00f}}};
+  return kGhosts[method_index % kGhosts.size()];
+}
+
+struct SceneRenderer::Impl {
+  const RunData& run;
+  RenderOptions options;
+  std::unique_ptr<EglContext> egl;
+  std::unique_ptr<sim::World> world;
+  mjModel* model = nullptr;
+  mjData* data = nullptr;
+  mjData* ghost_data = nullptr;
+  mjvScene scene;
+  mjvOption vis_options;
+  mjvCamera camera;
+  mjrContext context;
+  bool scene_made = false;
+  bool context_made = false;
+  int font_scale = mjFONTSCALE_100;
+  int root_qpos = 0;
+  std::vector<const MethodEstimate*> ghosts;
+  // Overlay: whose decisions and consistency values are shown.
+  std::string decision_method;
+  const std::vector<ConsistencyRow>* consistency = nullptr;
+  std::string consistency_metric;
+  double consistency_scale = 1.0;  // value of full "badness" for metrics where low is good
+  std::vector<std::string> matrix_names;
+  // Cameras.
+  mjvCamera overview;
+  double overview_fovy_deg = kOverviewFovyDeg;
+  std::vector<Eigen::Vector3d> overview_targets;  // points the overview must show
+  std::vector<Eigen::Vector3d> cutaway_targets;   // of the current frame's camera
+  // Optional layers, from the resolved scenario.
+  std::optional<harness::Scenario> scenario;
+  struct Lidar {
+    std::string site;
+    sim::LidarOdometryOptions options;
+  };
+  std::vector<Lidar> lidars;
+  struct Sky {
+    std::string site;
+    Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();
+    std::vector<Eigen::Vector3d> directions_S;
+    double ray_length_m = 200.0;
+  };
+  std::vector<Sky> skies;
+  CameraView view;
+
+  Impl(const RunData& r, const RenderOptions& o) : run(r), options(o) {
+    mjv_defaultScene(&scene);
+    mjr_defaultContext(&context);
+  }
+
+  ~Impl() {
+    if (egl) egl->MakeCurrent();
+    if (context_made) mjr_freeContext(&context);
+    if (scene_made) mjv_freeScene(&scene);
+    if (ghost_data != nullptr) mj_deleteData(ghost_data);
+    if (data != nullptr) mj_deleteData(data);
+    if (model != nullptr) mj_deleteModel(model);
+  }
+
+  void Build() {
+    options.Validate();
+    // EGL first: without it nothing else is worth doing, and the error names the fix.
+    egl = std::make_unique<EglContext>(options.egl);
+
+    sim::WorldOptions world_options;
+    world_options.world = run.world;
+    world_options.robot = run.robot;
+    world = std::make_unique<sim::World>(world_options);
+    model = mj_copyModel(nullptr, world->model());
+    // The offscreen buffer is allocated at the model's size: make it the frame's.
+    model->vis.global.offwidth = options.width_px;
+    model->vis.global.offheight = options.height_px;
+    model->vis.quality.offsamples = options.multisamples;
+    model->vis.quality.shadowsize = options.shadow_map_px;
+    data = mj_makeData(model);
+    ghost_data = mj_makeData(model);
+    const int root = mj_name2id(model, mjOBJ_JOINT, "root");
+    root_qpos = root >= 0 ? model->jnt_qposadr[root] : 0;
+
+    mjv_makeScene(model, &scene, kMaxSceneGeoms);
+    scene_made = true;
+    mjv_defaultOption(&vis_options);
+    // Geom groups (models/ README): 0 structure, 1 ground, 3 robot visuals, 4 decoration;
+    // not 2, the robot's collision proxies. Sites: only the world's (group 4).
+    const int geom_groups[mjNGROUP] = {1, 1, 0, 1, 1, 0};
+    const int site_groups[mjNGROUP] = {0, 0, 0, 0, 1, 0};
+    for (int g = 0; g < mjNGROUP; ++g) {
+      vis_options.geomgroup[g] = static_cast<mjtByte>(geom_groups[g]);
+      vis_options.sitegroup[g] = static_cast<mjtByte>(site_groups[g]);
+    }
+    font_scale = options.height_px <= 600 ? mjFONTSCALE_100
+                 : options.height_px <= 1000 ? mjFONTSCALE_150
+                                             : mjFONTSCALE_200;
+    mjr_makeContext(model, &context, font_scale);
+    context_made = true;
+    mjr_setBuffer(mjFB_OFFSCREEN, &context);
+    if (context.currentBuffer != mjFB_OFFSCREEN) {
+      throw RenderUnavailableError(
+          "OpenGL: MuJoCo's offscreen framebuffer is unavailable (framebuffer objects not "
+          "supported by this driver); install libgl1-mesa-dri, or set "
+          "TOFU_EGL_PLATFORM=surfaceless");
+    }
+
+    SelectGhosts();
+    SelectConsistency();
+    ComputeOverview();
+    if (options.lidar_hits || options.gnss_sky) LoadSensorGeometry();
+  }
+
+  void SelectGhosts() {
+    for (const std::string& method : options.methods) {
+      const auto it = std::find_if(run.estimates.begin(), run.estimates.end(),
+                                   [&](const MethodEstimate& e) { return e.method == method; });
+      if (it == run.estimates.end()) {
+        std::vector<std::string> known;
+        for (const MethodEstimate& e : run.estimates) known.push_back(e.method);
+        throw core::InputError({run.directory.string()}, "--method",
+                               fmt::format("no estimate of method '{}' in the run (estimates: {})",
+                                           method, known.empty() ? "none" : Join(known, ", ")));
+      }
+      ghosts.push_back(&*it);
+    }
+    if (options.methods.empty()) {
+      for (const MethodEstimate& e : run.estimates) ghosts.push_back(&e);
+    }
+    if (!options.ghosts) ghosts.clear();
+  }
+
+  void SelectConsistency() {
+    // Decisions: the consensus method's if there is one, else the first method's.
+    std::set<std::string> decided;
+    for (const DecisionRow& d : run.decisions) decided.insert(d.method);
+    if (!decided.empty()) {
+      decision_method = decided.count("consensus") != 0 ? "consensus" : *decided.begin();
+    }
+    // Consistency: the decision method's file, else the first ghost's, else the run's.
+    std::vector<std::string> candidates = {decision_method};
+    for (const MethodEstimate* g : ghosts) candidates.push_back(g->method);
+    candidates.push_back("");
+    for (const auto& [method, rows] : run.consistency) candidates.push_back(method);
+    for (const std::string& c : candidates) {
+      const auto it = run.consistency.find(c);
+      if (it != run.consistency.end() && !it->second.empty()) {
+        consistency = &it->second;
+        break;
+      }
+    }
+    if (consistency == nullptr) return;
+    consistency_metric = options.consistency_metric;
+    std::set<std::string> metrics;
+    for (const ConsistencyRow& row : *consistency) metrics.insert(row.metric);
+    if (consistency_metric.empty()) {
+      consistency_metric = *metrics.begin();
+    } else if (metrics.count(consistency_metric) == 0) {
+      throw core::InputError({run.directory.string()}, "--metric",
+                             fmt::format("no consistency metric '{}' in the run (metrics: {})",
+                                         consistency_metric,
+                                         Join({metrics.begin(), metrics.end()}, ", ")));
+    }
+    // Low is good for MAE, KL and CvM: full red at the 95th percentile of the run.
+    std::vector<double> values;
+    std::set<std::string> names;
+    for (const ConsistencyRow& row : *consistency) {
+      if (row.metric != consistency_metric) continue;
+      names.insert(row.a);
+      names.insert(row.b);
+      if (std::isfinite(row.value)) values.push_back(std::abs(row.value));
+    }
+    if (!values.empty()) {
+      const size_t k = static_cast<size_t>(0.95 * static_cast<double>(values.size() - 1));
+      std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+      consistency_scale = std::max(values[k], 1e-9);
+    }
+    const bool has_local = names.erase("local") != 0;
+    matrix_names.assign(names.begin(), names.end());
+    if (has_local) matrix_names.push_back("local");
+    if (matrix_names.size() > 8) matrix_names.resize(8);
+  }
+
+  bool LowIsGood() const { return consistency_metric != "pcc"; }
+
+  double Badness(double value) const {
+    if (!std::isfinite(value)) return value;
+    if (!LowIsGood()) return 1.0 - value;  // correlation 1: consistent; <= 0: not at all
+    return std::abs(value) / consistency_scale;
+  }
+
+  // Distance a camera at `lookat` looking along `forward` can back off before a wall.
+  double ClearDistance(const Eigen::Vector3d& lookat_W, const Eigen::Vector3d& forward_W,
+                       double wanted_m) const {
+    const auto hit = world->CastRay(lookat_W, -forward_W, sim::kRayScene);
+    if (!hit || hit->distance_m > wanted_m + kCameraWallClearance_m) return wanted_m;
+    return std::max(0.5, hit->distance_m - kCameraWallClearance_m);
+  }
+
+  static Eigen::Vector3d Forward(double azimuth_deg, double elevation_deg) {
+    const double az = azimuth_deg * kDegToRad;
+    const double el = elevation_deg * kDegToRad;
+    return Eigen::Vector3d(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+  }
+
+  // The overview: the flown volume (and the total stations) framed from the diagonal
+  // with the most room, or the model's camera "overview" when the world has one.
+  void ComputeOverview() {
+    mjv_defaultCamera(&overview);
+    const int fixed = mj_name2id(model, mjOBJ_CAMERA, "overview");
+    if (fixed >= 0) {
+      overview.type = mjCAMERA_FIXED;
+      overview.fixedcamid = fixed;
+      overview_fovy_deg = model->cam_fovy[fixed];
+      return;
+    }
+    Eigen::Vector3d lo = run.groundtruth.front().p_W;
+    Eigen::Vector3d hi = lo;
+    for (const TimedPose& p : run.groundtruth) {
+      lo = lo.cwiseMin(p.p_W);
+      hi = hi.cwiseMax(p.p_W);
+    }
+    for (const SensorTrack& s : run.sensors) {
+      if (s.type != "total_station") continue;
+      lo = lo.cwiseMin(s.true_T_WS.translation());
+      hi = hi.cwiseMax(s.true_T_WS.translation());
+    }
+    // The ghosts too, where they are near the truth: a diverged estimate would otherwise
+    // shrink the whole run to a dot.
+    constexpr double kGhostFramingRadius_m = 5.0;
+    for (const MethodEstimate* g : ghosts) {
+      for (size_t i = 0; i < g->T_WB.size(); i += 10) {
+        const Eigen::Vector3d p = g->T_WB[i].p_W;
+        if ((p - InterpolatePose(run.groundtruth, g->T_WB[i].t_ns).p_W).norm() > kGhostFramingRadius_m) {
+          continue;
+        }
+        lo = lo.cwiseMin(p);
+        hi = hi.cwiseMax(p);
+      }
+    }
+    const Eigen::Vector3d lookat = 0.5 * (lo + hi);
+    const double radius = std::max(2.0, 0.5 * (hi - lo).norm() + 0.5);
+    // The sphere around the flown volume fits in the frame's height.
+    const double distance =
+        std::min(40.0, radius / std::sin(0.5 * kOverviewFovyDeg * kDegToRad));
+    overview_targets = {lookat};
+    for (int corner = 0; corner < 8; ++corner) {
+      overview_targets.emplace_back(corner & 1 ? hi.x() : lo.x(), corner & 2 ? hi.y() : lo.y(),
+                                    corner & 4 ? hi.z() : lo.z());
+    }
+    // The diagonal whose view needs the fewest walls cut away (ties: the first).
+    size_t best_count = 0;
+    double best_azimuth = 45.0;
+    for (int k = 0; k < 4; ++k) {
+      const double azimuth = 45.0 + 90.0 * k;
+      const Eigen::Vector3d eye =
+          lookat - distance * Forward(azimuth, kOverviewElevationDeg);
+      const size_t count = Occluders(eye, overview_targets).size();
+      if (k == 0 || count < best_count) {
+        best_count = count;
+        best_azimuth = azimuth;
+      }
+    }
+    overview.type = mjCAMERA_FREE;
+    for (int k = 0; k < 3; ++k) overview.lookat[k] = lookat(k);
+    overview.distance = distance;
+    overview.azimuth = best_azimuth;
+    overview.elevation = kOverviewElevationDeg;
+  }
+
+  // Structure geoms (group 0) between `eye` and any of `targets`: drawn nearly
+  // transparent, a cutaway, so that walls and ceilings never hide the robot.
+  std::set<int> Occluders(const Eigen::Vector3d& eye_W,
+                          const std::vector<Eigen::Vector3d>& targets_W) const {
+    constexpr uint32_t kStructure = 1u << 0;
+    constexpr double kStep_m = 0.02;  // past a surface before casting again
+    std::set<int> occluders;
+    for (const Eigen::Vector3d& target : targets_W) {
+      const Eigen::Vector3d d = target - eye_W;
+      const double length = d.norm();
+      if (length < 1e-6) continue;
+      const Eigen::Vector3d u = d / length;
+      double travelled = 0.0;
+      for (int i = 0; i < 16 && travelled < length; ++i) {
+        const auto hit = world->CastRay(eye_W + travelled * u, u, kStructure);
+        if (!hit || travelled + hit->distance_m >= length) break;
+        occluders.insert(hit->geom);
+        travelled += hit->distance_m + kStep_m;
+      }
+    }
+    return occluders;
+  }
+
+  void LoadSensorGeometry() {
+    const std::string path = (run.directory / "scenario.yaml").string();
+    scenario = harness::LoadScenario(path);
+    for (const harness::SensorConfig& config : scenario->sensors) {
+      if (const auto* lidar = std::get_if<sim::LidarOdometryOptions>(&config.options)) {
+        lidars.push_back({lidar->site, *lidar});
+      }
+      if (options.gnss_sky && std::holds_alternative<sim::GnssOptions>(config.options)) {
+        // The sky is drawn once per scenario from the sensor's own seeded stream: the
+        // model built as the run built it has the very same satellites.
+        const auto model_ptr = harness::MakeSensorModel(config, *world, scenario->seed);
+        const auto* gnss = dynamic_cast<const sim::GnssModel*>(model_ptr.get());
+        if (gnss == nullptr) continue;
+        Sky sky;
+        sky.site = gnss->site();
+        sky.T_WS = gnss->T_WS();
+        sky.directions_S = gnss->satellite_directions_S();
+        sky.ray_length_m = std::get<sim::GnssOptions>(config.options).sky_ray_length_m;
+        skies.push_back(std::move(sky));
+      }
+    }
+  }
+
+  // ---- scene building ----
+
+  mjvGeom* NewGeom() {
+    if (scene.ngeom >= scene.maxgeom) return nullptr;
+    return scene.geoms + scene.ngeom++;
+  }
+
+  void Style(mjvGeom* g, const Rgba& rgba, float emission) {
+    g->category = mjCAT_DECOR;
+    g->objtype = mjOBJ_UNKNOWN;
+    g->objid = -1;
+    g->segid = -1;
+    g->texid = -1;
+    std::copy(rgba.begin(), rgba.end(), g->rgba);
+    g->emission = emission;
+    g->specular = 0.2f;
+    g->shininess = 0.3f;
+    g->reflectance = 0.0f;
+    g->transparent = rgba[3] < 1.0f;
+    g->label[0] = '\0';
+  }
+
+  void AddSphere(const Eigen::Vector3d& p_W, double radius_m, const Rgba& rgba) {
+    mjvGeom* g = NewGeom();
+    if (g == nullptr) return;
+    const mjtNum size[3] = {radius_m, radius_m, radius_m};
+    const mjtNum pos[3] = {p_W.x(), p_W.y(), p_W.z()};
+    mjv_initGeom(g, mjGEOM_SPHERE, size, pos, nullptr, rgba.data());
+    Style(g, rgba, 0.3f);
+  }
+
+  void AddSegment(const Eigen::Vector3d& a_W, const Eigen::Vector3d& b_W, double radius_m,
+                  const Rgba& rgba) {
+    if ((b_W - a_W).norm() < 1e-6) return;
+    mjvGeom* g = NewGeom();
+    if (g == nullptr) return;
+    mjv_initGeom(g, mjGEOM_CAPSULE, nullptr, nullptr, nullptr, rgba.data());
+    const mjtNum from[3] = {a_W.x(), a_W.y(), a_W.z()};
+    const mjtNum to[3] = {b_W.x(), b_W.y(), b_W.z()};
+    mjv_makeConnector(g, mjGEOM_CAPSULE, radius_m, from[0], from[1], from[2], to[0], to[1], to[2]);
+    Style(g, rgba, 0.3f);
+  }
+
+  Eigen::Isometry3d Mount(const std::string& site) const {
+    const auto it = run.mounts.find(site);
+    return it != run.mounts.end() ? it->second : Eigen::Isometry3d::Identity();
+  }
+
+  void AddGhosts(core::Time t_ns) {
+    for (size_t k = 0; k < ghosts.size(); ++k) {
+      const std::vector<TimedPose>& poses = ghosts[k]->T_WB;
+      if (t_ns < poses.front().t_ns || t_ns > poses.back().t_ns + kGhostMaxGap_ns) continue;
+      const auto after = std::lower_bound(
+          poses.begin(), poses.end(), t_ns,
+          [](const TimedPose& p, core::Time t) { return p.t_ns < t; });
+      if (after != poses.end() && after != poses.begin() &&
+          after->t_ns - (after - 1)->t_ns > kGhostMaxGap_ns) {
+        continue;  // inside a gap of the estimate: no made-up pose
+      }
+      const TimedPose pose = InterpolatePose(poses, t_ns);
+      // The ghost shares the true robot's joint angles; only its base pose differs.
+      mju_copy(ghost_data->qpos, data->qpos, model->nq);
+      for (int i = 0; i < 3; ++i) ghost_data->qpos[root_qpos + i] = pose.p_W(i);
+      ghost_data->qpos[root_qpos + 3] = pose.q_W.w();
+      ghost_data->qpos[root_qpos + 4] = pose.q_W.x();
+      ghost_data->qpos[root_qpos + 5] = pose.q_W.y();
+      ghost_data->qpos[root_qpos + 6] = pose.q_W.z();
+      mj_kinematics(model, ghost_data);
+      const int first = scene.ngeom;
+      mjv_addGeoms(model, ghost_data, &vis_options, nullptr, mjCAT_DYNAMIC, &scene);
+      const std::array<float, 3> c = GhostColor(k);
+      const Rgba rgba = {c[0], c[1], c[2], static_cast<float>(options.ghost_alpha)};
+      for (int i = first; i < scene.ngeom; ++i) {
+        mjvGeom* g = scene.geoms + i;
+        Style(g, rgba, 0.25f);
+        g->transparent = options.ghost_alpha < 1.0;
+      }
+    }
+  }
+
+  void AddSensorMarkers(core::Time t_ns) {
+    const core::Time trail_ns = core::SecondsToTime(options.trail_s);
+    for (size_t k = 0; k < run.sensors.size(); ++k) {
+      const SensorTrack& s = run.sensors[k];
+      if (s.t_ns.empty()) continue;
+      const Rgba color = SensorColor(k);
+      const auto end = std::upper_bound(s.t_ns.begin(), s.t_ns.end(), t_ns);
+      if (end == s.t_ns.begin()) continue;
+      const size_t last = static_cast<size_t>(end - s.t_ns.begin()) - 1;
+      if (t_ns - s.t_ns[last] > kMarkerMaxAge_ns) continue;  // silent sensor: no marker
+      const bool faulted = !s.faults[last].empty();
+      AddSphere(s.p_W[last], 0.045, color);
+      if (faulted) AddSphere(s.p_W[last], 0.075, {kBlockedRed[0], kBlockedRed[1], kBlockedRed[2], 0.35f});
+      // Trail: at most 60 segments over the last trail_s.
+      const auto begin =
+          std::lower_bound(s.t_ns.begin(), s.t_ns.end(), t_ns - trail_ns) - s.t_ns.begin();
+      const size_t first = static_cast<size_t>(begin);
+      const size_t stride = std::max<size_t>(1, (last - first) / 60 + 1);
+      Rgba trail = color;
+      trail[3] = 0.7f;
+      size_t previous = first;
+      for (size_t i = first + stride; i <= last; i += stride) {
+        AddSegment(s.p_W[previous], s.p_W[i], 0.008, trail);
+        previous = i;
+      }
+      if (previous != last) AddSegment(s.p_W[previous], s.p_W[last], 0.008, trail);
+    }
+  }
+
+  void AddLineOfSight(core::Time t_ns, const Eigen::Isometry3d& T_WB) {
+    for (const SensorTrack& s : run.sensors) {
+      if (s.type != "total_station") continue;
+      const Eigen::Vector3d station_W = s.true_T_WS.translation();
+      const Eigen::Vector3d prism_W = T_WB * Mount(s.site).translation();
+      const bool blocked = run.LabelActive(s.name, "occluded", t_ns);
+      AddSegment(station_W, prism_W, 0.01, blocked ? kBlockedRed : kClearGreen);
+      AddSphere(station_W, 0.06, blocked ? kBlockedRed : kClearGreen);
+    }
+  }
+
+  void AddLidarHits(const Eigen::Isometry3d& T_WB) {
+    for (const Lidar& lidar : lidars) {
+      const Eigen::Isometry3d T_Ws = T_WB * Mount(lidar.site);
+      const sim::LidarOdometryOptions& o = lidar.options;
+      for (int e = 0; e < o.elevation_count; ++e) {
+        const double el = o.elevation_count > 1
+                              ? o.elevation_min_rad + (o.elevation_max_rad - o.elevation_min_rad) *
+                                                          e / (o.elevation_count - 1)
+                              : o.elevation_min_rad;
+        for (int a = 0; a < o.azimuth_count; ++a) {
+          const double az = 2.0 * kPi * a / o.azimuth_count;
+          const Eigen::Vector3d d_s(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
+                                    std::sin(el));
+          const auto hit = world->CastRay(T_Ws.translation(), T_Ws.linear() * d_s, sim::kRayScene);
+          if (!hit || hit->distance_m < o.min_range_m || hit->distance_m > o.max_range_m) continue;
+          AddSphere(hit->point_W, 0.02, {1.0f, 0.45f, 0.0f, 1.0f});
+        }
+      }
+    }
+  }
+
+  void AddSkyRays(const Eigen::Isometry3d& T_WB) {
+    constexpr double kDrawnLength_m = 6.0;
+    for (const Sky& sky : skies) {
+      const Eigen::Vector3d antenna_W = T_WB * Mount(sky.site).translation();
+      for (const Eigen::Vector3d& d_S : sky.directions_S) {
+        const Eigen::Vector3d d_W = sky.T_WS.linear() * d_S;
+        const auto hit = world->CastRay(antenna_W, d_W, sim::kRayScene);
+        const bool blocked = hit && hit->distance_m <= sky.ray_length_m;
+        const double length = blocked ? std::min(hit->distance_m, kDrawnLength_m) : kDrawnLength_m;
+        Rgba c = blocked ? kBlockedRed : kClearGreen;
+        c[3] = 0.8f;
+        AddSegment(antenna_W, antenna_W + length * d_W.normalized(), 0.005, c);
+      }
+    }
+  }
+
+  // ---- cameras ----
+
+  double SetCamera(core::Time t_ns, const std::string& name, const TimedPose& truth) {
+    cutaway_targets.clear();
+    if (name == "overview") {
+      camera = overview;
+      if (camera.type == mjCAMERA_FREE) {
+        cutaway_targets = overview_targets;
+        cutaway_targets.push_back(truth.p_W);
+      }
+      return overview_fovy_deg;
+    }
+    if (name == "chase") {
+      // Behind the robot, looking along its heading averaged over the last 2 s (smooth
+      // under yaw oscillation; an OMAV may fly sideways, so not along the velocity).
+      Eigen::Vector2d heading = Eigen::Vector2d::Zero();
+      for (int k = 0; k <= 20; ++k) {
+        const TimedPose p = InterpolatePose(run.groundtruth, t_ns - k * 100'000'000);
+        const Eigen::Vector3d x_W = p.q_W * Eigen::Vector3d::UnitX();
+        heading += x_W.head<2>();
+      }
+      const double azimuth =
+          heading.norm() > 1e-6 ? std::atan2(heading.y(), heading.x()) / kDegToRad : overview.azimuth;
+      const Eigen::Vector3d lookat = truth.p_W + Eigen::Vector3d(0.0, 0.0, 0.1);
+      camera.type = mjCAMERA_FREE;
+      for (int k = 0; k < 3; ++k) camera.lookat[k] = lookat(k);
+      camera.azimuth = azimuth;
+      camera.elevation = kChaseElevationDeg;
+      camera.distance = ClearDistance(lookat, Forward(azimuth, kChaseElevationDeg), kChaseDistance_m);
+      for (const double dx : {-0.4, 0.0, 0.4}) {
+        for (const double dy : {-0.4, 0.0, 0.4}) {
+          cutaway_targets.push_back(truth.p_W + Eigen::Vector3d(dx, dy, 0.0));
+        }
+      }
+      return kChaseFovyDeg;
+    }
+    const int id = mj_name2id(model, mjOBJ_CAMERA, name.c_str());
+    if (id < 0) {
+      throw core::InputError({run.directory.string()}, "--camera",
+                             fmt::format("unknown camera '{}'; expected one of: {}", name,
+                                         Join(CameraNames(), ", ")));
+    }
+    camera.type = mjCAMERA_FIXED;
+    camera.fixedcamid = id;
+    return model->cam_fovy[id];
+  }
+
+  std::vector<std::string> CameraNames() const {
+    std::vector<std::string> names = {"chase", "overview"};
+    for (int i = 0; i < model->ncam; ++i) {
+      const char* n = mj_id2name(model, mjOBJ_CAMERA, i);
+      if (n != nullptr && std::strcmp(n, "overview") != 0) names.emplace_back(n);
+    }
+    return names;
+  }
+
+  // ---- overlays ----
+
+  const DecisionRow* DecisionAt(core::Time t_ns) const {
+    const DecisionRow* found = nullptr;
+    for (const DecisionRow& d : run.decisions) {
+      if (d.t_ns > t_ns) break;
+      if (d.method == decision_method) found = &d;
+    }
+    return found;
+  }
+
+  // Latest value of each pair of the shown metric at t.
+  std::map<std::pair<std::string, std::string>, double> ConsistencyAt(core::Time t_ns) const {
+    std::map<std::pair<std::string, std::string>, double> values;
+    if (consistency == nullptr) return values;
+    for (const ConsistencyRow& row : *consistency) {
+      if (row.t_ns > t_ns) continue;
+      if (row.metric != consistency_metric) continue;
+      values[{row.a, row.b}] = row.value;
+    }
+    return values;
+  }
+
+  void DrawText(core::Time t_ns, const std::string& camera_name, const std::string& caption) {
+    std::string titles;
+    std::string values;
+    int lines = 0;
+    const int max_lines = MaxOverlayLines();
+    const auto line = [&](const std::string& title, const std::string& value) {
+      if (lines++ >= max_lines) return;
+      titles += (titles.empty() ? "" : "\n") + title;
+      values += (values.empty() ? "" : "\n") + value;
+    };
+    line("time", fmt::format("{:.2f} s  ({})", core::TimeToSeconds(t_ns), camera_name));
+    if (!caption.empty()) line("event", caption);
+    if (const DecisionRow* d = DecisionAt(t_ns)) {
+      line("fused", fmt::format("{} ({})", d->fused.empty() ? "none" : Join(d->fused, "+"),
+                                decision_method));
+      line("excluded", d->excluded.empty() ? "none" : Join(d->excluded, "+"));
+      if (!d->unavailable.empty()) line("unavailable", Join(d->unavailable, "+"));
+    } else if (!ghosts.empty()) {
+      const MethodEstimate& g = *ghosts.front();
+      const auto it = std::upper_bound(
+          g.T_WB.begin(), g.T_WB.end(), t_ns,
+          [](core::Time t, const TimedPose& p) { return t < p.t_ns; });
+      if (it != g.T_WB.begin()) {
+        const std::string& fused = g.fused[static_cast<size_t>(it - g.T_WB.begin()) - 1];
+        line("fused", fmt::format("{} ({})", fused.empty() ? "none" : fused, g.method));
+      }
+    }
+    std::string faults;
+    for (const SensorTrack& s : run.sensors) {
+      const std::vector<std::string> active = run.ActiveFaults(s.name, t_ns);
+      if (!active.empty()) faults += (faults.empty() ? "" : ", ") + s.name + ": " + Join(active, "|");
+    }
+    if (!faults.empty()) line("faults", faults);
+    std::string occluded;
+    for (const SensorTrack& s : run.sensors) {
+      if (s.type == "total_station" && run.LabelActive(s.name, "occluded", t_ns)) {
+        occluded += (occluded.empty() ? "" : ", ") + s.name;
+      }
+    }
+    if (!occluded.empty()) line("blocked", occluded + " line of sight");
+    const auto values_at = ConsistencyAt(t_ns);
+    if (!values_at.empty()) {
+      std::string text;
+      int shown = 0;
+      for (const auto& [pair, value] : values_at) {
+        if (shown++ == 4) {
+          text += " ...";
+          break;
+        }
+        text += fmt::format("{}{}-{} {}", text.empty() ? "" : ", ", pair.first, pair.second,
+                            std::isfinite(value) ? fmt::format("{:.2f}", value) : "n/a");
+      }
+      line(consistency_metric, text);
+    }
+    const mjrRect viewport = {0, 0, options.width_px, options.height_px};
+    mjr_overlay(mjFONT_NORMAL, mjGRID_TOPLEFT, viewport, titles.c_str(), values.c_str(), &context);
+  }
+
+  // Lines of the text overlay that fit in the upper half of the frame (small frames keep
+  // the first, most important ones).
+  int MaxOverlayLines() const {
+    const int line_px = 23 * font_scale / 100;
+    return std::max(2, options.height_px / 2 / line_px);
+  }
+
+  int TextHeight() const { return 18 * font_scale / 100; }
+
+  // Legend: the truth and each ghost, then each sensor's marker colour, along the bottom.
+  void DrawLegend() {
+    const int h = TextHeight();
+    const int char_w = 8 * font_scale / 100;
+    int x = 4;
+    const auto entry = [&](const std::string& text, const Rgba& bg, const Rgba& fg) {
+      const int w = static_cast<int>(text.size()) * char_w + 10;
+      if (x + w > options.width_px) return;
+      const mjrRect rect = {x, 4, w, h};
+      mjr_label(rect, mjFONT_NORMAL, text.c_str(), bg[0], bg[1], bg[2], 0.85f, fg[0], fg[1], fg[2],
+                &context);
+      x += w + 4;
+    };
+    const Rgba dark = {0.05f, 0.05f, 0.05f, 1.0f};
+    for (size_t k = 0; k < ghosts.size(); ++k) {
+      const std::array<float, 3> c = GhostColor(k);
+      entry("ghost " + ghosts[k]->method, {c[0], c[1], c[2], 1.0f}, dark);
+    }
+    for (size_t k = 0; k < run.sensors.size(); ++k) {
+      entry(run.sensors[k].name, SensorColor(k), dark);
+    }
+  }
+
+  // Consistency-matrix inset, top right: one cell per pair, coloured by consistency.
+  void DrawHeatmap(core::Time t_ns) {
+    if (consistency == nullptr || matrix_names.size() < 2) return;
+    const auto values = ConsistencyAt(t_ns);
+    const int n = static_cast<int>(matrix_names.size());
+    const int cell = std::max(18, std::min(options.height_px / 16, 40)) * font_scale / 100;
+    const int header_w = 5 * 8 * font_scale / 100 + 8;
+    const int width = header_w + n * cell;
+    const int height = TextHeight() + cell + n * cell;
+    const int left = options.width_px - width - 6;
+    const int top = options.height_px - 6;  // GL y grows upwards
+    if (left < 0 || height + 12 > options.height_px) return;
+    mjr_rectangle({left - 3, top - height - 3, width + 6, height + 6}, 0.0f, 0.0f, 0.0f, 0.55f);
+    const std::string title = fmt::format("{} {}", consistency_metric, LowIsGood() ? "(low=ok)" : "(1=ok)");
+    mjr_label({left, top - TextHeight(), width, TextHeight()}, mjFONT_NORMAL, title.c_str(), 0.0f,
+              0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f, &context);
+    const int grid_top = top - TextHeight();
+    const auto short_name = [](const std::string& s) { return s.substr(0, 5); };
+    for (int c = 0; c < n; ++c) {
+      mjr_label({left + header_w + c * cell, grid_top - cell, cell, cell}, mjFONT_NORMAL,
+                short_name(matrix_names[c]).substr(0, std::max(1, cell / 8)).c_str(), 0.0f, 0.0f,
+                0.0f, 0.0f, 0.9f, 0.9f, 0.9f, &context);
+    }
+    for (int r = 0; r < n; ++r) {
+      const int y = grid_top - cell - (r + 1) * cell;
+      mjr_label({left, y, header_w, cell}, mjFONT_NORMAL, short_name(matrix_names[r]).c_str(), 0.0f,
+                0.0f, 0.0f, 0.0f, 0.9f, 0.9f, 0.9f, &context);
+      for (int c = 0; c < n; ++c) {
+        const mjrRect rect = {left + header_w + c * cell + 1, y + 1, cell - 2, cell - 2};
+        if (r == c) {
+          mjr_rectangle(rect, 0.12f, 0.12f, 0.12f, 1.0f);
+          continue;
+        }
+        auto it = values.find({matrix_names[r], matrix_names[c]});
+        if (it == values.end()) it = values.find({matrix_names[c], matrix_names[r]});
+        if (it == values.end()) {
+          mjr_rectangle(rect, 0.22f, 0.22f, 0.24f, 1.0f);
+          continue;
+        }
+        const Rgba color = BadnessColor(Badness(it->second));
+        const std::string text =
+            cell >= 30 && std::isfinite(it->second) ? fmt::format("{:.2g}", it->second) : "";
+        mjr_label(rect, mjFONT_NORMAL, text.c_str(), color[0], color[1], color[2], 1.0f, 0.0f,
+                  0.0f, 0.0f, &context);
+      }
+    }
+  }
+
+  Image Render(core::Time t_ns, const std::string& camera_name, const std::string& caption) {
+    egl->MakeCurrent();
+    t_ns = std::clamp(t_ns, run.start_ns(), run.end_ns());
+    const TimedPose truth = InterpolatePose(run.groundtruth, t_ns);
+
+    // The true robot: World::Reset places it with the hover tilts of its attitude (the
+    // run directory does not record joint angles).
+    world->Reset(sim::Waypoint{truth.p_W, truth.q_W});
+    mju_copy(data->qpos, world->data()->qpos, model->nq);
+    mju_zero(data->qvel, model->nv);
+    data->time = core::TimeToSeconds(t_ns);
+    mj_forward(model, data);
+
+    const double fovy_deg = SetCamera(t_ns, camera_name, truth);
+    model->vis.global.fovy = static_cast<float>(fovy_deg);
+    mjv_updateScene(model, data, &vis_options, nullptr, &camera, mjCAT_ALL, &scene);
+    if (!cutaway_targets.empty()) {
+      const Eigen::Vector3d lookat(camera.lookat[0], camera.lookat[1], camera.lookat[2]);
+      const Eigen::Vector3d eye = lookat - camera.distance * Forward(camera.azimuth, camera.elevation);
+      const std::set<int> occluders = Occluders(eye, cutaway_targets);
+      for (int i = 0; i < scene.ngeom; ++i) {
+        mjvGeom& g = scene.geoms[i];
+        if (g.objtype != mjOBJ_GEOM || occluders.count(g.objid) == 0) continue;
+        g.rgba[3] = std::min(g.rgba[3], kCutawayAlpha);
+        g.transparent = 1;
+      }
+    }
+
+    const Eigen::Isometry3d T_WB = ToIsometry(truth);
+    AddLineOfSight(t_ns, T_WB);
+    AddSensorMarkers(t_ns);
+    if (options.lidar_hits) AddLidarHits(T_WB);
+    if (options.gnss_sky) AddSkyRays(T_WB);
+    AddGhosts(t_ns);
+
+    // Transparent geoms are drawn back to front by camera distance.
+    const mjvGLCamera eye = mjv_averageCamera(scene.camera, scene.camera + 1);
+    for (int i = 0; i < scene.ngeom; ++i) {
+      mjvGeom& g = scene.geoms[i];
+      const float dx = g.pos[0] - eye.pos[0];
+      const float dy = g.pos[1] - eye.pos[1];
+      const float dz = g.pos[2] - eye.pos[2];
+      g.camdist = std::sqrt(dx * dx + dy * dy + dz * dz);
+    }
+    scene.flags[mjRND_SHADOW] = options.shadows ? 1 : 0;
+    scene.flags[mjRND_REFLECTION] = options.reflections ? 1 : 0;
+    scene.flags[mjRND_SKYBOX] = 1;
+
+    view.name = camera_name;
+    view.p_W = Eigen::Vector3d(eye.pos[0], eye.pos[1], eye.pos[2]);
+    view.forward_W = Eigen::Vector3d(eye.forward[0], eye.forward[1], eye.forward[2]).normalized();
+    view.up_W = Eigen::Vector3d(eye.up[0], eye.up[1], eye.up[2]).normalized();
+    view.fovy_deg = fovy_deg;
+    view.width_px = options.width_px;
+    view.height_px = options.height_px;
+
+    mjr_setBuffer(mjFB_OFFSCREEN, &context);
+    const mjrRect viewport = {0, 0, options.width_px, options.height_px};
+    mjr_render(viewport, &scene, &context);
+    if (options.text_overlay) {
+      DrawText(t_ns, camera_name, caption);
+      DrawLegend();
+    }
+    if (options.heatmap) DrawHeatmap(t_ns);
+
+    // Read back (OpenGL rows run bottom to top) and flip.
+    Image bottom_up(options.width_px, options.height_px);
+    mjr_readPixels(bottom_up.rgb.data(), nullptr, viewport, &context);
+    Image image(options.width_px, options.height_px);
+    const size_t row = static_cast<size_t>(3) * options.width_px;
+    for (int y = 0; y < options.height_px; ++y) {
+      std::memcpy(image.rgb.data() + row * y,
+                  bottom_up.rgb.data() + row * (options.height_px - 1 - y), row);
+    }
+    return image;
+  }
+};
+
+SceneRenderer::SceneRenderer(const RunData& run, const RenderOptions& options)
+    : impl_(std::make_unique<Impl>(run, options)) {
+  impl_->Build();
+}
+
+SceneRenderer::~SceneRenderer() = default;
+
+Image SceneRenderer::Render(core::Time t_ns, const std::string& camera, const std::string& caption) {
+  return impl_->Render(t_ns, camera, caption);
+}
+
+const CameraView& SceneRenderer::last_view() const { return impl_->view; }
+std::vector<std::string> SceneRenderer::CameraNames() const { return impl_->CameraNames(); }
+
+std::vector<std::string> SceneRenderer::GhostMethods() const {
+  std::vector<std::string> names;
+  for (const MethodEstimate* g : impl_->ghosts) names.push_back(g->method);
+  return names;
+}
+
+std::string SceneRenderer::GlDescription() const { return impl_->egl->Description(); }
+
+}  // namespace tofu::renders
