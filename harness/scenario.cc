@@ -327,7 +327,7 @@ std::string MetricNames(bool windowable_only) {
 Expectation ReadExpectation(const YamlValue& item, const std::vector<SensorConfig>& sensors) {
   Expectation expectation;
   expectation.location = item.location();
-  YamlMap map = item.Map({"metric", "min", "max", "window_s"});
+  YamlMap map = item.Map({"metric", "min", "max", "window_s", "pass_fraction"});
 
   const YamlValue metric = map.Required("metric");
   expectation.metric = metric.String();
@@ -380,6 +380,10 @@ Expectation ReadExpectation(const YamlValue& item, const std::vector<SensorConfi
                                FormatDouble(from_to[0]), FormatDouble(from_to[1])));
     }
     expectation.window_s = std::make_pair(from_to[0], from_to[1]);
+  }
+  // Share of the seeds of `tofu check --seeds N` in which the expectation must hold.
+  if (const auto fraction = map.Optional("pass_fraction")) {
+    expectation.pass_fraction = fraction->Number(NumberRule::PositiveAtMost(1.0, ""));
   }
   map.Finish();
   return expectation;
@@ -652,6 +656,7 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
         out << YAML::Key << "window_s" << YAML::Value << YAML::Flow << YAML::BeginSeq
             << FormatDouble(e.window_s->first) << FormatDouble(e.window_s->second) << YAML::EndSeq;
       }
+      EmitNumber(out, "pass_fraction", e.pass_fraction);
       out << YAML::EndMap;
     }
     out << YAML::EndSeq;

@@ -34,6 +34,9 @@ struct Expectation {
   std::optional<double> max;
   /// [from, to] in seconds of run time, only for windowable metrics.
   std::optional<std::pair<double, double>> window_s;
+  /// `tofu check --seeds N`: the expectation passes when it held in at least
+  /// ceil(pass_fraction * N) seeds; in (0, 1]. One `tofu run` (one seed) needs it to hold.
+  double pass_fraction = 1.0;
   core::SourceLocation location;  ///< where it was written, for reports
 };
 
