@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/check_command.h"
 #include "harness/consistency_command.h"
 #include "harness/evaluation.h"
 #include "harness/metrics.h"
@@ -144,6 +145,20 @@ int main(int argc, char** argv) {
 
   CLI::App* metrics = app.add_subcommand("metrics", "List the metrics expectations can use");
 
+  CLI::App* check = app.add_subcommand(
+      "check", "Run scenarios over seeds as CI: table, JUnit XML, exit code");
+  tofu::harness::CheckCommandOptions check_options;
+  check->add_option("scenarios", check_options.inputs,
+                    "Scenario files or directories of *.yaml (default: scenarios)");
+  check->add_option("--junit", check_options.junit_path, "Write JUnit XML to this file");
+  check->add_option("--jobs", check_options.jobs, "Parallel runs (default: number of cores)");
+  check->add_option("--seeds", check_options.seeds,
+                    "Seeds per scenario: its seed + 0..N-1 (pass_fraction applies)")
+      ->capture_default_str();
+  check->add_option("--out", check_options.out_dir, "Output directory: <out>/<scenario>/seed_<s>")
+      ->capture_default_str();
+  check->add_flag("--quiet", check_options.quiet, "No progress and no table (failures still)");
+
   CLI::App* consistency = app.add_subcommand(
       "consistency", "Consistency metric between two velocity CSVs over a sliding window");
   tofu::harness::ConsistencyCommandOptions cons;
@@ -224,6 +239,7 @@ int main(int argc, char** argv) {
   try {
     if (*run) return RunCommand(scenario_path, out_dir, seed, quiet);
     if (*validate) return ValidateCommand(validate_paths);
+    if (*check) return tofu::harness::RunCheckCommand(check_options);
     if (*consistency) {
       tofu::harness::RunConsistencyCommand(cons);
       return tofu::core::kExitOk;

@@ -1,0 +1,744 @@
+#include "harness/check_command.h"
+
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "core/error.h"
+#include "harness/yaml_reader.h"
+
+extern char** environ;
+
+namespace tofu::harness {
+namespace {
+
+namespace fs = std::filesystem;
+using core::InputError;
+using internal::FormatDouble;
+
+// ---- running ----
+
+// One run to do and, once done, what came of it.
+struct Job {
+  size_t scenario_index = 0;
+  std::string scenario_path;
+  SeedRun run;
+};
+
+std::string SelfExecutable() {
+  std::error_code ec;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+  // Fall back to the link itself: exec follows it just as well.
+  return ec ? std::string("/proc/self/exe") : self.string();
+}
+
+// The last few non-empty lines of a run's log: what `tofu run` said when it failed.
+std::string LogTail(const std::string& path, size_t max_lines = 5) {
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  std::string line;
+  while (std::getline(in, line)) {
+    // A progress bar redraws with '\r'; keep only what is visible at the end of the line.
+    if (const size_t cr = line.find_last_of('\r'); cr != std::string::npos) {
+      line = line.substr(cr + 1);
+    }
+    if (line.find_first_not_of(" \t") == std::string::npos) continue;
+    if (line.size() > 400) line = line.substr(0, 400) + "...";
+    lines.push_back(line);
+  }
+  if (lines.size() > max_lines) lines.erase(lines.begin(), lines.end() - max_lines);
+  std::string tail;
+  for (const std::string& l : lines) tail += fmt::format("{}{}", tail.empty() ? "" : "\n", l);
+  return tail;
+}
+
+// Starts `tofu run` for a job with stdin from /dev/null and stdout+stderr into its log.
+// Returns the child's pid, or -1 with the reason in job.run.error.
+pid_t SpawnRun(const std::string& binary, Job& job) {
+  const std::string seed = std::to_string(job.run.seed);
+  std::vector<std::string> args = {binary,      "run",     job.scenario_path, "--seed",
+                                   seed,        "--out",   job.run.run_dir,   "--quiet"};
+  std::vector<char*> argv;
+  for (std::string& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, job.run.log_path.c_str(),
+                                   O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+  pid_t pid = -1;
+  const int rc = posix_spawn(&pid, binary.c_str(), &actions, nullptr, argv.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  if (rc != 0) {
+    job.run.error = fmt::format("cannot start {}: {}", binary, std::strerror(rc));
+    return -1;
+  }
+  return pid;
+}
+
+// Exit status of a child as a core::ExitCode, with a message for the abnormal ends.
+void RecordExit(int status, SeedRun& run) {
+  if (WIFEXITED(status)) {
+    run.exit_code = WEXITSTATUS(status);
+    if (run.exit_code == core::kExitBadInput) {
+      run.error = "bad input (exit 2)";
+    } else if (run.exit_code == core::kExitSimulationError) {
+      run.error = "simulation failed (exit 3)";
+    } else if (run.exit_code != core::kExitOk && run.exit_code != core::kExitExpectationFailed) {
+      run.error = fmt::format("exited with unexpected status {}", run.exit_code);
+      run.exit_code = core::kExitSimulationError;
+    }
+  } else if (WIFSIGNALED(status)) {
+    run.error = fmt::format("killed by signal {} ({})", WTERMSIG(status),
+                            strsignal(WTERMSIG(status)));
+    run.exit_code = core::kExitSimulationError;
+  } else {
+    run.error = "ended in an unknown way";
+    run.exit_code = core::kExitSimulationError;
+  }
+}
+
+const char* Verdict(const SeedRun& run) {
+  if (run.exit_code == core::kExitOk) return "passed";
+  if (run.exit_code == core::kExitExpectationFailed) return "expectation failed";
+  if (run.exit_code == core::kExitBadInput) return "bad input";
+  return "simulation failed";
+}
+
+// Runs every job, at most `jobs` at a time. The check owns this process's children: it
+// reaps with waitpid(-1), so it must not share the process with other child-spawning code.
+void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool quiet) {
+  using Clock = std::chrono::steady_clock;
+  std::map<pid_t, std::pair<size_t, Clock::time_point>> running;
+  size_t next = 0;
+  size_t finished = 0;
+  const auto report = [&](const Job& job) {
+    ++finished;
+    if (quiet) return;
+    fmt::print(stderr, "[{}/{}] {} seed {}: {} ({:.1f} s)\n", finished, queue.size(),
+               fs::path(job.run.run_dir).parent_path().filename().string(), job.run.seed,
+               Verdict(job.run), job.run.wall_time_s);
+  };
+  while (next < queue.size() || !running.empty()) {
+    while (next < queue.size() && running.size() < static_cast<size_t>(jobs)) {
+      Job& job = queue[next];
+      const pid_t pid = SpawnRun(binary, job);
+      if (pid < 0) {
+        job.run.exit_code = core::kExitSimulationError;
+        report(job);
+      } else {
+        running.emplace(pid, std::make_pair(next, Clock::now()));
+      }
+      ++next;
+    }
+    if (running.empty()) continue;
+    int status = 0;
+    const pid_t pid = ::waitpid(-1, &status, 0);
+    if (pid < 0) {
+      if (errno == EINTR) continue;
+      throw std::runtime_error(fmt::format("waitpid: {}", std::strerror(errno)));
+    }
+    const auto it = running.find(pid);
+    if (it == running.end()) continue;
+    Job& job = queue[it->second.first];
+    job.run.wall_time_s =
+        std::chrono::duration<double>(Clock::now() - it->second.second).count();
+    RecordExit(status, job.run);
+    running.erase(it);
+    report(job);
+  }
+}
+
+// Reads a finished run's summary.json and completes its error message.
+void ReadSummary(SeedRun& run) {
+  const fs::path path = fs::path(run.run_dir) / "summary.json";
+  if (run.exit_code == core::kExitOk || run.exit_code == core::kExitExpectationFailed ||
+      run.exit_code == core::kExitSimulationError) {
+    std::ifstream in(path);
+    if (in) {
+      try {
+        run.summary = nlohmann::json::parse(in);
+        if (!run.summary.is_object()) throw std::runtime_error("not a JSON object");
+      } catch (const std::exception& e) {
+        run.summary = nullptr;
+        if (run.error.empty()) {
+          run.error = fmt::format("unreadable {}: {}", path.string(), e.what());
+        }
+      }
+    } else if (run.error.empty()) {
+      run.error = fmt::format("no {}", path.string());
+    }
+  }
+  if (run.error.empty()) return;
+  if (run.exit_code == core::kExitOk || run.exit_code == core::kExitExpectationFailed) {
+    run.exit_code = core::kExitSimulationError;  // no usable summary: the run did not work
+  }
+  // Say why: the simulation's own failure text, else what the run printed last.
+  if (run.summary.is_object() && run.summary.contains("failure") &&
+      run.summary["failure"].is_string()) {
+    run.error += ": " + run.summary["failure"].get<std::string>();
+  } else if (const std::string tail = LogTail(run.log_path); !tail.empty()) {
+    run.error += ":\n" + tail;
+  }
+}
+
+// Removes what an earlier check left of a scenario's runs (seed_<n> and seed_<n>.log),
+// so that stale seeds beyond --seeds are not taken for this check's. Touches nothing else.
+void RemoveStaleRuns(const fs::path& scenario_dir) {
+  std::error_code ec;
+  if (!fs::is_directory(scenario_dir, ec)) return;
+  std::vector<fs::path> stale;  // collected first: no removal while the directory is read
+  for (const auto& entry : fs::directory_iterator(scenario_dir)) {
+    std::string name = entry.path().filename().string();
+    if (name.ends_with(".log")) name.resize(name.size() - 4);
+    if (name.starts_with("seed_") && name.size() > 5 &&
+        std::all_of(name.begin() + 5, name.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+      stale.push_back(entry.path());
+    }
+  }
+  for (const fs::path& path : stale) fs::remove_all(path);
+}
+
+// ---- reporting ----
+
+std::string FormatValue(const std::optional<double>& v) {
+  return v ? fmt::format("{:.4g}", *v) : std::string("n/a");
+}
+
+std::string Where(const Expectation& e) {
+  return fmt::format("{}:{}", e.location.file, e.location.line);
+}
+
+std::string SeedValues(const AggregatedExpectation& a, std::string_view separator) {
+  std::string text;
+  for (const SeedOutcome& s : a.seeds) {
+    if (!text.empty()) text += separator;
+    text += fmt::format("seed {}: {} ({})", s.seed, FormatValue(s.value),
+                        s.held ? "held" : "not held");
+  }
+  return text;
+}
+
+std::string AggregateMessage(const AggregatedExpectation& a) {
+  return fmt::format("held in {} of {} seeds, needs {} (pass_fraction {})", a.held,
+                     a.seeds.size(), a.required, FormatDouble(a.expectation.pass_fraction));
+}
+
+void PrintTable(const std::vector<ScenarioCheck>& checks) {
+  struct Row {
+    std::string scenario, seeds, method, ate, detections, result;
+  };
+  std::vector<Row> rows;
+  for (const ScenarioCheck& c : checks) {
+    const std::string seeds = fmt::format("{}/{}", c.seeds_passed, c.runs.size());
+    const std::string result = !c.runs_ok ? "ERROR" : c.passed ? "pass" : "FAIL";
+    if (c.methods.empty()) rows.push_back({c.name, seeds, "-", "-", "-", result});
+    for (const MethodStats& m : c.methods) {
+      rows.push_back({c.name, seeds, m.method,
+                      m.ate_mean_m ? fmt::format("{:.4f}", *m.ate_mean_m) : std::string("-"),
+                      m.has_detections ? fmt::format("{}/{}", m.faults_detected, m.faults)
+                                       : std::string("-"),
+                      result});
+    }
+  }
+  Row header{"scenario", "seeds ok", "method", "ATE [m]", "detected", "result"};
+  size_t w[5] = {header.scenario.size(), header.seeds.size(), header.method.size(),
+                 header.ate.size(), header.detections.size()};
+  for (const Row& r : rows) {
+    w[0] = std::max(w[0], r.scenario.size());
+    w[1] = std::max(w[1], r.seeds.size());
+    w[2] = std::max(w[2], r.method.size());
+    w[3] = std::max(w[3], r.ate.size());
+    w[4] = std::max(w[4], r.detections.size());
+  }
+  rows.insert(rows.begin(), header);
+  for (const Row& r : rows) {
+    fmt::print("{:<{}}  {:>{}}  {:<{}}  {:>{}}  {:>{}}  {}\n", r.scenario, w[0], r.seeds, w[1],
+               r.method, w[2], r.ate, w[3], r.detections, w[4], r.result);
+  }
+}
+
+void PrintFailures(const std::vector<ScenarioCheck>& checks) {
+  bool header = false;
+  for (const ScenarioCheck& c : checks) {
+    for (const AggregatedExpectation& a : c.expectations) {
+      if (a.passed) continue;
+      if (!header) fmt::print("failed expectations:\n");
+      header = true;
+      fmt::print("  {}: {}: {} at {}\n    {}\n", c.name, ExpectationLabel(a.expectation),
+                 AggregateMessage(a), Where(a.expectation), SeedValues(a, "; "));
+    }
+  }
+  header = false;
+  for (const ScenarioCheck& c : checks) {
+    for (const SeedRun& r : c.runs) {
+      if (r.error.empty()) continue;
+      if (!header) fmt::print("failed runs:\n");
+      header = true;
+      std::string error = r.error;
+      for (size_t p = 0; (p = error.find('\n', p)) != std::string::npos; p += 5) {
+        error.replace(p, 1, "\n    ");
+      }
+      fmt::print("  {} seed {}: {}\n    log: {}\n", c.name, r.seed, error, r.log_path);
+    }
+  }
+}
+
+// Every *.png and *.mp4 under <run_dir>/renders/, sorted.
+std::vector<std::string> Renders(const std::string& run_dir) {
+  std::vector<std::string> files;
+  const fs::path renders = fs::path(run_dir) / "renders";
+  std::error_code ec;
+  if (!fs::is_directory(renders, ec)) return files;
+  for (auto it = fs::recursive_directory_iterator(renders, ec);
+       !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
+    const std::string ext = it->path().extension().string();
+    if (it->is_regular_file(ec) && (ext == ".png" || ext == ".mp4")) {
+      files.push_back(fs::absolute(it->path()).lexically_normal().string());
+    }
+  }
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+// <system-out> of a failing test case: the run directories of the seeds it failed in and
+// their renders in the Jenkins JUnit-attachments form.
+std::string FailureSystemOut(const ScenarioCheck& c, const std::set<uint64_t>& failed_seeds) {
+  std::string out;
+  for (const SeedRun& r : c.runs) {
+    if (!failed_seeds.contains(r.seed)) continue;
+    out += fmt::format("seed {}: run directory {}\n", r.seed, r.run_dir);
+    for (const std::string& file : Renders(r.run_dir)) {
+      out += fmt::format("[[ATTACHMENT|{}]]\n", file);
+    }
+  }
+  return out;
+}
+
+void WriteFileAtomically(const std::string& path, const std::string& text) {
+  const fs::path target = fs::absolute(path).lexically_normal();
+  std::error_code ec;
+  fs::create_directories(target.parent_path(), ec);
+  const fs::path temp = target.parent_path() /
+                        (target.filename().string() + fmt::format(".tmp-{}", ::getpid()));
+  {
+    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    out << text;
+    out.close();
+    if (!out) {
+      fs::remove(temp, ec);
+      throw InputError({path}, "--junit",
+                       fmt::format("cannot write the file: {}", std::strerror(errno)));
+    }
+  }
+  fs::rename(temp, target, ec);
+  if (ec) {
+    std::error_code ignored;
+    fs::remove(temp, ignored);
+    throw InputError({path}, "--junit", fmt::format("cannot write the file: {}", ec.message()));
+  }
+}
+
+// ---- validation ----
+
+void ValidateOptions(const CheckCommandOptions& options) {
+  if (options.seeds < 1) {
+    throw InputError({}, "--seeds", fmt::format("expected an integer >= 1, got {}", options.seeds));
+  }
+  if (options.jobs < 0) {
+    throw InputError({}, "--jobs",
+                     fmt::format("expected an integer >= 1 (0: number of cores), got {}",
+                                 options.jobs));
+  }
+  if (options.out_dir.empty()) throw InputError({}, "--out", "expected a directory, got ''");
+  std::error_code ec;
+  if (fs::exists(options.out_dir, ec) && !fs::is_directory(options.out_dir, ec)) {
+    throw InputError({options.out_dir}, "--out", "exists and is not a directory");
+  }
+  if (options.junit_path) {
+    if (options.junit_path->empty()) throw InputError({}, "--junit", "expected a file, got ''");
+    if (fs::is_directory(*options.junit_path, ec)) {
+      throw InputError({*options.junit_path}, "--junit", "is a directory, expected a file path");
+    }
+  }
+}
+
+// Loads every scenario; prints every problem (not only the first) and returns false if
+// there was one.
+bool LoadAll(const std::vector<std::string>& paths, std::vector<Scenario>& scenarios) {
+  bool ok = true;
+  std::map<std::string, std::string> file_of_name;
+  for (const std::string& path : paths) {
+    try {
+      Scenario scenario = LoadScenario(path);
+      // Run directories are named after scenarios: two files may not share a name.
+      const auto [it, inserted] = file_of_name.emplace(scenario.name, path);
+      if (!inserted) {
+        throw InputError({path}, "name",
+                         fmt::format("scenario name '{}' is also the name of {}; run "
+                                     "directories are named after scenarios",
+                                     scenario.name, it->second));
+      }
+      scenarios.push_back(std::move(scenario));
+    } catch (const InputError& e) {
+      fmt::print(stderr, "tofu: error: {}\n", e.what());
+      ok = false;
+    }
+  }
+  return ok;
+}
+
+}  // namespace
+
+// ---- public helpers ----
+
+std::vector<std::string> ExpandScenarioInputs(const std::vector<std::string>& inputs) {
+  std::vector<std::string> files;
+  std::set<fs::path> seen;
+  const auto add = [&](const fs::path& file) {
+    std::error_code ec;
+    const fs::path key = fs::weakly_canonical(file, ec);
+    if (seen.insert(ec ? file : key).second) files.push_back(file.string());
+  };
+  for (const std::string& input : inputs) {
+    std::error_code ec;
+    const fs::file_status status = fs::status(input, ec);
+    if (!fs::exists(status)) {
+      throw InputError({input}, "", "no such file or directory (expected a scenario YAML file "
+                                    "or a directory of them)");
+    }
+    if (!fs::is_directory(status)) {
+      add(input);
+      continue;
+    }
+    std::vector<fs::path> found;
+    for (const auto& entry : fs::directory_iterator(input)) {
+      if (entry.path().extension() == ".yaml" && entry.is_regular_file()) {
+        found.push_back(entry.path());
+      }
+    }
+    if (found.empty()) throw InputError({input}, "", "directory has no *.yaml scenario files");
+    std::sort(found.begin(), found.end());
+    for (const fs::path& f : found) add(f);
+  }
+  return files;
+}
+
+int RequiredPasses(double pass_fraction, int seeds) {
+  // pass_fraction * seeds carries the rounding error of the decimal fraction (0.7 * 10 =
+  // 7.000000000000001); a tolerance far below 1/seeds keeps ceil from counting it.
+  const int required = static_cast<int>(std::ceil(pass_fraction * seeds - 1e-9));
+  return std::clamp(required, 1, std::max(seeds, 1));
+}
+
+AggregatedExpectation AggregateExpectation(const Expectation& expectation,
+                                           std::vector<SeedOutcome> seeds) {
+  AggregatedExpectation a;
+  a.expectation = expectation;
+  a.seeds = std::move(seeds);
+  a.held = static_cast<int>(
+      std::count_if(a.seeds.begin(), a.seeds.end(), [](const SeedOutcome& s) { return s.held; }));
+  a.required = RequiredPasses(expectation.pass_fraction, static_cast<int>(a.seeds.size()));
+  a.passed = !a.seeds.empty() && a.held >= a.required;
+  return a;
+}
+
+ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRun> runs) {
+  ScenarioCheck c;
+  c.name = scenario.name;
+  c.source_file = scenario.source_file;
+  c.runs = std::move(runs);
+
+  for (size_t i = 0; i < scenario.expect.size(); ++i) {
+    const Expectation& e = scenario.expect[i];
+    std::vector<SeedOutcome> outcomes;
+    for (const SeedRun& r : c.runs) {
+      SeedOutcome o;
+      o.seed = r.seed;
+      const nlohmann::json* entry = nullptr;
+      if (r.summary.is_object() && r.summary.contains("expectations") &&
+          r.summary["expectations"].is_array() && i < r.summary["expectations"].size()) {
+        entry = &r.summary["expectations"][i];
+      }
+      // Position and metric name must agree: anything else is not this expectation.
+      if (entry != nullptr && entry->is_object() && entry->value("metric", "") == e.metric) {
+        const auto value = entry->find("value");
+        if (value != entry->end() && value->is_number()) o.value = value->get<double>();
+        const auto passed = entry->find("passed");
+        o.held = passed != entry->end() && passed->is_boolean() && passed->get<bool>();
+      }
+      outcomes.push_back(o);
+    }
+    c.expectations.push_back(AggregateExpectation(e, std::move(outcomes)));
+  }
+
+  std::map<std::string, MethodStats> methods;
+  std::map<std::string, double> ate_sum;
+  for (const SeedRun& r : c.runs) {
+    if (r.error.empty() && r.exit_code == core::kExitOk) ++c.seeds_passed;
+    if (!r.error.empty()) c.runs_ok = false;
+    if (!r.summary.is_object() || !r.summary.contains("methods") ||
+        !r.summary["methods"].is_object()) {
+      continue;
+    }
+    for (const auto& [name, m] : r.summary["methods"].items()) {
+      MethodStats& stats = methods[name];
+      stats.method = name;
+      if (!m.is_object()) continue;
+      if (const auto ate = m.find("ate_m"); ate != m.end() && ate->is_number()) {
+        ate_sum[name] += ate->get<double>();
+        ++stats.seeds_with_ate;
+      }
+      if (const auto faults = m.find("faults"); faults != m.end() && faults->is_number()) {
+        stats.faults += faults->get<int>();
+        stats.has_detections = true;
+        const auto detected = m.find("faults_detected");
+        if (detected != m.end() && detected->is_number()) {
+          stats.faults_detected += detected->get<int>();
+        }
+      }
+    }
+  }
+  for (auto& [name, stats] : methods) {
+    if (stats.seeds_with_ate > 0) stats.ate_mean_m = ate_sum[name] / stats.seeds_with_ate;
+    c.methods.push_back(stats);
+  }
+
+  c.passed = c.runs_ok && !c.runs.empty() &&
+             std::all_of(c.expectations.begin(), c.expectations.end(),
+                         [](const AggregatedExpectation& a) { return a.passed; });
+  return c;
+}
+
+std::string ExpectationLabel(const Expectation& e) {
+  std::string label = e.metric;
+  if (e.window_s) {
+    label += fmt::format(" [{}, {}] s", FormatDouble(e.window_s->first),
+                         FormatDouble(e.window_s->second));
+  }
+  if (e.min && e.max) {
+    label += fmt::format(" in [{}, {}]", FormatDouble(*e.min), FormatDouble(*e.max));
+  } else if (e.min) {
+    label += " >= " + FormatDouble(*e.min);
+  } else if (e.max) {
+    label += " <= " + FormatDouble(*e.max);
+  }
+  return label;
+}
+
+std::string XmlEscape(std::string_view text, bool attribute) {
+  std::string out;
+  out.reserve(text.size());
+  for (const char ch : text) {
+    switch (ch) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      case '\'': out += "&apos;"; break;
+      case '\n': out += attribute ? "&#10;" : "\n"; break;
+      case '\r': out += "&#13;"; break;  // a literal one would be normalised away
+      case '\t': out += attribute ? "&#9;" : "\t"; break;
+      default:
+        // XML 1.0 has no way to hold the other C0 control characters, not even escaped.
+        out += static_cast<unsigned char>(ch) < 0x20 || ch == 0x7f ? '?' : ch;
+    }
+  }
+  return out;
+}
+
+std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
+  const auto attr = [](std::string_view s) { return XmlEscape(s, true); };
+  const auto text = [](std::string_view s) { return XmlEscape(s, false); };
+  int total_tests = 0, total_failures = 0;
+  double total_time = 0.0;
+  std::string suites;
+  for (const ScenarioCheck& c : checks) {
+    double time = 0.0;
+    for (const SeedRun& r : c.runs) time += r.wall_time_s;
+    int failures = 0;
+    std::string cases;
+
+    // The runs themselves: fail when one exited with bad input or a failed simulation.
+    std::set<uint64_t> broken;
+    std::string run_errors;
+    for (const SeedRun& r : c.runs) {
+      if (r.error.empty()) continue;
+      broken.insert(r.seed);
+      run_errors += fmt::format("seed {}: {}\nlog: {}\n", r.seed, r.error, r.log_path);
+    }
+    cases += fmt::format("    <testcase name=\"run\" classname=\"{}\" file=\"{}\" time=\"{:.3f}\"",
+                         attr(c.name), attr(c.source_file), time);
+    if (broken.empty()) {
+      cases += "/>\n";
+    } else {
+      ++failures;
+      cases += fmt::format(
+          ">\n      <failure message=\"{}\" type=\"run\">{}</failure>\n"
+          "      <system-out>{}</system-out>\n    </testcase>\n",
+          attr(fmt::format("{} of {} runs failed", broken.size(), c.runs.size())), text(run_errors),
+          text(FailureSystemOut(c, broken)));
+    }
+
+    // One test case per expectation, aggregated over the seeds. Names are unique within a
+    // suite (a repeated label gets its source line).
+    std::map<std::string, int> label_count;
+    for (const AggregatedExpectation& a : c.expectations) {
+      ++label_count[ExpectationLabel(a.expectation)];
+    }
+    for (const AggregatedExpectation& a : c.expectations) {
+      std::string name = ExpectationLabel(a.expectation);
+      if (label_count[name] > 1) name += fmt::format(" (line {})", a.expectation.location.line);
+      cases += fmt::format(
+          "    <testcase name=\"{}\" classname=\"{}\" file=\"{}\" line=\"{}\" time=\"0\"",
+          attr(name), attr(c.name), attr(a.expectation.location.file),
+          a.expectation.location.line);
+      if (a.passed) {
+        cases += "/>\n";
+        continue;
+      }
+      ++failures;
+      std::set<uint64_t> failed_seeds;
+      for (const SeedOutcome& s : a.seeds) {
+        if (!s.held) failed_seeds.insert(s.seed);
+      }
+      cases += fmt::format(
+          ">\n      <failure message=\"{}\" type=\"expectation\">{}\n{}\nat {}</failure>\n"
+          "      <system-out>{}</system-out>\n    </testcase>\n",
+          attr(fmt::format("{}: {}: {}", ExpectationLabel(a.expectation), AggregateMessage(a),
+                           SeedValues(a, "; "))),
+          text(AggregateMessage(a)), text(SeedValues(a, "\n")), text(Where(a.expectation)),
+          text(FailureSystemOut(c, failed_seeds)));
+    }
+
+    const int tests = 1 + static_cast<int>(c.expectations.size());
+    std::string seeds;
+    for (const SeedRun& r : c.runs) seeds += fmt::format("{}{}", seeds.empty() ? "" : ",", r.seed);
+    suites += fmt::format(
+        "  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"0\" skipped=\"0\" "
+        "time=\"{:.3f}\" file=\"{}\">\n"
+        "    <properties>\n"
+        "      <property name=\"seeds\" value=\"{}\"/>\n"
+        "      <property name=\"seeds_passed\" value=\"{}\"/>\n",
+        attr(c.name), tests, failures, time, attr(c.source_file), seeds, c.seeds_passed);
+    for (const MethodStats& m : c.methods) {
+      if (m.ate_mean_m) {
+        suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                              attr(m.method + ".ate_mean_m"), FormatDouble(*m.ate_mean_m));
+      }
+      if (m.has_detections) {
+        suites += fmt::format("      <property name=\"{}\" value=\"{}/{}\"/>\n",
+                              attr(m.method + ".faults_detected"), m.faults_detected, m.faults);
+      }
+    }
+    suites += "    </properties>\n" + cases + "  </testsuite>\n";
+    total_tests += tests;
+    total_failures += failures;
+    total_time += time;
+  }
+  return fmt::format(
+      "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+      "<testsuites name=\"tofu check\" tests=\"{}\" failures=\"{}\" errors=\"0\" "
+      "time=\"{:.3f}\">\n{}</testsuites>\n",
+      total_tests, total_failures, total_time, suites);
+}
+
+// ---- the command ----
+
+int RunCheckCommand(const CheckCommandOptions& options) {
+  // Everything that can be wrong with the input is found before anything runs or is
+  // written.
+  std::vector<Scenario> scenarios;
+  try {
+    ValidateOptions(options);
+    const std::vector<std::string> paths =
+        ExpandScenarioInputs(options.inputs.empty() ? std::vector<std::string>{"scenarios"}
+                                                    : options.inputs);
+    if (!LoadAll(paths, scenarios)) return core::kExitBadInput;
+  } catch (const InputError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return core::kExitBadInput;
+  }
+
+  const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
+  const fs::path out = fs::absolute(options.out_dir).lexically_normal();
+  std::vector<Job> queue;
+  for (size_t i = 0; i < scenarios.size(); ++i) {
+    const fs::path scenario_dir = out / scenarios[i].name;
+    RemoveStaleRuns(scenario_dir);
+    fs::create_directories(scenario_dir);
+    for (int k = 0; k < options.seeds; ++k) {
+      Job job;
+      job.scenario_index = i;
+      job.scenario_path = scenarios[i].source_file;
+      job.run.seed = scenarios[i].seed + static_cast<uint64_t>(k);
+      job.run.run_dir = (scenario_dir / fmt::format("seed_{}", job.run.seed)).string();
+      job.run.log_path = job.run.run_dir + ".log";
+      queue.push_back(std::move(job));
+    }
+  }
+  // Longest simulated scenarios first: the suite ends sooner when its longest run does not
+  // start last (stable, so seeds keep their order; the report does not depend on it).
+  std::stable_sort(queue.begin(), queue.end(), [&](const Job& a, const Job& b) {
+    return scenarios[a.scenario_index].duration_s > scenarios[b.scenario_index].duration_s;
+  });
+  int jobs = options.jobs;
+  if (jobs == 0) jobs = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  if (!options.quiet) {
+    fmt::print(stderr, "tofu check: {} scenarios x {} seeds = {} runs, {} at a time -> {}\n",
+               scenarios.size(), options.seeds, queue.size(), jobs, out.string());
+  }
+  RunPool(binary, queue, jobs, options.quiet);
+
+  // Aggregate per scenario, in input order, runs in seed order.
+  std::vector<std::vector<SeedRun>> runs(scenarios.size());
+  for (Job& job : queue) {
+    ReadSummary(job.run);
+    runs[job.scenario_index].push_back(std::move(job.run));
+  }
+  std::vector<ScenarioCheck> checks;
+  bool bad_input = false, simulation_failed = false, expectation_failed = false;
+  for (size_t i = 0; i < scenarios.size(); ++i) {
+    checks.push_back(EvaluateScenarioCheck(scenarios[i], std::move(runs[i])));
+    const ScenarioCheck& c = checks.back();
+    for (const SeedRun& r : c.runs) {
+      bad_input = bad_input || r.exit_code == core::kExitBadInput;
+      simulation_failed = simulation_failed || !r.error.empty();
+    }
+    expectation_failed = expectation_failed || !c.passed;
+  }
+
+  if (!options.quiet) PrintTable(checks);
+  PrintFailures(checks);
+  if (options.junit_path) {
+    try {
+      WriteFileAtomically(*options.junit_path, CheckJUnitXml(checks));
+    } catch (const InputError& e) {
+      fmt::print(stderr, "tofu: error: {}\n", e.what());
+      return core::kExitBadInput;
+    }
+    if (!options.quiet) fmt::print("JUnit XML: {}\n", *options.junit_path);
+  }
+  if (bad_input) return core::kExitBadInput;
+  if (simulation_failed) return core::kExitSimulationError;
+  return expectation_failed ? core::kExitExpectationFailed : core::kExitOk;
+}
+
+}  // namespace tofu::harness

@@ -1,0 +1,122 @@
+#pragma once
+// `tofu check`: scenario-driven CI. Loads and validates every scenario first (any bad
+// input: exit 2 before anything runs), flies every (scenario, seed) as a `tofu run`
+// subprocess in a pool of jobs, reads each run's summary.json, aggregates each
+// expectation over the seeds (`pass_fraction`), prints a table and optionally writes
+// JUnit XML. The CLI only parses arguments into CheckCommandOptions.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "harness/scenario.h"
+
+namespace tofu::harness {
+
+/// What `tofu check` was asked for, as typed on the command line (validated by
+/// RunCheckCommand).
+struct CheckCommandOptions {
+  /// Scenario files or directories (a directory means its *.yaml files, not recursive,
+  /// sorted by name). Empty: "scenarios".
+  std::vector<std::string> inputs;
+  std::optional<std::string> junit_path;  ///< JUnit XML file, written atomically
+  int jobs = 0;                           ///< parallel runs; 0: number of cores
+  int seeds = 1;                          ///< seeds per scenario, >= 1
+  std::string out_dir = "runs/check";     ///< <out>/<scenario>/seed_<s>/ per run
+  bool quiet = false;                     ///< no progress and no table (failures still)
+  /// The `tofu` executable to spawn for each run; empty: this process's (/proc/self/exe).
+  std::string tofu_binary;
+};
+
+/// Runs the check and returns the exit code: kExitOk when every expectation held over
+/// the seeds, kExitExpectationFailed when one did not, kExitBadInput on bad input (the
+/// message names file:line:column and key; nothing is run or written) or when a run
+/// reported bad input, kExitSimulationError when a simulation failed.
+int RunCheckCommand(const CheckCommandOptions& options);
+
+/// The scenario files named by `inputs`, in order (directories expanded to their sorted
+/// *.yaml files; the same file named twice is kept once). Throws core::InputError for a
+/// path that does not exist or a directory without scenarios.
+std::vector<std::string> ExpandScenarioInputs(const std::vector<std::string>& inputs);
+
+/// Number of seeds out of `seeds` in which an expectation with `pass_fraction` must hold:
+/// ceil(pass_fraction * seeds), robust to rounding (0.7 * 10 needs 7, not 8), >= 1.
+int RequiredPasses(double pass_fraction, int seeds);
+
+/// One `tofu run` of a check: a scenario at one seed.
+struct SeedRun {
+  uint64_t seed = 0;
+  std::string run_dir;   ///< absolute
+  std::string log_path;  ///< the run's stdout and stderr
+  int exit_code = -1;    ///< tofu run's exit status (core::ExitCode)
+  std::string error;     ///< why the run failed or has no usable summary; empty if fine
+  double wall_time_s = 0.0;
+  nlohmann::json summary;  ///< summary.json; null when missing or unreadable
+};
+
+/// How one expectation fared in one seed.
+struct SeedOutcome {
+  uint64_t seed = 0;
+  std::optional<double> value;  ///< nullopt: undefined, or the run has no summary
+  bool held = false;
+};
+
+/// One expectation over the seeds.
+struct AggregatedExpectation {
+  Expectation expectation;
+  std::vector<SeedOutcome> seeds;
+  int held = 0;      ///< seeds in which it held
+  int required = 0;  ///< RequiredPasses(pass_fraction, seeds.size())
+  bool passed = false;
+};
+
+/// Counts the seeds in which `expectation` held and decides with its pass_fraction.
+AggregatedExpectation AggregateExpectation(const Expectation& expectation,
+                                           std::vector<SeedOutcome> seeds);
+
+/// An estimator method's figures from summary.json `methods`, over the seeds.
+struct MethodStats {
+  std::string method;
+  int seeds_with_ate = 0;
+  std::optional<double> ate_mean_m;  ///< mean of `ate_m` over the seeds that have it
+  int faults = 0;                    ///< sum of `faults`
+  int faults_detected = 0;           ///< sum of `faults_detected`
+  bool has_detections = false;       ///< some seed reported `faults`
+};
+
+/// One scenario of a check, over its seeds.
+struct ScenarioCheck {
+  std::string name;
+  std::string source_file;
+  std::vector<SeedRun> runs;  ///< in seed order
+  std::vector<AggregatedExpectation> expectations;
+  std::vector<MethodStats> methods;  ///< sorted by name
+  int seeds_passed = 0;   ///< runs that exited 0 (every expectation held in that seed)
+  bool runs_ok = true;    ///< no run exited with bad input or a failed simulation
+  bool passed = false;    ///< runs_ok and every aggregated expectation passed
+};
+
+/// Aggregates the runs of one scenario (their summaries read already). Expectations are
+/// matched to the summary's `expectations` array by position and metric name.
+ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRun> runs);
+
+/// "tracking.position_max_m [2, 10] s <= 0.01": an expectation's metric, window and
+/// bounds; the name of its JUnit test case.
+std::string ExpectationLabel(const Expectation& expectation);
+
+/// Text with the five XML special characters escaped and the characters XML 1.0 cannot
+/// hold replaced by '?'; tabs and line breaks are kept (as character references when
+/// `attribute`, since parsers normalise them to spaces in attribute values).
+std::string XmlEscape(std::string_view text, bool attribute);
+
+/// The JUnit XML document: one <testsuite> per scenario, one <testcase> per expectation
+/// aggregated over the seeds plus one named "run" for the runs themselves; failing test
+/// cases list each seed's value and the renders (*.png, *.mp4 under <run>/renders/) as
+/// [[ATTACHMENT|/absolute/path]] in <system-out>.
+std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks);
+
+}  // namespace tofu::harness
