@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# scripts/plot_consensus.py on the synthetic run directory tests/data/consensus_run: it
+# writes a PNG (default RUN_DIR/consensus.png, or --out), still draws when files are
+# missing, and rejects a malformed CSV naming file:line with exit 2 and no PNG.
+#   plot_consensus_check.sh SOURCE_DIR WORK_DIR
+set -euo pipefail
+source_dir="$1"
+work="$2"
+script="$source_dir/scripts/plot_consensus.py"
+fixture="$source_dir/tests/data/consensus_run"
+
+fail() { echo "plot_consensus_check: FAIL: $*" >&2; exit 1; }
+is_png() { [[ -s "$1" ]] && [[ "$(head -c 8 "$1" | od -An -tx1 | tr -d ' \n')" == "89504e470d0a1a0a" ]]; }
+
+rm -rf "$work"
+mkdir -p "$work"
+
+# Every file present, default output path.
+cp -r "$fixture" "$work/full"
+"$script" "$work/full" || fail "exit $? on the full fixture"
+is_png "$work/full/consensus.png" || fail "no PNG at $work/full/consensus.png"
+
+# --out, and a drawn figure (not a stub).
+"$script" "$work/full" --out "$work/full.png" || fail "exit $? with --out"
+is_png "$work/full.png" || fail "no PNG at $work/full.png"
+(( $(stat -c %s "$work/full.png") > 20000 )) || fail "$work/full.png is suspiciously small"
+
+# Missing files: what exists is drawn, exit 0.
+cp -r "$fixture" "$work/partial"
+rm "$work/partial/decisions.csv" "$work/partial/consistency_consensus.csv" \
+   "$work/partial/summary.json"
+"$script" "$work/partial" || fail "exit $? with files missing"
+is_png "$work/partial/consensus.png" || fail "no PNG with files missing"
+mkdir -p "$work/empty"
+"$script" "$work/empty" || fail "exit $? on an empty directory"
+
+# A malformed row: exit 2, the message names file and line, no PNG.
+cp -r "$fixture" "$work/bad"
+lines=$(wc -l < "$work/bad/errors.csv")
+echo "1000000000,consensus,0.1,not_a_number,1," >> "$work/bad/errors.csv"
+set +e
+"$script" "$work/bad" 2> "$work/bad.err"
+status=$?
+set -e
+[[ $status -eq 2 ]] || fail "malformed errors.csv: exit $status, expected 2"
+grep -q "errors.csv:$((lines + 1)): column 'rotation_error'" "$work/bad.err" ||
+  fail "message does not name errors.csv:$((lines + 1)) and the column: $(cat "$work/bad.err")"
+[[ ! -e "$work/bad/consensus.png" ]] || fail "a PNG was written despite the malformed CSV"
+
+# A row with the wrong number of fields.
+cp -r "$fixture" "$work/short"
+echo "5000000000,consensus,vio" >> "$work/short/decisions.csv"
+set +e
+"$script" "$work/short" 2> "$work/short.err"
+status=$?
+set -e
+[[ $status -eq 2 ]] || fail "short decisions.csv row: exit $status, expected 2"
+grep -q "decisions.csv:[0-9]*: expected 6 fields" "$work/short.err" ||
+  fail "message does not name decisions.csv:line: $(cat "$work/short.err")"
+
+echo "plot_consensus_check: ok"
