@@ -360,20 +360,21 @@ void WriteFileAtomically(const std::string& path, const std::string& text) {
 
 void ValidateOptions(const CheckCommandOptions& options) {
   if (options.seeds < 1) {
-    throw InputError({}, "--seeds", fmt::format("expected an integer >= 1, got {}", options.seeds));
+    throw InputError({"--seeds"}, "",
+                     fmt::format("expected an integer >= 1, got {}", options.seeds));
   }
   if (options.jobs < 0) {
-    throw InputError({}, "--jobs",
+    throw InputError({"--jobs"}, "",
                      fmt::format("expected an integer >= 1 (0: number of cores), got {}",
                                  options.jobs));
   }
-  if (options.out_dir.empty()) throw InputError({}, "--out", "expected a directory, got ''");
+  if (options.out_dir.empty()) throw InputError({"--out"}, "", "expected a directory, got ''");
   std::error_code ec;
   if (fs::exists(options.out_dir, ec) && !fs::is_directory(options.out_dir, ec)) {
     throw InputError({options.out_dir}, "--out", "exists and is not a directory");
   }
   if (options.junit_path) {
-    if (options.junit_path->empty()) throw InputError({}, "--junit", "expected a file, got ''");
+    if (options.junit_path->empty()) throw InputError({"--junit"}, "", "expected a file, got ''");
     if (fs::is_directory(*options.junit_path, ec)) {
       throw InputError({*options.junit_path}, "--junit", "is a directory, expected a file path");
     }
