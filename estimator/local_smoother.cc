@@ -65,6 +65,7 @@ struct Factor {
   std::vector<Keyframe*> keyframes;
   std::vector<MarginalBlock> blocks;
   ceres::ResidualBlockId id = nullptr;
+  int sensor = -1;  ///< between factors: the sensor they came from
 };
 
 // The last measurement of a fused sensor that made (or reused) a keyframe: the start of
@@ -266,12 +267,14 @@ struct LocalSmoother::Impl {
 
   // A between factor of a fused sensor from keyframe a to b; it stays "unconfirmed" until
   // a solve with it succeeds.
-  void AddBetween(std::unique_ptr<ceres::CostFunction> cost, Keyframe* a, Keyframe* b) {
+  void AddBetween(int sensor, std::unique_ptr<ceres::CostFunction> cost, Keyframe* a,
+                  Keyframe* b) {
     std::unique_ptr<ceres::LossFunction> loss;
     if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
-    unconfirmed_between.push_back(AddFactor(FactorKind::kBetween, std::move(cost),
-                                            std::move(loss), {a, b},
-                                            {PoseBlock(a), PoseBlock(b)}));
+    Factor* factor = AddFactor(FactorKind::kBetween, std::move(cost), std::move(loss), {a, b},
+                               {PoseBlock(a), PoseBlock(b)});
+    factor->sensor = sensor;
+    unconfirmed_between.push_back(factor);
   }
 
   // Pose: r^o (eq. 2), optionally with the position part as r^p in A.
@@ -282,13 +285,14 @@ struct LocalSmoother::Impl {
     Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
     if (m.position_in_reference) {
       sqrt_information.topRows<3>().setZero();
-      AddBetween(std::make_unique<PositionBetweenFactor>(
+      AddBetween(m.sensor, std::make_unique<PositionBetweenFactor>(
                      m.T_Is.translation(), m.R_LA,
                      m.T_As.translation() - chain.T_As.translation(),
                      m.sqrt_information.topLeftCorner<3, 3>()),
                  chain.keyframe, kf);
     }
-    AddBetween(std::make_unique<PoseBetweenFactor>(T_IJ, sqrt_information), chain.keyframe, kf);
+    AddBetween(m.sensor, std::make_unique<PoseBetweenFactor>(T_IJ, sqrt_information),
+               chain.keyframe, kf);
   }
 
   // Position: r^p (eq. 3); both ends' noise enters the displacement (white position noise).
@@ -298,7 +302,8 @@ struct LocalSmoother::Impl {
     covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
     const Eigen::Matrix3d sqrt_information =
         Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
-    AddBetween(std::make_unique<PositionBetweenFactor>(m.p_Is, m.R_LA, m.p_As - chain.p_As,
+    AddBetween(m.sensor,
+               std::make_unique<PositionBetweenFactor>(m.p_Is, m.R_LA, m.p_As - chain.p_As,
                                                        sqrt_information),
                chain.keyframe, kf);
   }
@@ -554,6 +559,21 @@ void LocalSmoother::EndChain(int sensor) {
   pending.erase(std::remove_if(pending.begin(), pending.end(),
                                [&](const PendingMeasurement& m) { return m.sensor == sensor; }),
                 pending.end());
+}
+
+int LocalSmoother::DiscardSensor(int sensor, core::Time after_ns) {
+  EndChain(sensor);
+  Impl& m = *impl_;
+  std::vector<Factor*> discard;
+  for (const auto& f : m.factors) {
+    if (f->kind == FactorKind::kBetween && f->sensor == sensor && f->keyframes.back()->t_ns > after_ns) {
+      discard.push_back(f.get());
+    }
+  }
+  for (Factor* f : discard) m.RemoveFactor(f);
+  if (!discard.empty()) m.dirty = true;
+  stats_.faulty_between_factors += static_cast<int64_t>(discard.size());
+  return static_cast<int>(discard.size());
 }
 
 bool LocalSmoother::Update() {

@@ -93,6 +93,7 @@ struct LocalSmootherStats {
   std::int64_t time_cap_hits = 0;
   std::int64_t bad_solves = 0;            ///< non-finite or out-of-limits result, reverted
   std::int64_t discarded_between_factors = 0;  ///< removed with a bad solve
+  std::int64_t faulty_between_factors = 0;     ///< removed by DiscardSensor
   std::int64_t marginalisation_failures = 0;
   std::vector<double> solve_time_s;       ///< wall time of each solve (for benchmarks)
 };
@@ -147,6 +148,11 @@ class LocalSmoother {
   /// Ends a sensor's chain of between factors (the sensor is no longer fused, or its
   /// frame jumped): its next measurement starts a new chain.
   void EndChain(int sensor);
+  /// A sensor found faulty: ends its chain and removes its between factors that end after
+  /// after_ns from the window (what it said since then must not constrain the graph; the
+  /// part already marginalised into the prior cannot be taken back). The next Update
+  /// solves again. Returns the number of factors removed.
+  int DiscardSensor(int sensor, core::Time after_ns);
 
   /// Solves if a keyframe was added since the last solve, then marginalises what left the
   /// window. Returns true if it solved.

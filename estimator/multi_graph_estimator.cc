@@ -539,6 +539,16 @@ const std::vector<std::string>& MultiGraphEstimator::fused_sensors() const {
   return impl_->fused_names;
 }
 
+bool MultiGraphEstimator::DiscardSensor(const std::string& name, core::Time after_ns) {
+  SensorState* s = impl_->Find(name);
+  if (s == nullptr) return false;
+  std::vector<std::string> fused = fused_sensors();
+  fused.erase(std::remove(fused.begin(), fused.end(), name), fused.end());
+  SetFusedSensors(fused);
+  impl_->smoother.DiscardSensor(s->id, after_ns);
+  return true;
+}
+
 void MultiGraphEstimator::SetKnownAlignment(const std::string& sensor,
                                             const Eigen::Isometry3d& T_AL) {
   if (SensorState* s = impl_->Find(sensor)) s->known_T_AL = T_AL;

@@ -137,6 +137,11 @@ class MultiGraphEstimator {
   bool SetFusedSensors(const std::vector<std::string>& names);
   const std::vector<std::string>& fused_sensors() const;
 
+  /// A sensor found faulty (by consensus): it leaves the fused set and its between
+  /// factors ending after after_ns leave the local window, so that what it said while
+  /// the fault went unnoticed stops pulling the estimate. Unknown names: false.
+  bool DiscardSensor(const std::string& name, core::Time after_ns);
+
   /// A known T_AL (e.g. the ground truth handed to the naive baseline), used instead of
   /// the sensor's alignment graph.
   void SetKnownAlignment(const std::string& sensor, const Eigen::Isometry3d& T_AL);

@@ -113,6 +113,73 @@ std::optional<double> SensorMetricValue(const RunRecord& record, const std::stri
   return std::nullopt;
 }
 
+const MethodEvaluation* FindMethod(const RunRecord& record, const std::string& method) {
+  for (const MethodEvaluation& m : record.methods) {
+    if (m.method == method) return &m;
+  }
+  return nullptr;
+}
+
+std::optional<double> MethodMetricValue(const RunRecord& record, const std::string& pattern,
+                                        const MetricArguments& args) {
+  const MethodEvaluation* m = FindMethod(record, args.method);
+  if (m == nullptr) return std::nullopt;
+  if (pattern == "methods.<method>.ate_m") return m->ate_m;
+  if (pattern == "methods.<method>.ate_max_m") return m->ate_max_m;
+  if (pattern == "methods.<method>.rotation_rmse_deg") return m->rotation_rmse_deg;
+  if (pattern == "methods.<method>.rpe_m") return m->rpe_m;
+  if (pattern == "methods.<method>.nees_position_mean") return m->nees_position_mean;
+  if (pattern == "methods.<method>.valid_fraction") return m->valid_fraction;
+  if (!m->consensus) return std::nullopt;  // selection metrics only mean something there
+  if (pattern == "methods.<method>.switches") return static_cast<double>(m->switches);
+  if (pattern == "methods.<method>.missed_faults") return static_cast<double>(m->missed_faults());
+  if (pattern == "methods.<method>.max_detection_delay_s") return m->max_detection_delay_s();
+  if (pattern == "methods.<method>.detection_delay_s.<fault>") {
+    return m->max_detection_delay_s(args.fault);
+  }
+  if (pattern == "methods.<method>.false_exclusion_fraction") return m->false_exclusion_fraction();
+  return std::nullopt;
+}
+
+nlohmann::json MethodsJson(const RunRecord& record) {
+  nlohmann::json methods = nlohmann::json::object();
+  for (const MethodEvaluation& m : record.methods) {
+    nlohmann::json j = {{"ate_alignment", "se3"},
+                        {"ate_m", OptionalNumber(m.ate_m)},
+                        {"ate_max_m", OptionalNumber(m.ate_max_m)},
+                        {"rotation_rmse_deg", OptionalNumber(m.rotation_rmse_deg)},
+                        {"rpe_m", OptionalNumber(m.rpe_m)},
+                        {"rpe_deg", OptionalNumber(m.rpe_deg)},
+                        {"nees_position_mean", OptionalNumber(m.nees_position_mean)},
+                        {"nees_samples", m.nees_samples},
+                        {"outputs", m.outputs},
+                        {"valid_fraction", m.valid_fraction}};
+    if (m.consensus) {
+      j["threshold"] = OptionalNumber(m.threshold);
+      j["switches"] = m.switches;
+      j["faults"] = m.detections.size();
+      j["faults_detected"] = m.detections.size() - static_cast<std::size_t>(m.missed_faults());
+      j["max_detection_delay_s"] = OptionalNumber(m.max_detection_delay_s());
+      j["false_exclusion_fraction"] = m.false_exclusion_fraction();
+      nlohmann::json false_exclusions = nlohmann::json::object();
+      for (const auto& [sensor, seconds] : m.false_exclusion_s) false_exclusions[sensor] = seconds;
+      j["false_exclusion_s"] = false_exclusions;
+      nlohmann::json detections = nlohmann::json::array();
+      for (const FaultDetection& d : m.detections) {
+        detections.push_back({{"sensor", d.sensor},
+                              {"fault", d.fault},
+                              {"onset_s", core::TimeToSeconds(d.onset_ns)},
+                              {"end_s", core::TimeToSeconds(d.end_ns)},
+                              {"detected", d.detected_ns.has_value()},
+                              {"delay_s", OptionalNumber(d.delay_s())}});
+      }
+      j["detections"] = detections;
+    }
+    methods[m.method] = j;
+  }
+  return methods;
+}
+
 }  // namespace
 
 std::optional<double> MetricValue(const RunRecord& record, const std::string& metric,
@@ -161,6 +228,9 @@ std::optional<double> MetricValue(const RunRecord& record, const std::string& me
   }
   if (const auto match = MatchMetric(metric); match && !match->second.sensor.empty()) {
     return SensorMetricValue(record, match->first->name, match->second, window_s);
+  }
+  if (const auto match = MatchMetric(metric); match && !match->second.method.empty()) {
+    return MethodMetricValue(record, match->first->name, match->second);
   }
   throw std::invalid_argument("unknown metric '" + metric + "'");
 }
@@ -225,6 +295,8 @@ Evaluation Evaluate(const RunRecord& record) {
       const double active_s = ConditionActiveSeconds(record, stream.name, name, 0.0, run_s);
       if (active_s > 0.0 && run_s > 0.0) conditions[name] = active_s / run_s;
     }
+    MetricArguments stream_args;
+    stream_args.sensor = stream.name;
     sensors[stream.name] = {
         {"type", stream.type},
         {"site", stream.site},
@@ -233,12 +305,13 @@ Evaluation Evaluate(const RunRecord& record) {
         {"condition_time_fraction", conditions},
         {"position_error_rms_m",
          OptionalNumber(SensorMetricValue(record, "sensors.<sensor>.position_error_rms_m",
-                                          MetricArguments{stream.name, ""}, std::nullopt))}};
+                                          stream_args, std::nullopt))}};
   }
   j["sensors"] = sensors;
   size_t fault_labels = 0;
   for (const LabelEvent& l : record.labels) fault_labels += l.source == "fault" && l.active ? 1 : 0;
   j["faults_scheduled"] = fault_labels;
+  if (sc.estimation) j["methods"] = MethodsJson(record);
 
   bool all_passed = !record.failure.has_value();
   nlohmann::json expectations = nlohmann::json::array();

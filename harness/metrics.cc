@@ -1,5 +1,6 @@
 #include "harness/metrics.h"
 
+#include "sim/faults.h"
 #include "sim/sensor.h"
 
 namespace tofu::harness {
@@ -28,6 +29,28 @@ const std::vector<MetricInfo>& MetricCatalog() {
       {"sensors.<sensor>.position_error_rms_m", "m",
        "RMS of the true position error of the delivered samples (pose and position sensors)",
        true},
+      // Estimation methods (`estimation:`), harness/estimation.h.
+      {"methods.<method>.ate_m", "m",
+       "position ATE: RMS of the position error after an SE(3) alignment of the whole estimate",
+       false},
+      {"methods.<method>.ate_max_m", "m", "largest position error under the same alignment", false},
+      {"methods.<method>.rotation_rmse_deg", "deg", "RMS rotation error under the same alignment",
+       false},
+      {"methods.<method>.rpe_m", "m", "RMS relative position error over 1 s", false},
+      {"methods.<method>.nees_position_mean", "",
+       "mean NEES of the reported position covariance (3 when consistent)", false},
+      {"methods.<method>.valid_fraction", "fraction", "valid outputs / outputs", false},
+      {"methods.<method>.switches", "count", "changes of the fused set (consensus)", false},
+      {"methods.<method>.missed_faults", "count",
+       "scheduled faults (dropouts aside) never excluded by the method (consensus)", false},
+      {"methods.<method>.max_detection_delay_s", "s",
+       "largest delay from fault onset to the sensor's exclusion; inf when one was missed",
+       false},
+      {"methods.<method>.detection_delay_s.<fault>", "s",
+       "largest detection delay over the faults of one kind; inf when one was missed", false},
+      {"methods.<method>.false_exclusion_fraction", "fraction",
+       "largest time a sensor was excluded with no fault or condition active, over the run",
+       false},
   };
   return catalog;
 }
@@ -41,6 +64,20 @@ bool IsIdentifier(std::string_view s) {
   }
   return true;
 }
+
+// Method names (harness/replay.h): single:vio@clean, fuse:vio+leica, consensus, ...
+bool IsMethodName(std::string_view s) {
+  if (s.empty()) return false;
+  for (const char c : s) {
+    if (!((c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == ':' || c == '@' ||
+          c == '+')) {
+      return false;
+    }
+  }
+  return true;
+}
+
+bool IsFaultName(std::string_view s) { return sim::FaultKindFromName(s).has_value(); }
 
 bool IsConditionName(std::string_view s) {
   for (const sim::Condition c : sim::AllConditions()) {
@@ -73,6 +110,12 @@ std::optional<std::pair<const MetricInfo*, MetricArguments>> MatchMetric(std::st
       if (pattern[i] == "<sensor>") {
         match = IsIdentifier(parts[i]);
         args.sensor = parts[i];
+      } else if (pattern[i] == "<method>") {
+        match = IsMethodName(parts[i]);
+        args.method = parts[i];
+      } else if (pattern[i] == "<fault>") {
+        match = IsFaultName(parts[i]);
+        args.fault = parts[i];
       } else if (pattern[i] == "<condition>") {
         match = IsConditionName(parts[i]);
         args.condition = parts[i];

@@ -23,13 +23,16 @@ const std::vector<MetricInfo>& MetricCatalog();
 
 /// The catalogue entry of `name`, or nullptr. Catalogue names may hold placeholders:
 /// `<sensor>` matches a stream name ([a-z0-9_]+) and `<condition>` a condition name
-/// (sim::ConditionName), e.g. "sensors.leica.condition.occluded".
+/// (sim::ConditionName), e.g. "sensors.leica.condition.occluded"; `<method>` an
+/// estimation method ("methods.single:vio@clean.ate_m") and `<fault>` a fault kind.
 const MetricInfo* FindMetric(std::string_view name);
 
 /// The placeholders of a metric name filled in by FindMetric's match.
 struct MetricArguments {
   std::string sensor;     ///< empty unless the metric is per sensor
   std::string condition;  ///< empty unless the metric is per condition
+  std::string method;     ///< empty unless the metric is per estimation method
+  std::string fault;      ///< empty unless the metric is per fault kind
 };
 
 /// Splits a concrete metric name ("sensors.gnss.condition.no_fix") into its catalogue

@@ -485,6 +485,7 @@ std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::strin
 struct SensorCalibration {
   std::optional<Eigen::Isometry3d> T_B_s;       // nominal mount (what an estimator is given)
   std::optional<Eigen::Isometry3d> true_T_B_s;  // only where a calibration error was set
+  std::optional<Eigen::Isometry3d> true_T_WS;   // the true reference frame (scoring only)
   YAML::Node options;
 };
 
@@ -563,6 +564,7 @@ Calibration ReadCalibration(const fs::path& path) {
     SensorCalibration s;
     if (node["T_B_s"]) s.T_B_s = YamlPose(node["T_B_s"], file, key + ".T_B_s");
     if (node["true_T_B_s"]) s.true_T_B_s = YamlPose(node["true_T_B_s"], file, key + ".true_T_B_s");
+    if (node["true_T_WS"]) s.true_T_WS = YamlPose(node["true_T_WS"], file, key + ".true_T_WS");
     s.options = node["options"];
     cal.sensors[name] = s;
   }
@@ -817,6 +819,7 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
     }
     for (RecordedStream& s : log.streams) {
       const auto it = cal.sensors.find(s.name);
+      if (it != cal.sensors.end()) s.true_T_WS = it->second.true_T_WS;
       if (it == cal.sensors.end() || !it->second.T_B_s) {
         log.notes.push_back(fmt::format("{}: no mount in calibration.yaml, T_I_s = identity",
                                         s.name));

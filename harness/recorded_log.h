@@ -58,6 +58,9 @@ struct RecordedStream {
   std::optional<double> position_noise_m;
   std::optional<double> rotation_noise_rad;
   std::optional<double> position_random_walk_m_per_sqrtm;
+  /// The true pose of the stream's reference frame S in W (calibration.yaml true_T_WS):
+  /// scoring only, and the privileged information of the `naive` baseline.
+  std::optional<Eigen::Isometry3d> true_T_WS;
 };
 
 /// IMU noise densities as calibration.yaml gives them (the IMU sensor's options).

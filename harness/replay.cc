@@ -7,6 +7,7 @@
 #include <limits>
 #include <numeric>
 #include <sstream>
+#include <variant>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -16,22 +17,6 @@
 
 namespace tofu::harness {
 namespace {
-
-const RecordedStream* FindStream(const RecordedLog& log, const std::string& name) {
-  for (const RecordedStream& s : log.streams) {
-    if (s.name == name) return &s;
-  }
-  return nullptr;
-}
-
-std::string KnownSensors(const RecordedLog& log) {
-  std::string known;
-  for (const RecordedStream& s : log.streams) {
-    if (s.kind == StreamKind::kImu) continue;
-    known += (known.empty() ? "" : ", ") + s.name;
-  }
-  return known.empty() ? std::string("(none)") : known;
-}
 
 double Percentile(std::vector<double> values, double fraction) {
   if (values.empty()) return 0.0;
@@ -125,35 +110,87 @@ constexpr double kInFlightImuNoiseScale = 10.0;
 
 }  // namespace
 
-ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log) {
+std::string MethodFileStem(const std::string& method) { return SafeFileName(method); }
+
+namespace {
+
+constexpr const char* kMethodForms =
+    "single:<sensor>, fuse:<a>+<b>, imu_only, naive or consensus, optionally with @clean";
+
+// The grammar of method names, against a list of sensor names; the parsed method or an
+// error message.
+std::variant<ReplayMethod, std::string> ParseMethod(const std::string& name,
+                                                    const std::vector<std::string>& sensors) {
   ReplayMethod method;
   method.name = name;
+  std::string body = name;
+  const std::string kClean = "@clean";
+  if (body.size() > kClean.size() && body.ends_with(kClean)) {
+    method.clean_streams = true;
+    body.resize(body.size() - kClean.size());
+  }
+  std::string known;
+  for (const std::string& s : sensors) known += (known.empty() ? "" : ", ") + s;
+  if (known.empty()) known = "(none)";
+  std::optional<std::string> error;
   auto require = [&](const std::string& sensor) {
-    const RecordedStream* s = FindStream(log, sensor);
-    if (s == nullptr || s->kind == StreamKind::kImu) {
-      throw core::InputError(
-          {log.directory.string()}, "--method",
-          fmt::format("method '{}': no sensor stream '{}' (known: {}); expected "
-                      "single:<sensor>, fuse:<a>+<b> or imu_only",
-                      name, sensor, KnownSensors(log)));
+    if (std::find(sensors.begin(), sensors.end(), sensor) == sensors.end()) {
+      error = fmt::format("method '{}': no sensor stream '{}' (known: {}); expected {}", name,
+                          sensor, known, kMethodForms);
+      return;
     }
     method.fused.push_back(sensor);
   };
-  if (name == "imu_only") return method;
-  if (name.rfind("single:", 0) == 0) {
-    require(name.substr(7));
+  if (body == "imu_only") return method;
+  if (body == "naive") {
+    method.kind = ReplayMethod::Kind::kNaive;
+    method.fused = sensors;
+    if (sensors.empty()) return fmt::format("method '{}': no sensor to fuse", name);
     return method;
   }
-  if (name.rfind("fuse:", 0) == 0) {
-    std::stringstream list(name.substr(5));
+  if (body == "consensus") {
+    method.kind = ReplayMethod::Kind::kConsensus;
+    if (sensors.empty()) return fmt::format("method '{}': no sensor to choose from", name);
+    return method;
+  }
+  if (body.starts_with("single:")) {
+    require(body.substr(7));
+    if (error) return *error;
+    return method;
+  }
+  if (body.starts_with("fuse:")) {
+    std::stringstream list(body.substr(5));
     std::string sensor;
     while (std::getline(list, sensor, '+')) require(sensor);
+    if (error) return *error;
     if (!method.fused.empty()) return method;
   }
-  throw core::InputError(
-      {log.directory.string()}, "--method",
-      fmt::format("method '{}': expected single:<sensor>, fuse:<a>+<b> or imu_only (sensors: {})",
-                  name, KnownSensors(log)));
+  return fmt::format("method '{}': expected {} (sensors: {})", name, kMethodForms, known);
+}
+
+std::vector<std::string> SensorNamesOf(const RecordedLog& log) {
+  std::vector<std::string> names;
+  for (const RecordedStream& s : log.streams) {
+    if (s.kind != StreamKind::kImu) names.push_back(s.name);
+  }
+  return names;
+}
+
+}  // namespace
+
+ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log) {
+  auto parsed = ParseMethod(name, SensorNamesOf(log));
+  if (auto* error = std::get_if<std::string>(&parsed)) {
+    throw core::InputError({log.directory.string()}, "--method", *error);
+  }
+  return std::get<ReplayMethod>(std::move(parsed));
+}
+
+std::optional<std::string> CheckMethodName(const std::string& name,
+                                           const std::vector<std::string>& sensors) {
+  auto parsed = ParseMethod(name, sensors);
+  if (auto* error = std::get_if<std::string>(&parsed)) return *error;
+  return std::nullopt;
 }
 
 estimator::MultiGraphEstimatorOptions DefaultEstimatorOptions(const RecordedLog& log) {
@@ -204,22 +241,70 @@ std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
   return specs;
 }
 
+namespace {
+
+// The naive baseline's privileged information (seed paper Sec. 3.3: "in the naive case, we
+// use the ground truth transform between the Leica and local frame"): once the local
+// frame L exists, anchored to the sensor that initialised it (T_A0L), every other sensor
+// B gets T_BL = T_WB⁻¹ T_WA0 T_A0L from the true reference frames.
+void GiveTrueAlignments(const RecordedLog& log, estimator::MultiGraphEstimator& estimator) {
+  const RecordedStream* anchor = nullptr;
+  Eigen::Isometry3d T_A0L = Eigen::Isometry3d::Identity();
+  for (const RecordedStream& s : log.streams) {
+    if (s.kind == StreamKind::kImu || !s.true_T_WS) continue;
+    if (const auto T_AL = estimator.AlignmentOf(s.name)) {
+      anchor = &s;
+      T_A0L = *T_AL;
+      break;
+    }
+  }
+  if (anchor == nullptr) return;
+  for (const RecordedStream& s : log.streams) {
+    if (s.kind == StreamKind::kImu || !s.true_T_WS || &s == anchor) continue;
+    estimator.SetKnownAlignment(s.name, s.true_T_WS->inverse() * *anchor->true_T_WS * T_A0L);
+  }
+}
+
+}  // namespace
+
 ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
                     const estimator::MultiGraphEstimatorOptions& options,
                     const std::vector<estimator::SensorSpec>& sensors,
-                    const std::function<void(double)>& progress) {
-  estimator::MultiGraphEstimator estimator(log.imu_stream, sensors, options);
-  estimator.SetFusedSensors(method.fused);
+                    const std::function<void(double)>& progress,
+                    const estimator::ConsensusEstimatorOptions& consensus_options) {
+  std::optional<estimator::MultiGraphEstimator> fixed;
+  std::optional<estimator::ConsensusEstimator> consensus;
+  if (method.kind == ReplayMethod::Kind::kConsensus) {
+    consensus.emplace(log.imu_stream, sensors, options, consensus_options);
+  } else {
+    fixed.emplace(log.imu_stream, sensors, options);
+    fixed->SetFusedSensors(method.fused);
+  }
+  const estimator::MultiGraphEstimator& estimator = fixed ? *fixed : consensus->estimator();
+  bool true_alignments_given = false;
   ReplayResult result;
   result.method = method;
   const auto start = std::chrono::steady_clock::now();
   const std::size_t n = log.measurements.size();
   for (std::size_t i = 0; i < n; ++i) {
-    estimator.Add(log.measurements[i]);
-    if (progress && (i % 4096 == 0 || i + 1 == n)) progress(static_cast<double>(i + 1) / n);
-    for (estimator::EstimatorOutput& o : estimator.TakeOutputs()) {
-      result.outputs.push_back(std::move(o));
+    if (fixed) {
+      fixed->Add(log.measurements[i]);
+      if (method.kind == ReplayMethod::Kind::kNaive && !true_alignments_given &&
+          fixed->local().initialized()) {
+        GiveTrueAlignments(log, *fixed);
+        true_alignments_given = true;
+      }
+      for (estimator::EstimatorOutput& o : fixed->TakeOutputs()) result.outputs.push_back(std::move(o));
+    } else {
+      consensus->Add(log.measurements[i]);
+      for (estimator::EstimatorOutput& o : consensus->TakeOutputs()) {
+        result.outputs.push_back(std::move(o));
+      }
+      for (estimator::ConsensusRecord& r : consensus->TakeRecords()) {
+        result.consensus.push_back(std::move(r));
+      }
     }
+    if (progress && (i % 4096 == 0 || i + 1 == n)) progress(static_cast<double>(i + 1) / n);
   }
   result.wall_time_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -235,6 +320,7 @@ ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
     if (const estimator::AlignmentGraph* g = estimator.AlignmentGraphOf(s.name)) {
       result.alignment[s.name] = g->estimate();
     }
+    if (const auto T_AL = estimator.AlignmentOf(s.name)) result.T_AL_used[s.name] = *T_AL;
   }
   return result;
 }
@@ -347,6 +433,101 @@ std::vector<LocalConsistencySeries> LocalConsistency(
   return out;
 }
 
+MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
+                              const std::filesystem::path& out_dir) {
+  const std::string stem = "estimate_" + SafeFileName(result.method.name);
+  WriteFileAtomically(out_dir / (stem + ".csv"), EstimateCsv(result));
+  MethodFiles files;
+  files.trajectory = OutputTrajectory(result);
+  const std::vector<PoseSample>& trajectory = files.trajectory;
+  WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
+
+  nlohmann::ordered_json j;
+  j["method"] = result.method.name;
+  j["fused"] = result.method.fused;
+  j["outputs"] = result.outputs.size();
+  j["valid_outputs"] = trajectory.size();
+  std::optional<TrajectoryErrors>& errors = files.errors;
+  if (!log.ground_truth.empty() && trajectory.size() > 10) {
+    std::vector<PoseSample> truth;
+    for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+    errors = EvaluateTrajectory(trajectory, truth);
+    WriteFileAtomically(out_dir / (stem + "_errors.csv"),
+                        ErrorsCsv(*errors, trajectory, truth));
+    j["ate"] = {{"alignment", "se3"},
+                {"matched", errors->matched},
+                {"position_rmse_m", errors->ate_position_rmse_m},
+                {"position_max_m", errors->ate_position_max_m},
+                {"rotation_rmse_deg", errors->rotation_rmse_deg},
+                {"rpe_delta_s", errors->rpe_delta_s},
+                {"rpe_translation_rmse_m", errors->rpe_translation_rmse_m},
+                {"rpe_rotation_rmse_deg", errors->rpe_rotation_rmse_deg}};
+    // The alignment of L to W, so that renders can place the estimate in the world.
+    const Eigen::Quaterniond q_WL(errors->T_W_L.linear());
+    const Eigen::Vector3d p_WL = errors->T_W_L.translation();
+    j["T_WL"] = {{"p_m", {p_WL.x(), p_WL.y(), p_WL.z()}},
+                 {"q_wxyz", {q_WL.w(), q_WL.x(), q_WL.y(), q_WL.z()}}};
+  }
+  nlohmann::ordered_json streams;
+  for (const auto& [name, c] : result.counters.streams) {
+    streams[name] = {{"accepted", c.accepted},
+                     {"rejected_non_finite", c.rejected_non_finite},
+                     {"rejected_out_of_order", c.rejected_out_of_order},
+                     {"rejected_duplicate", c.rejected_duplicate},
+                     {"not_fused_unaligned", c.not_fused_unaligned}};
+  }
+  j["streams"] = streams;
+  j["solver"] = {{"solves", result.solver.solves},
+                 {"iterations", result.solver.iterations},
+                 {"keyframes", result.solver.keyframes},
+                 {"late_keyframes", result.solver.late_keyframes},
+                 {"too_old_measurements", result.solver.too_old_measurements},
+                 {"iteration_cap_hits", result.solver.iteration_cap_hits},
+                 {"time_cap_hits", result.solver.time_cap_hits},
+                 {"bad_solves", result.solver.bad_solves},
+                 {"marginalisation_failures", result.solver.marginalisation_failures},
+                 {"reinitialisations", result.counters.reinitialisations},
+                 {"restarts_after_gap", result.counters.restarts_after_gap}};
+  nlohmann::ordered_json alignment;
+  for (const auto& [name, a] : result.alignment) {
+    const Eigen::Quaterniond q(a.T_AL.linear());
+    alignment[name] = {{"valid", a.valid},
+                       {"p_AL_m", {a.T_AL.translation().x(), a.T_AL.translation().y(),
+                                   a.T_AL.translation().z()}},
+                       {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}},
+                       {"observable_rotation_dofs", a.observable_rotation_dofs},
+                       {"yaw_observable", a.yaw_observable},
+                       {"rms_residual_m", a.rms_residual_m},
+                       {"pairs", a.pairs}};
+  }
+  j["alignment"] = alignment;
+  // The T_AL each sensor's measurements were (or would be) fused with at the end: known,
+  // frozen at fusion start, or the alignment graph's usable estimate.
+  nlohmann::ordered_json used;
+  for (const auto& [name, T_AL] : result.T_AL_used) {
+    const Eigen::Quaterniond q(T_AL.linear());
+    used[name] = {{"p_AL_m", {T_AL.translation().x(), T_AL.translation().y(), T_AL.translation().z()}},
+                  {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}}};
+  }
+  j["T_AL_used"] = used;
+  WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
+
+  double& mean_ms = files.solve_mean_ms;
+  mean_ms = result.solver.solve_time_s.empty()
+                             ? 0.0
+                             : 1e3 * std::accumulate(result.solver.solve_time_s.begin(),
+                                                     result.solver.solve_time_s.end(), 0.0) /
+                                   result.solver.solve_time_s.size();
+  files.solve_p99_ms = 1e3 * Percentile(result.solver.solve_time_s, 0.99);
+  nlohmann::ordered_json timing = {
+      {"wall_time_s", result.wall_time_s},
+      {"real_time_factor", result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0},
+      {"solve_mean_ms", mean_ms},
+      {"solve_p99_ms", files.solve_p99_ms}};
+  WriteFileAtomically(out_dir / ("timing_" + stem + ".json"), timing.dump(2) + "\n");
+  return files;
+}
+
 int RunEstimateCommand(const EstimateCommandOptions& options) {
   RecordedLogOptions read;
   read.use_clean_streams = options.use_clean_streams;
@@ -370,6 +551,18 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     estimator_options.local.imu_noise.gyro_noise_density_radps_per_sqrthz *= k;
     estimator_options.local.imu_noise.accel_noise_density_mps2_per_sqrthz *= k;
   }
+  // Methods with @clean replay the un-faulted streams of the same run.
+  std::optional<RecordedLog> clean_log;
+  for (const ReplayMethod& m : methods) {
+    if (m.clean_streams && !options.use_clean_streams && !clean_log) {
+      RecordedLogOptions clean_read;
+      clean_read.use_clean_streams = true;
+      clean_log = ReadRecordedLog(options.log_dir, clean_read);
+    }
+  }
+  const auto log_for = [&](const ReplayMethod& m) -> const RecordedLog& {
+    return m.clean_streams && clean_log ? *clean_log : log;
+  };
   std::vector<estimator::SensorSpec> specs = SensorSpecsOf(log);
   for (estimator::SensorSpec& spec : specs) {
     if (options.between_position_std_m) spec.between_position_std_m = *options.between_position_std_m;
@@ -388,84 +581,16 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   for (const ReplayMethod& method : methods) {
     std::function<void(double)> progress;
     if (options.progress) progress = [&](double f) { options.progress(method.name, f); };
-    const ReplayResult result = Replay(log, method, estimator_options, specs, progress);
-    const std::string stem = "estimate_" + SafeFileName(method.name);
-    WriteFileAtomically(out_dir / (stem + ".csv"), EstimateCsv(result));
-    const std::vector<PoseSample> trajectory = OutputTrajectory(result);
+    const ReplayResult result = Replay(log_for(method), method, estimator_options, specs, progress);
+    const MethodFiles files = WriteMethodResult(log_for(method), result, out_dir);
+    const std::vector<PoseSample>& trajectory = files.trajectory;
+    const std::optional<TrajectoryErrors>& errors = files.errors;
+    const double mean_ms = files.solve_mean_ms;
+    const double p99_ms = files.solve_p99_ms;
     if (!trajectory.empty()) {
       first_output_ns = std::min(first_output_ns, trajectory.front().t_ns);
       last_output_ns = std::max(last_output_ns, trajectory.back().t_ns);
     }
-    WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
-
-    nlohmann::ordered_json j;
-    j["method"] = method.name;
-    j["fused"] = method.fused;
-    j["outputs"] = result.outputs.size();
-    j["valid_outputs"] = trajectory.size();
-    std::optional<TrajectoryErrors> errors;
-    if (!log.ground_truth.empty() && trajectory.size() > 10) {
-      std::vector<PoseSample> truth;
-      for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
-      errors = EvaluateTrajectory(trajectory, truth);
-      WriteFileAtomically(out_dir / (stem + "_errors.csv"),
-                          ErrorsCsv(*errors, trajectory, truth));
-      j["ate"] = {{"alignment", "se3"},
-                  {"matched", errors->matched},
-                  {"position_rmse_m", errors->ate_position_rmse_m},
-                  {"position_max_m", errors->ate_position_max_m},
-                  {"rotation_rmse_deg", errors->rotation_rmse_deg},
-                  {"rpe_delta_s", errors->rpe_delta_s},
-                  {"rpe_translation_rmse_m", errors->rpe_translation_rmse_m},
-                  {"rpe_rotation_rmse_deg", errors->rpe_rotation_rmse_deg}};
-    }
-    nlohmann::ordered_json streams;
-    for (const auto& [name, c] : result.counters.streams) {
-      streams[name] = {{"accepted", c.accepted},
-                       {"rejected_non_finite", c.rejected_non_finite},
-                       {"rejected_out_of_order", c.rejected_out_of_order},
-                       {"rejected_duplicate", c.rejected_duplicate},
-                       {"not_fused_unaligned", c.not_fused_unaligned}};
-    }
-    j["streams"] = streams;
-    j["solver"] = {{"solves", result.solver.solves},
-                   {"iterations", result.solver.iterations},
-                   {"keyframes", result.solver.keyframes},
-                   {"late_keyframes", result.solver.late_keyframes},
-                   {"too_old_measurements", result.solver.too_old_measurements},
-                   {"iteration_cap_hits", result.solver.iteration_cap_hits},
-                   {"time_cap_hits", result.solver.time_cap_hits},
-                   {"bad_solves", result.solver.bad_solves},
-                   {"marginalisation_failures", result.solver.marginalisation_failures},
-                   {"reinitialisations", result.counters.reinitialisations},
-                   {"restarts_after_gap", result.counters.restarts_after_gap}};
-    nlohmann::ordered_json alignment;
-    for (const auto& [name, a] : result.alignment) {
-      const Eigen::Quaterniond q(a.T_AL.linear());
-      alignment[name] = {{"valid", a.valid},
-                         {"p_AL_m", {a.T_AL.translation().x(), a.T_AL.translation().y(),
-                                     a.T_AL.translation().z()}},
-                         {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}},
-                         {"observable_rotation_dofs", a.observable_rotation_dofs},
-                         {"yaw_observable", a.yaw_observable},
-                         {"rms_residual_m", a.rms_residual_m},
-                         {"pairs", a.pairs}};
-    }
-    j["alignment"] = alignment;
-    WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
-
-    const double mean_ms = result.solver.solve_time_s.empty()
-                               ? 0.0
-                               : 1e3 * std::accumulate(result.solver.solve_time_s.begin(),
-                                                       result.solver.solve_time_s.end(), 0.0) /
-                                     result.solver.solve_time_s.size();
-    const double p99_ms = 1e3 * Percentile(result.solver.solve_time_s, 0.99);
-    nlohmann::ordered_json timing = {
-        {"wall_time_s", result.wall_time_s},
-        {"real_time_factor", result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0},
-        {"solve_mean_ms", mean_ms},
-        {"solve_p99_ms", p99_ms}};
-    WriteFileAtomically(out_dir / ("timing_" + stem + ".json"), timing.dump(2) + "\n");
     if (!options.quiet) {
       fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8.0f} {:>10.3f} {:>10.3f}\n", method.name,
                  errors ? fmt::format("{:.4f}", errors->ate_position_rmse_m) : "n/a",

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "estimator/alignment_graph.h"
+#include "estimator/consensus_estimator.h"
 #include "estimator/consistency.h"
 #include "estimator/local_smoother.h"
 #include "estimator/multi_graph_estimator.h"
@@ -21,16 +22,30 @@
 
 namespace tofu::harness {
 
-/// What a method fuses. Names: "single:<sensor>" (one sensor all the time), "fuse:<a>+<b>"
-/// (several all the time), "imu_only" (nothing: IMU propagation from the first state).
+/// What a method fuses. Names:
+///  - "single:<sensor>": one sensor all the time; "fuse:<a>+<b>": several all the time;
+///  - "imu_only": nothing (IMU propagation from the first state);
+///  - "naive": every sensor all the time, with the true frame transforms T_AL (the seed
+///    paper's naive baseline, given "the ground truth transform between the Leica and
+///    local frame");
+///  - "consensus": the sensors chosen online by consensus (estimator/consensus_estimator.h).
+/// A suffix "@clean" runs the method on the un-faulted streams (sensors/clean/): the
+/// paper's reference is "single:vio@clean".
 struct ReplayMethod {
+  enum class Kind { kFixed, kNaive, kConsensus };
   std::string name;
-  std::vector<std::string> fused;
+  Kind kind = Kind::kFixed;
+  std::vector<std::string> fused;  ///< kFixed and kNaive: the sensors fused all the time
+  bool clean_streams = false;      ///< "@clean"
 };
 
 /// Parses a method name against the log's streams; throws core::InputError naming the
 /// method, the unknown sensor and the known ones.
 ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log);
+/// The same check against a list of sensor names (a scenario's, before any run): returns
+/// an error message, or nullopt when the name is a valid method for these sensors.
+std::optional<std::string> CheckMethodName(const std::string& name,
+                                           const std::vector<std::string>& sensors);
 
 /// Estimator options for a log: IMU noise from its calibration when known (else the
 /// ADIS16448 datasheet), inflated 10x for flight (rotor vibration), the IMU sample
@@ -46,16 +61,22 @@ struct ReplayResult {
   estimator::EstimatorCounters counters;
   estimator::LocalSmootherStats solver;
   std::map<std::string, estimator::AlignmentEstimate> alignment;  ///< at the end
+  /// T_AL each sensor used at the end (known, frozen or estimated), when it had one.
+  std::map<std::string, Eigen::Isometry3d> T_AL_used;
+  /// kConsensus: every evaluation (decision, reason, matrix values).
+  std::vector<estimator::ConsensusRecord> consensus;
   double wall_time_s = 0.0;
   double log_duration_s = 0.0;
 };
 
 /// Runs one method over the whole log in arrival order. `progress` (may be null) is
 /// called with the fraction done.
+/// `consensus` configures kConsensus methods only.
 ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
                     const estimator::MultiGraphEstimatorOptions& options,
                     const std::vector<estimator::SensorSpec>& sensors,
-                    const std::function<void(double)>& progress = nullptr);
+                    const std::function<void(double)>& progress = nullptr,
+                    const estimator::ConsensusEstimatorOptions& consensus = {});
 
 /// The valid outputs as a trajectory of T_LI.
 std::vector<PoseSample> OutputTrajectory(const ReplayResult& result);
@@ -78,6 +99,21 @@ std::vector<LocalConsistencySeries> LocalConsistency(
 /// [from_ns, to_ns]: the reference fused methods are compared with.
 std::vector<PoseSample> RawPoseTrajectory(const RecordedLog& log, const RecordedStream& stream,
                                           core::Time from_ns, core::Time to_ns);
+
+/// What WriteMethodResult wrote and measured.
+struct MethodFiles {
+  std::vector<PoseSample> trajectory;     ///< the valid outputs (T_LI)
+  std::optional<TrajectoryErrors> errors;  ///< with ground truth and > 10 valid outputs
+  double solve_mean_ms = 0.0;
+  double solve_p99_ms = 0.0;
+};
+/// Writes one method's estimate_<method>.csv/.tum/.json (with T_WL, the alignment of L
+/// to W, when scored), estimate_<method>_errors.csv and timing_estimate_<method>.json
+/// into out_dir; ':' and '+' in the method name become '_' in file names.
+MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
+                              const std::filesystem::path& out_dir);
+/// A method name as used in file names.
+std::string MethodFileStem(const std::string& method);
 
 /// `tofu estimate` as a function: reads the log, runs every method, writes
 /// estimate_<method>.csv/.tum and estimate_<method>.json into out_dir (default: the log's

@@ -12,6 +12,7 @@
 
 #include "core/time.h"
 #include "harness/consistency_eval.h"
+#include "harness/estimation.h"
 #include "harness/scenario.h"
 #include "harness/sensor_suite.h"
 #include "sim/trajectory.h"
@@ -65,6 +66,9 @@ struct RunRecord {
   std::vector<LabelEvent> labels;     ///< condition and fault transitions, by time
   /// With scenario.consistency: the sensors' velocity consistency (consistency_eval.h).
   std::optional<ConsistencyEvaluation> consistency;
+  /// With scenario.estimation: each method's scores (filled after the run directory's
+  /// streams are written, by RunEstimation).
+  std::vector<MethodEvaluation> methods;
   int64_t physics_steps = 0;
   double wall_time_s = 0.0;  ///< the only wall-clock figure; goes to timing.json
   /// Set when the simulation stopped early (MuJoCo bad state): what happened.

@@ -1,5 +1,8 @@
 #include "harness/run_directory.h"
 
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -11,6 +14,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "core/lie.h"
+#include "harness/estimation.h"
 #include "harness/sensor_config.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
@@ -378,10 +382,29 @@ std::string TimingJson(const RunRecord& record) {
   return j.dump(2) + "\n";
 }
 
+// Runs a program with its output discarded; its exit status, or -1 when it could not start.
+int RunQuietly(const std::vector<std::string>& argv) {
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, "/dev/null", O_WRONLY, 0);
+  std::vector<char*> args;
+  for (const std::string& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  pid_t pid = 0;
+  const int spawned = posix_spawn(&pid, args[0], &actions, nullptr, args.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  if (spawned != 0) return -1;
+  int status = 0;
+  if (waitpid(pid, &status, 0) != pid) return -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
 }  // namespace
 
 void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
-                       const std::string& out_dir) {
+                       const std::string& out_dir,
+                       const std::function<void(const std::filesystem::path& staging)>& finish) {
   const fs::path out = fs::absolute(out_dir).lexically_normal();
   const fs::path parent = out.parent_path();
   fs::create_directories(parent);
@@ -419,6 +442,7 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
         break;
       }
     }
+    if (finish) finish(staging);
     // Replace atomically from a reader's point of view: old aside, new in, old gone.
     const fs::path old = parent / (out.filename().string() + fmt::format(".old-{}", ::getpid()));
     if (fs::exists(out)) fs::rename(out, old);
@@ -429,6 +453,33 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
     fs::remove_all(staging, ignored);
     throw;
   }
+}
+
+Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
+                    const RunOutputOptions& options) {
+  Evaluation evaluation = Evaluate(record);
+  if (!record.scenario.estimation || record.failure) {
+    WriteRunDirectory(record, evaluation, out_dir);
+    return evaluation;
+  }
+  WriteRunDirectory(record, evaluation, out_dir, [&](const fs::path& staging) {
+    const double run_s = core::TimeToSeconds(record.physics_steps *
+                                             core::PeriodFromRate(record.scenario.physics.rate_hz));
+    record.methods = RunEstimation(staging, *record.scenario.estimation, record.labels, run_s,
+                                   options.estimation_progress);
+    evaluation = Evaluate(record);
+    WriteText(staging / "summary.json", evaluation.summary.dump(2) + "\n");
+    if (options.plot) {
+      const fs::path script = fs::path(TOFU_SCRIPTS_DIR) / "plot_consensus.py";
+      if (!fs::exists(script) ||
+          RunQuietly({script.string(), staging.string(), "--out",
+                      (staging / "consensus.png").string()}) != 0) {
+        fmt::print(stderr, "tofu: warning: no consensus.png ({} failed; needs python3-matplotlib)\n",
+                   script.string());
+      }
+    }
+  });
+  return evaluation;
 }
 
 }  // namespace tofu::harness

@@ -3,6 +3,8 @@
 // renamed into place when complete, so a reader never sees half a run. Every file but
 // timing.json is a deterministic function of (scenario, seed, build).
 
+#include <filesystem>
+#include <functional>
 #include <string>
 
 #include "harness/evaluation.h"
@@ -12,8 +14,26 @@ namespace tofu::harness {
 
 /// Writes scenario.yaml, groundtruth.csv/.tum, tracking.csv, calibration.yaml,
 /// summary.json and timing.json into `out_dir`, replacing an existing directory.
-/// Throws std::runtime_error on I/O failure (nothing is left behind).
+/// Throws std::runtime_error on I/O failure (nothing is left behind). `finish` (may be
+/// empty) runs on the complete staging directory before it is renamed into place: what
+/// it adds or rewrites appears atomically with the rest.
 void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
-                       const std::string& out_dir);
+                       const std::string& out_dir,
+                       const std::function<void(const std::filesystem::path& staging)>& finish = {});
+
+struct RunOutputOptions {
+  /// Progress of each estimation method (method, fraction); may be empty.
+  std::function<void(const std::string&, double)> estimation_progress;
+  /// Draw consensus.png with scripts/plot_consensus.py (python3 + matplotlib); a missing
+  /// interpreter or library is a warning, never a failure of the run.
+  bool plot = true;
+};
+
+/// What `tofu run` does after the simulation: writes the run directory; with an
+/// `estimation:` block, replays its methods on the written streams (record.methods),
+/// evaluates the expectations including the methods' metrics and draws the consensus
+/// plot, all before the directory is renamed into place. Returns the final evaluation.
+Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
+                    const RunOutputOptions& options = {});
 
 }  // namespace tofu::harness

@@ -20,6 +20,7 @@
 #include "harness/metrics.h"
 #include "harness/config_io.h"
 #include "harness/fault_config.h"
+#include "harness/replay.h"
 #include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 
@@ -97,6 +98,59 @@ ConsistencyConfig ReadConsistency(const YamlValue& value) {
              &config.alignment_rate_hz);
   ReadNumber(map, "differentiation_window_s", NumberRule::Between(0.01, 5.0, "s"),
              &config.differentiation_window_s);
+  map.Finish();
+  return config;
+}
+
+EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<SensorConfig>& sensors) {
+  EstimationConfig config;
+  YamlMap map = value.Map({"methods", "consensus", "huber_delta"});
+  ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
+  std::vector<std::string> sensor_names;
+  for (const SensorConfig& s : sensors) {
+    if (!std::holds_alternative<sim::ImuOptions>(s.options)) sensor_names.push_back(s.name);
+  }
+  for (const YamlValue& item : map.Required("methods").List(/*non_empty=*/true)) {
+    const std::string name = item.String();
+    if (const auto error = CheckMethodName(name, sensor_names)) item.Fail(*error);
+    if (std::find(config.methods.begin(), config.methods.end(), name) != config.methods.end()) {
+      item.Fail(fmt::format("method '{}' is listed twice", name));
+    }
+    config.methods.push_back(name);
+  }
+  if (const auto consensus = map.Optional("consensus")) {
+    ConsensusConfig& c = config.consensus;
+    YamlMap cmap = consensus->Map({"threshold", "leave_threshold", "min_dwell_s", "policy",
+                                   "priority", "window_s", "rate_hz"});
+    ReadNumber(cmap, "threshold", NumberRule::Between(1e-6, 100.0, "m/s"), &c.threshold);
+    if (const auto leave = cmap.Optional("leave_threshold")) {
+      c.leave_threshold = leave->Number(NumberRule::Between(1e-6, 100.0, "m/s"));
+      if (*c.leave_threshold < c.threshold) {
+        leave->Fail(fmt::format("expected leave_threshold >= threshold ({}), got {}",
+                                FormatDouble(c.threshold), FormatDouble(*c.leave_threshold)));
+      }
+    }
+    ReadNumber(cmap, "min_dwell_s", NumberRule::Between(0.0, 3600.0, "s"), &c.min_dwell_s);
+    if (const auto policy = cmap.Optional("policy")) {
+      const auto parsed = estimator::ConsensusPolicyFromName(policy->String());
+      if (!parsed) policy->FailExpected("paper or largest_set");
+      c.policy = *parsed;
+    }
+    if (const auto priority = cmap.Optional("priority")) {
+      for (const YamlValue& item : priority->List(/*non_empty=*/false)) {
+        const std::string name = item.Identifier();
+        if (std::find(sensor_names.begin(), sensor_names.end(), name) == sensor_names.end()) {
+          item.Fail(fmt::format("priority names sensor '{}', which the scenario does not have "
+                                "(its non-IMU sensors: {})",
+                                name, fmt::join(sensor_names, ", ")));
+        }
+        c.priority.push_back(name);
+      }
+    }
+    ReadNumber(cmap, "window_s", NumberRule::Between(0.1, 60.0, "s"), &c.window_s);
+    ReadNumber(cmap, "rate_hz", NumberRule::Between(0.5, 100.0, "Hz"), &c.rate_hz);
+    cmap.Finish();
+  }
   map.Finish();
   return config;
 }
@@ -452,7 +506,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   const YamlValue root = internal::ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
-                          "sensors", "faults", "consistency", "expect"});
+                          "sensors", "faults", "consistency", "estimation", "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -502,9 +556,25 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   if (const auto consistency = map.Optional("consistency")) {
     scenario.consistency = ReadConsistency(*consistency);
   }
+  if (const auto estimation = map.Optional("estimation")) {
+    scenario.estimation = ReadEstimation(*estimation, scenario.sensors);
+  }
   if (const auto expect = map.Optional("expect")) {
     for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
       scenario.expect.push_back(ReadExpectation(item, scenario.sensors));
+      // A per-method metric must name a method of `estimation.methods`.
+      const std::string& metric = scenario.expect.back().metric;
+      const MetricArguments args = MatchMetric(metric)->second;
+      if (args.method.empty()) continue;
+      const std::vector<std::string> methods =
+          scenario.estimation ? scenario.estimation->methods : std::vector<std::string>{};
+      if (std::find(methods.begin(), methods.end(), args.method) == methods.end()) {
+        throw core::InputError(
+            scenario.expect.back().location, item.path() + ".metric",
+            fmt::format("metric '{}' names method '{}', which estimation.methods does not list "
+                        "(listed: {})",
+                        metric, args.method, methods.empty() ? "none" : fmt::format("{}", fmt::join(methods, ", "))));
+      }
     }
   }
   map.Finish();
@@ -639,6 +709,28 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     EmitNumber(out, "alignment_window_s", cc.alignment_window_s);
     EmitNumber(out, "alignment_rate_hz", cc.alignment_rate_hz);
     EmitNumber(out, "differentiation_window_s", cc.differentiation_window_s);
+    out << YAML::EndMap;
+  }
+
+  if (scenario.estimation) {
+    const EstimationConfig& ec = *scenario.estimation;
+    out << YAML::Key << "estimation" << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "methods" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+    for (const std::string& m : ec.methods) out << YAML::DoubleQuoted << m;
+    out << YAML::EndSeq;
+    const ConsensusConfig& cons = ec.consensus;
+    out << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
+    EmitNumber(out, "threshold", cons.threshold);
+    if (cons.leave_threshold) EmitNumber(out, "leave_threshold", *cons.leave_threshold);
+    EmitNumber(out, "min_dwell_s", cons.min_dwell_s);
+    out << YAML::Key << "policy" << YAML::Value << std::string(estimator::ConsensusPolicyName(cons.policy));
+    out << YAML::Key << "priority" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+    for (const std::string& p : cons.priority) out << p;
+    out << YAML::EndSeq;
+    EmitNumber(out, "window_s", cons.window_s);
+    EmitNumber(out, "rate_hz", cons.rate_hz);
+    out << YAML::EndMap;
+    EmitNumber(out, "huber_delta", ec.huber_delta);
     out << YAML::EndMap;
   }
 

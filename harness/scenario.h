@@ -11,6 +11,7 @@
 
 #include "core/error.h"
 #include "harness/consistency_eval.h"
+#include "harness/estimation.h"
 #include "harness/sensor_suite.h"
 #include "sim/faults.h"
 #include "sim/controller.h"
@@ -69,6 +70,9 @@ struct Scenario {
   /// `consistency:` evaluate the consistency of the sensors' body velocities (off when
   /// absent).
   std::optional<ConsistencyConfig> consistency;
+  /// `estimation:` the estimation methods `tofu run` replays on the run's streams and
+  /// scores (harness/estimation.h); none when absent.
+  std::optional<EstimationConfig> estimation;
   std::vector<Expectation> expect;
 };
 

@@ -67,6 +67,20 @@ void PrintReport(const tofu::harness::RunRecord& record,
                tofu::core::TimeToSeconds(c.start_ns), c.robot_geom, c.structure_geom,
                c.max_penetration_m);
   }
+  if (!record.methods.empty()) {
+    fmt::print("{:<24} {:>9} {:>9} {:>7} {:>10} {:>9} {:>9}\n", "method", "ATE [m]", "rot [deg]",
+               "NEES", "detected", "switches", "x RT");
+    for (const tofu::harness::MethodEvaluation& m : record.methods) {
+      const std::string detected =
+          m.consensus ? fmt::format("{}/{}", m.detections.size() - m.missed_faults(),
+                                    m.detections.size())
+                      : "-";
+      fmt::print("{:<24} {:>9} {:>9} {:>7} {:>10} {:>9} {:>9.0f}\n", m.method, FormatValue(m.ate_m),
+                 FormatValue(m.rotation_rmse_deg), FormatValue(m.nees_position_mean), detected,
+                 m.consensus ? std::to_string(m.switches) : "-",
+                 m.wall_time_s > 0 ? m.run_duration_s / m.wall_time_s : 0.0);
+    }
+  }
   if (!evaluation.expectations.empty()) {
     size_t width = 12;
     for (const auto& r : evaluation.expectations) {
@@ -100,9 +114,20 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
     bar.emplace(scenario.name);
     options.progress = [&bar](double f) { (*bar)(f); };
   }
-  const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
-  const tofu::harness::Evaluation evaluation = tofu::harness::Evaluate(record);
-  tofu::harness::WriteRunDirectory(record, evaluation, out);
+  tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
+  tofu::harness::RunOutputOptions output;
+  std::optional<ProgressBar> method_bar;
+  std::string bar_method;
+  if (!quiet && ::isatty(STDERR_FILENO)) {
+    output.estimation_progress = [&](const std::string& method, double f) {
+      if (method != bar_method) {
+        method_bar.emplace("  " + method);
+        bar_method = method;
+      }
+      (*method_bar)(f);
+    };
+  }
+  const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
   if (record.failure) return tofu::core::kExitSimulationError;
   return evaluation.passed ? tofu::core::kExitOk : tofu::core::kExitExpectationFailed;

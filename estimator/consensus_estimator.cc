@@ -1,0 +1,412 @@
+#include "estimator/consensus_estimator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <stdexcept>
+#include <variant>
+
+#include "estimator/velocity.h"
+
+namespace tofu::estimator {
+namespace {
+
+bool AllFinite(const Eigen::Vector3d& v) { return v.allFinite(); }
+
+struct RawSample {
+  core::Time t_ns = 0;
+  Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_As = Eigen::Quaterniond::Identity();  ///< pose sensors only
+  std::optional<Eigen::Vector3d> v_s_mps;  ///< the sensor's own twist, when it reports one
+};
+
+// Puts a stream's velocity samples onto the common evaluation grid (multiples of
+// period_ns) by linear interpolation between consecutive samples, never across a gap.
+// The CM distance compares empirical distributions: two streams sampling the very same
+// velocity at different instants and rates differ by their sampling alone (~1/n of the
+// velocity range per axis, 0.05-0.1 m/s for a 10 Hz stream in flight, the size of the
+// paper's threshold). On a common grid only the sensors' errors remain.
+class GridResampler {
+ public:
+  GridResampler(core::Time period_ns, core::Time max_gap_ns)
+      : period_ns_(period_ns), max_gap_ns_(max_gap_ns) {}
+
+  template <typename Emit>
+  void Add(core::Time t_ns, const Eigen::Vector3d& v, Emit&& emit) {
+    if (last_ && t_ns <= last_->first) return;
+    if (!last_ || t_ns - last_->first > max_gap_ns_) {
+      if (t_ns % period_ns_ == 0) emit(t_ns, v);
+    } else {
+      const core::Time t0 = last_->first;
+      for (core::Time g = t0 - t0 % period_ns_ + period_ns_; g <= t_ns; g += period_ns_) {
+        const double u = static_cast<double>(g - t0) / static_cast<double>(t_ns - t0);
+        emit(g, (1.0 - u) * last_->second + u * v);
+      }
+    }
+    last_ = std::make_pair(t_ns, v);
+  }
+
+ private:
+  core::Time period_ns_;
+  core::Time max_gap_ns_;
+  std::optional<std::pair<core::Time, Eigen::Vector3d>> last_;
+};
+
+struct LocalSample {
+  core::Time t_ns = 0;
+  Eigen::Matrix3d R_LI = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d v_L_mps = Eigen::Vector3d::Zero();
+  Eigen::Vector3d omega_I_radps = Eigen::Vector3d::Zero();
+  bool valid = false;
+};
+
+// Samples used to measure a stream's period before its half window is fixed.
+constexpr std::size_t kPeriodSamples = 9;
+
+}  // namespace
+
+struct ConsensusEstimator::Impl {
+  struct Sensor {
+    SensorSpec spec;
+    int stream = 0;  // index in the matrix
+    std::deque<RawSample> raw;
+    std::vector<core::Time> first_stamps;  // for the period
+    std::optional<core::Time> half_window_ns;
+    std::optional<core::Time> last_velocity_ns;  // newest velocity sample in the matrix
+    std::optional<GridResampler> grid;
+    bool reports_twist = false;  // every sample so far carried a twist
+    bool seen = false;
+  };
+
+  Impl(std::string imu, std::vector<SensorSpec> specs, MultiGraphEstimatorOptions estimator_options,
+       ConsensusEstimatorOptions opts)
+      : options(std::move(opts)),
+        estimator(imu, specs, std::move(estimator_options)),
+        selector(Names(specs), options.selection),
+        matrix(StreamNames(specs), options.consistency),
+        imu_name(std::move(imu)) {
+    if (options.evaluation_period_ns <= 0) {
+      throw std::invalid_argument("ConsensusEstimatorOptions: evaluation_period_ns must be positive");
+    }
+    if (!(options.grid_rate_hz > 0.0) || options.max_interpolation_gap_ns <= 0) {
+      throw std::invalid_argument(
+          "ConsensusEstimatorOptions: grid_rate_hz and max_interpolation_gap_ns must be positive");
+    }
+    const core::Time grid_period = core::PeriodFromRate(options.grid_rate_hz);
+    for (std::size_t i = 0; i < specs.size(); ++i) {
+      Sensor s;
+      s.spec = specs[i];
+      s.stream = static_cast<int>(i);
+      s.grid.emplace(grid_period, options.max_interpolation_gap_ns);
+      sensors.push_back(std::move(s));
+    }
+    local_stream = static_cast<int>(specs.size());
+    local_grid.emplace(grid_period, options.max_interpolation_gap_ns);
+  }
+
+  static std::vector<std::string> Names(const std::vector<SensorSpec>& specs) {
+    std::vector<std::string> names;
+    for (const SensorSpec& s : specs) names.push_back(s.name);
+    return names;
+  }
+  static std::vector<std::string> StreamNames(const std::vector<SensorSpec>& specs) {
+    std::vector<std::string> names = Names(specs);
+    names.push_back("local");
+    return names;
+  }
+
+  Sensor* Find(const std::string& name) {
+    for (Sensor& s : sensors) {
+      if (s.spec.name == name) return &s;
+    }
+    return nullptr;
+  }
+
+  core::Time HalfWindowOf(const Sensor& s) const {
+    return s.half_window_ns.value_or(options.min_differentiation_half_window_ns);
+  }
+
+  core::Time Delay() const {
+    core::Time half = 0;
+    for (const Sensor& s : sensors) {
+      if (!s.reports_twist) half = std::max(half, HalfWindowOf(s));
+    }
+    return half + options.evaluation_margin_ns;
+  }
+
+  void Buffer(Sensor& s, const core::StampedMeasurement& m) {
+    RawSample r;
+    r.t_ns = m.t_ns;
+    if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
+      if (!AllFinite(pose->p_Ss) || !pose->q_Ss.coeffs().allFinite() || pose->q_Ss.norm() < 1e-9) return;
+      r.p_As = pose->p_Ss;
+      r.q_As = pose->q_Ss.normalized();
+      if (pose->has_twist && pose->v_s_s_mps.allFinite()) r.v_s_mps = pose->v_s_s_mps;
+    } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
+      if (!AllFinite(position->p_Ss)) return;
+      r.p_As = position->p_Ss;
+    } else {
+      return;
+    }
+    // Late samples are inserted in time order; a stamp already there is a duplicate.
+    auto it = std::upper_bound(s.raw.begin(), s.raw.end(), r.t_ns,
+                               [](core::Time t, const RawSample& x) { return t < x.t_ns; });
+    if (it != s.raw.begin() && std::prev(it)->t_ns == r.t_ns) return;
+    // Too late: its velocity window was already evaluated.
+    if (s.last_velocity_ns && r.t_ns <= *s.last_velocity_ns) return;
+    s.reports_twist = (s.seen ? s.reports_twist : true) && r.v_s_mps.has_value();
+    s.seen = true;
+    s.raw.insert(it, r);
+    if (!s.half_window_ns) {
+      s.first_stamps.push_back(r.t_ns);
+      if (s.first_stamps.size() >= kPeriodSamples) {
+        std::sort(s.first_stamps.begin(), s.first_stamps.end());
+        std::vector<core::Time> spacing;
+        for (std::size_t k = 1; k < s.first_stamps.size(); ++k) {
+          spacing.push_back(s.first_stamps[k] - s.first_stamps[k - 1]);
+        }
+        std::nth_element(spacing.begin(), spacing.begin() + spacing.size() / 2, spacing.end());
+        const core::Time period = spacing[spacing.size() / 2];
+        // 1.5 periods + 10 % so a sample's neighbours on both sides are inside despite jitter.
+        s.half_window_ns = std::max(options.min_differentiation_half_window_ns,
+                                    period * 3 / 2 + period / 10);
+      }
+    }
+  }
+
+  // The local estimate nearest to t (outputs are 200 Hz: within 2.5 ms).
+  const LocalSample* LocalAt(core::Time t) const {
+    if (local.empty()) return nullptr;
+    auto it = std::lower_bound(local.begin(), local.end(), t,
+                               [](const LocalSample& x, core::Time tt) { return x.t_ns < tt; });
+    if (it == local.end()) --it;
+    if (it != local.begin() && t - std::prev(it)->t_ns < it->t_ns - t) --it;
+    const core::Time max_gap = 20'000'000;
+    if (std::llabs(it->t_ns - t) > max_gap || !it->valid) return nullptr;
+    return &*it;
+  }
+
+  // The body rate at t for the lever-arm term: the gyro sample nearest t, corrected by the
+  // newest bias estimate (none before the local graph exists: the raw rate, whose bias of
+  // a few mrad/s moves a 0.2 m lever arm's velocity by < 1 mm/s).
+  std::optional<Eigen::Vector3d> GyroAt(core::Time t) const {
+    if (gyro.empty()) return std::nullopt;
+    auto it = std::lower_bound(gyro.begin(), gyro.end(), t,
+                               [](const auto& g, core::Time tt) { return g.first < tt; });
+    if (it == gyro.end()) --it;
+    if (it != gyro.begin() && t - std::prev(it)->first < it->first - t) --it;
+    if (std::llabs(it->first - t) > 20'000'000) return std::nullopt;
+    return it->second - gyro_bias_radps;
+  }
+
+  // Velocities of the sensor's samples in (last_velocity, t_eval], as v_I of the IMU
+  // point in I (paper eq. 1), onto the grid and into the matrix. The sensor's own twist
+  // when it reports one (odometry does: the paper compares these), else its positions
+  // differentiated by a local least-squares fit.
+  void AddSensorVelocities(Sensor& s, core::Time t_eval) {
+    if (s.raw.empty()) return;
+    const Eigen::Matrix3d R_Is = s.spec.T_I_s.linear();
+    const Eigen::Vector3d p_Is = s.spec.T_I_s.translation();
+    const auto emit = [&](core::Time tg, const Eigen::Vector3d& v) { matrix.Add(s.stream, tg, v); };
+    const core::Time half = HalfWindowOf(s);
+    if (s.reports_twist) {
+      for (const RawSample& r : s.raw) {
+        if (r.t_ns > t_eval) break;
+        if (s.last_velocity_ns && r.t_ns <= *s.last_velocity_ns) continue;
+        s.last_velocity_ns = r.t_ns;
+        const std::optional<Eigen::Vector3d> omega_I = GyroAt(r.t_ns);
+        if (!omega_I || !r.v_s_mps) continue;
+        // v_I = R_Is v_s − ω_I × p_Is: the mount point's velocity moved to the IMU point.
+        s.grid->Add(r.t_ns, R_Is * *r.v_s_mps - omega_I->cross(p_Is), emit);
+      }
+    } else if (s.raw.size() >= 3) {
+      DifferentiationOptions diff;
+      diff.half_window_ns = half;
+      diff.max_gap_ns = std::max<core::Time>(3 * half, 250'000'000);
+      std::vector<core::Time> t;
+      std::vector<Eigen::Vector3d> p;
+      for (const RawSample& r : s.raw) {
+        t.push_back(r.t_ns);
+        p.push_back(r.p_As);
+      }
+      const VelocitySeries v_A = DifferentiatePositions(t, p, diff);
+      std::optional<Eigen::Matrix3d> R_AL;
+      if (s.spec.kind == SensorKind::kPosition) {
+        if (const auto T_AL = estimator.AlignmentOf(s.spec.name)) R_AL = T_AL->linear();
+      }
+      for (std::size_t k = 0; k < v_A.t_ns.size(); ++k) {
+        const core::Time tk = v_A.t_ns[k];
+        if (tk > t_eval) break;
+        if (s.last_velocity_ns && tk <= *s.last_velocity_ns) continue;
+        // Marked done even when no velocity can be formed: it will not get better.
+        s.last_velocity_ns = tk;
+        const std::optional<Eigen::Vector3d> omega_I = GyroAt(tk);
+        if (!omega_I) continue;
+        Eigen::Matrix3d R_AI;
+        if (s.spec.kind == SensorKind::kPose) {
+          const auto it = std::lower_bound(t.begin(), t.end(), tk);
+          R_AI = s.raw[static_cast<std::size_t>(it - t.begin())].q_As.toRotationMatrix() *
+                 R_Is.transpose();
+        } else {
+          // A position sensor's attitude comes from the local estimate and its T_AL:
+          // without both (nothing fused yet, alignment not usable) it is unavailable.
+          const LocalSample* l = LocalAt(tk);
+          if (l == nullptr || !R_AL) continue;
+          R_AI = *R_AL * l->R_LI;
+        }
+        // v_I = R_AIᵀ v_A(s) − ω_I × p_Is.
+        s.grid->Add(tk, R_AI.transpose() * v_A.v_mps[k] - omega_I->cross(p_Is), emit);
+      }
+    }
+    // Keep what the next fits need: a half window before the newest done sample.
+    const core::Time keep_from = s.last_velocity_ns.value_or(s.raw.front().t_ns) - 2 * half;
+    while (s.raw.size() > 3 && s.raw.front().t_ns < keep_from) s.raw.pop_front();
+  }
+
+  void AddLocalVelocities(core::Time t_eval) {
+    const auto emit = [&](core::Time tg, const Eigen::Vector3d& v) { matrix.Add(local_stream, tg, v); };
+    for (const LocalSample& l : local) {
+      if (l.t_ns > t_eval) break;
+      if (last_local_velocity_ns && l.t_ns <= *last_local_velocity_ns) continue;
+      last_local_velocity_ns = l.t_ns;
+      if (!l.valid) continue;
+      local_grid->Add(l.t_ns, l.R_LI.transpose() * l.v_L_mps, emit);
+    }
+    const core::Time keep_from = t_eval - options.consistency.history_ns;
+    while (!local.empty() && local.front().t_ns < keep_from) local.pop_front();
+    while (!gyro.empty() && gyro.front().first < keep_from) gyro.pop_front();
+  }
+
+  int SamplesInWindow(int stream, core::Time t_eval) const {
+    const std::vector<core::Time>& ts = matrix.Samples(stream).t_ns;
+    const auto lo = std::upper_bound(ts.begin(), ts.end(),
+                                     t_eval - options.consistency.consistency.window_ns);
+    const auto hi = std::upper_bound(ts.begin(), ts.end(), t_eval);
+    return static_cast<int>(hi - lo);
+  }
+
+  void Evaluate(core::Time t_now) {
+    const core::Time t_eval = t_now - Delay();
+    if (t_eval <= 0) return;
+    for (Sensor& s : sensors) AddSensorVelocities(s, t_eval);
+    AddLocalVelocities(t_eval);
+    matrix.Evaluate(t_eval);
+
+    const int n = static_cast<int>(sensors.size());
+    ConsensusInput input;
+    input.t_ns = t_now;
+    const int min_samples = options.consistency.consistency.min_samples;
+    for (int i = 0; i < n; ++i) input.available.push_back(SamplesInWindow(i, t_eval) >= min_samples);
+    ConsensusRecord record;
+    record.t_ns = t_now;
+    record.window_end_ns = t_eval;
+    for (int i = 0; i < n; ++i) {
+      for (int j = i + 1; j < n; ++j) {
+        const std::optional<double> v = matrix.Value(i, j);
+        input.pair.push_back(v);
+        record.values.emplace_back(sensors[i].spec.name + "-" + sensors[j].spec.name, v);
+      }
+    }
+    for (int i = 0; i < n; ++i) {
+      const std::optional<double> v = matrix.Value(i, local_stream);
+      input.vs_local.push_back(v);
+      record.values.emplace_back(sensors[i].spec.name + "-local", v);
+    }
+    record.decision = selector.Decide(input);
+    // A fused sensor just found inconsistent was fused while its fault went unnoticed:
+    // its factors since the start of the window that showed it go too (beyond the paper,
+    // which only stops fusing it).
+    const std::vector<std::string> previously_fused = estimator.fused_sensors();
+    for (const std::string& name : record.decision.excluded) {
+      if (std::find(previously_fused.begin(), previously_fused.end(), name) != previously_fused.end()) {
+        estimator.DiscardSensor(name, t_eval - options.consistency.consistency.window_ns);
+      }
+    }
+    if (record.decision.fused != estimator.fused_sensors()) {
+      estimator.SetFusedSensors(record.decision.fused);
+    }
+    records.push_back(std::move(record));
+  }
+
+  void CollectOutputs() {
+    for (EstimatorOutput& o : estimator.TakeOutputs()) {
+      LocalSample l;
+      l.t_ns = o.t_ns;
+      l.R_LI = o.state.q_LI.toRotationMatrix();
+      l.v_L_mps = o.state.v_L_mps;
+      l.omega_I_radps = o.omega_I_radps;
+      l.valid = o.valid;
+      if (o.initialized) gyro_bias_radps = o.bias.gyro_radps;
+      if (local.empty() || l.t_ns > local.back().t_ns) local.push_back(l);
+      outputs.push_back(std::move(o));
+    }
+  }
+
+  ConsensusEstimatorOptions options;
+  MultiGraphEstimator estimator;
+  ConsensusSelector selector;
+  ConsistencyMatrix matrix;
+  std::string imu_name;
+  std::vector<Sensor> sensors;
+  int local_stream = 0;
+  std::deque<LocalSample> local;
+  std::deque<std::pair<core::Time, Eigen::Vector3d>> gyro;  // raw rate samples, time order
+  Eigen::Vector3d gyro_bias_radps = Eigen::Vector3d::Zero();
+  std::optional<core::Time> last_local_velocity_ns;
+  std::optional<GridResampler> local_grid;
+  std::optional<core::Time> next_evaluation_ns;
+  std::vector<EstimatorOutput> outputs;
+  std::vector<ConsensusRecord> records;
+};
+
+ConsensusEstimator::ConsensusEstimator(std::string imu_name, std::vector<SensorSpec> sensors,
+                                       MultiGraphEstimatorOptions estimator_options,
+                                       ConsensusEstimatorOptions options)
+    : impl_(std::make_unique<Impl>(std::move(imu_name), std::move(sensors),
+                                   std::move(estimator_options), std::move(options))) {}
+
+ConsensusEstimator::~ConsensusEstimator() = default;
+
+void ConsensusEstimator::Add(const core::StampedMeasurement& measurement) {
+  Impl& impl = *impl_;
+  impl.estimator.Add(measurement);
+  impl.CollectOutputs();
+  if (Impl::Sensor* s = impl.Find(measurement.sensor)) {
+    impl.Buffer(*s, measurement);
+    return;
+  }
+  if (measurement.sensor != impl.imu_name) return;
+  if (!std::holds_alternative<core::ImuMeasurement>(measurement.value)) return;
+  // Evaluations are clocked by the IMU: the estimator's notion of "now".
+  const core::Time t = measurement.t_ns;
+  const auto& imu = std::get<core::ImuMeasurement>(measurement.value);
+  if (imu.gyro_I_radps.allFinite() && (impl.gyro.empty() || t > impl.gyro.back().first)) {
+    impl.gyro.emplace_back(t, imu.gyro_I_radps);
+  }
+  if (!impl.next_evaluation_ns) {
+    impl.next_evaluation_ns = t - t % impl.options.evaluation_period_ns + impl.options.evaluation_period_ns;
+  }
+  // A stamp far ahead (a corrupted clock) must not trigger thousands of evaluations.
+  if (t - *impl.next_evaluation_ns > 100 * impl.options.evaluation_period_ns) {
+    impl.next_evaluation_ns = t - t % impl.options.evaluation_period_ns;
+  }
+  while (t >= *impl.next_evaluation_ns) {
+    impl.Evaluate(*impl.next_evaluation_ns);
+    *impl.next_evaluation_ns += impl.options.evaluation_period_ns;
+  }
+}
+
+std::vector<EstimatorOutput> ConsensusEstimator::TakeOutputs() {
+  impl_->CollectOutputs();
+  return std::exchange(impl_->outputs, {});
+}
+
+std::vector<ConsensusRecord> ConsensusEstimator::TakeRecords() {
+  return std::exchange(impl_->records, {});
+}
+
+const MultiGraphEstimator& ConsensusEstimator::estimator() const { return impl_->estimator; }
+const ConsensusSelector& ConsensusEstimator::selector() const { return impl_->selector; }
+core::Time ConsensusEstimator::evaluation_delay_ns() const { return impl_->Delay(); }
+
+}  // namespace tofu::estimator

@@ -1,0 +1,275 @@
+#include "harness/estimation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <set>
+
+#include <fmt/format.h>
+
+#include "core/error.h"
+#include "harness/recorded_log.h"
+#include "harness/replay.h"
+#include "harness/sensor_suite.h"
+#include "harness/trajectory_metrics.h"
+
+namespace tofu::harness {
+namespace {
+
+namespace fs = std::filesystem;
+
+void WriteText(const fs::path& path, const std::string& content) {
+  const fs::path staging = path.string() + ".partial";
+  {
+    std::ofstream out(staging, std::ios::binary | std::ios::trunc);
+    if (!out) throw std::runtime_error("cannot write " + staging.string());
+    out << content;
+  }
+  fs::rename(staging, path);
+}
+
+std::string Join(const std::vector<std::string>& names) {
+  std::string out;
+  for (const std::string& n : names) out += (out.empty() ? "" : "+") + n;
+  return out;
+}
+
+// A label's active windows [start, end) per (sensor, label) of one source.
+struct LabelWindow {
+  std::string sensor;
+  std::string label;
+  core::Time start_ns = 0;
+  core::Time end_ns = 0;
+};
+
+std::vector<LabelWindow> Windows(const std::vector<LabelEvent>& labels, const std::string& source,
+                                 core::Time run_end_ns) {
+  std::vector<LabelWindow> windows;
+  std::map<std::pair<std::string, std::string>, core::Time> open;
+  for (const LabelEvent& e : labels) {
+    if (e.source != source) continue;
+    const auto key = std::make_pair(e.sensor, e.label);
+    if (e.active) {
+      open.emplace(key, e.t_ns);
+    } else if (const auto it = open.find(key); it != open.end()) {
+      windows.push_back({e.sensor, e.label, it->second, e.t_ns});
+      open.erase(it);
+    }
+  }
+  for (const auto& [key, start] : open) windows.push_back({key.first, key.second, start, run_end_ns});
+  std::sort(windows.begin(), windows.end(), [](const LabelWindow& a, const LabelWindow& b) {
+    return std::tie(a.start_ns, a.sensor, a.label) < std::tie(b.start_ns, b.sensor, b.label);
+  });
+  return windows;
+}
+
+bool ActiveAt(const std::vector<LabelWindow>& windows, const std::string& sensor, core::Time t) {
+  for (const LabelWindow& w : windows) {
+    if (w.sensor == sensor && w.start_ns <= t && t < w.end_ns) return true;
+  }
+  return false;
+}
+
+// Ground-truth position of I at t, linearly interpolated; nullopt outside or across a gap.
+std::optional<Eigen::Vector3d> TruthPositionAt(const std::vector<GroundTruthPose>& truth, core::Time t) {
+  const auto it = std::lower_bound(truth.begin(), truth.end(), t,
+                                   [](const GroundTruthPose& g, core::Time tt) { return g.t_ns < tt; });
+  if (it == truth.end()) return std::nullopt;
+  if (it->t_ns == t) return it->p_WI;
+  if (it == truth.begin()) return std::nullopt;
+  const GroundTruthPose& a = *std::prev(it);
+  const GroundTruthPose& b = *it;
+  if (b.t_ns - a.t_ns > 50'000'000) return std::nullopt;
+  const double u = static_cast<double>(t - a.t_ns) / static_cast<double>(b.t_ns - a.t_ns);
+  return (1.0 - u) * a.p_WI + u * b.p_WI;
+}
+
+// Decimation of errors.csv: one row per 50 ms of estimate time.
+constexpr core::Time kErrorRowPeriodNs = 50'000'000;
+
+}  // namespace
+
+std::optional<double> FaultDetection::delay_s() const {
+  if (!detected_ns) return std::nullopt;
+  return core::TimeToSeconds(*detected_ns - onset_ns);
+}
+
+int MethodEvaluation::missed_faults() const {
+  int missed = 0;
+  for (const FaultDetection& d : detections) missed += d.detected_ns ? 0 : 1;
+  return missed;
+}
+
+std::optional<double> MethodEvaluation::max_detection_delay_s(const std::string& kind) const {
+  std::optional<double> worst;
+  for (const FaultDetection& d : detections) {
+    if (!kind.empty() && d.fault != kind) continue;
+    const double delay = d.delay_s().value_or(std::numeric_limits<double>::infinity());
+    worst = std::max(worst.value_or(delay), delay);
+  }
+  return worst;
+}
+
+double MethodEvaluation::false_exclusion_fraction() const {
+  double worst = 0.0;
+  for (const auto& [sensor, seconds] : false_exclusion_s) worst = std::max(worst, seconds);
+  return run_duration_s > 0.0 ? worst / run_duration_s : 0.0;
+}
+
+estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config) {
+  estimator::ConsensusOptions options;
+  options.threshold = config.threshold;
+  options.leave_threshold = config.leave_threshold;
+  options.min_dwell_ns = core::SecondsToTime(config.min_dwell_s);
+  options.policy = config.policy;
+  options.priority = config.priority;
+  return options;
+}
+
+std::vector<MethodEvaluation> RunEstimation(
+    const fs::path& run_dir, const EstimationConfig& config, const std::vector<LabelEvent>& labels,
+    double run_duration_s, const std::function<void(const std::string&, double)>& progress) {
+  const RecordedLog log = ReadRecordedLog(run_dir);
+  std::optional<RecordedLog> clean_log;
+  std::vector<ReplayMethod> methods;
+  for (const std::string& name : config.methods) {
+    methods.push_back(ParseReplayMethod(name, log));
+    if (methods.back().clean_streams && !clean_log) {
+      RecordedLogOptions read;
+      read.use_clean_streams = true;
+      clean_log = ReadRecordedLog(run_dir, read);
+    }
+  }
+  estimator::MultiGraphEstimatorOptions estimator_options = DefaultEstimatorOptions(log);
+  estimator_options.local.huber_delta = config.huber_delta;
+  const std::vector<estimator::SensorSpec> specs = SensorSpecsOf(log);
+  estimator::ConsensusEstimatorOptions consensus_options;
+  consensus_options.selection = SelectionOptions(config.consensus);
+  consensus_options.consistency.consistency.window_ns = core::SecondsToTime(config.consensus.window_s);
+  consensus_options.consistency.history_ns =
+      consensus_options.consistency.consistency.window_ns + 2'000'000'000;
+  consensus_options.evaluation_period_ns = core::PeriodFromRate(config.consensus.rate_hz);
+
+  const core::Time run_end_ns = core::SecondsToTime(run_duration_s);
+  const std::vector<LabelWindow> faults = Windows(labels, "fault", run_end_ns);
+  const std::vector<LabelWindow> conditions = Windows(labels, "condition", run_end_ns);
+
+  std::string errors_csv =
+      "#timestamp [ns],method,position_error [m],rotation_error [deg],valid,nees\n";
+  std::string decisions_csv = "#timestamp [ns],method,fused,excluded,unavailable,reason\n";
+  bool any_consensus = false;
+  std::vector<MethodEvaluation> evaluations;
+  for (const ReplayMethod& method : methods) {
+    const RecordedLog& source = method.clean_streams ? *clean_log : log;
+    std::function<void(double)> method_progress;
+    if (progress) method_progress = [&](double f) { progress(method.name, f); };
+    const ReplayResult result =
+        Replay(source, method, estimator_options, specs, method_progress, consensus_options);
+    const MethodFiles files = WriteMethodResult(source, result, run_dir);
+
+    MethodEvaluation e;
+    e.method = method.name;
+    e.run_duration_s = run_duration_s;
+    e.wall_time_s = result.wall_time_s;
+    e.outputs = result.outputs.size();
+    e.valid_fraction = result.outputs.empty() ? 0.0
+                                              : static_cast<double>(files.trajectory.size()) /
+                                                    static_cast<double>(result.outputs.size());
+    if (files.errors) {
+      const TrajectoryErrors& t = *files.errors;
+      e.ate_m = t.ate_position_rmse_m;
+      e.ate_max_m = t.ate_position_max_m;
+      e.rotation_rmse_deg = t.rotation_rmse_deg;
+      if (t.rpe_pairs > 0) {
+        e.rpe_m = t.rpe_translation_rmse_m;
+        e.rpe_deg = t.rpe_rotation_rmse_deg;
+      }
+      // errors.csv rows and the NEES of the reported position covariance, in L.
+      const Eigen::Matrix3d R_LW = t.T_W_L.linear().transpose();
+      double nees_sum = 0.0;
+      std::size_t k = 0;
+      std::optional<core::Time> last_row;
+      for (const estimator::EstimatorOutput& o : result.outputs) {
+        if (!o.valid) continue;
+        while (k < t.t_ns.size() && t.t_ns[k] < o.t_ns) ++k;
+        if (k == t.t_ns.size()) break;
+        if (t.t_ns[k] != o.t_ns) continue;  // no ground truth there
+        std::optional<double> nees;
+        if (o.covariance) {
+          if (const auto p_WI = TruthPositionAt(log.ground_truth, o.t_ns)) {
+            const Eigen::Vector3d e_L = R_LW * (t.T_W_L * o.state.p_LI - *p_WI);
+            const Eigen::Matrix3d P = o.covariance->topLeftCorner<3, 3>();
+            const Eigen::LDLT<Eigen::Matrix3d> ldlt(P);
+            if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
+              nees = e_L.dot(ldlt.solve(e_L));
+              nees_sum += *nees;
+              ++e.nees_samples;
+            }
+          }
+        }
+        if (nees || !last_row || o.t_ns - *last_row >= kErrorRowPeriodNs) {
+          last_row = o.t_ns;
+          errors_csv += fmt::format("{},{},{:.6f},{:.4f},1,{}\n", o.t_ns, method.name,
+                                    t.position_error_m[k], t.rotation_error_deg[k],
+                                    nees ? fmt::format("{:.4g}", *nees) : std::string());
+        }
+      }
+      if (e.nees_samples > 0) e.nees_position_mean = nees_sum / static_cast<double>(e.nees_samples);
+    }
+
+    if (method.kind == ReplayMethod::Kind::kConsensus) {
+      any_consensus = true;
+      e.consensus = true;
+      e.threshold = config.consensus.threshold;
+      std::string consistency_csv = "#timestamp [ns],pair,metric,value\n";
+      std::optional<std::vector<std::string>> previous_fused;
+      bool fused_once = false;
+      for (std::size_t r = 0; r < result.consensus.size(); ++r) {
+        const estimator::ConsensusRecord& rec = result.consensus[r];
+        const estimator::ConsensusDecision& d = rec.decision;
+        decisions_csv += fmt::format("{},{},{},{},{},{}\n", rec.t_ns, method.name, Join(d.fused),
+                                     Join(d.excluded), Join(d.unavailable), d.reason);
+        for (const auto& [pair, value] : rec.values) {
+          consistency_csv += fmt::format("{},{},cm,{}\n", rec.window_end_ns, pair,
+                                         value ? fmt::format("{:.6g}", *value) : std::string());
+        }
+        // Switches: changes of the fused set once something was fused.
+        if (fused_once && previous_fused && *previous_fused != d.fused) ++e.switches;
+        if (!d.fused.empty()) fused_once = true;
+        previous_fused = d.fused;
+        // False exclusions: excluded while no fault and no condition was active.
+        const core::Time next = r + 1 < result.consensus.size() ? result.consensus[r + 1].t_ns
+                                                                 : std::max(rec.t_ns, run_end_ns);
+        for (const std::string& s : d.excluded) {
+          if (ActiveAt(faults, s, rec.t_ns) || ActiveAt(conditions, s, rec.t_ns)) continue;
+          e.false_exclusion_s[s] += core::TimeToSeconds(next - rec.t_ns);
+        }
+      }
+      WriteText(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"), consistency_csv);
+      // Detection: the first decision excluding the sensor, from the onset until 1 s after
+      // the fault ended (a decision lags its window by the evaluation delay).
+      for (const LabelWindow& f : faults) {
+        if (f.label == "dropout") continue;
+        FaultDetection det{f.sensor, f.label, f.start_ns, f.end_ns, std::nullopt};
+        for (const estimator::ConsensusRecord& rec : result.consensus) {
+          if (rec.t_ns < f.start_ns) continue;
+          if (rec.t_ns > f.end_ns + 1'000'000'000) break;
+          const auto& ex = rec.decision.excluded;
+          if (std::find(ex.begin(), ex.end(), f.sensor) != ex.end()) {
+            det.detected_ns = rec.t_ns;
+            break;
+          }
+        }
+        e.detections.push_back(det);
+      }
+      for (const estimator::SensorSpec& s : specs) e.false_exclusion_s.emplace(s.name, 0.0);
+    }
+    evaluations.push_back(std::move(e));
+  }
+  WriteText(run_dir / "errors.csv", errors_csv);
+  if (any_consensus) WriteText(run_dir / "decisions.csv", decisions_csv);
+  return evaluations;
+}
+
+}  // namespace tofu::harness

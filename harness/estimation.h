@@ -1,0 +1,108 @@
+#pragma once
+// The estimation methods of a run (a scenario's `estimation:` block): every method
+// replays the very same recorded samples of the run directory (seed paper Sec. 3.3:
+// consensus, the naive baseline, single sensors on the corrupted and on the uncorrupted
+// streams), and each is scored against the ground truth and the fault labels:
+//  - ATE: position RMSE after an SE(3) alignment of the whole estimate to the ground
+//    truth (evo `-a`, Umeyama), rotation RMSE under the same alignment, RPE over 1 s;
+//  - NEES of the reported position covariance: e_Lᵀ P_pp⁻¹ e_L with e_L the aligned
+//    position error rotated into L (3 on average for a consistent 3-D estimate);
+//  - fault detection (consensus methods): per scheduled fault except dropouts (a dropout
+//    is no data, not wrong data), the delay from its onset to the first decision that
+//    excludes the sensor, or missed when none did before the fault ended;
+//  - false exclusions: time a sensor was excluded while none of its faults was active;
+//  - switches: changes of the fused set.
+// Files written into the run directory: estimate_<method>.csv/.tum/.json,
+// errors.csv, decisions.csv and consistency_<method>.csv.
+
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/time.h"
+#include "estimator/consensus_selector.h"
+
+namespace tofu::harness {
+
+struct LabelEvent;
+
+/// `estimation.consensus` in a scenario (and the options of `consensus` methods).
+struct ConsensusConfig {
+  double threshold = 0.1;                 ///< CM distance (m/s), paper: 0.1
+  std::optional<double> leave_threshold;  ///< hysteresis; unset = paper
+  double min_dwell_s = 0.0;               ///< 0 = paper
+  estimator::ConsensusPolicy policy = estimator::ConsensusPolicy::kPaper;
+  std::vector<std::string> priority;      ///< sensors, most preferred first
+  double window_s = 1.0;                  ///< CM window
+  double rate_hz = 10.0;                  ///< evaluations per second
+};
+
+/// `estimation:` in a scenario.
+struct EstimationConfig {
+  /// Method names (harness/replay.h ParseReplayMethod): consensus, naive,
+  /// single:<sensor>, fuse:<a>+<b>, imu_only, each optionally with @clean.
+  std::vector<std::string> methods;
+  ConsensusConfig consensus;
+  /// Huber loss on the between factors, in standard deviations (0: off, as the paper).
+  /// A faulty sensor is fused until consensus notices it (a few evaluations): without a
+  /// robust loss, metre-level outliers in that time can wreck the local graph.
+  double huber_delta = 0.0;
+};
+
+/// One scheduled fault and whether (and when) a method noticed it.
+struct FaultDetection {
+  std::string sensor;
+  std::string fault;  ///< fault kind name, e.g. "divergence"
+  core::Time onset_ns = 0;
+  core::Time end_ns = 0;
+  std::optional<core::Time> detected_ns;  ///< first exclusion in [onset, end]
+  std::optional<double> delay_s() const;
+};
+
+struct MethodEvaluation {
+  std::string method;
+  bool consensus = false;
+  std::optional<double> threshold;  ///< consensus methods
+  std::size_t outputs = 0;
+  double valid_fraction = 0.0;  ///< valid outputs / outputs
+  // Trajectory errors (nullopt without enough valid outputs).
+  std::optional<double> ate_m;
+  std::optional<double> ate_max_m;
+  std::optional<double> rotation_rmse_deg;
+  std::optional<double> rpe_m;
+  std::optional<double> rpe_deg;
+  std::optional<double> nees_position_mean;
+  std::size_t nees_samples = 0;
+  // Consensus methods.
+  int switches = 0;
+  std::vector<FaultDetection> detections;
+  /// Per sensor: seconds excluded while healthy.
+  std::map<std::string, double> false_exclusion_s;
+  double run_duration_s = 0.0;
+  // Cost (wall clock: kept out of summary.json).
+  double wall_time_s = 0.0;
+
+  int missed_faults() const;
+  /// The largest detection delay over the faults of `kind` ("" = every detectable fault);
+  /// nullopt when there is none; +inf when one was missed.
+  std::optional<double> max_detection_delay_s(const std::string& kind = "") const;
+  /// The largest false-exclusion time of any sensor as a fraction of the run.
+  double false_exclusion_fraction() const;
+};
+
+/// Runs every method of `config` on the run directory `run_dir` (its sensors/,
+/// sensors/clean/, calibration.yaml, groundtruth), writes the files listed above into it
+/// and returns the evaluations in the order of config.methods. `labels` are the run's
+/// fault labels; `progress` (may be null) gets (method, fraction done).
+std::vector<MethodEvaluation> RunEstimation(
+    const std::filesystem::path& run_dir, const EstimationConfig& config,
+    const std::vector<LabelEvent>& labels, double run_duration_s,
+    const std::function<void(const std::string&, double)>& progress = nullptr);
+
+/// The options of the consensus estimator from a scenario's configuration.
+estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config);
+
+}  // namespace tofu::harness
