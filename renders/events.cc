@@ -48,17 +48,20 @@ std::string RenderEvent::Slug() const {
 }
 
 void EventOptions::Validate() const {
+  const auto fail = [](const std::string& key, const std::string& message) {
+    throw core::InputError({"render options"}, key, message);
+  };
   if (!(error_bound_m > 0.0) || !std::isfinite(error_bound_m)) {
-    throw core::InputError({"render options"}, "--error-bound",
-                           fmt::format("expected a positive bound in metres, got {}", error_bound_m));
+    fail("--error-bound", fmt::format("expected a positive bound in metres, got {}", error_bound_m));
   }
-  if (!(rearm_fraction > 0.0 && rearm_fraction <= 1.0)) {
-    throw core::InputError({"render options"}, "rearm_fraction", "expected (0, 1]");
-  }
+  if (!(rearm_fraction > 0.0 && rearm_fraction <= 1.0)) fail("rearm_fraction", "expected (0, 1]");
+  if (!(settle_s >= 0.0) || !std::isfinite(settle_s)) fail("settle_s", "expected >= 0 s");
+  if (!(merge_s >= 0.0) || !std::isfinite(merge_s)) fail("merge_s", "expected >= 0 s");
 }
 
 std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& options) {
   options.Validate();
+  const core::Time settle_ns = core::SecondsToTime(options.settle_s);
   std::vector<RenderEvent> events;
 
   // Fault onsets: a scheduled fault becomes active.
@@ -68,61 +71,102 @@ std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& opti
     }
   }
 
-  // Detections and switches, per method, from the consensus decisions.
+  // Detections and switches, per method, from the consensus decisions after start-up.
   std::map<std::string, const DecisionRow*> previous;
+  std::map<std::string, core::Time> first_decision;
   for (const DecisionRow& d : run.decisions) {
-    const auto it = previous.find(d.method);
-    if (it != previous.end()) {
-      const DecisionRow& before = *it->second;
-      for (const std::string& s : d.excluded) {
-        if (std::find(before.excluded.begin(), before.excluded.end(), s) == before.excluded.end()) {
-          events.push_back({d.t_ns, EventKind::kDetection, s,
-                            fmt::format("{} excluded by {}{}", s, d.method,
-                                        d.reason.empty() ? "" : " (" + d.reason + ")")});
-        }
-      }
-      if (d.fused != before.fused) {
-        events.push_back({d.t_ns, EventKind::kSensorSwitch, d.method,
-                          fmt::format("{} fuses {} (was {})", d.method, JoinPlus(d.fused),
-                                      JoinPlus(before.fused))});
+    first_decision.emplace(d.method, d.t_ns);
+    const DecisionRow* before_ptr = previous[d.method];
+    previous[d.method] = &d;
+    if (before_ptr == nullptr || d.t_ns < first_decision[d.method] + settle_ns) continue;
+    const DecisionRow& before = *before_ptr;
+    for (const std::string& s : d.excluded) {
+      if (std::find(before.excluded.begin(), before.excluded.end(), s) == before.excluded.end()) {
+        const std::vector<std::string> faults = run.ActiveFaults(s, d.t_ns);
+        const std::string verdict = faults.empty()
+                                        ? std::string("false alarm: no fault active")
+                                        : "fault " + JoinPlus(faults);
+        events.push_back({d.t_ns, EventKind::kDetection, s,
+                          fmt::format("{} excluded by {} ({}){}", s, d.method, verdict,
+                                      d.reason.empty() ? "" : ": " + d.reason)});
       }
     }
-    previous[d.method] = &d;
+    if (d.fused != before.fused) {
+      events.push_back({d.t_ns, EventKind::kSensorSwitch, d.method,
+                        fmt::format("{} fuses {} (was {})", d.method, JoinPlus(d.fused),
+                                    JoinPlus(before.fused))});
+    }
   }
 
-  // Error above the bound: rising edges, re-armed once below bound * rearm_fraction.
-  std::map<std::string, bool> above;
+  // Error above the bound: rising edges of an armed method (below bound * rearm_fraction
+  // since start-up or since its last crossing).
   std::vector<ErrorRow> errors = run.errors;
   std::stable_sort(errors.begin(), errors.end(),
                    [](const ErrorRow& a, const ErrorRow& b) { return a.t_ns < b.t_ns; });
+  std::map<std::string, bool> armed;
+  std::map<std::string, core::Time> first_error;
   for (const ErrorRow& e : errors) {
-    bool& is_above = above[e.method];
-    if (!is_above && e.position_error_m > options.error_bound_m) {
-      is_above = true;
+    first_error.emplace(e.method, e.t_ns);
+    if (e.t_ns < first_error[e.method] + settle_ns) continue;
+    bool& is_armed = armed[e.method];
+    if (is_armed && e.position_error_m > options.error_bound_m) {
+      is_armed = false;
       events.push_back({e.t_ns, EventKind::kErrorAboveBound, e.method,
                         fmt::format("{} position error {:.2f} m > {:.2f} m", e.method,
                                     e.position_error_m, options.error_bound_m)});
-    } else if (is_above && e.position_error_m < options.error_bound_m * options.rearm_fraction) {
-      is_above = false;
+    } else if (!is_armed && e.position_error_m < options.error_bound_m * options.rearm_fraction) {
+      is_armed = true;
     }
   }
 
   for (const CollisionRow& c : run.collisions) {
-    events.push_back({c.t_ns, EventKind::kCollision, c.structure_geom.empty() ? "structure" : c.structure_geom,
+    events.push_back({c.t_ns, EventKind::kCollision,
+                      c.structure_geom.empty() ? "structure" : c.structure_geom,
                       fmt::format("collision {} - {}", c.robot_geom, c.structure_geom)});
   }
 
   std::stable_sort(events.begin(), events.end(), [](const RenderEvent& a, const RenderEvent& b) {
     return std::tie(a.t_ns, a.kind, a.subject) < std::tie(b.t_ns, b.kind, b.subject);
   });
-  // The earliest of each kind, then the earliest overall.
+  // Which events tell most: collisions, fault onsets, detections of a faulted sensor,
+  // errors above the bound, false alarms, switches. Caps keep the most telling first.
+  const auto priority = [&run](const RenderEvent& e) {
+    switch (e.kind) {
+      case EventKind::kCollision: return 0;
+      case EventKind::kFaultOnset: return 1;
+      case EventKind::kDetection: return run.ActiveFaults(e.subject, e.t_ns).empty() ? 4 : 2;
+      case EventKind::kErrorAboveBound: return 3;
+      case EventKind::kSensorSwitch: return 5;
+    }
+    return 6;
+  };
+  const auto by_time = [](const RenderEvent& a, const RenderEvent& b) {
+    return std::tie(a.t_ns, a.kind, a.subject) < std::tie(b.t_ns, b.kind, b.subject);
+  };
+
+  // Repeats within merge_s of a kept event of the same kind and subject are in its clip.
+  const core::Time merge_ns = core::SecondsToTime(options.merge_s);
+  std::map<std::pair<EventKind, std::string>, core::Time> last_kept;
+  std::vector<RenderEvent> merged;
+  for (const RenderEvent& e : events) {
+    const auto key = std::make_pair(e.kind, e.subject);
+    const auto last = last_kept.find(key);
+    if (last != last_kept.end() && e.t_ns - last->second <= merge_ns) continue;
+    last_kept[key] = e.t_ns;
+    merged.push_back(e);
+  }
+  // Caps, per kind and in total, by priority then time; the result in time order.
+  std::stable_sort(merged.begin(), merged.end(), [&](const RenderEvent& a, const RenderEvent& b) {
+    return priority(a) < priority(b);
+  });
   std::map<EventKind, size_t> per_kind;
   std::vector<RenderEvent> kept;
-  for (const RenderEvent& e : events) {
-    if (per_kind[e.kind]++ >= options.max_per_kind) continue;
+  for (const RenderEvent& e : merged) {
     if (kept.size() >= options.max_events) break;
+    if (per_kind[e.kind]++ >= options.max_per_kind) continue;
     kept.push_back(e);
   }
+  std::stable_sort(kept.begin(), kept.end(), by_time);
   return kept;
 }
 

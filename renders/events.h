@@ -28,9 +28,19 @@ struct RenderEvent {
 
 struct EventOptions {
   double error_bound_m = 0.5;  ///< position error above this is an event (rising edge)
-  /// After a crossing, the error must fall below bound * rearm_fraction before the next.
+  /// A crossing needs the error to have been below bound * rearm_fraction before (at the
+  /// start too: an estimate that never converged has no onset to show).
   double rearm_fraction = 0.8;
-  size_t max_per_kind = 4;  ///< the earliest of each kind (a flapping switch floods)
+  /// Decisions and errors of a method within this long of its first row are its start-up
+  /// (initialisation, first alignment), not failures [s].
+  double settle_s = 5.0;
+  /// An event of the same kind and subject within this long after a kept one is in the
+  /// same clip: not another event (a flapping selection would flood the renders) [s].
+  double merge_s = 4.0;
+  /// Caps: at most this many of each kind and in total, chosen by priority (collision,
+  /// fault onset, detection of a faulted sensor, error above the bound, false alarm,
+  /// sensor switch), then time.
+  size_t max_per_kind = 4;
   size_t max_events = 12;
 
   /// Throws core::InputError naming the broken constraint.

@@ -212,6 +212,7 @@ int RunRenderCommand(const RenderCommandOptions& o) {
   options.render.height_px = height;
   options.render.shadows = o.shadows;
   options.render.reflections = o.reflections;
+  options.render.multisamples = o.msaa;
   options.render.lidar_hits = o.lidar_hits;
   options.render.gnss_sky = o.gnss_sky;
   options.render.methods = o.methods;

@@ -76,6 +76,7 @@ struct RenderCommandOptions {
   std::optional<std::string> out;  ///< --events: directory; --at: PNG file
   bool shadows = false;
   bool reflections = false;
+  int msaa = -1;  ///< MSAA samples; -1: auto (0 on a software rasteriser, 4 on a GPU)
   bool lidar_hits = false;
   bool gnss_sky = false;
   bool no_clips = false;

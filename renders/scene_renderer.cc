@@ -86,8 +86,9 @@ void RenderOptions::Validate() const {
     fail("--size", fmt::format("expected WxH with each side in [16, 8192], got {}x{}", width_px,
                                height_px));
   }
-  if (multisamples < 0 || multisamples > 16) fail("multisamples", "expected 0..16");
+  if (multisamples < -1 || multisamples > 16) fail("--msaa", "expected 0..16, or -1 (auto)");
   if (shadow_map_px < 256 || shadow_map_px > 8192) fail("shadow_map_px", "expected 256..8192");
+  if (geom_slices < 4 || geom_slices > 64) fail("geom_slices", "expected 4..64");
   if (!(trail_s >= 0.0 && trail_s <= 60.0)) fail("trail_s", "expected 0..60 s");
   if (!(ghost_alpha > 0.0 && ghost_alpha <= 1.0)) fail("ghost_alpha", "expected (0, 1]");
 }
@@ -96,7 +97,7 @@ std::array<float, 3> GhostColor(size_t method_index) {
   static constexpr std::array<std::array<float, 3>, 4> kGhosts = {{{1.00f, 0.05f, 0.85f},
                                                                    {0.55f, 0.25f, 1.00f},
                                                                    {1.00f, 0.35f, 0.35f},
-                                                                   {0.30f, 0.95f, 1.00f}}};
+                                                                   {0.95f, 0.95f, 0.95f}}};
   return kGhosts[method_index % kGhosts.size()];
 }
 
@@ -171,8 +172,14 @@ struct SceneRenderer::Impl {
     // The offscreen buffer is allocated at the model's size: make it the frame's.
     model->vis.global.offwidth = options.width_px;
     model->vis.global.offheight = options.height_px;
-    model->vis.quality.offsamples = options.multisamples;
+    model->vis.quality.offsamples =
+        options.multisamples >= 0 ? options.multisamples : (egl->software() ? 0 : 4);
     model->vis.quality.shadowsize = options.shadow_map_px;
+    // Tessellation of spheres, capsules and cylinders: MuJoCo's defaults (28 slices, 16
+    // stacks) make a software rasteriser spend most of a frame on vertices that a 640 px
+    // frame cannot show.
+    model->vis.quality.numslices = options.geom_slices;
+    model->vis.quality.numstacks = std::max(4, options.geom_slices / 2);
     data = mj_makeData(model);
     ghost_data = mj_makeData(model);
     const int root = mj_name2id(model, mjOBJ_JOINT, "root");
@@ -658,7 +665,14 @@ struct SceneRenderer::Impl {
       values += (values.empty() ? "" : "\n") + value;
     };
     line("time", fmt::format("{:.2f} s  ({})", core::TimeToSeconds(t_ns), camera_name));
-    if (!caption.empty()) line("event", caption);
+    // Long values (a decision's reason) are cut to the frame's width.
+    const size_t max_chars =
+        static_cast<size_t>(std::max(16, (options.width_px - 110 * font_scale / 100) /
+                                             (8 * font_scale / 100)));
+    const auto fit = [max_chars](const std::string& text) {
+      return text.size() <= max_chars ? text : text.substr(0, max_chars - 3) + "...";
+    };
+    if (!caption.empty()) line("event", fit(caption));
     if (const DecisionRow* d = DecisionAt(t_ns)) {
       line("fused", fmt::format("{} ({})", d->fused.empty() ? "none" : Join(d->fused, "+"),
                                 decision_method));
@@ -679,7 +693,7 @@ struct SceneRenderer::Impl {
       const std::vector<std::string> active = run.ActiveFaults(s.name, t_ns);
       if (!active.empty()) faults += (faults.empty() ? "" : ", ") + s.name + ": " + Join(active, "|");
     }
-    if (!faults.empty()) line("faults", faults);
+    if (!faults.empty()) line("faults", fit(faults));
     std::string occluded;
     for (const SensorTrack& s : run.sensors) {
       if (s.type == "total_station" && run.LabelActive(s.name, "occluded", t_ns)) {
@@ -687,8 +701,9 @@ struct SceneRenderer::Impl {
       }
     }
     if (!occluded.empty()) line("blocked", occluded + " line of sight");
+    // The inset shows the values when drawn; else one line of them.
     const auto values_at = ConsistencyAt(t_ns);
-    if (!values_at.empty()) {
+    if (!values_at.empty() && !(options.heatmap && matrix_names.size() >= 2)) {
       std::string text;
       int shown = 0;
       for (const auto& [pair, value] : values_at) {
@@ -714,23 +729,28 @@ struct SceneRenderer::Impl {
 
   int TextHeight() const { return 18 * font_scale / 100; }
 
-  // Legend: the truth and each ghost, then each sensor's marker colour, along the bottom.
+  // Legend along the bottom: each ghost's and each sensor's colour, wrapping to a second
+  // row when the frame is narrow.
   void DrawLegend() {
     const int h = TextHeight();
     const int char_w = 8 * font_scale / 100;
     int x = 4;
+    int y = 4;
     const auto entry = [&](const std::string& text, const Rgba& bg, const Rgba& fg) {
       const int w = static_cast<int>(text.size()) * char_w + 10;
-      if (x + w > options.width_px) return;
-      const mjrRect rect = {x, 4, w, h};
-      mjr_label(rect, mjFONT_NORMAL, text.c_str(), bg[0], bg[1], bg[2], 0.85f, fg[0], fg[1], fg[2],
-                &context);
+      if (x + w > options.width_px && x > 4) {
+        x = 4;
+        y += h + 4;
+      }
+      if (x + w > options.width_px || y + h > options.height_px / 3) return;
+      mjr_label({x, y, w, h}, mjFONT_NORMAL, text.c_str(), bg[0], bg[1], bg[2], 0.85f, fg[0], fg[1],
+                fg[2], &context);
       x += w + 4;
     };
     const Rgba dark = {0.05f, 0.05f, 0.05f, 1.0f};
     for (size_t k = 0; k < ghosts.size(); ++k) {
       const std::array<float, 3> c = GhostColor(k);
-      entry("ghost " + ghosts[k]->method, {c[0], c[1], c[2], 1.0f}, dark);
+      entry(ghosts[k]->method, {c[0], c[1], c[2], 1.0f}, dark);
     }
     for (size_t k = 0; k < run.sensors.size(); ++k) {
       entry(run.sensors[k].name, SensorColor(k), dark);

@@ -26,8 +26,11 @@ struct RenderOptions {
   int height_px = 480;
   bool shadows = false;      ///< shadow maps of the lights that cast them (costly on a CPU)
   bool reflections = false;  ///< planar reflections of reflective materials
-  int multisamples = 4;      ///< MSAA samples of the offscreen buffer (0 = off)
+  /// MSAA samples of the offscreen buffer: 0 off; -1 auto: 4 on a GPU, 0 on a software
+  /// rasteriser (llvmpipe spends 3-4x the time on 4 samples).
+  int multisamples = -1;
   int shadow_map_px = 2048;  ///< shadow map size when shadows are on
+  int geom_slices = 12;      ///< tessellation of round geoms (MuJoCo's default: 28)
   bool lidar_hits = false;   ///< LiDAR rays cast from the true pose, hits as dots
   bool gnss_sky = false;     ///< GNSS satellite rays from the antenna: green clear, red blocked
   bool text_overlay = true;

@@ -274,23 +274,59 @@ TEST(Render, TwoRendersOfTheSameFrameArePixelIdentical) {
   EXPECT_TRUE(back.rgb == first.rgb);
 }
 
+std::vector<std::string> Describe(const std::vector<RenderEvent>& events) {
+  std::vector<std::string> out;
+  for (const RenderEvent& e : events) {
+    out.push_back(fmt::format("{:.1f} {} {}", core::TimeToSeconds(e.t_ns), EventKindName(e.kind), e.subject));
+  }
+  return out;
+}
+
 TEST(RenderEvents, ChosenFromFaultsDecisionsErrorsAndCollisions) {
   const RunData run = ReadRunData(MakeRunDirectory("events"));
-  const std::vector<RenderEvent> events = FindEvents(run);
-  std::vector<std::string> found;
-  for (const RenderEvent& e : events) {
-    found.push_back(fmt::format("{:.1f} {} {}", core::TimeToSeconds(e.t_ns), EventKindName(e.kind), e.subject));
-  }
-  const std::vector<std::string> expected = {
-      "1.0 fault_onset leica", "2.5 detection leica", "2.5 sensor_switch consensus",
-      "3.0 error_above_bound ghost", "3.5 collision column"};
-  EXPECT_EQ(found, expected);
-  // A lower bound: the error is above it from the start, one event (no re-arm).
-  EventOptions low;
-  low.error_bound_m = 0.2;
-  int crossings = 0;
-  for (const RenderEvent& e : FindEvents(run, low)) crossings += e.kind == EventKind::kErrorAboveBound;
-  EXPECT_EQ(crossings, 1);
+  EventOptions options;
+  options.settle_s = 0.5;
+  EXPECT_EQ(Describe(FindEvents(run, options)),
+            (std::vector<std::string>{"1.0 fault_onset leica", "2.5 detection leica",
+                                      "2.5 sensor_switch consensus", "3.0 error_above_bound ghost",
+                                      "3.5 collision column"}));
+  // With the default 5 s of start-up, this 4 s run's decisions and errors are all start-up.
+  EXPECT_EQ(Describe(FindEvents(run)),
+            (std::vector<std::string>{"1.0 fault_onset leica", "3.5 collision column"}));
+  // A bound the error never fell below: no onset to show.
+  options.error_bound_m = 0.2;
+  for (const RenderEvent& e : FindEvents(run, options)) EXPECT_NE(e.kind, EventKind::kErrorAboveBound);
+}
+
+TEST(RenderEvents, FlappingMergesIntoOneClipAndTheTotalKeepsTheTellingKinds) {
+  RunData run;
+  const auto decision = [](double t_s, std::vector<std::string> fused, std::vector<std::string> excluded) {
+    DecisionRow d;
+    d.t_ns = core::SecondsToTime(t_s);
+    d.method = "consensus";
+    d.fused = std::move(fused);
+    d.excluded = std::move(excluded);
+    return d;
+  };
+  run.decisions = {decision(0.0, {"vio"}, {}),         decision(6.0, {"leica"}, {"vio"}),
+                   decision(6.1, {"vio"}, {}),         decision(6.2, {"leica"}, {"vio"}),
+                   decision(11.0, {"vio"}, {}),        decision(12.0, {"leica"}, {"vio"})};
+  EXPECT_EQ(Describe(FindEvents(run)),
+            (std::vector<std::string>{"6.0 detection vio", "6.0 sensor_switch consensus",
+                                      "11.0 sensor_switch consensus", "12.0 detection vio"}));
+  // Two events at most: the detections outrank the switches.
+  EventOptions two;
+  two.max_events = 2;
+  EXPECT_EQ(Describe(FindEvents(run, two)),
+            (std::vector<std::string>{"6.0 detection vio", "12.0 detection vio"}));
+  EXPECT_NE(FindEvents(run, two)[0].detail.find("false alarm"), std::string::npos);
+  // A fault of vio from 11.5 s: its detection at 12 s outranks the false alarm at 6 s.
+  run.labels = {{core::SecondsToTime(11.5), "vio", "divergence", "fault", true}};
+  EventOptions one;
+  one.max_events = 2;
+  EXPECT_EQ(Describe(FindEvents(run, one)),
+            (std::vector<std::string>{"11.5 fault_onset vio", "12.0 detection vio"}));
+  EXPECT_NE(FindEvents(run, one)[1].detail.find("fault divergence"), std::string::npos);
 }
 
 TEST(RenderEvents, KeyframesAndClipsReplaceTheRendersDirectory) {
@@ -301,6 +337,7 @@ TEST(RenderEvents, KeyframesAndClipsReplaceTheRendersDirectory) {
   options.render.width_px = 160;
   options.render.height_px = 120;
   options.fps = 4;
+  options.events.settle_s = 0.5;
   options.clip_half_s = 0.1;  // one frame per clip: the encoder path, quickly
   const RenderEventsResult result = RenderRunEvents(dir, options);
   ASSERT_EQ(result.events.size(), 5u);

@@ -245,6 +245,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   render->add_flag("--shadows", rend.shadows, "Shadow maps (slower on a CPU)");
   render->add_flag("--reflections", rend.reflections, "Floor reflections (slower on a CPU)");
+  render->add_option("--msaa", rend.msaa, "Multisamples (-1: 4 on a GPU, 0 on a CPU)")
+      ->capture_default_str();
   render->add_flag("--lidar", rend.lidar_hits, "Draw the LiDAR's hits");
   render->add_flag("--sky", rend.gnss_sky, "Draw the GNSS satellite rays");
   render->add_flag("--no-clips", rend.no_clips, "Keyframes only");
