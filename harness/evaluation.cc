@@ -317,6 +317,11 @@ Evaluation Evaluate(const RunRecord& record) {
   nlohmann::json expectations = nlohmann::json::array();
   for (const Expectation& e : sc.expect) {
     ExpectationResult r{e, MetricValue(record, e.metric, e.window_s), false};
+    if (e.relative_to) {
+      const std::optional<double> base = MetricValue(record, *e.relative_to, e.window_s);
+      r.value = r.value && base && *base > 0.0 ? std::optional<double>(*r.value / *base)
+                                               : std::nullopt;
+    }
     r.passed = r.value.has_value() && (!e.min || *r.value >= *e.min) &&
                (!e.max || *r.value <= *e.max);
     all_passed = all_passed && r.passed;
@@ -327,6 +332,7 @@ Evaluation Evaluate(const RunRecord& record) {
                          {"passed", r.passed},
                          {"where", e.location.file + ":" + std::to_string(e.location.line)}};
     if (e.window_s) je["window_s"] = {e.window_s->first, e.window_s->second};
+    if (e.relative_to) je["relative_to"] = *e.relative_to;
     expectations.push_back(je);
     eval.expectations.push_back(r);
   }

@@ -381,7 +381,7 @@ std::string MetricNames(bool windowable_only) {
 Expectation ReadExpectation(const YamlValue& item, const std::vector<SensorConfig>& sensors) {
   Expectation expectation;
   expectation.location = item.location();
-  YamlMap map = item.Map({"metric", "min", "max", "window_s", "pass_fraction"});
+  YamlMap map = item.Map({"metric", "min", "max", "window_s", "pass_fraction", "relative_to"});
 
   const YamlValue metric = map.Required("metric");
   expectation.metric = metric.String();
@@ -438,6 +438,22 @@ Expectation ReadExpectation(const YamlValue& item, const std::vector<SensorConfi
   // Share of the seeds of `tofu check --seeds N` in which the expectation must hold.
   if (const auto fraction = map.Optional("pass_fraction")) {
     expectation.pass_fraction = fraction->Number(NumberRule::PositiveAtMost(1.0, ""));
+  }
+  if (const auto relative = map.Optional("relative_to")) {
+    const std::string name = relative->String();
+    const MetricInfo* other = FindMetric(name);
+    if (other == nullptr) {
+      relative->Fail(fmt::format("unknown metric '{}'; known metrics: {}", name, MetricNames(false)));
+    }
+    if (other->unit != info->unit) {
+      relative->Fail(fmt::format("relative_to needs a metric in the same unit as '{}' ({}), got '{}' ({})",
+                                 expectation.metric, info->unit, name, other->unit));
+    }
+    if (expectation.window_s && !other->windowable) {
+      relative->Fail(fmt::format("metric '{}' cannot be restricted to the window of this expectation",
+                                 name));
+    }
+    expectation.relative_to = name;
   }
   map.Finish();
   return expectation;
@@ -498,6 +514,21 @@ void EmitSegment(YAML::Emitter& out, const sim::PrimitiveSpec& segment) {
       },
       segment);
   out << YAML::EndMap;
+}
+
+// A per-method metric must name a method of `estimation.methods`.
+void CheckMethodOfMetric(const Scenario& scenario, const Expectation& expectation,
+                         const std::string& metric, const std::string& key_path) {
+  const MetricArguments args = MatchMetric(metric)->second;
+  if (args.method.empty()) return;
+  const std::vector<std::string> methods =
+      scenario.estimation ? scenario.estimation->methods : std::vector<std::string>{};
+  if (std::find(methods.begin(), methods.end(), args.method) != methods.end()) return;
+  throw core::InputError(
+      expectation.location, key_path,
+      fmt::format("metric '{}' names method '{}', which estimation.methods does not list (listed: {})",
+                  metric, args.method,
+                  methods.empty() ? "none" : fmt::format("{}", fmt::join(methods, ", "))));
 }
 
 }  // namespace
@@ -562,19 +593,9 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   if (const auto expect = map.Optional("expect")) {
     for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
       scenario.expect.push_back(ReadExpectation(item, scenario.sensors));
-      // A per-method metric must name a method of `estimation.methods`.
-      const std::string& metric = scenario.expect.back().metric;
-      const MetricArguments args = MatchMetric(metric)->second;
-      if (args.method.empty()) continue;
-      const std::vector<std::string> methods =
-          scenario.estimation ? scenario.estimation->methods : std::vector<std::string>{};
-      if (std::find(methods.begin(), methods.end(), args.method) == methods.end()) {
-        throw core::InputError(
-            scenario.expect.back().location, item.path() + ".metric",
-            fmt::format("metric '{}' names method '{}', which estimation.methods does not list "
-                        "(listed: {})",
-                        metric, args.method, methods.empty() ? "none" : fmt::format("{}", fmt::join(methods, ", "))));
-      }
+      const Expectation& e = scenario.expect.back();
+      CheckMethodOfMetric(scenario, e, e.metric, item.path() + ".metric");
+      if (e.relative_to) CheckMethodOfMetric(scenario, e, *e.relative_to, item.path() + ".relative_to");
     }
   }
   map.Finish();
@@ -749,6 +770,7 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
             << FormatDouble(e.window_s->first) << FormatDouble(e.window_s->second) << YAML::EndSeq;
       }
       EmitNumber(out, "pass_fraction", e.pass_fraction);
+      if (e.relative_to) out << YAML::Key << "relative_to" << YAML::Value << *e.relative_to;
       out << YAML::EndMap;
     }
     out << YAML::EndSeq;

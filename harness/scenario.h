@@ -38,6 +38,9 @@ struct Expectation {
   /// `tofu check --seeds N`: the expectation passes when it held in at least
   /// ceil(pass_fraction * N) seeds; in (0, 1]. One `tofu run` (one seed) needs it to hold.
   double pass_fraction = 1.0;
+  /// The asserted value is metric / relative_to (same window), e.g. consensus ATE over
+  /// naive ATE ("at most a third of naive's": relative_to methods.naive.ate_m, max 0.333).
+  std::optional<std::string> relative_to;
   core::SourceLocation location;  ///< where it was written, for reports
 };
 

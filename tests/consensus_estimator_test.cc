@@ -1,0 +1,258 @@
+// Consensus in use (estimator/consensus_estimator.h and harness/estimation.h): a short
+// flight with IMU, VIO and LiDAR odometry whose VIO diverges at 15 s. The consensus
+// estimator must fuse the healthy sensors, exclude the diverging one within a second
+// (taking its recent factors out of the local graph), and `tofu run` must score every
+// method on the same samples, write decisions.csv / errors.csv / consistency_<m>.csv
+// deterministically, and reject malformed `estimation:` blocks with file:line.
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "estimator/consensus_estimator.h"
+#include "harness/recorded_log.h"
+#include "harness/replay.h"
+#include "harness/scenario.h"
+
+namespace tofu {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr core::Time kOnsetNs = 15'000'000'000;
+
+const char* const kScenario = R"(name: consensus_estimator_test
+world: indoor_arena
+duration_s: 30
+seed: 3
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  limits: {max_speed_mps: 1.0, max_acceleration_mps2: 1.5}
+  segments:
+    - hover: {duration_s: 2}
+    - figure_eight: {center_m: [0, 0, 1.5], half_length_m: 2.5, half_width_m: 1.5, speed_mps: 1.0, laps: 2}
+sensors:
+  imu: {}
+  vio: {position_random_walk_m_per_sqrtm: 0.005}
+  lio: {type: lidar_odometry}
+faults:
+  - {sensor: vio, kind: divergence, start_s: 15, axis: [1, 0, 0], initial_velocity_mps: 0.3, time_constant_s: 8}
+estimation:
+  methods: [consensus, naive, "single:vio@clean"]
+  consensus: {threshold: 0.3, priority: [vio, lio]}
+  huber_delta: 3
+expect:
+  - {metric: methods.consensus.ate_m, relative_to: methods.naive.ate_m, max: 0.5}
+  - {metric: methods.consensus.detection_delay_s.divergence, max: 1.0}
+)";
+
+std::string ReadFile(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+bool Contains(const std::vector<std::string>& names, const std::string& name) {
+  return std::find(names.begin(), names.end(), name) != names.end();
+}
+
+class ConsensusEstimatorTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new fs::path(fs::temp_directory_path() / "tofu_consensus_estimator_test");
+    fs::remove_all(*dir_);
+    fs::create_directories(*dir_);
+    std::ofstream(*dir_ / "scenario.yaml") << kScenario;
+    for (const char* run : {"a", "b"}) {
+      const std::string command = std::string(TOFU_BINARY) + " run " + (*dir_ / "scenario.yaml").string() +
+                                  " --quiet --out " + (*dir_ / run).string();
+      ASSERT_EQ(std::system(command.c_str()), 0) << command;
+    }
+    log_ = new harness::RecordedLog(harness::ReadRecordedLog(*dir_ / "a"));
+  }
+  static void TearDownTestSuite() {
+    fs::remove_all(*dir_);
+    delete log_;
+    delete dir_;
+  }
+
+  // The consensus estimator over the log, with the scenario's selection options.
+  struct Run {
+    std::vector<estimator::ConsensusRecord> records;
+    estimator::LocalSmootherStats stats;
+  };
+  static Run RunConsensus(const harness::RecordedLog& log) {
+    estimator::ConsensusEstimatorOptions options;
+    options.selection.threshold = 0.3;
+    options.selection.priority = {"vio", "lio"};
+    estimator::MultiGraphEstimatorOptions estimator_options = harness::DefaultEstimatorOptions(log);
+    estimator_options.local.huber_delta = 3.0;
+    estimator::ConsensusEstimator consensus(log.imu_stream, harness::SensorSpecsOf(log),
+                                            estimator_options, options);
+    Run run;
+    for (const core::StampedMeasurement& m : log.measurements) {
+      consensus.Add(m);
+      consensus.TakeOutputs();
+      for (auto& r : consensus.TakeRecords()) run.records.push_back(std::move(r));
+    }
+    run.stats = consensus.estimator().local().stats();
+    return run;
+  }
+
+  static fs::path* dir_;
+  static harness::RecordedLog* log_;
+};
+
+fs::path* ConsensusEstimatorTest::dir_ = nullptr;
+harness::RecordedLog* ConsensusEstimatorTest::log_ = nullptr;
+
+TEST_F(ConsensusEstimatorTest, ExcludesTheDivergingFusedSensorWithinOneSecondAndDropsItsFactors) {
+  const Run run = RunConsensus(*log_);
+  ASSERT_GT(run.records.size(), 250u);  // 10 Hz over 30 s
+  // Healthy until the onset: the preferred sensor (vio) fused, nobody excluded.
+  int healthy = 0, clean = 0, vio_fused = 0;
+  std::optional<core::Time> excluded_at;
+  for (const auto& r : run.records) {
+    if (r.t_ns > 5'000'000'000 && r.t_ns < kOnsetNs) {
+      ++healthy;
+      clean += r.decision.excluded.empty() ? 1 : 0;
+      vio_fused += Contains(r.decision.fused, "vio") ? 1 : 0;
+    }
+    if (r.t_ns >= kOnsetNs && !excluded_at && Contains(r.decision.excluded, "vio")) excluded_at = r.t_ns;
+  }
+  EXPECT_GE(clean, healthy * 95 / 100) << "healthy sensors excluded before the fault";
+  EXPECT_GE(vio_fused, healthy * 90 / 100) << "the preferred sensor of a consistent pair is fused";
+  ASSERT_TRUE(excluded_at.has_value()) << "the diverging VIO was never excluded";
+  EXPECT_LE(*excluded_at - kOnsetNs, 1'000'000'000);
+  // From then on the healthy LIO is fused and the VIO not (it keeps diverging).
+  for (const auto& r : run.records) {
+    if (r.t_ns < *excluded_at + 500'000'000) continue;
+    EXPECT_FALSE(Contains(r.decision.fused, "vio")) << r.t_ns << ": " << r.decision.reason;
+    EXPECT_TRUE(Contains(r.decision.fused, "lio")) << r.t_ns << ": " << r.decision.reason;
+  }
+  EXPECT_GT(run.stats.faulty_between_factors, 0) << "what the VIO said before detection stayed";
+  // The matrix values behind every decision: every pair and each sensor against local.
+  const auto& values = run.records.back().values;
+  ASSERT_EQ(values.size(), 3u);
+  EXPECT_EQ(values[0].first, "lio-vio");
+  EXPECT_EQ(values[1].first, "lio-local");
+  EXPECT_EQ(values[2].first, "vio-local");
+  EXPECT_GT(values[0].second.value_or(0.0), 0.3) << "diverged VIO inconsistent with LIO";
+  EXPECT_LT(values[1].second.value_or(1e9), 0.3) << "fused LIO consistent with the local estimate";
+}
+
+TEST_F(ConsensusEstimatorTest, PoseStreamsWithoutTwistAreDifferentiated) {
+  // The same flight as a log whose odometry reports poses only (TUM files, real logs):
+  // velocities come from the positions, and the divergence is still found.
+  harness::RecordedLog no_twist = *log_;
+  for (core::StampedMeasurement& m : no_twist.measurements) {
+    if (auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) pose->has_twist = false;
+  }
+  const Run run = RunConsensus(no_twist);
+  int available_before = 0, before = 0;
+  std::optional<core::Time> excluded_at;
+  for (const auto& r : run.records) {
+    if (r.t_ns > 5'000'000'000 && r.t_ns < kOnsetNs) {
+      ++before;
+      available_before += r.decision.unavailable.empty() ? 1 : 0;
+    }
+    if (r.t_ns >= kOnsetNs && !excluded_at && Contains(r.decision.excluded, "vio")) excluded_at = r.t_ns;
+  }
+  EXPECT_GE(available_before, before * 95 / 100);
+  ASSERT_TRUE(excluded_at.has_value());
+  EXPECT_LE(*excluded_at - kOnsetNs, 1'500'000'000) << "differentiation adds its half window";
+}
+
+TEST_F(ConsensusEstimatorTest, RunScoresEveryMethodAndWritesItsDecisions) {
+  const nlohmann::json summary = nlohmann::json::parse(ReadFile(*dir_ / "a" / "summary.json"));
+  ASSERT_TRUE(summary.contains("methods"));
+  const auto& methods = summary["methods"];
+  for (const char* m : {"consensus", "naive", "single:vio@clean"}) {
+    ASSERT_TRUE(methods.contains(m)) << m;
+    EXPECT_TRUE(methods[m]["ate_m"].is_number()) << m;
+  }
+  const auto& consensus = methods["consensus"];
+  ASSERT_EQ(consensus["detections"].size(), 1u);
+  EXPECT_EQ(consensus["detections"][0]["sensor"], "vio");
+  EXPECT_EQ(consensus["detections"][0]["fault"], "divergence");
+  EXPECT_TRUE(consensus["detections"][0]["detected"].get<bool>());
+  // Consensus beats fusing the diverging VIO naively, on the very same samples.
+  EXPECT_LT(consensus["ate_m"].get<double>(), 0.5 * methods["naive"]["ate_m"].get<double>());
+  EXPECT_TRUE(summary["passed"].get<bool>()) << summary["expectations"].dump(1);
+
+  const std::string decisions = ReadFile(*dir_ / "a" / "decisions.csv");
+  EXPECT_EQ(decisions.rfind("#timestamp [ns],method,fused,excluded,unavailable,reason\n", 0), 0u);
+  EXPECT_NE(decisions.find(",consensus,lio,vio,,"), std::string::npos);
+  const std::string errors = ReadFile(*dir_ / "a" / "errors.csv");
+  for (const char* m : {",consensus,", ",naive,", ",single:vio@clean,"}) {
+    EXPECT_NE(errors.find(m), std::string::npos) << m;
+  }
+  EXPECT_NE(ReadFile(*dir_ / "a" / "consistency_consensus.csv").find(",lio-vio,cm,"), std::string::npos);
+}
+
+TEST_F(ConsensusEstimatorTest, SameScenarioAndSeedGiveIdenticalEstimationFiles) {
+  for (const char* file : {"summary.json", "decisions.csv", "errors.csv", "consistency_consensus.csv",
+                           "estimate_consensus.csv", "estimate_naive.csv",
+                           "estimate_single_vio@clean.csv"}) {
+    EXPECT_EQ(ReadFile(*dir_ / "a" / file), ReadFile(*dir_ / "b" / file)) << file;
+  }
+}
+
+// ---- malformed estimation blocks and expectations: file:line, key, expected form ----
+
+std::string ErrorOf(const std::string& yaml) {
+  try {
+    harness::ParseScenario(yaml, "bad.yaml");
+  } catch (const core::InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string With(const std::string& from, const std::string& to) {
+  std::string text = kScenario;
+  const std::size_t at = text.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  return text.replace(at, from.size(), to);
+}
+
+TEST(EstimationScenario, TheTestScenarioIsValid) { EXPECT_EQ(ErrorOf(kScenario), ""); }
+
+TEST(EstimationScenario, UnknownSensorInAMethodIsAnErrorWithLineAndKnownSensors) {
+  const std::string error = ErrorOf(With("\"single:vio@clean\"", "\"single:gps\""));
+  EXPECT_NE(error.find("bad.yaml:18:"), std::string::npos) << error;
+  EXPECT_NE(error.find("estimation.methods[2]"), std::string::npos) << error;
+  EXPECT_NE(error.find("known: vio, lio"), std::string::npos) << error;
+}
+
+TEST(EstimationScenario, PriorityMustNameSensorsAndThresholdsMustBeOrdered) {
+  std::string error = ErrorOf(With("priority: [vio, lio]", "priority: [vio, gnss]"));
+  EXPECT_NE(error.find("bad.yaml:19:"), std::string::npos) << error;
+  EXPECT_NE(error.find("gnss"), std::string::npos) << error;
+  error = ErrorOf(With("threshold: 0.3,", "threshold: 0.3, leave_threshold: 0.2,"));
+  EXPECT_NE(error.find("leave_threshold >= threshold"), std::string::npos) << error;
+  error = ErrorOf(With("threshold: 0.3,", "threshold: 0.3, policy: vote,"));
+  EXPECT_NE(error.find("paper or largest_set"), std::string::npos) << error;
+}
+
+TEST(EstimationScenario, ExpectationsMustNameListedMethodsAndKnownRelativeMetrics) {
+  std::string error = ErrorOf(With("methods.naive.ate_m, max: 0.5", "methods.naive.ate_m, max: 0.5}\n  - {metric: methods.single:lio.ate_m, max: 1"));
+  EXPECT_NE(error.find("bad.yaml:23:"), std::string::npos) << error;
+  EXPECT_NE(error.find("does not list"), std::string::npos) << error;
+  error = ErrorOf(With("relative_to: methods.naive.ate_m", "relative_to: methods.naive.speed"));
+  EXPECT_NE(error.find("bad.yaml:22:"), std::string::npos) << error;
+  EXPECT_NE(error.find("relative_to"), std::string::npos) << error;
+  error = ErrorOf(With("relative_to: methods.naive.ate_m", "relative_to: methods.consensus.switches"));
+  EXPECT_NE(error.find("same unit"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace tofu
