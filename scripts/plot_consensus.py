@@ -281,6 +281,10 @@ def main():
         style = method_style(method, index)
         pos_ax.plot(data[:, 0], data[:, 1], label=method, **style)
         rot_ax.plot(data[:, 0], data[:, 2], label=method, **style)
+    # Log scale: a diverged baseline (metres) and consensus (centimetres) on one axis.
+    if per_method:
+        pos_ax.set_yscale("log")
+        rot_ax.set_yscale("log")
     pos_ax.set_ylabel("position error [m]")
     rot_ax.set_ylabel("rotation error [deg]")
     pos_ax.set_title("estimation error per method")
@@ -337,7 +341,9 @@ def main():
             threshold = DEFAULT_THRESHOLD
         cons_ax.axhline(threshold, color="k" if index == 0 else "0.5", ls="--", lw=1.0,
                         label=f"threshold {method} ({threshold:g})")
-    cons_ax.set_ylabel("consistency")
+    if consistency:
+        cons_ax.set_yscale("log")  # the threshold region and a divergence's values together
+    cons_ax.set_ylabel("CM distance (eq. 5)")
     cons_ax.set_title("consistency between sensors (and against the local estimate)")
     if consistency:
         cons_ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)

@@ -58,5 +58,30 @@ trajectory:
   EXPECT_EQ(scenario.faults.size(), 4u);
 }
 
+// The estimation example is a fragment too: valid with the paper scenario's sensors.
+TEST(Readme, EstimationExampleIsValid) {
+  const std::vector<std::string> blocks = ReadmeYamlBlocks();
+  ASSERT_GE(blocks.size(), 3u);
+  const std::string yaml = R"(name: readme_estimation
+world: indoor_arena
+duration_s: 60
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  segments:
+    - hover: {duration_s: 1}
+sensors:
+  imu: {}
+  vio: {}
+  lio: {type: lidar_odometry}
+  leica: {type: total_station}
+)" + blocks[2];
+  Scenario scenario;
+  ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
+  ASSERT_TRUE(scenario.estimation.has_value());
+  EXPECT_EQ(scenario.estimation->methods.size(), 4u);
+  EXPECT_EQ(scenario.estimation->consensus.leave_threshold, 0.4);
+  EXPECT_EQ(scenario.expect.size(), 3u);
+}
+
 }  // namespace
 }  // namespace tofu::harness
