@@ -20,6 +20,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/file_io.h"
 #include "harness/yaml_reader.h"
 
 extern char** environ;
@@ -332,29 +333,6 @@ std::string FailureSystemOut(const ScenarioCheck& c, const std::set<uint64_t>& f
   return out;
 }
 
-void WriteFileAtomically(const std::string& path, const std::string& text) {
-  const fs::path target = fs::absolute(path).lexically_normal();
-  std::error_code ec;
-  fs::create_directories(target.parent_path(), ec);
-  const fs::path temp = target.parent_path() /
-                        (target.filename().string() + fmt::format(".tmp-{}", ::getpid()));
-  {
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    out << text;
-    out.close();
-    if (!out) {
-      fs::remove(temp, ec);
-      throw InputError({path}, "--junit",
-                       fmt::format("cannot write the file: {}", std::strerror(errno)));
-    }
-  }
-  fs::rename(temp, target, ec);
-  if (ec) {
-    std::error_code ignored;
-    fs::remove(temp, ignored);
-    throw InputError({path}, "--junit", fmt::format("cannot write the file: {}", ec.message()));
-  }
-}
 
 // ---- validation ----
 
@@ -730,7 +708,7 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   PrintFailures(checks);
   if (options.junit_path) {
     try {
-      WriteFileAtomically(*options.junit_path, CheckJUnitXml(checks));
+      WriteFileAtomically(*options.junit_path, CheckJUnitXml(checks), "--junit");
     } catch (const InputError& e) {
       fmt::print(stderr, "tofu: error: {}\n", e.what());
       return core::kExitBadInput;

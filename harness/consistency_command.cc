@@ -13,6 +13,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/file_io.h"
 #include "harness/velocity_csv.h"
 
 namespace tofu::harness {
@@ -58,28 +59,6 @@ core::Time EvaluationPeriod(double rate_hz) {
   return core::PeriodFromRate(rate_hz);
 }
 
-// Writes `text` to `path` whole or not at all: a temporary sibling renamed into place.
-void WriteFileAtomically(const std::string& path, const std::string& text) {
-  const std::string staging = fmt::format("{}.tmp-{}", path, ::getpid());
-  std::FILE* file = std::fopen(staging.c_str(), "wb");
-  if (file == nullptr) {
-    throw InputError({path}, "", fmt::format("cannot write the output: {}", std::strerror(errno)));
-  }
-  const bool written = std::fwrite(text.data(), 1, text.size(), file) == text.size();
-  const int write_errno = errno;
-  const bool closed = std::fclose(file) == 0;
-  if (!written || !closed) {
-    std::remove(staging.c_str());
-    throw InputError({path}, "",
-                     fmt::format("cannot write the output: {}", std::strerror(write_errno)));
-  }
-  if (std::rename(staging.c_str(), path.c_str()) != 0) {
-    const int rename_errno = errno;
-    std::remove(staging.c_str());
-    throw InputError({path}, "",
-                     fmt::format("cannot write the output: {}", std::strerror(rename_errno)));
-  }
-}
 
 }  // namespace
 
@@ -181,7 +160,7 @@ void RunConsistencyCommand(const ConsistencyCommandOptions& options) {
 
   const std::string csv = ConsistencyOutputCsv(a, b, times, metric, metric_options);
   if (options.out_path) {
-    WriteFileAtomically(*options.out_path, csv);
+    WriteFileAtomically(*options.out_path, csv, "--out");
   } else {
     std::fwrite(csv.data(), 1, csv.size(), stdout);
     std::fflush(stdout);

@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/file_io.h"
 #include "harness/recorded_log.h"
 #include "harness/replay.h"
 #include "harness/sensor_suite.h"
@@ -19,15 +20,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void WriteText(const fs::path& path, const std::string& content) {
-  const fs::path staging = path.string() + ".partial";
-  {
-    std::ofstream out(staging, std::ios::binary | std::ios::trunc);
-    if (!out) throw std::runtime_error("cannot write " + staging.string());
-    out << content;
-  }
-  fs::rename(staging, path);
-}
 
 std::string Join(const std::vector<std::string>& names) {
   std::string out;
@@ -246,7 +238,7 @@ std::vector<MethodEvaluation> RunEstimation(
           e.false_exclusion_s[s] += core::TimeToSeconds(next - rec.t_ns);
         }
       }
-      WriteText(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"), consistency_csv);
+      WriteFileAtomically(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"), consistency_csv);
       // Detection: the first decision excluding the sensor, from the onset until 1 s after
       // the fault ended (a decision lags its window by the evaluation delay).
       for (const LabelWindow& f : faults) {
@@ -267,8 +259,8 @@ std::vector<MethodEvaluation> RunEstimation(
     }
     evaluations.push_back(std::move(e));
   }
-  WriteText(run_dir / "errors.csv", errors_csv);
-  if (any_consensus) WriteText(run_dir / "decisions.csv", decisions_csv);
+  WriteFileAtomically(run_dir / "errors.csv", errors_csv);
+  if (any_consensus) WriteFileAtomically(run_dir / "decisions.csv", decisions_csv);
   return evaluations;
 }
 

@@ -18,6 +18,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "core/error.h"
+#include "harness/file_io.h"
 #include "harness/trajectory_metrics.h"
 
 namespace tofu::harness {
@@ -43,22 +44,11 @@ std::string_view Trim(std::string_view s) {
   return s;
 }
 
-std::string ReadWholeFile(const fs::path& path) {
-  std::FILE* file = std::fopen(path.c_str(), "rb");
-  if (file == nullptr) {
-    throw InputError({path.string()}, "", fmt::format("cannot open: {}", std::strerror(errno)));
-  }
-  std::string text;
-  std::error_code ec;
-  const auto size = fs::file_size(path, ec);
-  if (!ec) text.reserve(size);
-  std::array<char, 1 << 16> buffer;
-  size_t n = 0;
-  while ((n = std::fread(buffer.data(), 1, buffer.size(), file)) > 0) text.append(buffer.data(), n);
-  const bool failed = std::ferror(file) != 0;
-  std::fclose(file);
-  if (failed) throw InputError({path.string()}, "", "cannot read the file");
-  // A UTF-8 byte-order mark (spreadsheet exports) is not part of the header.
+
+// The file's text without a UTF-8 byte-order mark (spreadsheet exports): it is not part
+// of the header.
+std::string ReadCsvText(const fs::path& path) {
+  std::string text = ReadWholeFile(path);
   if (text.compare(0, 3, "\xEF\xBB\xBF") == 0) text.erase(0, 3);
   return text;
 }
@@ -77,7 +67,7 @@ std::string_view ColumnKey(std::string_view field) {
 class CsvFile {
  public:
   CsvFile(fs::path path, std::string expected_header)
-      : path_(std::move(path)), name_(path_.string()), text_(ReadWholeFile(path_)) {
+      : path_(std::move(path)), name_(path_.string()), text_(ReadCsvText(path_)) {
     std::string_view line;
     if (!NextLine(line) || Trim(line).empty()) {
       throw InputError({name_, 1, 0}, "",

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
+#include "harness/file_io.h"
 #include "estimator/velocity.h"
 
 namespace tofu::harness {
@@ -26,16 +27,6 @@ double Percentile(std::vector<double> values, double fraction) {
   return values[index];
 }
 
-// Atomic write: a reader never sees a half-written file.
-void WriteFileAtomically(const std::filesystem::path& path, const std::string& content) {
-  const std::filesystem::path staging = path.string() + ".partial";
-  {
-    std::ofstream out(staging, std::ios::binary | std::ios::trunc);
-    if (!out) throw core::InputError({staging.string()}, "", "cannot write this file");
-    out << content;
-  }
-  std::filesystem::rename(staging, path);
-}
 
 std::string EstimateCsv(const ReplayResult& result) {
   std::string csv =

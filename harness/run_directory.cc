@@ -15,6 +15,7 @@
 
 #include "core/lie.h"
 #include "harness/estimation.h"
+#include "harness/file_io.h"
 #include "harness/sensor_config.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
@@ -24,12 +25,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void WriteText(const fs::path& path, const std::string& text) {
-  std::ofstream out(path, std::ios::binary);
-  out.write(text.data(), static_cast<std::streamsize>(text.size()));
-  out.close();
-  if (!out) throw std::runtime_error("cannot write " + path.string());
-}
 
 // "1.234567890" from integer nanoseconds: exact, no float rounding in time stamps.
 std::string SecondsText(core::Time t_ns) {
@@ -413,31 +408,31 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
   fs::remove_all(staging);
   try {
     fs::create_directories(staging);
-    WriteText(staging / "scenario.yaml", ResolvedScenarioYaml(record.scenario));
-    WriteText(staging / "groundtruth.csv", GroundTruthCsv(record));
-    WriteText(staging / "groundtruth.tum", GroundTruthTum(record));
-    WriteText(staging / "tracking.csv", TrackingCsv(record));
-    WriteText(staging / "calibration.yaml", CalibrationYaml(record));
-    WriteText(staging / "summary.json", evaluation.summary.dump(2) + "\n");
-    WriteText(staging / "timing.json", TimingJson(record));
+    WriteFileAtomically(staging / "scenario.yaml", ResolvedScenarioYaml(record.scenario));
+    WriteFileAtomically(staging / "groundtruth.csv", GroundTruthCsv(record));
+    WriteFileAtomically(staging / "groundtruth.tum", GroundTruthTum(record));
+    WriteFileAtomically(staging / "tracking.csv", TrackingCsv(record));
+    WriteFileAtomically(staging / "calibration.yaml", CalibrationYaml(record));
+    WriteFileAtomically(staging / "summary.json", evaluation.summary.dump(2) + "\n");
+    WriteFileAtomically(staging / "timing.json", TimingJson(record));
     if (!record.sensors.empty()) {
       fs::create_directories(staging / "sensors" / "clean");
       for (const SensorStream& stream : record.sensors) {
-        WriteText(staging / "sensors" / (stream.name + ".csv"), SensorCsv(stream, true));
-        WriteText(staging / "sensors" / "clean" / (stream.name + ".csv"), SensorCsv(stream, false));
+        WriteFileAtomically(staging / "sensors" / (stream.name + ".csv"), SensorCsv(stream, true));
+        WriteFileAtomically(staging / "sensors" / "clean" / (stream.name + ".csv"), SensorCsv(stream, false));
       }
-      WriteText(staging / "labels.csv", LabelsCsv(record));
+      WriteFileAtomically(staging / "labels.csv", LabelsCsv(record));
       if (record.consistency) {
-        WriteText(staging / "consistency.csv", ConsistencyCsv(*record.consistency));
-        WriteText(staging / "alignment.csv", AlignmentCsv(*record.consistency));
+        WriteFileAtomically(staging / "consistency.csv", ConsistencyCsv(*record.consistency));
+        WriteFileAtomically(staging / "alignment.csv", AlignmentCsv(*record.consistency));
       }
       // The EuRoC folder layout of the first IMU, so existing VIO tools read a run.
       for (const SensorStream& stream : record.sensors) {
         if (stream.type != "imu") continue;
         fs::create_directories(staging / "mav0" / "imu0");
         fs::create_directories(staging / "mav0" / "state_groundtruth_estimate0");
-        WriteText(staging / "mav0" / "imu0" / "data.csv", EurocImuCsv(stream));
-        WriteText(staging / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+        WriteFileAtomically(staging / "mav0" / "imu0" / "data.csv", EurocImuCsv(stream));
+        WriteFileAtomically(staging / "mav0" / "state_groundtruth_estimate0" / "data.csv",
                   EurocGroundTruthCsv(record, stream));
         break;
       }
@@ -468,7 +463,7 @@ Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
     record.methods = RunEstimation(staging, *record.scenario.estimation, record.labels, run_s,
                                    options.estimation_progress);
     evaluation = Evaluate(record);
-    WriteText(staging / "summary.json", evaluation.summary.dump(2) + "\n");
+    WriteFileAtomically(staging / "summary.json", evaluation.summary.dump(2) + "\n");
     if (options.plot) {
       const fs::path script = fs::path(TOFU_SCRIPTS_DIR) / "plot_consensus.py";
       if (!fs::exists(script) ||

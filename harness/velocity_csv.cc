@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/file_io.h"
 
 namespace tofu::harness {
 namespace {
@@ -48,32 +49,6 @@ std::string Quoted(std::string_view s) {
   return fmt::format("'{}...'", s.substr(0, kMax));
 }
 
-// The whole file in memory: one read, no per-line stream overhead.
-std::string ReadWholeFile(const std::string& path) {
-  std::error_code ec;
-  if (fs::is_directory(path, ec)) {
-    throw InputError({path}, "", "is a directory, expected a velocity CSV file");
-  }
-  std::FILE* file = std::fopen(path.c_str(), "rb");
-  if (file == nullptr) {
-    throw InputError({path}, "",
-                     fmt::format("cannot open the velocity CSV: {}", std::strerror(errno)));
-  }
-  std::string text;
-  const auto size = fs::file_size(path, ec);
-  if (!ec) text.reserve(size);
-  std::array<char, 1 << 16> buffer;
-  size_t n = 0;
-  while ((n = std::fread(buffer.data(), 1, buffer.size(), file)) > 0) text.append(buffer.data(), n);
-  const bool failed = std::ferror(file) != 0;
-  const int read_errno = errno;
-  std::fclose(file);
-  if (failed) {
-    throw InputError({path}, "",
-                     fmt::format("cannot read the velocity CSV: {}", std::strerror(read_errno)));
-  }
-  return text;
-}
 
 // Splits text into lines ('\n'; a '\r' before it is dropped), counting them from 1.
 class LineReader {
@@ -258,7 +233,7 @@ estimator::VelocitySeries ParseVelocityCsv(std::string_view text, const std::str
 }
 
 estimator::VelocitySeries ReadVelocityCsv(const std::string& path) {
-  const std::string text = ReadWholeFile(path);
+  const std::string text = ReadWholeFile(path, "velocity CSV");
   return ParseVelocityCsv(text, path);
 }
 

@@ -5,6 +5,8 @@
 // method on the same samples, write decisions.csv / errors.csv / consistency_<m>.csv
 // deterministically, and reject malformed `estimation:` blocks with file:line.
 
+#include <unistd.h>
+
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -67,7 +69,7 @@ bool Contains(const std::vector<std::string>& names, const std::string& name) {
 class ConsensusEstimatorTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = new fs::path(fs::temp_directory_path() / "tofu_consensus_estimator_test");
+    dir_ = new fs::path(fs::temp_directory_path() / ("tofu_consensus_estimator_test_" + std::to_string(::getpid())));
     fs::remove_all(*dir_);
     fs::create_directories(*dir_);
     std::ofstream(*dir_ / "scenario.yaml") << kScenario;
@@ -78,9 +80,12 @@ class ConsensusEstimatorTest : public ::testing::Test {
     }
     log_ = new harness::RecordedLog(harness::ReadRecordedLog(*dir_ / "a"));
   }
+  // A failed flight in SetUpTestSuite must fail every test, not skip it.
+  void SetUp() override { ASSERT_NE(log_, nullptr) << "the fixture's flight failed"; }
   static void TearDownTestSuite() {
     fs::remove_all(*dir_);
     delete log_;
+    log_ = nullptr;
     delete dir_;
   }
 

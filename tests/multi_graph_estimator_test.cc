@@ -2,6 +2,8 @@
 // no-fault flight: initialisation in motion, switching the fused sensor at run time, the
 // alignment graph of a sensor that is not fused, and the gate for streams it does not know.
 
+#include <unistd.h>
+
 #include <cstdlib>
 #include <filesystem>
 #include <string>
@@ -22,7 +24,7 @@ namespace fs = std::filesystem;
 class MultiGraphEstimatorTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    run_dir_ = new fs::path(fs::temp_directory_path() / "tofu_multi_graph_estimator_test");
+    run_dir_ = new fs::path(fs::temp_directory_path() / ("tofu_multi_graph_estimator_test_" + std::to_string(::getpid())));
     fs::remove_all(*run_dir_);
     const std::string command = std::string(TOFU_BINARY) + " run " + TOFU_SOURCE_DIR +
                                 "/scenarios/estimator_arena.yaml --quiet --out " +
@@ -30,9 +32,12 @@ class MultiGraphEstimatorTest : public ::testing::Test {
     ASSERT_EQ(std::system(command.c_str()), 0) << command;
     log_ = new harness::RecordedLog(harness::ReadRecordedLog(*run_dir_));
   }
+  // A failed flight in SetUpTestSuite must fail every test, not skip it.
+  void SetUp() override { ASSERT_NE(log_, nullptr) << "the fixture's flight failed"; }
   static void TearDownTestSuite() {
     fs::remove_all(*run_dir_);
     delete log_;
+    log_ = nullptr;
     delete run_dir_;
   }
 

@@ -1,0 +1,68 @@
+#include "harness/file_io.h"
+
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+
+#include <fmt/format.h>
+
+#include "core/error.h"
+
+namespace tofu::harness {
+
+namespace fs = std::filesystem;
+
+std::string ReadWholeFile(const fs::path& path, std::string_view what) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) {
+    throw core::InputError({path.string()}, "", fmt::format("is a directory, expected a {}", what));
+  }
+  std::FILE* file = std::fopen(path.c_str(), "rb");
+  if (file == nullptr) {
+    throw core::InputError({path.string()}, "",
+                           fmt::format("cannot open the {}: {}", what, std::strerror(errno)));
+  }
+  std::string text;
+  const auto size = fs::file_size(path, ec);
+  if (!ec) text.reserve(size);
+  std::array<char, 1 << 16> buffer;
+  std::size_t n = 0;
+  while ((n = std::fread(buffer.data(), 1, buffer.size(), file)) > 0) text.append(buffer.data(), n);
+  const bool failed = std::ferror(file) != 0;
+  const int read_errno = errno;
+  std::fclose(file);
+  if (failed) {
+    throw core::InputError({path.string()}, "",
+                           fmt::format("cannot read the {}: {}", what, std::strerror(read_errno)));
+  }
+  return text;
+}
+
+void WriteFileAtomically(const fs::path& path, std::string_view text, std::string_view key) {
+  const auto fail = [&](int error) {
+    throw core::InputError({path.string()}, std::string(key),
+                           fmt::format("cannot write the file: {}", std::strerror(error)));
+  };
+  std::error_code ec;
+  if (path.has_parent_path()) fs::create_directories(path.parent_path(), ec);
+  const fs::path staging = path.string() + fmt::format(".tmp-{}", ::getpid());
+  std::FILE* file = std::fopen(staging.c_str(), "wb");
+  if (file == nullptr) fail(errno);
+  const bool written = std::fwrite(text.data(), 1, text.size(), file) == text.size();
+  const int write_errno = errno;
+  const bool closed = std::fclose(file) == 0;
+  if (!written || !closed) {
+    std::remove(staging.c_str());
+    fail(write_errno != 0 ? write_errno : EIO);
+  }
+  if (std::rename(staging.c_str(), path.c_str()) != 0) {
+    const int rename_errno = errno;
+    std::remove(staging.c_str());
+    fail(rename_errno);
+  }
+}
+
+}  // namespace tofu::harness
