@@ -144,12 +144,13 @@ std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& opti
     return std::tie(a.t_ns, a.kind, a.subject) < std::tie(b.t_ns, b.kind, b.subject);
   };
 
-  // Repeats within merge_s of a kept event of the same kind and subject are in its clip.
+  // Repeats within merge_s of a kept event of the same kind, subject and priority are in
+  // its clip (a false alarm does not swallow the detection of a fault that follows it).
   const core::Time merge_ns = core::SecondsToTime(options.merge_s);
-  std::map<std::pair<EventKind, std::string>, core::Time> last_kept;
+  std::map<std::tuple<EventKind, std::string, int>, core::Time> last_kept;
   std::vector<RenderEvent> merged;
   for (const RenderEvent& e : events) {
-    const auto key = std::make_pair(e.kind, e.subject);
+    const auto key = std::make_tuple(e.kind, e.subject, priority(e));
     const auto last = last_kept.find(key);
     if (last != last_kept.end() && e.t_ns - last->second <= merge_ns) continue;
     last_kept[key] = e.t_ns;

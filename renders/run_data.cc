@@ -539,11 +539,12 @@ bool RunData::LabelActive(const std::string& sensor, const std::string& label,
   return active;
 }
 
-std::vector<std::string> RunData::ActiveFaults(const std::string& sensor, core::Time t_ns) const {
+std::vector<std::string> RunData::ActiveLabels(const std::string& sensor, const std::string& source,
+                                               core::Time t_ns) const {
   std::map<std::string, bool> state;
   for (const LabelRow& row : labels) {
     if (row.t_ns > t_ns) break;
-    if (row.sensor == sensor && row.source == "fault") state[row.label] = row.active;
+    if (row.sensor == sensor && row.source == source) state[row.label] = row.active;
   }
   std::vector<std::string> active;
   for (const auto& [label, on] : state) {

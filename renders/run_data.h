@@ -119,8 +119,13 @@ struct RunData {
   const SensorTrack* FindSensor(const std::string& name) const;
   /// Whether label (sensor, label) is active at t (the last transition at or before t).
   bool LabelActive(const std::string& sensor, const std::string& label, core::Time t_ns) const;
+  /// Labels of `sensor` from `source` ("fault" or "condition") active at t, sorted.
+  std::vector<std::string> ActiveLabels(const std::string& sensor, const std::string& source,
+                                        core::Time t_ns) const;
   /// Faults of `sensor` active at t.
-  std::vector<std::string> ActiveFaults(const std::string& sensor, core::Time t_ns) const;
+  std::vector<std::string> ActiveFaults(const std::string& sensor, core::Time t_ns) const {
+    return ActiveLabels(sensor, "fault", t_ns);
+  }
 };
 
 /// Reads a run directory. Required: scenario.yaml (keys name, world, robot),

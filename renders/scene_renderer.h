@@ -31,6 +31,7 @@ struct RenderOptions {
   int multisamples = -1;
   int shadow_map_px = 2048;  ///< shadow map size when shadows are on
   int geom_slices = 12;      ///< tessellation of round geoms (MuJoCo's default: 28)
+  double plane_grid_m = 0.5; ///< coarsest grid spacing of planes [m] (0: the model's)
   bool lidar_hits = false;   ///< LiDAR rays cast from the true pose, hits as dots
   bool gnss_sky = false;     ///< GNSS satellite rays from the antenna: green clear, red blocked
   bool text_overlay = true;

@@ -137,6 +137,23 @@ fs::path MakeRunDirectory(const std::string& name) {
   return dir;
 }
 
+// A run directory for one test, removed when the test ends (kept when it failed, to look at).
+class RunDirectory {
+ public:
+  explicit RunDirectory(const std::string& name) : path_(MakeRunDirectory(name)) {}
+  ~RunDirectory() {
+    if (!::testing::Test::HasFailure()) fs::remove_all(path_);
+  }
+  RunDirectory(const RunDirectory&) = delete;
+  RunDirectory& operator=(const RunDirectory&) = delete;
+  operator const fs::path&() const { return path_; }
+  std::string string() const { return path_.string(); }
+  fs::path operator/(const std::string& name) const { return path_ / name; }
+
+ private:
+  fs::path path_;
+};
+
 RenderOptions SmallOptions() {
   RenderOptions o;
   o.width_px = kWidth;
@@ -178,7 +195,8 @@ PixelStats GhostPixels(const Image& image, const Image& without, int x0, int y0,
 }
 
 TEST(Render, FrameIsNeitherBlankNorUniform) {
-  const RunData run = ReadRunData(MakeRunDirectory("blank"));
+  const RunDirectory dir("blank");
+  const RunData run = ReadRunData(dir);
   SceneRenderer renderer(run, SmallOptions());
   std::cout << renderer.GlDescription() << "\n";
   for (const std::string camera : {"chase", "overview"}) {
@@ -205,7 +223,8 @@ TEST(Render, FrameIsNeitherBlankNorUniform) {
 }
 
 TEST(Render, GhostAppearsWhereItsPoseProjects) {
-  const RunData run = ReadRunData(MakeRunDirectory("ghost"));
+  const RunDirectory dir("ghost");
+  const RunData run = ReadRunData(dir);
   ASSERT_EQ(run.estimates.size(), 1u);
   const double t_s = 2.0;
   const core::Time t_ns = core::SecondsToTime(t_s);
@@ -253,7 +272,7 @@ TEST(Render, GhostAppearsWhereItsPoseProjects) {
 }
 
 TEST(Render, TwoRendersOfTheSameFrameArePixelIdentical) {
-  const fs::path dir = MakeRunDirectory("twice");
+  const RunDirectory dir("twice");
   const RunData run = ReadRunData(dir);
   Image first;
   {
@@ -283,7 +302,8 @@ std::vector<std::string> Describe(const std::vector<RenderEvent>& events) {
 }
 
 TEST(RenderEvents, ChosenFromFaultsDecisionsErrorsAndCollisions) {
-  const RunData run = ReadRunData(MakeRunDirectory("events"));
+  const RunDirectory dir("events");
+  const RunData run = ReadRunData(dir);
   EventOptions options;
   options.settle_s = 0.5;
   EXPECT_EQ(Describe(FindEvents(run, options)),
@@ -330,7 +350,7 @@ TEST(RenderEvents, FlappingMergesIntoOneClipAndTheTotalKeepsTheTellingKinds) {
 }
 
 TEST(RenderEvents, KeyframesAndClipsReplaceTheRendersDirectory) {
-  const fs::path dir = MakeRunDirectory("clips");
+  const RunDirectory dir("clips");
   Write(dir / "renders" / "stale.png", "old");
   RenderEventsOptions options;
   options.render = SmallOptions();
@@ -367,6 +387,10 @@ TEST(RenderEvents, KeyframesAndClipsReplaceTheRendersDirectory) {
 TEST(RenderClips, GifFallbackDecodesToTheFrames) {
   const fs::path dir = fs::path(::testing::TempDir()) / fmt::format("render_gif_{}", ::getpid());
   fs::create_directories(dir);
+  const struct RemoveAtEnd {
+    fs::path path;
+    ~RemoveAtEnd() { fs::remove_all(path); }
+  } remove_at_end{dir};
   // A gradient with a moving bar: many colours, long LZW runs and table resets.
   std::vector<Image> frames;
   for (int k = 0; k < 3; ++k) {
@@ -412,7 +436,7 @@ TEST(RenderClips, GifFallbackDecodesToTheFrames) {
 }
 
 TEST(RenderRunData, MalformedCsvNamesFileLineAndColumn) {
-  const fs::path dir = MakeRunDirectory("malformed");
+  const RunDirectory dir("malformed");
   std::string gt = Read(dir / "groundtruth.csv");
   // Line 4, second field (p_WB_x): not a number.
   size_t line4 = 0;
@@ -447,11 +471,12 @@ int RunCli(const std::string& env, const std::string& args, std::string* err) {
   const std::string command = fmt::format("env {} '{}' {} >/dev/null 2>'{}'", env, TOFU_BINARY, args, err_file.string());
   const int status = std::system(command.c_str());
   *err = Read(err_file);
+  fs::remove(err_file);
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
 TEST(RenderCli, NoEglIsExitTwoNamingTheFixAndTouchesNothing) {
-  const fs::path dir = MakeRunDirectory("noegl");
+  const RunDirectory dir("noegl");
   const auto before = Snapshot(dir);
   std::string err;
   EXPECT_EQ(RunCli("TOFU_EGL_LIBRARY=/nonexistent/libEGL.so.1", "render " + dir.string() + " --events", &err), 2);
@@ -470,7 +495,7 @@ TEST(RenderCli, NoEglIsExitTwoNamingTheFixAndTouchesNothing) {
 }
 
 TEST(RenderCli, AtWritesOnePngAndBadInputIsExitTwo) {
-  const fs::path dir = MakeRunDirectory("cli");
+  const RunDirectory dir("cli");
   std::string err;
   const fs::path png = dir / "frame.png";
   ASSERT_EQ(RunCli("", fmt::format("render {} --at 2 --size 96x64 --camera overview --out {}", dir.string(), png.string()), &err), 0) << err;
