@@ -21,11 +21,6 @@ namespace {
 namespace fs = std::filesystem;
 
 
-std::string Join(const std::vector<std::string>& names) {
-  std::string out;
-  for (const std::string& n : names) out += (out.empty() ? "" : "+") + n;
-  return out;
-}
 
 // A label's active windows [start, end) per (sensor, label) of one source.
 struct LabelWindow {
@@ -149,7 +144,7 @@ std::vector<MethodEvaluation> RunEstimation(
 
   std::string errors_csv =
       "#timestamp [ns],method,position_error [m],rotation_error [deg],valid,nees\n";
-  std::string decisions_csv = "#timestamp [ns],method,fused,excluded,unavailable,reason\n";
+  std::string decisions_csv = kDecisionsCsvHeader;
   bool any_consensus = false;
   std::vector<MethodEvaluation> evaluations;
   for (const ReplayMethod& method : methods) {
@@ -214,18 +209,12 @@ std::vector<MethodEvaluation> RunEstimation(
       any_consensus = true;
       e.consensus = true;
       e.threshold = config.consensus.threshold;
-      std::string consistency_csv = "#timestamp [ns],pair,metric,value\n";
+      decisions_csv += DecisionRows(result);
       std::optional<std::vector<std::string>> previous_fused;
       bool fused_once = false;
       for (std::size_t r = 0; r < result.consensus.size(); ++r) {
         const estimator::ConsensusRecord& rec = result.consensus[r];
         const estimator::ConsensusDecision& d = rec.decision;
-        decisions_csv += fmt::format("{},{},{},{},{},{}\n", rec.t_ns, method.name, Join(d.fused),
-                                     Join(d.excluded), Join(d.unavailable), d.reason);
-        for (const auto& [pair, value] : rec.values) {
-          consistency_csv += fmt::format("{},{},cm,{}\n", rec.window_end_ns, pair,
-                                         value ? fmt::format("{:.6g}", *value) : std::string());
-        }
         // Switches: changes of the fused set once something was fused.
         if (fused_once && previous_fused && *previous_fused != d.fused) ++e.switches;
         if (!d.fused.empty()) fused_once = true;
@@ -238,7 +227,8 @@ std::vector<MethodEvaluation> RunEstimation(
           e.false_exclusion_s[s] += core::TimeToSeconds(next - rec.t_ns);
         }
       }
-      WriteFileAtomically(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"), consistency_csv);
+      WriteFileAtomically(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
+                          ConsistencyMatrixCsv(result));
       // Detection: the first decision excluding the sensor, from the onset until 1 s after
       // the fault ended (a decision lags its window by the evaluation delay).
       for (const LabelWindow& f : faults) {

@@ -103,6 +103,32 @@ constexpr double kInFlightImuNoiseScale = 10.0;
 
 std::string MethodFileStem(const std::string& method) { return SafeFileName(method); }
 
+std::string DecisionRows(const ReplayResult& result) {
+  const auto join = [](const std::vector<std::string>& names) {
+    std::string out;
+    for (const std::string& n : names) out += (out.empty() ? "" : "+") + n;
+    return out;
+  };
+  std::string rows;
+  for (const estimator::ConsensusRecord& r : result.consensus) {
+    const estimator::ConsensusDecision& d = r.decision;
+    rows += fmt::format("{},{},{},{},{},{}\n", r.t_ns, result.method.name, join(d.fused),
+                        join(d.excluded), join(d.unavailable), d.reason);
+  }
+  return rows;
+}
+
+std::string ConsistencyMatrixCsv(const ReplayResult& result) {
+  std::string csv = "#timestamp [ns],pair,metric,value\n";
+  for (const estimator::ConsensusRecord& r : result.consensus) {
+    for (const auto& [pair, value] : r.values) {
+      csv += fmt::format("{},{},cm,{}\n", r.window_end_ns, pair,
+                         value ? fmt::format("{:.6g}", *value) : std::string());
+    }
+  }
+  return csv;
+}
+
 namespace {
 
 constexpr const char* kMethodForms =
@@ -567,13 +593,22 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10}\n", "method", "ATE [m]",
                "rot [deg]", "RPE1s [m]", "valid", "x RT", "solve [ms]", "p99 [ms]");
   }
+  std::string decisions_csv = kDecisionsCsvHeader;
+  estimator::ConsensusEstimatorOptions consensus_options;
+  if (options.consensus_threshold) consensus_options.selection.threshold = *options.consensus_threshold;
   core::Time first_output_ns = std::numeric_limits<core::Time>::max();
   core::Time last_output_ns = std::numeric_limits<core::Time>::min();
   for (const ReplayMethod& method : methods) {
     std::function<void(double)> progress;
     if (options.progress) progress = [&](double f) { options.progress(method.name, f); };
-    const ReplayResult result = Replay(log_for(method), method, estimator_options, specs, progress);
+    const ReplayResult result =
+        Replay(log_for(method), method, estimator_options, specs, progress, consensus_options);
     const MethodFiles files = WriteMethodResult(log_for(method), result, out_dir);
+    if (method.kind == ReplayMethod::Kind::kConsensus) {
+      decisions_csv += DecisionRows(result);
+      WriteFileAtomically(out_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
+                          ConsistencyMatrixCsv(result));
+    }
     const std::vector<PoseSample>& trajectory = files.trajectory;
     const std::optional<TrajectoryErrors>& errors = files.errors;
     const double mean_ms = files.solve_mean_ms;
@@ -592,6 +627,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
                  mean_ms, p99_ms);
     }
   }
+  if (decisions_csv != kDecisionsCsvHeader) WriteFileAtomically(out_dir / "decisions.csv", decisions_csv);
   // Each pose stream on its own (T_AI = T_As T_Is⁻¹) over the span the methods covered:
   // what fusion has to beat.
   if (!log.ground_truth.empty() && first_output_ns <= last_output_ns) {

@@ -112,6 +112,15 @@ struct MethodFiles {
 /// into out_dir; ':' and '+' in the method name become '_' in file names.
 MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
                               const std::filesystem::path& out_dir);
+/// decisions.csv: the header, and the rows of one consensus method (every evaluation:
+/// t_ns, method, fused, excluded, unavailable, reason; sensor lists joined with '+').
+inline constexpr const char* kDecisionsCsvHeader =
+    "#timestamp [ns],method,fused,excluded,unavailable,reason\n";
+std::string DecisionRows(const ReplayResult& result);
+/// consistency_<method>.csv of a consensus method: t_ns (end of the window), pair ("a-b",
+/// "a-local"), metric, value (empty when unavailable).
+std::string ConsistencyMatrixCsv(const ReplayResult& result);
+
 /// A method name as used in file names.
 std::string MethodFileStem(const std::string& method);
 
@@ -134,6 +143,8 @@ struct EstimateCommandOptions {
   /// Factor from the at-rest (calibration or datasheet) IMU white-noise densities to the
   /// in-flight ones the estimator uses (default 10, see DefaultEstimatorOptions).
   std::optional<double> imu_noise_scale;
+  /// `consensus` methods: the CM threshold (default 0.1, the paper's).
+  std::optional<double> consensus_threshold;
   /// Progress of each method (the CLI draws a bar); may be empty.
   std::function<void(const std::string& method, double fraction)> progress;
 };

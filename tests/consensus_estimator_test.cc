@@ -203,6 +203,20 @@ TEST_F(ConsensusEstimatorTest, RunScoresEveryMethodAndWritesItsDecisions) {
   EXPECT_NE(ReadFile(*dir_ / "a" / "consistency_consensus.csv").find(",lio-vio,cm,"), std::string::npos);
 }
 
+TEST_F(ConsensusEstimatorTest, EstimateCommandRunsConsensusOnARecordedLog) {
+  // `tofu estimate` on the run's streams (what a real robot's log would be): the same
+  // decisions as the run's own consensus method when given the same threshold.
+  const fs::path out = *dir_ / "estimate";
+  const std::string command = std::string(TOFU_BINARY) + " estimate " + (*dir_ / "a").string() +
+                              " --method consensus --consensus-threshold 0.3 --quiet --out " +
+                              out.string();
+  ASSERT_EQ(std::system(command.c_str()), 0) << command;
+  const std::string decisions = ReadFile(out / "decisions.csv");
+  EXPECT_EQ(decisions.rfind(harness::kDecisionsCsvHeader, 0), 0u);
+  EXPECT_NE(decisions.find(",consensus,lio,vio,,"), std::string::npos) << "VIO never excluded";
+  EXPECT_NE(ReadFile(out / "consistency_consensus.csv").find(",vio-local,cm,"), std::string::npos);
+}
+
 TEST_F(ConsensusEstimatorTest, SameScenarioAndSeedGiveIdenticalEstimationFiles) {
   for (const char* file : {"summary.json", "decisions.csv", "errors.csv", "consistency_consensus.csv",
                            "estimate_consensus.csv", "estimate_naive.csv",
