@@ -106,10 +106,18 @@ fs::path SyntheticRun() {
   return dir;
 }
 
+// The synthetic run is read once and removed again at exit.
+struct SyntheticRunDirectory {
+  fs::path path = SyntheticRun();
+  ~SyntheticRunDirectory() { fs::remove_all(path); }
+};
+
 const RunData& Run() {
   static const RunData run = [] {
     const char* env = std::getenv("TOFU_BENCH_RUN_DIR");
-    return tofu::renders::ReadRunData(env != nullptr && *env != '\0' ? fs::path(env) : SyntheticRun());
+    if (env != nullptr && *env != '\0') return tofu::renders::ReadRunData(env);
+    static const SyntheticRunDirectory synthetic;
+    return tofu::renders::ReadRunData(synthetic.path);
   }();
   return run;
 }
