@@ -155,6 +155,30 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   return config;
 }
 
+RenderRequest ReadRender(const YamlValue& value) {
+  RenderRequest r;
+  YamlMap map = value.Map({"when", "size", "fps", "camera", "clip_half_s", "error_bound_m"});
+  if (const auto when = map.Optional("when")) {
+    const std::string w = when->String();
+    if (w != "failure" && w != "always") when->FailExpected("failure or always");
+    r.always = w == "always";
+  }
+  if (const auto size = map.Optional("size")) {
+    const std::vector<double> wh = size->Numbers(2, NumberRule::Between(16.0, 7680.0, "px"));
+    if (wh[0] != std::floor(wh[0]) || wh[1] != std::floor(wh[1])) {
+      size->FailExpected("[width, height] in whole pixels");
+    }
+    r.width_px = static_cast<int>(wh[0]);
+    r.height_px = static_cast<int>(wh[1]);
+  }
+  ReadInteger(map, "fps", 1, 240, &r.fps);
+  if (const auto camera = map.Optional("camera")) r.camera = camera->Identifier();
+  ReadNumber(map, "clip_half_s", NumberRule::Between(0.1, 60.0, "s"), &r.clip_half_s);
+  ReadNumber(map, "error_bound_m", NumberRule::Between(1e-3, 1e3, "m"), &r.error_bound_m);
+  map.Finish();
+  return r;
+}
+
 // ---- sections ----
 
 // Also hands out the rate_hz value, which later checks of other rates may blame.
@@ -537,7 +561,8 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   const YamlValue root = internal::ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
-                          "sensors", "faults", "consistency", "estimation", "expect"});
+                          "sensors", "faults", "consistency", "estimation", "render",
+                          "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -590,6 +615,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   if (const auto estimation = map.Optional("estimation")) {
     scenario.estimation = ReadEstimation(*estimation, scenario.sensors);
   }
+  if (const auto render = map.Optional("render")) scenario.render = ReadRender(*render);
   if (const auto expect = map.Optional("expect")) {
     for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
       scenario.expect.push_back(ReadExpectation(item, scenario.sensors));
@@ -752,6 +778,19 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     EmitNumber(out, "rate_hz", cons.rate_hz);
     out << YAML::EndMap;
     EmitNumber(out, "huber_delta", ec.huber_delta);
+    out << YAML::EndMap;
+  }
+
+  if (scenario.render) {
+    const RenderRequest& r = *scenario.render;
+    out << YAML::Key << "render" << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "when" << YAML::Value << (r.always ? "always" : "failure");
+    out << YAML::Key << "size" << YAML::Value << YAML::Flow << YAML::BeginSeq << r.width_px
+        << r.height_px << YAML::EndSeq;
+    out << YAML::Key << "fps" << YAML::Value << r.fps;
+    out << YAML::Key << "camera" << YAML::Value << r.camera;
+    EmitNumber(out, "clip_half_s", r.clip_half_s);
+    EmitNumber(out, "error_bound_m", r.error_bound_m);
     out << YAML::EndMap;
   }
 

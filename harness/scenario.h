@@ -51,6 +51,20 @@ struct InitialOffset {
   Eigen::Quaterniond q_offset = Eigen::Quaterniond::Identity();
 };
 
+/// `render:` what `tofu run` renders of the run (renders/, off-screen EGL) after writing
+/// it: the failure events (fault onset, detection, switch, error above a bound,
+/// collision) as keyframe PNGs and clips in <out>/renders/. Plain data: harness never
+/// includes renders; the CLI maps it onto renders::RenderEventsOptions.
+struct RenderRequest {
+  bool always = false;  ///< `when: always`; default `failure`: only when an expectation failed
+  int width_px = 640;
+  int height_px = 480;
+  int fps = 30;
+  std::string camera = "chase";  ///< chase, overview or a camera of the world model
+  double clip_half_s = 2.0;
+  double error_bound_m = 0.5;
+};
+
 struct Scenario {
   std::string name;         ///< required; [a-z0-9_]+
   std::string description;  ///< optional free text
@@ -76,6 +90,7 @@ struct Scenario {
   /// `estimation:` the estimation methods `tofu run` replays on the run's streams and
   /// scores (harness/estimation.h); none when absent.
   std::optional<EstimationConfig> estimation;
+  std::optional<RenderRequest> render;
   std::vector<Expectation> expect;
 };
 

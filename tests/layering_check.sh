@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # DESIGN.md layering: estimator/ never includes MuJoCo, sim/ or harness/; sim/ never
-# includes estimator/ or harness/; core/ includes nothing of the project but core/.
+# includes estimator/ or harness/; core/ includes nothing of the project but core/;
+# harness/ never includes renders/ (renders read its outputs).
 set -u
 root="${1:?usage: layering_check.sh SOURCE_DIR}"
 status=0
@@ -16,5 +17,7 @@ check() {  # dir, forbidden-include regex, why
 check estimator 'mujoco/|sim/|harness/|apps/' "estimator depends on core, Eigen, Ceres only"
 check sim 'estimator/|harness/|apps/' "sim does not know who consumes its streams"
 check core 'mujoco/|sim/|harness/|estimator/|apps/|ceres/' "core is the vocabulary"
+check harness 'renders/|apps/' "renders read harness outputs, never the other way"
+check estimator 'renders/' "the estimator is a library of its own"
 [[ $status == 0 ]] && echo "layering ok"
 exit $status

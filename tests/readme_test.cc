@@ -83,5 +83,24 @@ sensors:
   EXPECT_EQ(scenario.expect.size(), 3u);
 }
 
+// The render example, likewise.
+TEST(Readme, RenderExampleIsValid) {
+  const std::vector<std::string> blocks = ReadmeYamlBlocks();
+  ASSERT_GE(blocks.size(), 4u);
+  const std::string yaml = R"(name: readme_render
+world: indoor_arena
+duration_s: 5
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  segments:
+    - hover: {duration_s: 1}
+)" + blocks[3];
+  Scenario scenario;
+  ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
+  ASSERT_TRUE(scenario.render.has_value());
+  EXPECT_FALSE(scenario.render->always);
+  EXPECT_EQ(scenario.render->width_px, 640);
+}
+
 }  // namespace
 }  // namespace tofu::harness

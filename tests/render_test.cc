@@ -510,5 +510,46 @@ TEST(RenderCli, AtWritesOnePngAndBadInputIsExitTwo) {
   EXPECT_NE(err.find("not a directory"), std::string::npos) << err;
 }
 
+// `render:` in a scenario: `tofu run` renders the run's failure events into <out>/renders/
+// when an expectation failed (`when: failure`, the default) or always; a passing run with
+// `when: failure` renders nothing.
+TEST(RenderRun, ScenarioRenderKeyRendersFailuresAfterTheRun) {
+  const fs::path dir = fs::path(::testing::TempDir()) / fmt::format("render_run_{}", ::getpid());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string scenario = R"(name: render_run
+world: indoor_arena
+duration_s: 6
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  segments:
+    - hover: {duration_s: 1}
+    - line: {to_m: [1.5, 0, 1.5]}
+sensors:
+  imu: {}
+  vio: {}
+faults:
+  - {sensor: vio, kind: divergence, start_s: 3, axis: [1, 0, 0], initial_velocity_mps: 0.5, time_constant_s: 2}
+estimation:
+  methods: [consensus]
+render: {size: [96, 64], fps: 5, clip_half_s: 0.4}
+expect:
+)";
+  std::ofstream(dir / "pass.yaml") << scenario << "  - {metric: collisions.count, max: 0}\n";
+  std::ofstream(dir / "fail.yaml") << scenario << "  - {metric: collisions.count, min: 1}\n";
+  std::string err;
+  ASSERT_EQ(RunCli("", fmt::format("run {} --quiet --out {}", (dir / "pass.yaml").string(),
+                                   (dir / "pass").string()), &err), 0) << err;
+  EXPECT_FALSE(fs::exists(dir / "pass" / "renders")) << "a passing run rendered";
+  ASSERT_EQ(RunCli("", fmt::format("run {} --quiet --out {}", (dir / "fail.yaml").string(),
+                                   (dir / "fail").string()), &err), 1) << err;
+  int keyframes = 0;
+  for (const auto& entry : fs::directory_iterator(dir / "fail" / "renders")) {
+    keyframes += entry.path().extension() == ".png" ? 1 : 0;
+  }
+  EXPECT_GE(keyframes, 1) << "the divergence's onset was not rendered";
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace tofu::renders

@@ -646,5 +646,19 @@ expect:
   ExpectScenariosEqual(original, reloaded);
 }
 
+TEST(ScenarioRender, RenderKeyIsReadValidatedAndResolved) {
+  const Scenario s = ParseScenario(std::string(kMinimal) +
+                                       "render: {when: always, size: [320, 240], camera: overview}\n",
+                                   kLabel);
+  ASSERT_TRUE(s.render.has_value());
+  EXPECT_TRUE(s.render->always);
+  EXPECT_EQ(s.render->width_px, 320);
+  EXPECT_EQ(s.render->camera, "overview");
+  EXPECT_EQ(ParseScenario(ResolvedScenarioYaml(s), kLabel).render->height_px, 240);
+  ExpectLocated(ParseError(std::string(kMinimal) + "render: {when: sometimes}\n"), 8, "render.when");
+  ExpectLocated(ParseError(std::string(kMinimal) + "render: {size: [320.5, 240]}\n"), 8, "render.size");
+  ExpectLocated(ParseError(std::string(kMinimal) + "render: {fps: 0}\n"), 8, "render.fps");
+}
+
 }  // namespace
 }  // namespace tofu::harness

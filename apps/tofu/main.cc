@@ -129,8 +129,38 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   }
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
-  if (record.failure) return tofu::core::kExitSimulationError;
-  return evaluation.passed ? tofu::core::kExitOk : tofu::core::kExitExpectationFailed;
+  const int status = record.failure    ? tofu::core::kExitSimulationError
+                     : evaluation.passed ? tofu::core::kExitOk
+                                         : tofu::core::kExitExpectationFailed;
+  // `render:` the failure events, after the run directory is complete (renders/ is
+  // written and renamed on its own, so a render problem never touches the run's files).
+  if (scenario.render && (scenario.render->always || status != tofu::core::kExitOk)) {
+    const tofu::harness::RenderRequest& request = *scenario.render;
+    tofu::renders::RenderEventsOptions render;
+    render.render.width_px = request.width_px;
+    render.render.height_px = request.height_px;
+    render.fps = request.fps;
+    render.camera = request.camera;
+    render.clip_half_s = request.clip_half_s;
+    render.events.error_bound_m = request.error_bound_m;
+    std::optional<ProgressBar> render_bar;
+    if (!quiet && ::isatty(STDERR_FILENO)) {
+      render_bar.emplace("  render");
+      render.progress = [&render_bar](double f) { (*render_bar)(f); };
+    }
+    try {
+      const tofu::renders::RenderEventsResult rendered = tofu::renders::RenderRunEvents(out, render);
+      if (!quiet) {
+        fmt::print("rendered {} events into {} ({})\n", rendered.events.size(),
+                   rendered.out_dir.string(), rendered.gl_description);
+      }
+    } catch (const tofu::renders::RenderUnavailableError& e) {
+      // The run is written and scored; the machine cannot render: say how to fix it.
+      fmt::print(stderr, "tofu: error: {}\n", e.what());
+      return tofu::core::kExitBadInput;
+    }
+  }
+  return status;
 }
 
 int ValidateCommand(const std::vector<std::string>& paths) {
