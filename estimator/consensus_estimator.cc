@@ -277,12 +277,20 @@ struct ConsensusEstimator::Impl {
     while (!gyro.empty() && gyro.front().first < keep_from) gyro.pop_front();
   }
 
-  int SamplesInWindow(int stream, core::Time t_eval) const {
+  // A stream takes part in an evaluation only when its samples cover the window: enough
+  // of them, reaching to its end (not stopped: a dropout) and spanning at least half of
+  // it (not just resumed). A stream that stopped mid-window compares the velocities of
+  // its last moments with the others' whole window and looks inconsistent while it is
+  // merely gone.
+  bool CoversWindow(int stream, core::Time t_eval) const {
     const std::vector<core::Time>& ts = matrix.Samples(stream).t_ns;
-    const auto lo = std::upper_bound(ts.begin(), ts.end(),
-                                     t_eval - options.consistency.consistency.window_ns);
+    const core::Time window = options.consistency.consistency.window_ns;
+    const auto lo = std::upper_bound(ts.begin(), ts.end(), t_eval - window);
     const auto hi = std::upper_bound(ts.begin(), ts.end(), t_eval);
-    return static_cast<int>(hi - lo);
+    if (hi - lo < options.consistency.consistency.min_samples) return false;
+    const core::Time newest = *std::prev(hi);
+    const core::Time oldest = *lo;
+    return newest >= t_eval - options.max_interpolation_gap_ns && newest - oldest >= window / 2;
   }
 
   void Evaluate(core::Time t_now) {
@@ -295,20 +303,24 @@ struct ConsensusEstimator::Impl {
     const int n = static_cast<int>(sensors.size());
     ConsensusInput input;
     input.t_ns = t_now;
-    const int min_samples = options.consistency.consistency.min_samples;
-    for (int i = 0; i < n; ++i) input.available.push_back(SamplesInWindow(i, t_eval) >= min_samples);
+    for (int i = 0; i < n; ++i) input.available.push_back(CoversWindow(i, t_eval));
+    const bool local_covers = CoversWindow(local_stream, t_eval);
     ConsensusRecord record;
     record.t_ns = t_now;
     record.window_end_ns = t_eval;
     for (int i = 0; i < n; ++i) {
       for (int j = i + 1; j < n; ++j) {
-        const std::optional<double> v = matrix.Value(i, j);
+        const std::optional<double> v = input.available[i] && input.available[j]
+                                            ? matrix.Value(i, j)
+                                            : std::optional<double>();
         input.pair.push_back(v);
         record.values.emplace_back(sensors[i].spec.name + "-" + sensors[j].spec.name, v);
       }
     }
     for (int i = 0; i < n; ++i) {
-      const std::optional<double> v = matrix.Value(i, local_stream);
+      const std::optional<double> v = local_covers && input.available[i]
+                                          ? matrix.Value(i, local_stream)
+                                          : std::optional<double>();
       input.vs_local.push_back(v);
       record.values.emplace_back(sensors[i].spec.name + "-local", v);
     }

@@ -508,6 +508,7 @@ ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRu
 
 std::string ExpectationLabel(const Expectation& e) {
   std::string label = e.metric;
+  if (e.relative_to) label += " / " + *e.relative_to;
   if (e.window_s) {
     label += fmt::format(" [{}, {}] s", FormatDouble(e.window_s->first),
                          FormatDouble(e.window_s->second));

@@ -84,12 +84,14 @@ void PrintReport(const tofu::harness::RunRecord& record,
   if (!evaluation.expectations.empty()) {
     size_t width = 12;
     for (const auto& r : evaluation.expectations) {
-      width = std::max(width, r.expectation.metric.size() + (r.expectation.window_s ? 16 : 0));
+      width = std::max(width, r.expectation.metric.size() + (r.expectation.window_s ? 16 : 0) +
+                                  (r.expectation.relative_to ? r.expectation.relative_to->size() + 3 : 0));
     }
     fmt::print("{:<{}} {:>10} {:>10} {:>10}  {}\n", "expectation", width, "value", "min", "max",
                "result");
     for (const auto& r : evaluation.expectations) {
       std::string metric = r.expectation.metric;
+      if (r.expectation.relative_to) metric += " / " + *r.expectation.relative_to;
       if (r.expectation.window_s) {
         metric += fmt::format(" [{:g},{:g}]s", r.expectation.window_s->first,
                               r.expectation.window_s->second);
