@@ -37,11 +37,13 @@
 #include "harness/trajectory_metrics.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
+#include "tests/test_support.h"
 
 namespace tofu {
 namespace {
 
 namespace fs = std::filesystem;
+using test::Quote;
 using core::Time;
 using harness::PoseSample;
 using harness::RecordedLog;
@@ -49,12 +51,6 @@ using harness::ReplayResult;
 
 constexpr Time kSecond = core::kNanosecondsPerSecond;
 constexpr Time kMillisecond = 1'000'000;
-
-std::string Quote(const std::string& s) {
-  std::string out = "'";
-  for (const char c : s) out += (c == '\'') ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
 
 std::vector<PoseSample> Truth(const RecordedLog& log) {
   std::vector<PoseSample> truth;

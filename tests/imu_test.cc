@@ -24,14 +24,11 @@
 #include "harness/sensor_config_imu.h"
 #include "harness/yaml_reader.h"
 #include "sim/world.h"
+#include "tests/test_support.h"
 
 namespace tofu::sim {
 namespace {
 
-// Substring check without gmock (the test links gtest only).
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "'" << (haystack) << "' does not contain '" << (needle) << "'"
 
 using Thrusts = std::array<double, kArmCount * kRotorsPerArm>;
 constexpr double kPi = std::numbers::pi;

@@ -27,21 +27,14 @@
 
 #include "core/error.h"
 #include "harness/recorded_log.h"
+#include "tests/test_support.h"
 
 namespace tofu::harness {
 namespace {
 
 namespace fs = std::filesystem;
+using test::Quote;
 
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "'" << (haystack) << "' does not contain '" << (needle) << "'"
-
-std::string Quote(const std::string& s) {
-  std::string out = "'";
-  for (const char c : s) out += (c == '\'') ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
 
 void WriteFile(const fs::path& path, const std::string& text) {
   fs::create_directories(path.parent_path());

@@ -25,15 +25,13 @@
 #include "core/lie.h"
 #include "harness/recorded_log.h"
 #include "harness/trajectory_metrics.h"
+#include "tests/test_support.h"
 
 namespace tofu::harness {
 namespace {
 
 namespace fs = std::filesystem;
 
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "'" << (haystack) << "' does not contain '" << (needle) << "'"
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;

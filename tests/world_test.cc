@@ -19,14 +19,11 @@
 #include "core/error.h"
 #include "core/lie.h"
 #include "sim/allocation.h"
+#include "tests/test_support.h"
 
 namespace tofu::sim {
 namespace {
 
-// Substring check without gmock (the test links gtest only).
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "'" << (haystack) << "' does not contain '" << (needle) << "'"
 
 constexpr double kRadPerDeg = std::numbers::pi / 180.0;
 

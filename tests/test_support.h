@@ -1,0 +1,38 @@
+#pragma once
+// Small helpers shared by the test files (one place, not a copy per file): substring
+// expectations without gmock, whole-file read/write, and shell quoting for the tests
+// that drive the tofu binary through std::system.
+
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#define EXPECT_CONTAINS(haystack, needle)                          \
+  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
+      << "'" << (haystack) << "' does not contain '" << (needle) << "'"
+
+namespace tofu::test {
+
+inline std::string ReadFile(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  EXPECT_TRUE(in.good()) << "cannot read " << path;
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+inline void WriteFile(const std::filesystem::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+  ASSERT_TRUE(out.good()) << "cannot write " << path;
+}
+
+/// `s` as one single-quoted shell word.
+inline std::string Quote(const std::string& s) {
+  std::string out = "'";
+  for (const char c : s) out += (c == '\'') ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+}  // namespace tofu::test
