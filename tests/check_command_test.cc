@@ -60,19 +60,12 @@ std::string HoverScenario(const std::string& name, const std::vector<std::string
   return yaml;
 }
 
-struct Result {
-  int exit_code = -1;
-  std::string out;
-  std::string err;
-};
+using Result = test::CommandResult;
 
 class CheckCommandTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    root_ = fs::path(::testing::TempDir()) /
-            (std::string("tofu_check_test_") + info->name() + "_" + std::to_string(::getpid()));
-    fs::remove_all(root_);
+    root_ = test::PerTestDirectory("tofu_check_test_");
     scenarios_ = root_ / "scenarios";
     out_ = root_ / "out";
     junit_ = root_ / "junit.xml";

@@ -35,20 +35,13 @@ std::string SourcePath(const std::string& relative) {
   return std::string(TOFU_SOURCE_DIR) + "/" + relative;
 }
 
-struct Result {
-  int exit_code = -1;
-  std::string out;
-  std::string err;
-};
+using Result = test::CommandResult;
 
 // A fresh, empty directory per test under the test temp dir; removed at the end.
 class CliTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    root_ = fs::path(::testing::TempDir()) /
-            (std::string("tofu_cli_test_") + info->name() + "_" + std::to_string(::getpid()));
-    fs::remove_all(root_);
+    root_ = test::PerTestDirectory("tofu_cli_test_");
     work_ = root_ / "work";
     logs_ = root_ / "logs";
     fs::create_directories(work_);

@@ -3,6 +3,8 @@
 // expectations without gmock, whole-file read/write, and shell quoting for the tests
 // that drive the tofu binary through std::system.
 
+#include <unistd.h>
+
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -33,6 +35,24 @@ inline std::string Quote(const std::string& s) {
   std::string out = "'";
   for (const char c : s) out += (c == '\'') ? std::string("'\\''") : std::string(1, c);
   return out + "'";
+}
+
+/// What a command run by a test printed and returned.
+struct CommandResult {
+  int exit_code = -1;
+  std::string out;
+  std::string err;
+};
+
+/// A fresh, empty directory for the running test: <gtest temp dir>/<prefix><test>_<pid>
+/// (unique per test and per process, so ctest -j never collides).
+inline std::filesystem::path PerTestDirectory(const std::string& prefix) {
+  const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  const std::filesystem::path dir =
+      std::filesystem::path(::testing::TempDir()) /
+      (prefix + info->name() + "_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  return dir;
 }
 
 }  // namespace tofu::test
