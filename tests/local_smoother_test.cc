@@ -778,12 +778,9 @@ WildRun RunWithWildPose(double huber_delta) {
 }
 
 // What happens (no robust loss): the solve that sees the wild factor pulls the states far
-// beyond max_speed_mps, is counted as bad and reverted; the states stay finite. But the
-// wild factor stays in the graph, so every later solve is bad too, and once its keyframes
-// leave the window it is marginalised into the prior (linearised at the reverted states,
-// residual ~1e9), which keeps every solve bad for good: the smoother alone dead-reckons
-// on the IMU from then on (MultiGraphEstimator re-initialises after
-// max_consecutive_bad_solves). See DISABLED_ below.
+// beyond max_speed_mps, is counted as bad and reverted; the states stay finite, and the
+// between factors that came with that solve are removed with it, so the wild measurement
+// is never marginalised into the prior (WildPoseLeavesWindowAndSmootherRecovers below).
 TEST(LocalSmoother, WildPoseIsCountedAsBadSolveAndStatesStayFinite) {
   const WildRun run = RunWithWildPose(0.0);
   ASSERT_FALSE(run.bad_solve_times.empty());
