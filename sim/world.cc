@@ -6,11 +6,14 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <limits>
+#include <tuple>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <mujoco/mujoco.h>
 
 #include "core/error.h"
+#include "sim/geom_distance.h"
 
 namespace tofu::sim {
 namespace {
@@ -68,6 +71,47 @@ void RequireModelFile(const fs::path& path, const std::string& key) {
   }
 }
 
+// A lower bound on the distance from a point to a geom (0 or negative when inside), exact
+// for the primitives worlds are built of. The contact gate and the distance tracker only
+// skip what lies provably beyond reach, so a bound that errs low costs time, never truth.
+double PointGeomDistanceLowerBound(int type, const mjtNum* size, double rbound_m,
+                                   const Eigen::Vector3d& p_W_geom,
+                                   const Eigen::Matrix3d& R_W_geom,
+                                   const Eigen::Vector3d& p_W) {
+  const Eigen::Vector3d p = R_W_geom.transpose() * (p_W - p_W_geom);
+  switch (type) {
+    case mjGEOM_PLANE:  // infinite for collision, solid below z = 0
+      return p.z();
+    case mjGEOM_SPHERE:
+      return p.norm() - size[0];
+    case mjGEOM_CAPSULE:
+      return Eigen::Vector3d(p.x(), p.y(), p.z() - std::clamp(p.z(), -size[1], size[1])).norm() -
+             size[0];
+    case mjGEOM_CYLINDER:
+      return std::hypot(std::max(std::hypot(p.x(), p.y()) - size[0], 0.0),
+                        std::max(std::abs(p.z()) - size[1], 0.0));
+    case mjGEOM_BOX:
+      return (p.cwiseAbs() - Vec3(size)).cwiseMax(0.0).norm();
+    case mjGEOM_ELLIPSOID:
+      return p.norm() - std::max({size[0], size[1], size[2]});
+    default:  // meshes, height fields: their bounding sphere, or nothing known
+      return rbound_m > 0.0 ? p.norm() - rbound_m : -std::numeric_limits<double>::infinity();
+  }
+}
+
+bool BitmasksCollide(const mjModel* m, int g1, int g2) {
+  return (m->geom_contype[g1] & m->geom_conaffinity[g2]) != 0 ||
+         (m->geom_contype[g2] & m->geom_conaffinity[g1]) != 0;
+}
+
+bool BodiesExcluded(const mjModel* m, int b1, int b2) {
+  const int signature = (std::min(b1, b2) << 16) + std::max(b1, b2);
+  for (int e = 0; e < m->nexclude; ++e) {
+    if (m->exclude_signature[e] == signature) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 std::string DefaultModelsDir() {
@@ -104,6 +148,64 @@ struct World::Impl {
   core::Time timestep_ns = 0;
   int64_t step_count = 0;
   std::vector<Contact> contacts_buffer;  // time is step_count * timestep_ns: no float accumulation
+
+  // Contact gate (see GateContacts) and distance tracking (see World::ClosestStructure).
+  struct StaticGeom {
+    int id = -1;
+    Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d R_W = Eigen::Matrix3d::Identity();
+    double margin_m = 0.0;  ///< contact margin of its pairs with the robot
+  };
+  std::vector<int> robot_proxies;            // robot geoms that can collide with the world
+  std::vector<StaticGeom> world_colliders;   // static world geoms some proxy can touch
+  std::vector<std::vector<int>> structure_partners;  // by geom id: proxies it pairs with
+  std::vector<int> structure_geoms;          // group-0 geoms with partners
+  double robot_reach_m = 0.0;  // every proxy lies within this distance of B's origin
+  bool gate_contacts = false;  // the gate is sound for this scene
+  int model_disableflags = 0;
+  int64_t closest_step = -1;   // step of the cached ClosestStructure answer
+  std::optional<Proximity> closest;
+  std::vector<mjContact> narrow_phase_scratch;
+  struct DistanceCandidate {
+    double lower_bound_m;
+    int proxy;
+    int geom;
+  };
+  std::vector<DistanceCandidate> distance_candidates;
+
+  ConvexGeom GeomNow(int g) const {
+    return {m->geom_type[g], Vec3(m->geom_size + 3 * g), Vec3(d->geom_xpos + 3 * g),
+            Mat3(d->geom_xmat + 9 * g)};
+  }
+
+  // Distance between a proxy and a structure geom now: exact (to 1 um) while apart; when
+  // they touch, the penetration MuJoCo's contact functions report (as in Contacts()).
+  double PairDistance(int proxy, int g, double lower_bound_m) {
+    std::optional<double> apart_m;
+    const int type = m->geom_type[g];
+    if (m->geom_type[proxy] == mjGEOM_SPHERE &&
+        (type == mjGEOM_BOX || type == mjGEOM_CYLINDER || type == mjGEOM_SPHERE ||
+         type == mjGEOM_CAPSULE || type == mjGEOM_PLANE)) {
+      apart_m = lower_bound_m;  // exact for a sphere against these
+    } else {
+      apart_m = GeomDistance(GeomNow(proxy), GeomNow(g));
+    }
+    if (apart_m && *apart_m > 0.0) return *apart_m;
+    // As MuJoCo's pipeline orders a pair: the world body's geom first, unless the table
+    // (which holds each type pair once, lower type first) wants them swapped. Box-box is
+    // not symmetric in deep penetration.
+    int g1 = g;
+    int g2 = proxy;
+    if (m->geom_type[g1] > m->geom_type[g2]) std::swap(g1, g2);
+    const mjfCollision collide = mjCOLLISIONFUNC[m->geom_type[g1]][m->geom_type[g2]];
+    if (collide == nullptr) return std::numeric_limits<double>::infinity();
+    // Meshes and height fields: MuJoCo's own estimate within the horizon.
+    const double margin_m = apart_m ? 0.0 : options.distance_horizon_m;
+    const int n = collide(m, d, narrow_phase_scratch.data(), g1, g2, margin_m);
+    double distance_m = apart_m ? 0.0 : std::numeric_limits<double>::infinity();
+    for (int i = 0; i < n; ++i) distance_m = std::min(distance_m, narrow_phase_scratch[i].dist);
+    return distance_m;
+  }
 
   ~Impl() {
     if (d != nullptr) mj_deleteData(d);
@@ -177,11 +279,97 @@ struct World::Impl {
       is_robot_geom[g] = 1;
       const char* name = mj_id2name(m, mjOBJ_GEOM, g);
       is_foot_geom[g] = name != nullptr && std::strncmp(name, "foot", 4) == 0;
-      // Distances to structure within the horizon are measured by MuJoCo's contact
-      // margin; an equal gap keeps those contacts out of the constraint solver.
-      m->geom_margin[g] = options.distance_horizon_m;
-      m->geom_gap[g] = options.distance_horizon_m;
     }
+  }
+
+  // Contacts need MuJoCo's collision pipeline only when some robot proxy can reach a world
+  // geom. MuJoCo 2.2.2 has no cheap broad phase for that (its sweep-and-prune plus the
+  // bounding-sphere tests of every proxy against every world geom cost ~10 us a step, half
+  // the step), so the World tests one sphere that encloses all proxies against the static
+  // world geoms and switches contacts off for the steps where nothing is within reach. The
+  // physics is unchanged: those steps would have produced no contact anyway.
+  void IndexContacts() {
+    model_disableflags = m->opt.disableflags;
+    std::vector<double> reach_m(m->nbody, 0.0);  // of a body's origin from B's, any pose
+    bool reach_bounded = true;
+    for (int b = 0; b < m->nbody; ++b) {
+      if (m->body_rootid[b] != base_body || b == base_body) continue;
+      double r = reach_m[m->body_parentid[b]] + Vec3(m->body_pos + 3 * b).norm();
+      for (int j = m->body_jntadr[b]; j < m->body_jntadr[b] + m->body_jntnum[b]; ++j) {
+        // A hinge or ball about an anchor a from the origin moves the origin by <= 2|a|.
+        if (m->jnt_type[j] == mjJNT_HINGE || m->jnt_type[j] == mjJNT_BALL) {
+          r += 2.0 * Vec3(m->jnt_pos + 3 * j).norm();
+        } else {
+          reach_bounded = false;
+        }
+      }
+      reach_m[b] = r;
+    }
+    robot_reach_m = 0.0;
+    double proxy_margin_m = 0.0;
+    bool self_collision = false;
+    robot_proxies.clear();
+    for (int g = 0; g < m->ngeom; ++g) {
+      if (!is_robot_geom[g]) continue;
+      robot_proxies.push_back(g);
+      robot_reach_m = std::max(robot_reach_m, reach_m[m->geom_bodyid[g]] +
+                                                  Vec3(m->geom_pos + 3 * g).norm() +
+                                                  m->geom_rbound[g]);
+      proxy_margin_m = std::max(proxy_margin_m, m->geom_margin[g]);
+      for (const int other : robot_proxies) {
+        self_collision |= other != g && m->geom_bodyid[other] != m->geom_bodyid[g] &&
+                          BitmasksCollide(m, g, other);
+      }
+    }
+    // DescribeRobot's mj_forward left the static geoms' poses in d.
+    bool dynamic_colliders = false;
+    world_colliders.clear();
+    structure_geoms.clear();
+    structure_partners.assign(m->ngeom, {});
+    for (int g = 0; g < m->ngeom; ++g) {
+      if (is_robot_geom[g]) continue;
+      std::vector<int> partners;
+      for (const int proxy : robot_proxies) {
+        if (BitmasksCollide(m, g, proxy) &&
+            !BodiesExcluded(m, m->geom_bodyid[g], m->geom_bodyid[proxy])) {
+          partners.push_back(proxy);
+        }
+      }
+      if (partners.empty()) continue;
+      if (m->body_weldid[m->geom_bodyid[g]] != 0) {
+        dynamic_colliders = true;  // only static geoms keep the poses recorded here
+        continue;
+      }
+      world_colliders.push_back({g, Vec3(d->geom_xpos + 3 * g), Mat3(d->geom_xmat + 9 * g),
+                                 std::max(m->geom_margin[g], proxy_margin_m)});
+      if (m->geom_group[g] == kStructureGeomGroup) {
+        structure_geoms.push_back(g);
+        structure_partners[g] = std::move(partners);
+      }
+    }
+    gate_contacts = reach_bounded && !self_collision && !dynamic_colliders &&
+                    (model_disableflags & mjDSBL_CONTACT) == 0;
+    narrow_phase_scratch.resize(mjMAXCONPAIR);
+  }
+
+  // Switches MuJoCo's contacts on for the coming step when a proxy may touch a world geom
+  // at the current qpos (the one mj_step's collision detection will see).
+  void GateContacts() {
+    if (!gate_contacts) return;
+    const Eigen::Vector3d p_WB = Vec3(d->qpos + qpos_root);
+    bool reachable = false;
+    for (const StaticGeom& w : world_colliders) {
+      const double distance_m =
+          PointGeomDistanceLowerBound(m->geom_type[w.id], m->geom_size + 3 * w.id,
+                                      m->geom_rbound[w.id], w.p_W, w.R_W, p_WB);
+      // MuJoCo reports a contact below the margin; the slack absorbs rounding.
+      if (distance_m <= robot_reach_m + w.margin_m + 1e-6) {
+        reachable = true;
+        break;
+      }
+    }
+    m->opt.disableflags =
+        reachable ? model_disableflags : (model_disableflags | mjDSBL_CONTACT);
   }
 
   // Mass properties, arm geometry and mounts, read at the zero-tilt, level pose.
@@ -278,6 +466,7 @@ World::World(const WorldOptions& options) : impl_(std::make_unique<Impl>()) {
   impl_->Load();
   impl_->IndexRobot();
   impl_->DescribeRobot();
+  impl_->IndexContacts();
   Reset(Waypoint{Eigen::Vector3d(0.0, 0.0, 1.0), Eigen::Quaterniond::Identity()});
 }
 
@@ -322,7 +511,9 @@ void World::Reset(const Waypoint& pose) {
       }
     }
   }
+  s.GateContacts();
   mj_forward(s.m, s.d);
+  s.closest_step = -1;
   for (int w = 0; w < mjNWARNING; ++w) s.warning_count[w] = s.d->warning[w].number;
   s.last_step_truth = s.ReadState();
 }
@@ -350,6 +541,7 @@ const TruthState& World::Step() {
     setpoint += std::clamp(s.tilt_target_rad[k] - setpoint, -max_step_rad, max_step_rad);
   }
   TruthState truth = s.ReadState();
+  s.GateContacts();
   mj_step(s.m, s.d);
   ++s.step_count;
   s.CheckWarnings();
@@ -389,19 +581,49 @@ const std::vector<Contact>& World::Contacts() const {
 }
 
 std::optional<Proximity> World::ClosestStructure() const {
-  const Impl& s = *impl_;
-  std::optional<Proximity> closest;
-  for (int i = 0; i < s.d->ncon; ++i) {
-    const mjContact& c = s.d->contact[i];
-    const bool robot1 = s.is_robot_geom[c.geom1];
-    if (robot1 == static_cast<bool>(s.is_robot_geom[c.geom2])) continue;
-    const int other = robot1 ? c.geom2 : c.geom1;
-    if (s.m->geom_group[other] != kStructureGeomGroup) continue;
-    if (!closest || c.dist < closest->distance_m) {
-      closest = Proximity{c.dist, robot1 ? c.geom1 : c.geom2, other};
+  // Proxy-structure pairs in the order of a cheap lower bound on their distance, measured
+  // exactly until the bound exceeds the best so far: in open space no pair is measured at
+  // all, near a wall one or two.
+  Impl& s = *impl_;
+  if (s.closest_step == s.step_count) return s.closest;
+  s.closest_step = s.step_count;
+  s.closest.reset();
+  const mjModel* m = s.m;
+  const mjData* d = s.d;
+  const double horizon_m = s.options.distance_horizon_m;
+  const Eigen::Vector3d p_WB = Vec3(d->xpos + 3 * s.base_body);
+  s.distance_candidates.clear();
+  for (const int g : s.structure_geoms) {
+    const Eigen::Vector3d p_W_geom = Vec3(d->geom_xpos + 3 * g);
+    const Eigen::Matrix3d R_W_geom = Mat3(d->geom_xmat + 9 * g);
+    const auto lower_bound_m = [&](const Eigen::Vector3d& p_W) {
+      return PointGeomDistanceLowerBound(m->geom_type[g], m->geom_size + 3 * g,
+                                         m->geom_rbound[g], p_W_geom, R_W_geom, p_W);
+    };
+    if (lower_bound_m(p_WB) - s.robot_reach_m >= horizon_m) continue;
+    for (const int proxy : s.structure_partners[g]) {
+      const double bound_m =
+          lower_bound_m(Vec3(d->geom_xpos + 3 * proxy)) - m->geom_rbound[proxy];
+      if (bound_m < horizon_m) s.distance_candidates.push_back({bound_m, proxy, g});
     }
   }
-  return closest;
+  std::sort(s.distance_candidates.begin(), s.distance_candidates.end(),
+            [](const Impl::DistanceCandidate& a, const Impl::DistanceCandidate& b) {
+              return std::tie(a.lower_bound_m, a.proxy, a.geom) <
+                     std::tie(b.lower_bound_m, b.proxy, b.geom);
+            });
+  double best_m = horizon_m;
+  for (const Impl::DistanceCandidate& c : s.distance_candidates) {
+    // Apart pairs are bounded below by their bound; touching ones (bound <= 0) are not:
+    // MuJoCo's penetration depth may go deeper, so each of those is measured.
+    if (c.lower_bound_m >= best_m && c.lower_bound_m > 0.0) break;
+    const double distance_m = s.PairDistance(c.proxy, c.geom, c.lower_bound_m);
+    if (distance_m < best_m) {
+      best_m = distance_m;
+      s.closest = Proximity{distance_m, c.proxy, c.geom};
+    }
+  }
+  return s.closest;
 }
 
 std::string World::GeomName(int geom_id) const {

@@ -32,8 +32,8 @@ struct WorldOptions {
   std::string world;           ///< models/worlds/<world>.xml
   std::string robot = "omav";  ///< models/robots/<robot>.xml
   double physics_rate_hz = 1000.0;
-  /// Robot-to-structure distances are tracked up to this range [m] (MuJoCo contact
-  /// margin with an equal gap: measured, never a constraint).
+  /// Robot-to-structure distances are tracked up to this range [m] (measured with
+  /// MuJoCo's narrow phase on demand, never a constraint).
   double distance_horizon_m = 1.0;
 };
 
@@ -132,7 +132,8 @@ class World {
   /// Robot-structure contacts with penetration after the last step. The reference
   /// stays valid until the next call (no allocation per step).
   const std::vector<Contact>& Contacts() const;
-  /// Closest robot-structure pair after the last step, if within the horizon.
+  /// Closest robot-structure pair at the last step's collision detection, if within the
+  /// horizon. Computed on the first call after a step (a few hundred ns in open space).
   std::optional<Proximity> ClosestStructure() const;
 
   /// Distance along a ray to the first structure or ground surface (robot ignored).

@@ -15,10 +15,13 @@
 #include <vector>
 
 #include <Eigen/Eigenvalues>
+#include <mujoco/mujoco.h>
+#include <random>
 
 #include "core/error.h"
 #include "core/lie.h"
 #include "sim/allocation.h"
+#include "sim/geom_distance.h"
 #include "tests/test_support.h"
 
 namespace tofu::sim {
@@ -318,6 +321,143 @@ TEST(WorldBadState, NanTiltTargetIsASimulationError) {
   world.SetCommand(command);
   const std::string what = StepUntilError(world, 10);
   EXPECT_CONTAINS(what, "simulation failed at t = ");
+}
+
+// ---- contacts and distances to structure ----
+
+// Robot poses close to (and into) each world's structure: around a random static group-0
+// geom, within its extent plus a metre, at a random attitude.
+std::vector<Waypoint> PosesNearStructure(const mjModel* m, int count, uint32_t seed) {
+  std::vector<int> structure;
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (m->geom_group[g] == 0 && m->geom_bodyid[g] == 0) structure.push_back(g);
+  }
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  std::vector<Waypoint> poses;
+  mjData* d = mj_makeData(m);
+  mj_forward(m, d);
+  for (int i = 0; i < count; ++i) {
+    const int g = structure[rng() % structure.size()];
+    const mjtNum* size = m->geom_size + 3 * g;
+    Eigen::Vector3d extent(size[0], size[1], size[2]);
+    if (m->geom_type[g] == mjGEOM_CYLINDER) extent = Eigen::Vector3d(size[0], size[0], size[1]);
+    extent = extent.cwiseMin(8.0) + Eigen::Vector3d::Constant(1.2);
+    Eigen::Matrix3d R;
+    const mjtNum* x = d->geom_xmat + 9 * g;
+    R << x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8];
+    const Eigen::Vector3d offset(unit(rng) * extent.x(), unit(rng) * extent.y(),
+                                 unit(rng) * extent.z());
+    const Eigen::Vector3d p = Eigen::Vector3d(d->geom_xpos[3 * g], d->geom_xpos[3 * g + 1],
+                                              d->geom_xpos[3 * g + 2]) + R * offset;
+    poses.push_back(Pose(p, 40 * unit(rng), 40 * unit(rng), 180 * unit(rng)));
+  }
+  mj_deleteData(d);
+  return poses;
+}
+
+// MuJoCo's full collision pipeline on a copy of the World's model and state, the robot
+// proxies given `margin_m` (and an equal gap): what the World did before it gated contacts
+// and measured distances itself.
+struct Reference {
+  mjModel* m = nullptr;
+  mjData* d = nullptr;
+  Reference(const World& world, double margin_m) {
+    m = mj_copyModel(nullptr, world.model());
+    m->opt.disableflags &= ~mjDSBL_CONTACT;
+    for (int g = 0; g < m->ngeom; ++g) {
+      if (m->geom_group[g] != 2) continue;
+      m->geom_margin[g] = margin_m;
+      m->geom_gap[g] = margin_m;
+    }
+    d = mj_makeData(m);
+    mju_copy(d->qpos, world.data()->qpos, m->nq);
+    mj_forward(m, d);
+  }
+  ~Reference() {
+    mj_deleteData(d);
+    mj_deleteModel(m);
+  }
+};
+
+// Brute force: every proxy against every structure geom, exact while apart (GeomDistance),
+// MuJoCo's contact depth (margin 0, full pipeline) when they touch.
+TEST(WorldDistance, ClosestStructureIsTheExactMinimumOverAllPairsNearEveryStructure) {
+  for (const char* name : kWorlds) {
+    SCOPED_TRACE(name);
+    World world(OptionsFor(name));
+    const double horizon_m = world.options().distance_horizon_m;
+    int within_horizon = 0;
+    int touching = 0;
+    for (const Waypoint& pose : PosesNearStructure(world.model(), 300, 7)) {
+      world.Reset(pose);
+      const Reference reference(world, 0.0);
+      const mjModel* m = reference.m;
+      const mjData* d = reference.d;
+      const auto geom = [&](int g) {
+        Eigen::Matrix3d R;
+        const mjtNum* x = d->geom_xmat + 9 * g;
+        R << x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8];
+        return ConvexGeom{m->geom_type[g],
+                          Eigen::Vector3d(m->geom_size[3 * g], m->geom_size[3 * g + 1],
+                                          m->geom_size[3 * g + 2]),
+                          Eigen::Vector3d(d->geom_xpos[3 * g], d->geom_xpos[3 * g + 1],
+                                          d->geom_xpos[3 * g + 2]),
+                          R};
+      };
+      std::optional<double> expected_m;
+      for (int p = 0; p < m->ngeom; ++p) {
+        if (m->geom_group[p] != 2) continue;
+        for (int g = 0; g < m->ngeom; ++g) {
+          if (m->geom_group[g] != 0 || m->geom_bodyid[g] != 0) continue;
+          std::optional<double> pair_m;
+          for (int i = 0; i < d->ncon; ++i) {
+            const mjContact& c = d->contact[i];
+            if ((c.geom1 == p && c.geom2 == g) || (c.geom1 == g && c.geom2 == p)) {
+              pair_m = std::min(pair_m.value_or(0.0), c.dist);
+            }
+          }
+          if (!pair_m) pair_m = *GeomDistance(geom(p), geom(g));
+          if (*pair_m < horizon_m && (!expected_m || *pair_m < *expected_m)) {
+            expected_m = *pair_m;
+          }
+        }
+      }
+      const std::optional<Proximity> closest = world.ClosestStructure();
+      ASSERT_EQ(closest.has_value(), expected_m.has_value()) << pose.p_WB.transpose();
+      if (!closest) continue;
+      ++within_horizon;
+      touching += *expected_m <= 0.0;
+      EXPECT_NEAR(closest->distance_m, *expected_m, 2 * kGeomDistanceTolerance_m)
+          << pose.p_WB.transpose();
+      EXPECT_EQ(m->geom_group[closest->structure_geom], 0);
+      EXPECT_EQ(m->geom_group[closest->robot_geom], 2);
+    }
+    EXPECT_GT(within_horizon, 100);
+    EXPECT_GT(touching, 10);
+  }
+}
+
+TEST(WorldDistance, ContactGateNeverHidesAContact) {
+  for (const char* name : kWorlds) {
+    SCOPED_TRACE(name);
+    World world(OptionsFor(name));
+    int touching = 0;
+    for (const Waypoint& pose : PosesNearStructure(world.model(), 300, 11)) {
+      world.Reset(pose);
+      const Reference reference(world, 0.0);
+      ASSERT_EQ(world.data()->ncon, reference.d->ncon) << pose.p_WB.transpose();
+      for (int i = 0; i < reference.d->ncon; ++i) {
+        EXPECT_EQ(world.data()->contact[i].geom1, reference.d->contact[i].geom1);
+        EXPECT_EQ(world.data()->contact[i].geom2, reference.d->contact[i].geom2);
+        // Cylinder pairs go through libccd's MPR, iterative to 1e-6: rounding-level input
+        // differences (the copied state) can move its depth by that much.
+        EXPECT_NEAR(world.data()->contact[i].dist, reference.d->contact[i].dist, 1e-6);
+      }
+      touching += reference.d->ncon > 0;
+    }
+    EXPECT_GT(touching, 10);
+  }
 }
 
 }  // namespace
