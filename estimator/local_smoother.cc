@@ -6,13 +6,12 @@
 #include <deque>
 #include <map>
 
-#include <Eigen/SparseCholesky>
-#include <Eigen/SparseCore>
-#include <ceres/ceres.h>
+#include <ceres/loss_function.h>
 
 #include "core/lie.h"
 #include "estimator/local_factors.h"
 #include "estimator/marginalization.h"
+#include "estimator/window_solver.h"
 
 namespace tofu::estimator {
 namespace {
@@ -29,6 +28,8 @@ struct Keyframe {
   double pose[kPoseSize] = {0, 0, 0, 0, 0, 0, 1};        // p_LI, q_LI (x y z w)
   double speed_bias[kSpeedBiasSize] = {0, 0, 0, 0, 0, 0, 0, 0, 0};  // v_L, b_a, b_g
   bool imu_only = false;
+  bool pose_constant = false;  ///< held fixed (only without marginalisation)
+  int index = 0;               ///< position in the window, set before each solve
 
   NavState state() const {
     NavState s;
@@ -64,7 +65,6 @@ struct Factor {
   std::unique_ptr<ceres::LossFunction> loss;
   std::vector<Keyframe*> keyframes;
   std::vector<MarginalBlock> blocks;
-  ceres::ResidualBlockId id = nullptr;
   int sensor = -1;  ///< between factors: the sensor they came from
 };
 
@@ -103,24 +103,19 @@ bool Finite(const Keyframe& kf) {
 
 struct LocalSmoother::Impl {
   explicit Impl(const LocalSmootherOptions& opts, LocalSmootherStats* s)
-      : options(opts), stats(s), problem(ProblemOptions()) {
+      : options(opts), stats(s) {
     gravity_L = Eigen::Vector3d(0, 0, -options.gravity_mps2);
-  }
-
-  static ceres::Problem::Options ProblemOptions() {
-    ceres::Problem::Options o;
-    o.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    o.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    o.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    o.enable_fast_removal = true;
-    return o;
   }
 
   LocalSmootherOptions options;
   LocalSmootherStats* stats;
   Eigen::Vector3d gravity_L;
-  ceres::Problem problem;
   PoseManifold pose_manifold;
+  // The window's own LM solver (window_solver.h) and the problem handed to it, rebuilt
+  // from keyframes and factors before each solve (buffers reused).
+  WindowSolver solver;
+  std::vector<WindowState> window_states;
+  std::vector<WindowFactor> window_factors;
   std::vector<std::unique_ptr<Keyframe>> keyframes;  // sorted by time
   std::vector<std::unique_ptr<Factor>> factors;
   std::deque<ImuInterval> imu;
@@ -170,9 +165,6 @@ struct LocalSmoother::Impl {
     factor->loss = std::move(loss);
     factor->keyframes = std::move(kfs);
     factor->blocks = std::move(blocks);
-    std::vector<double*> data;
-    for (const MarginalBlock& b : factor->blocks) data.push_back(b.data);
-    factor->id = problem.AddResidualBlock(factor->cost.get(), factor->loss.get(), data);
     factors.push_back(std::move(factor));
     return factors.back().get();
   }
@@ -184,9 +176,31 @@ struct LocalSmoother::Impl {
     return MarginalBlock{kf->speed_bias, kSpeedBiasSize, kSpeedBiasSize, nullptr};
   }
 
-  void AddStateBlocks(Keyframe* kf) {
-    problem.AddParameterBlock(kf->pose, kPoseSize, &pose_manifold);
-    problem.AddParameterBlock(kf->speed_bias, kSpeedBiasSize);
+  // The window as the solver sees it: keyframes in time order, factors by state index.
+  void BuildWindow() {
+    window_states.resize(keyframes.size());
+    for (std::size_t i = 0; i < keyframes.size(); ++i) {
+      Keyframe& kf = *keyframes[i];
+      kf.index = static_cast<int>(i);
+      window_states[i] = WindowState{kf.pose, kf.speed_bias, kf.pose_constant};
+    }
+    window_factors.resize(factors.size());
+    for (std::size_t f = 0; f < factors.size(); ++f) {
+      const Factor& factor = *factors[f];
+      WindowFactor& w = window_factors[f];
+      w.cost = factor.cost.get();
+      w.loss = factor.loss.get();
+      w.blocks.resize(factor.blocks.size());
+      for (std::size_t b = 0; b < factor.blocks.size(); ++b) {
+        const double* data = factor.blocks[b].data;
+        for (const Keyframe* kf : factor.keyframes) {
+          if (kf->pose == data || kf->speed_bias == data) {
+            w.blocks[b] = WindowBlockRef{kf->index, kf->pose == data};
+            break;
+          }
+        }
+      }
+    }
   }
 
   void AddImuFactors(Keyframe* a, Keyframe* b) {
@@ -203,7 +217,6 @@ struct LocalSmoother::Impl {
     unconfirmed_between.erase(
         std::remove(unconfirmed_between.begin(), unconfirmed_between.end(), factor),
         unconfirmed_between.end());
-    problem.RemoveResidualBlock(factor->id);
     factors.erase(std::find_if(factors.begin(), factors.end(),
                                [&](const auto& f) { return f.get() == factor; }));
   }
@@ -236,7 +249,6 @@ struct LocalSmoother::Impl {
     kf->Set(pre.Predict(before->state(), before->bias(), gravity_L), before->bias());
     Keyframe* raw = kf.get();
     keyframes.insert(next, std::move(kf));
-    AddStateBlocks(raw);
     if (after != nullptr) {
       ++stats->late_keyframes;
       std::vector<Factor*> split;
@@ -385,8 +397,6 @@ struct LocalSmoother::Impl {
       }
     }
     for (Factor* f : touching) RemoveFactor(f);
-    problem.RemoveParameterBlock(old->pose);
-    problem.RemoveParameterBlock(old->speed_bias);
     for (auto& [sensor, chain] : chains) {
       if (chain.keyframe == old) chain.keyframe = nullptr;
     }
@@ -402,7 +412,7 @@ struct LocalSmoother::Impl {
                 nullptr, std::move(kfs), std::move(blocks));
     } else if (!options.marginalize && !keyframes.empty()) {
       // Without a prior nothing holds the gauge (position, yaw): hold the oldest pose.
-      problem.SetParameterBlockConstant(keyframes.front()->pose);
+      keyframes.front()->pose_constant = true;
     }
   }
 
@@ -429,13 +439,8 @@ core::Time LocalSmoother::newest_imu_ns() const { return impl_->newest_imu_ns();
 
 void LocalSmoother::Reset() {
   Impl& m = *impl_;
-  for (auto& f : m.factors) m.problem.RemoveResidualBlock(f->id);
   m.factors.clear();
   m.unconfirmed_between.clear();
-  for (auto& kf : m.keyframes) {
-    m.problem.RemoveParameterBlock(kf->pose);
-    m.problem.RemoveParameterBlock(kf->speed_bias);
-  }
   m.keyframes.clear();
   m.chains.clear();
   m.pending.clear();
@@ -452,7 +457,6 @@ void LocalSmoother::Initialize(core::Time t_ns, const NavState& state, const Imu
   kf->Set(state, bias);
   Keyframe* raw = kf.get();
   m.keyframes.push_back(std::move(kf));
-  m.AddStateBlocks(raw);
   Eigen::Matrix<double, 6, 1> pose_std;
   pose_std << prior.position_std_m, prior.rotation_std_rad;
   Eigen::Matrix<double, 9, 1> speed_bias_std;
@@ -587,35 +591,25 @@ bool LocalSmoother::Update() {
     std::copy(kf->speed_bias, kf->speed_bias + kSpeedBiasSize, s.second.begin());
     saved.push_back(s);
   }
-  ceres::Solver::Options solver;
-  solver.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  solver.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
-  solver.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  solver.max_num_iterations = options_.max_iterations;
-  solver.max_solver_time_in_seconds = options_.max_solver_time_s;
+  WindowSolverOptions solver;
+  solver.max_iterations = options_.max_iterations;
+  solver.max_time_s = options_.max_solver_time_s;
   solver.function_tolerance = options_.function_tolerance;
   // The window is warm-started (new states predicted by the IMU, the others at their last
-  // optimum): start almost as Gauss-Newton. LM's default radius (1e4) damps the first
+  // optimum): start almost as Gauss-Newton. LM's usual radius (1e4) damps the first
   // steps so much that two thirds of the solves ran into the iteration cap.
   solver.initial_trust_region_radius = options_.initial_trust_region_radius;
-  solver.num_threads = 1;
-  solver.logging_type = ceres::SILENT;
-  solver.minimizer_progress_to_stdout = false;
-  ceres::Solver::Summary summary;
+  m.BuildWindow();
   const auto start = std::chrono::steady_clock::now();
-  ceres::Solve(solver, &m.problem, &summary);
+  const WindowSolveSummary summary = m.solver.Solve(m.window_states, m.window_factors, solver);
   stats_.solve_time_s.push_back(
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   ++stats_.solves;
-  stats_.iterations += static_cast<std::int64_t>(summary.iterations.size()) - 1;
-  if (summary.termination_type == ceres::NO_CONVERGENCE) {
-    if (summary.iterations.size() >= static_cast<std::size_t>(options_.max_iterations)) {
-      ++stats_.iteration_cap_hits;
-    } else {
-      ++stats_.time_cap_hits;
-    }
-  }
-  bool good = summary.termination_type != ceres::FAILURE && std::isfinite(summary.final_cost);
+  stats_.iterations += summary.iterations;
+  if (summary.termination == WindowTermination::kIterationCap) ++stats_.iteration_cap_hits;
+  if (summary.termination == WindowTermination::kTimeCap) ++stats_.time_cap_hits;
+  bool good = summary.termination != WindowTermination::kFailure &&
+              std::isfinite(summary.final_cost);
   for (auto& kf : m.keyframes) {
     if (!good) break;
     const NavState s = kf->state();
@@ -688,38 +682,10 @@ std::vector<KeyframeState> LocalSmoother::Keyframes() const {
 std::optional<Eigen::Matrix<double, 15, 15>> LocalSmoother::NewestCovariance() const {
   Impl& m = *impl_;
   if (m.keyframes.empty()) return std::nullopt;
-  // Information matrix of the whole window in the tangent space, inverted for the newest
-  // keyframe's 15 columns: Σ = H⁻¹ (Laplace approximation at the current estimate).
-  ceres::Problem::EvaluateOptions evaluate;
-  for (auto& kf : m.keyframes) {
-    if (!m.problem.IsParameterBlockConstant(kf->pose)) evaluate.parameter_blocks.push_back(kf->pose);
-    evaluate.parameter_blocks.push_back(kf->speed_bias);
-  }
-  ceres::CRSMatrix jacobian;
-  if (!m.problem.Evaluate(evaluate, nullptr, nullptr, nullptr, &jacobian)) return std::nullopt;
-  // Sparse all the way: the window's information is block-banded, a dense JᵀJ of its
-  // ~300 columns would cost tens of megaflops per call.
-  std::vector<Eigen::Triplet<double>> entries;
-  entries.reserve(jacobian.values.size());
-  for (int row = 0; row < jacobian.num_rows; ++row) {
-    for (int k = jacobian.rows[row]; k < jacobian.rows[row + 1]; ++k) {
-      entries.emplace_back(row, jacobian.cols[k], jacobian.values[k]);
-    }
-  }
-  Eigen::SparseMatrix<double> J(jacobian.num_rows, jacobian.num_cols);
-  J.setFromTriplets(entries.begin(), entries.end());
-  const Eigen::SparseMatrix<double> H = J.transpose() * J;
-  const int n = static_cast<int>(H.rows());
-  if (n < 15) return std::nullopt;
-  Eigen::MatrixXd unit = Eigen::MatrixXd::Zero(n, 15);
-  unit.bottomRows(15).setIdentity();
-  const Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt(H);
-  if (ldlt.info() != Eigen::Success) return std::nullopt;
-  const Eigen::MatrixXd columns = ldlt.solve(unit);
-  Eigen::Matrix<double, 15, 15> covariance = columns.bottomRows(15);
-  covariance = 0.5 * (covariance + covariance.transpose()).eval();
-  if (!covariance.allFinite()) return std::nullopt;
-  return covariance;
+  // Σ = H⁻¹ of the window's information at the current estimate (Laplace approximation),
+  // read off the banded Cholesky factor with the newest keyframe ordered last.
+  m.BuildWindow();
+  return m.solver.LastStateCovariance(m.window_states, m.window_factors);
 }
 
 }  // namespace tofu::estimator

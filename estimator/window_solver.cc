@@ -1,0 +1,489 @@
+#include "estimator/window_solver.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include <Eigen/Cholesky>
+
+#include "estimator/local_factors.h"
+
+namespace tofu::estimator {
+namespace {
+
+using StateMatrix = Eigen::Matrix<double, kStateTangentSize, kStateTangentSize>;
+using StateVector = Eigen::Matrix<double, kStateTangentSize, 1>;
+using PlusJacobian = Eigen::Matrix<double, kPoseSize, kPoseTangentSize, Eigen::RowMajor>;
+
+// Offset of a block inside its state's 15 tangent dimensions, and its tangent size.
+constexpr int kSpeedBiasOffset = kPoseTangentSize;
+int TangentSize(bool is_pose) { return is_pose ? kPoseTangentSize : kSpeedBiasSize; }
+int AmbientSize(bool is_pose) { return is_pose ? kPoseSize : kSpeedBiasSize; }
+
+// Ceres's trust-region constants (ceres::Solver::Options defaults), so that both solvers
+// take the same steps.
+constexpr double kMinRelativeDecrease = 1e-3;
+constexpr double kMaxTrustRegionRadius = 1e16;
+constexpr double kMinTrustRegionRadius = 1e-32;
+constexpr double kMinLmDiagonal = 1e-6;
+constexpr double kMaxLmDiagonal = 1e32;
+
+}  // namespace
+
+struct WindowSolver::Impl {
+  int n = 0;          // states
+  int bandwidth = 0;  // max state distance spanned by a factor
+  // Lower band of H = JᵀJ: block (i, i − d) at i (b + 1) + d; diagonal blocks are full.
+  std::vector<StateMatrix> H;
+  std::vector<StateMatrix> L;  // its Cholesky factor, same layout
+  std::vector<StateVector> g;  // Jᵀ r
+  std::vector<StateVector> delta;
+  std::vector<PlusJacobian> plus_jacobian;
+  std::vector<char> pose_constant;
+  // Evaluation buffers, kept between calls.
+  std::vector<const double*> parameters;
+  std::vector<double> residual;
+  std::vector<std::vector<double>> jacobian_storage;
+  std::vector<double*> jacobians;
+  Eigen::MatrixXd J;    // one factor's tangent Jacobian, m x Σ tangent sizes
+  // Saved states for a rejected step.
+  std::vector<double> saved;
+  PoseManifold manifold;
+
+  StateMatrix& HBlock(int i, int j) { return H[i * (bandwidth + 1) + (i - j)]; }
+  StateMatrix& LBlock(int i, int j) { return L[i * (bandwidth + 1) + (i - j)]; }
+
+  void Setup(const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors) {
+    n = static_cast<int>(states.size());
+    bandwidth = 0;
+    for (const WindowFactor& f : factors) {
+      const auto& sizes = f.cost->parameter_block_sizes();
+      if (sizes.size() != f.blocks.size()) {
+        throw std::invalid_argument("WindowSolver: a factor's blocks do not match its cost");
+      }
+      int lo = n, hi = -1;
+      for (std::size_t k = 0; k < f.blocks.size(); ++k) {
+        const WindowBlockRef& b = f.blocks[k];
+        if (b.state < 0 || b.state >= n || sizes[k] != AmbientSize(b.is_pose)) {
+          throw std::invalid_argument("WindowSolver: a factor names a block it cannot have");
+        }
+        lo = std::min(lo, b.state);
+        hi = std::max(hi, b.state);
+      }
+      if (hi >= lo) bandwidth = std::max(bandwidth, hi - lo);
+    }
+    const std::size_t blocks = static_cast<std::size_t>(n) * (bandwidth + 1);
+    H.resize(blocks);
+    L.resize(blocks);
+    g.resize(n);
+    delta.resize(n);
+    plus_jacobian.resize(n);
+    pose_constant.resize(n);
+    for (int i = 0; i < n; ++i) pose_constant[i] = states[i].pose_constant ? 1 : 0;
+  }
+
+  // Evaluates one factor; with_jacobians fills J (tangent, constant columns zeroed).
+  // Returns false for a failed or non-finite evaluation. Applies the robust loss (Triggs
+  // correction as in Ceres's Corrector) to residual and J; adds ½ ρ(‖r‖²) to *cost.
+  // M: the residual count when known at compile time (fixed-size products: at these sizes
+  // GEMM's packing costs more than the arithmetic), else Eigen::Dynamic.
+  template <int M = Eigen::Dynamic>
+  bool EvaluateFactor(const std::vector<WindowState>& states, const WindowFactor& f,
+                      bool with_jacobians, double* cost) {
+    const int m = f.cost->num_residuals();
+    const std::size_t count = f.blocks.size();
+    parameters.resize(count);
+    jacobians.resize(count);
+    if (jacobian_storage.size() < count) jacobian_storage.resize(count);
+    int columns = 0;
+    for (std::size_t k = 0; k < count; ++k) {
+      const WindowBlockRef& b = f.blocks[k];
+      parameters[k] = b.is_pose ? states[b.state].pose : states[b.state].speed_bias;
+      jacobian_storage[k].resize(static_cast<std::size_t>(m) * AmbientSize(b.is_pose));
+      jacobians[k] = jacobian_storage[k].data();
+      columns += TangentSize(b.is_pose);
+    }
+    residual.resize(m);
+    if (!f.cost->Evaluate(parameters.data(), residual.data(),
+                          with_jacobians ? jacobians.data() : nullptr)) {
+      return false;
+    }
+    Eigen::Map<Eigen::VectorXd> r(residual.data(), m);
+    if (!r.allFinite()) return false;
+    if (with_jacobians) {
+      J.resize(m, columns);
+      int column = 0;
+      for (std::size_t k = 0; k < count; ++k) {
+        const WindowBlockRef& b = f.blocks[k];
+        if (b.is_pose) {
+          using Ambient = Eigen::Matrix<double, M, kPoseSize, Eigen::RowMajor>;
+          const Eigen::Map<const Ambient> ambient(jacobians[k], m, kPoseSize);
+          if (!ambient.allFinite()) return false;
+          auto tangent = J.middleCols<kPoseTangentSize>(column);
+          if (pose_constant[b.state]) {
+            tangent.setZero();
+          } else {
+            tangent.noalias() = ambient * plus_jacobian[b.state];
+          }
+        } else {
+          using Ambient = Eigen::Matrix<double, M, kSpeedBiasSize, Eigen::RowMajor>;
+          const Eigen::Map<const Ambient> ambient(jacobians[k], m, kSpeedBiasSize);
+          if (!ambient.allFinite()) return false;
+          J.middleCols<kSpeedBiasSize>(column) = ambient;
+        }
+        column += TangentSize(b.is_pose);
+      }
+    }
+    const double squared_norm = r.squaredNorm();
+    if (f.loss == nullptr) {
+      *cost += 0.5 * squared_norm;
+      return true;
+    }
+    double rho[3];
+    f.loss->Evaluate(squared_norm, rho);
+    *cost += 0.5 * rho[0];
+    // Triggs et al. 1999: scale so that the Gauss-Newton model of ρ(‖r‖²) is exact to first
+    // order; the second-order term only where ρ'' > 0 (Ceres's rule: never for Huber).
+    const double sqrt_rho1 = std::sqrt(std::max(rho[1], 0.0));
+    if (squared_norm == 0.0 || rho[2] <= 0.0) {
+      r *= sqrt_rho1;
+      if (with_jacobians) J *= sqrt_rho1;
+      return true;
+    }
+    const double D = 1.0 + 2.0 * squared_norm * rho[2] / rho[1];
+    const double alpha = 1.0 - std::sqrt(D);
+    if (with_jacobians) {
+      const Eigen::RowVectorXd rT_J = r.transpose() * J;
+      J = sqrt_rho1 * (J - (alpha / squared_norm) * r * rT_J);
+    }
+    r *= sqrt_rho1 / (1.0 - alpha);
+    return true;
+  }
+
+  bool EvaluateCost(const std::vector<WindowState>& states,
+                    const std::vector<WindowFactor>& factors, double* cost) {
+    *cost = 0.0;
+    for (const WindowFactor& f : factors) {
+      if (!EvaluateFactor(states, f, false, cost)) return false;
+    }
+    return std::isfinite(*cost);
+  }
+
+  // Adds one factor's J_kᵀ J_l to the band (blocks with state_k ≥ state_l; a diagonal
+  // block whole) and J_kᵀ r to g, block pair by block pair with the sub-block sizes fixed
+  // at compile time: M residual rows (Dynamic for priors), 6 or 9 tangent columns. Lazy
+  // (coefficient-wise) products: Eigen sends anything of size ≥ 8 to its GEMM, whose
+  // packing costs twice the arithmetic at 6x9x9.
+  template <int M>
+  void Accumulate(const WindowFactor& f) {
+    const int m = static_cast<int>(J.rows());
+    const Eigen::Map<const Eigen::Matrix<double, M, Eigen::Dynamic>> Jf(J.data(), m, J.cols());
+    const Eigen::Map<const Eigen::Matrix<double, M, 1>> r(residual.data(), m);
+    int column_k = 0;
+    for (const WindowBlockRef& bk : f.blocks) {
+      if (bk.is_pose) {
+        g[bk.state].template head<kPoseTangentSize>().noalias() +=
+            Jf.template middleCols<kPoseTangentSize>(column_k).transpose() * r;
+      } else {
+        g[bk.state].template tail<kSpeedBiasSize>().noalias() +=
+            Jf.template middleCols<kSpeedBiasSize>(column_k).transpose() * r;
+      }
+      int column_l = 0;
+      for (const WindowBlockRef& bl : f.blocks) {
+        if (bk.state >= bl.state) {
+          StateMatrix& Hkl = HBlock(bk.state, bl.state);
+          AddGram<M>(Jf, column_k, bk.is_pose, column_l, bl.is_pose, &Hkl);
+        }
+        column_l += TangentSize(bl.is_pose);
+      }
+      column_k += TangentSize(bk.is_pose);
+    }
+  }
+
+  template <int M, int TK, int TL, typename JMap>
+  static void AddGramBlock(const JMap& Jf, int column_k, int column_l, int offset_k,
+                           int offset_l, StateMatrix* H_kl) {
+    H_kl->template block<TK, TL>(offset_k, offset_l).noalias() +=
+        Jf.template middleCols<TK>(column_k).transpose().lazyProduct(
+            Jf.template middleCols<TL>(column_l));
+  }
+
+  template <int M, typename JMap>
+  static void AddGram(const JMap& Jf, int column_k, bool pose_k, int column_l, bool pose_l,
+                      StateMatrix* H_kl) {
+    constexpr int P = kPoseTangentSize;
+    constexpr int S = kSpeedBiasSize;
+    if (pose_k && pose_l) {
+      AddGramBlock<M, P, P>(Jf, column_k, column_l, 0, 0, H_kl);
+    } else if (pose_k) {
+      AddGramBlock<M, P, S>(Jf, column_k, column_l, 0, kSpeedBiasOffset, H_kl);
+    } else if (pose_l) {
+      AddGramBlock<M, S, P>(Jf, column_k, column_l, kSpeedBiasOffset, 0, H_kl);
+    } else {
+      AddGramBlock<M, S, S>(Jf, column_k, column_l, kSpeedBiasOffset, kSpeedBiasOffset, H_kl);
+    }
+  }
+
+  template <int M>
+  bool LinearizeFactor(const std::vector<WindowState>& states, const WindowFactor& f,
+                       double* cost) {
+    if (!EvaluateFactor<M>(states, f, true, cost)) return false;
+    Accumulate<M>(f);
+    return true;
+  }
+
+  // H = JᵀJ and g = Jᵀr at the states' values, factor by factor into the band.
+  bool Linearize(const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors,
+                 double* cost) {
+    for (StateMatrix& block : H) block.setZero();
+    for (StateVector& v : g) v.setZero();
+    for (int i = 0; i < n; ++i) manifold.PlusJacobian(states[i].pose, plus_jacobian[i].data());
+    *cost = 0.0;
+    for (const WindowFactor& f : factors) {
+      // The local graph's factors have 3 (position between), 6 (pose between, bias walk,
+      // pose prior) or 9 (IMU, speed-bias prior) rows; marginalisation priors any number.
+      bool ok = false;
+      switch (f.cost->num_residuals()) {
+        case 3: ok = LinearizeFactor<3>(states, f, cost); break;
+        case 6: ok = LinearizeFactor<6>(states, f, cost); break;
+        case 9: ok = LinearizeFactor<9>(states, f, cost); break;
+        default: ok = LinearizeFactor<Eigen::Dynamic>(states, f, cost); break;
+      }
+      if (!ok) return false;
+    }
+    // A constant pose has no columns: identity keeps the factorisation defined, δ stays 0.
+    for (int i = 0; i < n; ++i) {
+      if (pose_constant[i]) {
+        HBlock(i, i).topLeftCorner<kPoseTangentSize, kPoseTangentSize>().diagonal().array() += 1.0;
+      }
+    }
+    return std::isfinite(*cost);
+  }
+
+  // L Lᵀ = H + λ D, D = diag(H) clamped as Ceres's LM strategy does. Block-banded Cholesky:
+  // L_ij = (H_ij − Σ_k L_ik L_jkᵀ) L_jj⁻ᵀ over the band, no fill-in outside it.
+  bool Factorize(double lambda) {
+    Eigen::LLT<StateMatrix> llt;
+    for (int i = 0; i < n; ++i) {
+      const int lo = std::max(0, i - bandwidth);
+      for (int j = lo; j <= i; ++j) {
+        StateMatrix S = HBlock(i, j);
+        for (int k = lo; k < j; ++k) S.noalias() -= LBlock(i, k) * LBlock(j, k).transpose();
+        if (j < i) {
+          LBlock(j, j).transpose().triangularView<Eigen::Upper>().solveInPlace<Eigen::OnTheRight>(
+              S);
+          LBlock(i, j) = S;
+        } else {
+          if (lambda > 0.0) {
+            S.diagonal() += lambda * HBlock(i, i).diagonal().cwiseMax(kMinLmDiagonal).cwiseMin(
+                                         kMaxLmDiagonal);
+          }
+          llt.compute(S);
+          if (llt.info() != Eigen::Success) return false;
+          LBlock(i, i) = llt.matrixL();
+        }
+      }
+    }
+    return true;
+  }
+
+  // δ = −(L Lᵀ)⁻¹ g: forward then backward substitution along the band.
+  void SolveForDelta() {
+    for (int i = 0; i < n; ++i) {
+      StateVector y = -g[i];
+      for (int k = std::max(0, i - bandwidth); k < i; ++k) y.noalias() -= LBlock(i, k) * delta[k];
+      LBlock(i, i).triangularView<Eigen::Lower>().solveInPlace(y);
+      delta[i] = y;
+    }
+    for (int i = n - 1; i >= 0; --i) {
+      StateVector x = delta[i];
+      for (int k = i + 1; k <= std::min(n - 1, i + bandwidth); ++k) {
+        x.noalias() -= LBlock(k, i).transpose() * delta[k];
+      }
+      LBlock(i, i).transpose().triangularView<Eigen::Upper>().solveInPlace(x);
+      delta[i] = x;
+    }
+  }
+
+  void Save(const std::vector<WindowState>& states) {
+    saved.resize(static_cast<std::size_t>(n) * (kPoseSize + kSpeedBiasSize));
+    double* out = saved.data();
+    for (const WindowState& s : states) {
+      out = std::copy(s.pose, s.pose + kPoseSize, out);
+      out = std::copy(s.speed_bias, s.speed_bias + kSpeedBiasSize, out);
+    }
+  }
+  void Restore(const std::vector<WindowState>& states) const {
+    const double* in = saved.data();
+    for (const WindowState& s : states) {
+      std::copy(in, in + kPoseSize, s.pose);
+      in += kPoseSize;
+      std::copy(in, in + kSpeedBiasSize, s.speed_bias);
+      in += kSpeedBiasSize;
+    }
+  }
+
+  void ApplyDelta(const std::vector<WindowState>& states) {
+    for (int i = 0; i < n; ++i) {
+      const WindowState& s = states[i];
+      if (!pose_constant[i]) {
+        double moved[kPoseSize];
+        manifold.Plus(s.pose, delta[i].data(), moved);
+        std::copy(moved, moved + kPoseSize, s.pose);
+      }
+      for (int k = 0; k < kSpeedBiasSize; ++k) s.speed_bias[k] += delta[i][kSpeedBiasOffset + k];
+    }
+  }
+
+  double DeltaNorm() const {
+    double sum = 0.0;
+    for (const StateVector& d : delta) sum += d.squaredNorm();
+    return std::sqrt(sum);
+  }
+  double StateNorm(const std::vector<WindowState>& states) const {
+    double sum = 0.0;
+    for (const WindowState& s : states) {
+      for (int k = 0; k < kPoseSize; ++k) sum += s.pose[k] * s.pose[k];
+      for (int k = 0; k < kSpeedBiasSize; ++k) sum += s.speed_bias[k] * s.speed_bias[k];
+    }
+    return std::sqrt(sum);
+  }
+  double GradientMaxNorm() const {
+    double max = 0.0;
+    for (const StateVector& v : g) max = std::max(max, v.cwiseAbs().maxCoeff());
+    return max;
+  }
+  // gᵀδ and δᵀ D δ of the last step.
+  double GradientDotDelta() const {
+    double sum = 0.0;
+    for (int i = 0; i < n; ++i) sum += g[i].dot(delta[i]);
+    return sum;
+  }
+  double DampingEnergy() {
+    double sum = 0.0;
+    for (int i = 0; i < n; ++i) {
+      const StateVector d =
+          HBlock(i, i).diagonal().cwiseMax(kMinLmDiagonal).cwiseMin(kMaxLmDiagonal);
+      sum += delta[i].cwiseProduct(d).dot(delta[i]);
+    }
+    return sum;
+  }
+};
+
+WindowSolver::WindowSolver() : impl_(std::make_unique<Impl>()) {}
+WindowSolver::~WindowSolver() = default;
+
+WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
+                                       const std::vector<WindowFactor>& factors,
+                                       const WindowSolverOptions& options) {
+  using Clock = std::chrono::steady_clock;
+  const Clock::time_point start = Clock::now();
+  Impl& s = *impl_;
+  WindowSolveSummary summary;
+  s.Setup(states, factors);
+  if (s.n == 0) {
+    summary.termination = WindowTermination::kConverged;
+    return summary;
+  }
+  double cost = 0.0;
+  if (!s.Linearize(states, factors, &cost)) {
+    summary.initial_cost = summary.final_cost = std::numeric_limits<double>::quiet_NaN();
+    return summary;  // kFailure, states untouched
+  }
+  summary.initial_cost = cost;
+  double radius = options.initial_trust_region_radius;
+  double decrease_factor = 2.0;
+  auto finish = [&](WindowTermination termination) {
+    summary.termination = termination;
+    summary.final_cost = cost;
+    return summary;
+  };
+  if (s.GradientMaxNorm() <= options.gradient_tolerance) {
+    return finish(WindowTermination::kConverged);
+  }
+  for (int steps = 0;; ++steps) {
+    if (steps >= options.max_iterations) return finish(WindowTermination::kIterationCap);
+    if (std::chrono::duration<double>(Clock::now() - start).count() >= options.max_time_s) {
+      return finish(WindowTermination::kTimeCap);
+    }
+    const double lambda = 1.0 / radius;
+    bool step_valid = s.Factorize(lambda);
+    double model_decrease = 0.0;
+    if (step_valid) {
+      s.SolveForDelta();
+      // With (H + λD) δ = −g: model decrease −(gᵀδ + ½ δᵀHδ) = −½ gᵀδ + ½ λ δᵀDδ.
+      model_decrease = -0.5 * s.GradientDotDelta() + 0.5 * lambda * s.DampingEnergy();
+      step_valid = std::isfinite(model_decrease);
+    }
+    if (step_valid) {
+      // Converged where even the quadratic model promises nothing worth a step (the GN
+      // counterpart of Ceres's function tolerance, without evaluating the candidate).
+      if (model_decrease <= options.function_tolerance * cost) {
+        return finish(WindowTermination::kConverged);
+      }
+      if (s.DeltaNorm() <= options.parameter_tolerance *
+                               (s.StateNorm(states) + options.parameter_tolerance)) {
+        return finish(WindowTermination::kConverged);
+      }
+    }
+    double candidate_cost = std::numeric_limits<double>::infinity();
+    if (step_valid) {
+      ++summary.iterations;
+      s.Save(states);
+      s.ApplyDelta(states);
+      if (!s.EvaluateCost(states, factors, &candidate_cost)) {
+        candidate_cost = std::numeric_limits<double>::infinity();
+      }
+    }
+    const double actual_decrease = cost - candidate_cost;
+    const double relative_decrease = step_valid ? actual_decrease / model_decrease : -1.0;
+    if (relative_decrease > kMinRelativeDecrease) {
+      // Madsen et al. (3.14): grow the region by how well the model predicted the step.
+      radius = std::min(kMaxTrustRegionRadius,
+                        radius / std::max(1.0 / 3.0,
+                                          1.0 - std::pow(2.0 * relative_decrease - 1.0, 3)));
+      decrease_factor = 2.0;
+      const double previous_cost = cost;
+      cost = candidate_cost;
+      if (actual_decrease <= options.function_tolerance * previous_cost) {
+        return finish(WindowTermination::kConverged);
+      }
+      double relinearised_cost = 0.0;
+      if (!s.Linearize(states, factors, &relinearised_cost)) {
+        s.Restore(states);
+        cost = previous_cost;
+        return finish(WindowTermination::kFailure);
+      }
+      if (s.GradientMaxNorm() <= options.gradient_tolerance) {
+        return finish(WindowTermination::kConverged);
+      }
+    } else {
+      if (step_valid) s.Restore(states);
+      radius /= decrease_factor;
+      decrease_factor *= 2.0;
+      if (radius < kMinTrustRegionRadius) {
+        // No step reduces the cost any more: as Ceres, this is convergence.
+        return finish(WindowTermination::kConverged);
+      }
+    }
+  }
+}
+
+std::optional<StateCovariance> WindowSolver::LastStateCovariance(
+    const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors) {
+  Impl& s = *impl_;
+  s.Setup(states, factors);
+  if (s.n == 0) return std::nullopt;
+  double cost = 0.0;
+  if (!s.Linearize(states, factors, &cost) || !s.Factorize(0.0)) return std::nullopt;
+  // H = L Lᵀ with the last state ordered last: (H⁻¹)_nn = L_nn⁻ᵀ L_nn⁻¹.
+  StateMatrix L_inverse = StateMatrix::Identity();
+  s.LBlock(s.n - 1, s.n - 1).triangularView<Eigen::Lower>().solveInPlace(L_inverse);
+  StateCovariance covariance = L_inverse.transpose() * L_inverse;
+  if (!covariance.allFinite()) return std::nullopt;
+  return covariance;
+}
+
+}  // namespace tofu::estimator

@@ -1,0 +1,114 @@
+#pragma once
+// Levenberg-Marquardt for the local graph's fixed-lag window, on its block-banded normal
+// equations.
+//
+// Why not ceres::Solve: the window is small (15-30 keyframes of 15 tangent dimensions) and
+// is re-solved 30-60 times a second from a warm start in one or two Gauss-Newton steps.
+// Each ceres::Solve call rebuilds its reduced program, orders it and runs a new symbolic
+// sparse Cholesky analysis; with Ceres's block-sparse JᵀJ that fixed cost was ~70 % of a
+// local update (docs/BENCHMARKS.md). The window's factors only join keyframes that are
+// close in time (IMU and bias factors join neighbours, a sensor's between factor joins its
+// consecutive keyframes, the marginalisation prior the oldest few), so with keyframes in
+// time order the information matrix H = JᵀJ is block-banded with a bandwidth of one to
+// three keyframes, and its Cholesky factor has no fill-in outside that band. The band is
+// factorised with dense 15x15 blocks, cost O(N b²), no symbolic phase; and the newest
+// keyframe, ordered last, has its marginal covariance in the last diagonal block of the
+// factor: Σ_nn = (L_nn L_nnᵀ)⁻¹.
+//
+// The factors stay ceres::CostFunctions with their analytic Jacobians (tested against
+// numeric differentiation in local_factors_test), and the LM strategy follows Ceres's
+// (Madsen, Nielsen & Tingleff 2004, "Methods for non-linear least squares problems",
+// Sec. 3.2; robust losses with Triggs et al. 1999's first-order correction), so both solve
+// the same problem to the same optimum (window_solver_test compares them).
+// Library code: Eigen + Ceres only. Not thread-safe.
+
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+#include <ceres/cost_function.h>
+#include <ceres/loss_function.h>
+
+namespace tofu::estimator {
+
+/// Tangent dimensions of a keyframe state: pose [δp, δθ] then speed-bias [δv, δb_a, δb_g].
+constexpr int kStateTangentSize = 15;
+using StateCovariance = Eigen::Matrix<double, kStateTangentSize, kStateTangentSize>;
+
+/// A keyframe state of the window, in time order: its pose block (local_factors.h layout,
+/// PoseManifold) and its speed-bias block (Euclidean). The solver updates them in place.
+struct WindowState {
+  double* pose = nullptr;
+  double* speed_bias = nullptr;
+  bool pose_constant = false;  ///< held fixed (its tangent columns are not estimated)
+};
+
+/// A parameter block of a factor: which state, and which of its two blocks.
+struct WindowBlockRef {
+  int state = 0;
+  bool is_pose = true;
+};
+
+/// A factor: its cost, its robust loss (may be null) and its blocks in the cost's
+/// parameter order. Blocks are pose (7) or speed-bias (9) blocks, as the cost declares.
+struct WindowFactor {
+  const ceres::CostFunction* cost = nullptr;
+  const ceres::LossFunction* loss = nullptr;
+  std::vector<WindowBlockRef> blocks;
+};
+
+struct WindowSolverOptions {
+  /// LM steps (accepted or rejected) at most.
+  int max_iterations = 6;
+  double max_time_s = 0.005;
+  /// Stops when a step's (predicted or actual) cost decrease is below this × the cost.
+  double function_tolerance = 1e-5;
+  /// Stops when ‖δ‖ ≤ parameter_tolerance (‖x‖ + parameter_tolerance).
+  double parameter_tolerance = 1e-8;
+  /// Stops when max |Jᵀ r| is below this.
+  double gradient_tolerance = 1e-10;
+  /// 1/λ of the first step; large for a warm start (almost Gauss-Newton).
+  double initial_trust_region_radius = 1e8;
+};
+
+enum class WindowTermination {
+  kConverged,
+  kIterationCap,
+  kTimeCap,
+  kFailure,  ///< cost not finite at the start, or no step could be taken: states unchanged
+};
+
+struct WindowSolveSummary {
+  WindowTermination termination = WindowTermination::kFailure;
+  int iterations = 0;  ///< LM steps whose candidate was evaluated
+  double initial_cost = 0.0;  ///< ½ Σ ρ(‖r‖²)
+  double final_cost = 0.0;
+};
+
+class WindowSolver {
+ public:
+  WindowSolver();
+  ~WindowSolver();
+  WindowSolver(const WindowSolver&) = delete;
+  WindowSolver& operator=(const WindowSolver&) = delete;
+
+  /// Minimises ½ Σ ρ(‖r_f‖²) over the states (in place). Factors must only name states of
+  /// `states`; a factor whose blocks do not match its cost's parameter sizes is a
+  /// programming error (std::invalid_argument).
+  WindowSolveSummary Solve(const std::vector<WindowState>& states,
+                           const std::vector<WindowFactor>& factors,
+                           const WindowSolverOptions& options);
+
+  /// Marginal covariance of the last state (tangent order [δp, δθ, δv, δb_a, δb_g]) from
+  /// the information matrix at the states' current values (Laplace approximation).
+  /// nullopt if a factor does not evaluate or the information is not positive definite.
+  std::optional<StateCovariance> LastStateCovariance(const std::vector<WindowState>& states,
+                                                     const std::vector<WindowFactor>& factors);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tofu::estimator
