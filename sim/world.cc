@@ -6,6 +6,8 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <tuple>
 #include <fmt/format.h>
@@ -99,6 +101,33 @@ double PointGeomDistanceLowerBound(int type, const mjtNum* size, double rbound_m
   }
 }
 
+std::string ReadText(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// The MJCF without the spans between <!-- tofu:visual-only --> and
+// <!-- /tofu:visual-only -->, or nullopt if it has none (or they do not pair up).
+std::optional<std::string> StripVisualOnly(const std::string& mjcf) {
+  static const std::string kBegin = "<!-- tofu:visual-only -->";
+  static const std::string kEnd = "<!-- /tofu:visual-only -->";
+  std::string out;
+  size_t at = 0;
+  bool stripped = false;
+  while (true) {
+    const size_t begin = mjcf.find(kBegin, at);
+    if (begin == std::string::npos) break;
+    const size_t end = mjcf.find(kEnd, begin);
+    if (end == std::string::npos) return std::nullopt;
+    out.append(mjcf, at, begin - at);
+    at = end + kEnd.size();
+    stripped = true;
+  }
+  if (!stripped) return std::nullopt;
+  out.append(mjcf, at, std::string::npos);
+  return out;
+}
+
 bool BitmasksCollide(const mjModel* m, int g1, int g2) {
   return (m->geom_contype[g1] & m->geom_conaffinity[g2]) != 0 ||
          (m->geom_contype[g2] & m->geom_conaffinity[g1]) != 0;
@@ -130,8 +159,18 @@ const MountSite* RobotDescription::FindSite(const std::string& name) const {
 
 struct World::Impl {
   WorldOptions options;
+  // The physics steps a model without the robot's visual-only bodies (marked in its MJCF):
+  // their ~60 geoms cost a third of MuJoCo's step in kinematics alone. The complete
+  // scene (m_full, d_full) serves the renderer and rays that must see the robot's shapes;
+  // its kinematics is brought up to date only when asked. Without marks both are one.
   mjModel* m = nullptr;
   mjData* d = nullptr;
+  mjModel* m_full = nullptr;
+  mjData* d_full = nullptr;
+  std::vector<int> geom_to_full;        // physics geom id -> complete scene's
+  uint32_t visual_only_groups = 0;      // geom groups only the complete scene holds
+  std::vector<mjtNum> qpos_kinematics;  // the qpos d's kinematics was computed at
+  int64_t full_synced_step = -1;
   RobotDescription robot;
   int base_body = -1;
   int qpos_root = 0;  // address of the free joint in qpos
@@ -210,6 +249,28 @@ struct World::Impl {
   ~Impl() {
     if (d != nullptr) mj_deleteData(d);
     if (m != nullptr) mj_deleteModel(m);
+    if (d_full != nullptr) mj_deleteData(d_full);
+    if (m_full != nullptr) mj_deleteModel(m_full);
+  }
+
+  const mjModel* Full() const { return m_full != nullptr ? m_full : m; }
+  int ToFull(int geom) const { return geom < 0 || m_full == nullptr ? geom : geom_to_full[geom]; }
+
+  // The complete scene at the physics state: state arrays now, kinematics (geom and site
+  // poses) at the last step's start, as d's.
+  mjData* SyncedFull() {
+    if (m_full == nullptr) return d;
+    if (full_synced_step != step_count) {
+      mju_copy(d_full->qpos, qpos_kinematics.data(), m->nq);
+      mj_kinematics(m_full, d_full);
+      mju_copy(d_full->qpos, d->qpos, m->nq);
+      mju_copy(d_full->qvel, d->qvel, m->nv);
+      mju_copy(d_full->act, d->act, m->na);
+      mju_copy(d_full->ctrl, d->ctrl, m->nu);
+      d_full->time = d->time;
+      full_synced_step = step_count;
+    }
+    return d_full;
   }
 
   int Id(int type, const std::string& name, const char* what) const {
@@ -234,23 +295,79 @@ struct World::Impl {
         "  <include file=\"worlds/{0}.xml\"/>\n"
         "</mujoco>\n",
         options.world, options.robot);
+    m_full = LoadScene(models, scene, std::nullopt);
+    // The physics model: the same scene with the robot's visual-only parts cut out.
+    const fs::path robot_path = models / "robots" / (options.robot + ".xml");
+    if (const std::optional<std::string> physics_robot = StripVisualOnly(ReadText(robot_path))) {
+      m = LoadScene(models, scene, std::make_pair(robot_path.string(), *physics_robot));
+      if (!MapGeomsToFull()) {  // not a pure cut (e.g. unnamed bodies): one model for all
+        mj_deleteModel(m);
+        m = nullptr;
+      }
+    }
+    if (m == nullptr) std::swap(m, m_full);
+    for (mjModel* model : {m, m_full}) {
+      if (model == nullptr) continue;
+      model->opt.timestep = 1.0 / options.physics_rate_hz;
+      model->opt.integrator = mjINT_EULER;
+    }
+    timestep_ns = core::PeriodFromRate(options.physics_rate_hz);
+    d = mj_makeData(m);
+    if (m_full != nullptr) d_full = mj_makeData(m_full);
+    qpos_kinematics.assign(d->qpos, d->qpos + m->nq);
+  }
+
+  mjModel* LoadScene(const fs::path& models, const std::string& scene,
+                     const std::optional<std::pair<std::string, std::string>>& override_file) {
     const std::string scene_path = (models / "scene.xml").string();
     mjVFS vfs;
     mj_defaultVFS(&vfs);
-    mj_makeEmptyFileVFS(&vfs, scene_path.c_str(), static_cast<int>(scene.size()));
-    const int file = mj_findFileVFS(&vfs, scene_path.c_str());
-    std::memcpy(vfs.filedata[file], scene.data(), scene.size());
+    const auto add = [&vfs](const std::string& path, const std::string& text) {
+      mj_makeEmptyFileVFS(&vfs, path.c_str(), static_cast<int>(text.size()));
+      const int file = mj_findFileVFS(&vfs, path.c_str());
+      std::memcpy(vfs.filedata[file], text.data(), text.size());
+    };
+    add(scene_path, scene);
+    // MuJoCo looks includes up in the VFS (by file name) before the disk.
+    if (override_file) add(override_file->first, override_file->second);
     char error[1024] = "";
-    m = mj_loadXML(scene_path.c_str(), &vfs, error, sizeof(error));
+    mjModel* model = mj_loadXML(scene_path.c_str(), &vfs, error, sizeof(error));
     mj_deleteVFS(&vfs);
-    if (m == nullptr) {
+    if (model == nullptr) {
       throw core::InputError({(models / "worlds" / (options.world + ".xml")).string(), 0, 0},
                              "world", fmt::format("MuJoCo could not load the scene: {}", error));
     }
-    m->opt.timestep = 1.0 / options.physics_rate_hz;
-    m->opt.integrator = mjINT_EULER;
-    timestep_ns = core::PeriodFromRate(options.physics_rate_hz);
-    d = mj_makeData(m);
+    return model;
+  }
+
+  // Geom ids of m in m_full: bodies match by name (the world body is 0), and a kept body
+  // keeps all its geoms in order. False if m is not such a cut of m_full.
+  bool MapGeomsToFull() {
+    if (m->nq != m_full->nq || m->nv != m_full->nv || m->nu != m_full->nu ||
+        m->na != m_full->na) {
+      return false;
+    }
+    geom_to_full.assign(m->ngeom, -1);
+    std::vector<char> mapped(m_full->ngeom, 0);
+    for (int b = 0; b < m->nbody; ++b) {
+      const char* name = mj_id2name(m, mjOBJ_BODY, b);
+      const int full_body = b == 0 ? 0 : (name ? mj_name2id(m_full, mjOBJ_BODY, name) : -1);
+      if (full_body < 0 || m->body_geomnum[b] != m_full->body_geomnum[full_body]) return false;
+      for (int k = 0; k < m->body_geomnum[b]; ++k) {
+        const int g = m->body_geomadr[b] + k;
+        const int full = m_full->body_geomadr[full_body] + k;
+        if (m->geom_type[g] != m_full->geom_type[full]) return false;
+        geom_to_full[g] = full;
+        mapped[full] = 1;
+      }
+    }
+    visual_only_groups = 0;
+    for (int g = 0; g < m_full->ngeom; ++g) {
+      if (mapped[g]) continue;
+      if (m_full->geom_contype[g] != 0 || m_full->geom_conaffinity[g] != 0) return false;
+      visual_only_groups |= 1u << m_full->geom_group[g];
+    }
+    return true;
   }
 
   void IndexRobot() {
@@ -474,8 +591,10 @@ World::~World() = default;
 
 const RobotDescription& World::robot() const { return impl_->robot; }
 const WorldOptions& World::options() const { return impl_->options; }
-const mjModel_* World::model() const { return impl_->m; }
-const mjData_* World::data() const { return impl_->d; }
+const mjModel_* World::model() const { return impl_->Full(); }
+const mjData_* World::data() const { return impl_->SyncedFull(); }
+const mjModel_* World::physics_model() const { return impl_->m; }
+const mjData_* World::physics_data() const { return impl_->d; }
 core::Time World::time_ns() const { return impl_->step_count * impl_->timestep_ns; }
 core::Time World::timestep_ns() const { return impl_->timestep_ns; }
 
@@ -513,7 +632,9 @@ void World::Reset(const Waypoint& pose) {
   }
   s.GateContacts();
   mj_forward(s.m, s.d);
+  s.qpos_kinematics.assign(s.d->qpos, s.d->qpos + s.m->nq);
   s.closest_step = -1;
+  s.full_synced_step = -1;
   for (int w = 0; w < mjNWARNING; ++w) s.warning_count[w] = s.d->warning[w].number;
   s.last_step_truth = s.ReadState();
 }
@@ -542,6 +663,7 @@ const TruthState& World::Step() {
   }
   TruthState truth = s.ReadState();
   s.GateContacts();
+  std::copy(s.d->qpos, s.d->qpos + s.m->nq, s.qpos_kinematics.begin());
   mj_step(s.m, s.d);
   ++s.step_count;
   s.CheckWarnings();
@@ -575,7 +697,7 @@ const std::vector<Contact>& World::Contacts() const {
     if (!s.is_robot_geom[robot_geom]) std::swap(robot_geom, other);
     if (!s.is_robot_geom[robot_geom] || s.is_robot_geom[other]) continue;
     if (s.is_foot_geom[robot_geom] && s.m->geom_group[other] == kGroundGeomGroup) continue;
-    contacts.push_back({robot_geom, other, c.dist});
+    contacts.push_back({s.ToFull(robot_geom), s.ToFull(other), c.dist});
   }
   return contacts;
 }
@@ -620,14 +742,14 @@ std::optional<Proximity> World::ClosestStructure() const {
     const double distance_m = s.PairDistance(c.proxy, c.geom, c.lower_bound_m);
     if (distance_m < best_m) {
       best_m = distance_m;
-      s.closest = Proximity{distance_m, c.proxy, c.geom};
+      s.closest = Proximity{distance_m, s.ToFull(c.proxy), s.ToFull(c.geom)};
     }
   }
   return s.closest;
 }
 
 std::string World::GeomName(int geom_id) const {
-  const char* name = mj_id2name(impl_->m, mjOBJ_GEOM, geom_id);
+  const char* name = mj_id2name(impl_->Full(), mjOBJ_GEOM, geom_id);
   return name != nullptr ? std::string(name) : fmt::format("geom{}", geom_id);
 }
 
@@ -700,21 +822,26 @@ Eigen::Vector3d GeomSurfaceNormal_W(const mjModel* m, const mjData* d, int g,
 std::optional<RayHit> World::CastRay(const Eigen::Vector3d& origin_W,
                                      const Eigen::Vector3d& direction_W,
                                      uint32_t groups) const {
-  const Impl& s = *impl_;
+  Impl& s = *impl_;
+  // Groups only the complete scene holds (the robot's visual shapes) need its kinematics;
+  // the rest is cheaper in the physics model (fewer geoms to test).
+  const bool full = (groups & s.visual_only_groups) != 0;
+  const mjModel* m = full ? s.Full() : s.m;
+  const mjData* d = full ? s.SyncedFull() : s.d;
   const Eigen::Vector3d dir = direction_W.normalized();
   mjtByte group_mask[mjNGROUP] = {};
   for (int g = 0; g < mjNGROUP; ++g) group_mask[g] = (groups >> g) & 1u;
   int geom = -1;
-  const mjtNum distance = mj_ray(s.m, s.d, origin_W.data(), dir.data(), group_mask, 1, -1, &geom);
+  const mjtNum distance = mj_ray(m, d, origin_W.data(), dir.data(), group_mask, 1, -1, &geom);
   if (distance < 0.0 || geom < 0) return std::nullopt;
   RayHit hit;
   hit.distance_m = distance;
-  hit.geom = geom;
+  hit.geom = full ? geom : s.ToFull(geom);
   hit.point_W = origin_W + distance * dir;
-  hit.normal_W = GeomSurfaceNormal_W(s.m, s.d, geom, hit.point_W, dir);
-  const int material = s.m->geom_matid[geom];
-  hit.textured = material >= 0 && s.m->mat_texid[material] >= 0;
-  hit.group = s.m->geom_group[geom];
+  hit.normal_W = GeomSurfaceNormal_W(m, d, geom, hit.point_W, dir);
+  const int material = m->geom_matid[geom];
+  hit.textured = material >= 0 && m->mat_texid[material] >= 0;
+  hit.group = m->geom_group[geom];
   return hit;
 }
 
@@ -731,11 +858,18 @@ std::array<double, kArmCount * kRotorsPerArm> World::RotorThrusts_N() const {
 }
 
 Eigen::Isometry3d World::SitePose_W(const std::string& site) const {
-  const Impl& s = *impl_;
-  const int id = s.Id(mjOBJ_SITE, site, "site");
+  Impl& s = *impl_;
+  const mjModel* m = s.m;
+  const mjData* d = s.d;
+  if (mj_name2id(m, mjOBJ_SITE, site.c_str()) < 0 && s.m_full != nullptr) {
+    m = s.m_full;  // a site on a visual-only body
+    d = s.SyncedFull();
+  }
+  const int id = mj_name2id(m, mjOBJ_SITE, site.c_str());
+  if (id < 0) s.Id(mjOBJ_SITE, site, "site");  // throws, naming the site
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = Mat3(s.d->site_xmat + 9 * id);
-  T.translation() = Vec3(s.d->site_xpos + 3 * id);
+  T.linear() = Mat3(d->site_xmat + 9 * id);
+  T.translation() = Vec3(d->site_xpos + 3 * id);
   return T;
 }
 

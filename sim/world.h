@@ -155,9 +155,15 @@ class World {
   /// Pose of a site (robot mount or world site, e.g. "station_tripod") in W now.
   Eigen::Isometry3d SitePose_W(const std::string& site) const;
 
-  /// Raw MuJoCo access for sim-internal consumers (sensor models, renderer).
+  /// Raw MuJoCo access for sim-internal consumers (sensor models, renderer): the complete
+  /// scene, robot visuals included, at the physics state (kinematics of the last step's
+  /// start, as every query here). Geom ids in this API are this model's.
   const mjModel_* model() const;
   const mjData_* data() const;
+  /// The model MuJoCo steps: the scene without the robot's visual-only bodies (the same
+  /// physics; its geom ids differ from model()'s). For benchmarks and tests.
+  const mjModel_* physics_model() const;
+  const mjData_* physics_data() const;
 
  private:
   struct Impl;

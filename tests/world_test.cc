@@ -323,6 +323,41 @@ TEST(WorldBadState, NanTiltTargetIsASimulationError) {
   EXPECT_CONTAINS(what, "simulation failed at t = ");
 }
 
+// ---- the physics model and the complete scene ----
+
+TEST(World, StepsTheSceneWithoutTheRobotsVisualOnlyBodiesAndRaysStillSeeThem) {
+  World world(OptionsFor("indoor_arena"));
+  const mjModel* physics = world.physics_model();
+  const mjModel* full = world.model();
+  EXPECT_LT(physics->ngeom + 50, full->ngeom);
+  for (int g = 0; g < physics->ngeom; ++g) EXPECT_NE(physics->geom_group[g], 3);
+  EXPECT_EQ(physics->nq, full->nq);
+  EXPECT_EQ(physics->nv, full->nv);
+  EXPECT_EQ(physics->nu, full->nu);
+  const int base = mj_name2id(physics, mjOBJ_BODY, "base");
+  EXPECT_EQ(physics->body_subtreemass[base],
+            full->body_subtreemass[mj_name2id(full, mjOBJ_BODY, "base")]);
+
+  world.Reset(Pose({0, 0, 1.5}));
+  for (int k = 0; k < 10; ++k) world.Step();
+  // Towards the robot from 1 m ahead: its shapes (complete scene) or the wall behind it.
+  const auto robot = world.CastRay({1.0, 0, 1.5}, {-1, 0, 0}, kRaySceneAndRobot);
+  ASSERT_TRUE(robot.has_value());
+  EXPECT_EQ(robot->group, 3);
+  EXPECT_EQ(full->geom_group[robot->geom], 3);
+  EXPECT_LT(robot->distance_m, 0.7);
+  const auto wall = world.CastRay({1.0, 0, 1.5}, {-1, 0, 0}, kRayScene);
+  ASSERT_TRUE(wall.has_value());
+  EXPECT_EQ(world.GeomName(wall->geom), "wall_west");
+  EXPECT_NEAR(wall->distance_m, 7.0, 1e-9);
+  // Both models agree on where the robot is.
+  EXPECT_LT((world.SitePose_W("tool_tip").translation() -
+             Eigen::Vector3d(world.data()->site_xpos + 3 * mj_name2id(full, mjOBJ_SITE,
+                                                                       "tool_tip")))
+                .norm(),
+            1e-12);
+}
+
 // ---- contacts and distances to structure ----
 
 // Robot poses close to (and into) each world's structure: around a random static group-0
@@ -356,14 +391,13 @@ std::vector<Waypoint> PosesNearStructure(const mjModel* m, int count, uint32_t s
   return poses;
 }
 
-// MuJoCo's full collision pipeline on a copy of the World's model and state, the robot
-// proxies given `margin_m` (and an equal gap): what the World did before it gated contacts
-// and measured distances itself.
+// MuJoCo's full collision pipeline, contacts never gated, on a copy of a model and state,
+// the robot proxies (group 2) given `margin_m` and an equal gap.
 struct Reference {
   mjModel* m = nullptr;
   mjData* d = nullptr;
-  Reference(const World& world, double margin_m) {
-    m = mj_copyModel(nullptr, world.model());
+  Reference(const mjModel* model, const mjData* data, double margin_m) {
+    m = mj_copyModel(nullptr, model);
     m->opt.disableflags &= ~mjDSBL_CONTACT;
     for (int g = 0; g < m->ngeom; ++g) {
       if (m->geom_group[g] != 2) continue;
@@ -371,7 +405,7 @@ struct Reference {
       m->geom_gap[g] = margin_m;
     }
     d = mj_makeData(m);
-    mju_copy(d->qpos, world.data()->qpos, m->nq);
+    mju_copy(d->qpos, data->qpos, m->nq);
     mj_forward(m, d);
   }
   ~Reference() {
@@ -391,7 +425,7 @@ TEST(WorldDistance, ClosestStructureIsTheExactMinimumOverAllPairsNearEveryStruct
     int touching = 0;
     for (const Waypoint& pose : PosesNearStructure(world.model(), 300, 7)) {
       world.Reset(pose);
-      const Reference reference(world, 0.0);
+      const Reference reference(world.model(), world.data(), 0.0);
       const mjModel* m = reference.m;
       const mjData* d = reference.d;
       const auto geom = [&](int g) {
@@ -445,14 +479,15 @@ TEST(WorldDistance, ContactGateNeverHidesAContact) {
     int touching = 0;
     for (const Waypoint& pose : PosesNearStructure(world.model(), 300, 11)) {
       world.Reset(pose);
-      const Reference reference(world, 0.0);
-      ASSERT_EQ(world.data()->ncon, reference.d->ncon) << pose.p_WB.transpose();
+      const mjData* d = world.physics_data();
+      const Reference reference(world.physics_model(), d, 0.0);
+      ASSERT_EQ(d->ncon, reference.d->ncon) << pose.p_WB.transpose();
       for (int i = 0; i < reference.d->ncon; ++i) {
-        EXPECT_EQ(world.data()->contact[i].geom1, reference.d->contact[i].geom1);
-        EXPECT_EQ(world.data()->contact[i].geom2, reference.d->contact[i].geom2);
+        EXPECT_EQ(d->contact[i].geom1, reference.d->contact[i].geom1);
+        EXPECT_EQ(d->contact[i].geom2, reference.d->contact[i].geom2);
         // Cylinder pairs go through libccd's MPR, iterative to 1e-6: rounding-level input
         // differences (the copied state) can move its depth by that much.
-        EXPECT_NEAR(world.data()->contact[i].dist, reference.d->contact[i].dist, 1e-6);
+        EXPECT_NEAR(d->contact[i].dist, reference.d->contact[i].dist, 1e-6);
       }
       touching += reference.d->ncon > 0;
     }
