@@ -177,8 +177,7 @@ struct World::Impl {
   int qvel_root = 0;
   std::array<int, kArmCount> tilt_qpos{};
   std::array<int, kArmCount> tilt_servo_actuator{};
-  std::array<int, kArmCount> thrust_top_actuator{};
-  std::array<int, kArmCount> thrust_bottom_actuator{};
+  std::array<int, kArmCount> thrust_actuator{};  // one per coaxial pair (both rotors alike)
   std::array<double, kArmCount> tilt_target_rad{};
   std::vector<char> is_robot_geom;   // by geom id
   std::vector<char> is_foot_geom;    // landing gear: ground contact allowed
@@ -201,6 +200,11 @@ struct World::Impl {
   std::vector<int> structure_geoms;          // group-0 geoms with partners
   double robot_reach_m = 0.0;  // every proxy lies within this distance of B's origin
   bool gate_contacts = false;  // the gate is sound for this scene
+  bool static_structure = false;  // structure geoms never move (clearances stay valid)
+  Eigen::Vector3d gate_reference_W = Eigen::Vector3d::Zero();  // B's origin at the last
+  double gate_clearance_m = -1.0;  // full gate test, and how far it may move unchecked
+  Eigen::Vector3d structure_reference_W = Eigen::Vector3d::Zero();  // likewise for
+  double structure_clearance_m = -1.0;  // "no structure within the horizon"
   int model_disableflags = 0;
   int64_t closest_step = -1;   // step of the cached ClosestStructure answer
   std::optional<Proximity> closest;
@@ -383,9 +387,7 @@ struct World::Impl {
       const int joint = Id(mjOBJ_JOINT, fmt::format("tilt_{}", k + 1), "joint");
       tilt_qpos[k] = m->jnt_qposadr[joint];
       tilt_servo_actuator[k] = Id(mjOBJ_ACTUATOR, fmt::format("tilt_servo_{}", k + 1), "actuator");
-      thrust_top_actuator[k] = Id(mjOBJ_ACTUATOR, fmt::format("thrust_{}_top", k + 1), "actuator");
-      thrust_bottom_actuator[k] =
-          Id(mjOBJ_ACTUATOR, fmt::format("thrust_{}_bottom", k + 1), "actuator");
+      thrust_actuator[k] = Id(mjOBJ_ACTUATOR, fmt::format("thrust_{}", k + 1), "actuator");
     }
     is_robot_geom.assign(m->ngeom, 0);
     is_foot_geom.assign(m->ngeom, 0);
@@ -453,19 +455,22 @@ struct World::Impl {
         }
       }
       if (partners.empty()) continue;
+      if (m->geom_group[g] == kStructureGeomGroup) {
+        structure_geoms.push_back(g);
+        structure_partners[g] = std::move(partners);
+      }
       if (m->body_weldid[m->geom_bodyid[g]] != 0) {
         dynamic_colliders = true;  // only static geoms keep the poses recorded here
         continue;
       }
       world_colliders.push_back({g, Vec3(d->geom_xpos + 3 * g), Mat3(d->geom_xmat + 9 * g),
                                  std::max(m->geom_margin[g], proxy_margin_m)});
-      if (m->geom_group[g] == kStructureGeomGroup) {
-        structure_geoms.push_back(g);
-        structure_partners[g] = std::move(partners);
-      }
     }
     gate_contacts = reach_bounded && !self_collision && !dynamic_colliders &&
                     (model_disableflags & mjDSBL_CONTACT) == 0;
+    static_structure = reach_bounded && !dynamic_colliders;
+    gate_clearance_m = -1.0;
+    structure_clearance_m = -1.0;
     narrow_phase_scratch.resize(mjMAXCONPAIR);
   }
 
@@ -474,17 +479,21 @@ struct World::Impl {
   void GateContacts() {
     if (!gate_contacts) return;
     const Eigen::Vector3d p_WB = Vec3(d->qpos + qpos_root);
-    bool reachable = false;
+    // Distances to convex sets (and to planes) change no faster than the point moves:
+    // while B's origin stays within the last clearance of where it was measured, every
+    // world geom is still out of reach (a few ns instead of a pass over the world).
+    if ((p_WB - gate_reference_W).norm() < gate_clearance_m) return;
+    double clearance_m = std::numeric_limits<double>::infinity();
     for (const StaticGeom& w : world_colliders) {
       const double distance_m =
           PointGeomDistanceLowerBound(m->geom_type[w.id], m->geom_size + 3 * w.id,
                                       m->geom_rbound[w.id], w.p_W, w.R_W, p_WB);
       // MuJoCo reports a contact below the margin; the slack absorbs rounding.
-      if (distance_m <= robot_reach_m + w.margin_m + 1e-6) {
-        reachable = true;
-        break;
-      }
+      clearance_m = std::min(clearance_m, distance_m - (robot_reach_m + w.margin_m + 1e-6));
     }
+    const bool reachable = clearance_m <= 0.0;
+    gate_reference_W = p_WB;
+    gate_clearance_m = clearance_m;
     m->opt.disableflags =
         reachable ? model_disableflags : (model_disableflags | mjDSBL_CONTACT);
   }
@@ -525,7 +534,7 @@ struct World::Impl {
     const int servo = tilt_servo_actuator[0];
     alloc.tilt_min_rad = m->actuator_ctrlrange[2 * servo];
     alloc.tilt_max_rad = m->actuator_ctrlrange[2 * servo + 1];
-    const int thrust = thrust_top_actuator[0];
+    const int thrust = thrust_actuator[0];
     alloc.rotor_min_thrust_N = m->actuator_ctrlrange[2 * thrust];
     alloc.rotor_max_thrust_N = m->actuator_ctrlrange[2 * thrust + 1];
 
@@ -620,14 +629,13 @@ void World::Reset(const Waypoint& pose) {
     s.d->qpos[s.tilt_qpos[k]] = a.command.tilt_rad[k];
     s.tilt_target_rad[k] = a.command.tilt_rad[k];
     s.d->ctrl[s.tilt_servo_actuator[k]] = a.command.tilt_rad[k];
-    for (const int act : {s.thrust_top_actuator[k], s.thrust_bottom_actuator[k]}) {
-      s.d->ctrl[act] = a.command.rotor_thrust_N[k];
-      // Filter actuators: spin the motors up to the hover thrust already. In MuJoCo 2.2
-      // the activations belong to the last na actuators, in order.
-      const int act_index = act - (s.m->nu - s.m->na);
-      if (s.m->actuator_dyntype[act] != mjDYN_NONE && act_index >= 0) {
-        s.d->act[act_index] = a.command.rotor_thrust_N[k];
-      }
+    const int act = s.thrust_actuator[k];
+    s.d->ctrl[act] = a.command.rotor_thrust_N[k];
+    // Filter actuators: spin the motors up to the hover thrust already. In MuJoCo 2.2
+    // the activations belong to the last na actuators, in order.
+    const int act_index = act - (s.m->nu - s.m->na);
+    if (s.m->actuator_dyntype[act] != mjDYN_NONE && act_index >= 0) {
+      s.d->act[act_index] = a.command.rotor_thrust_N[k];
     }
   }
   s.GateContacts();
@@ -635,6 +643,8 @@ void World::Reset(const Waypoint& pose) {
   s.qpos_kinematics.assign(s.d->qpos, s.d->qpos + s.m->nq);
   s.closest_step = -1;
   s.full_synced_step = -1;
+  s.gate_clearance_m = -1.0;
+  s.structure_clearance_m = -1.0;
   for (int w = 0; w < mjNWARNING; ++w) s.warning_count[w] = s.d->warning[w].number;
   s.last_step_truth = s.ReadState();
 }
@@ -643,8 +653,7 @@ void World::SetCommand(const ActuatorCommand& command) {
   Impl& s = *impl_;
   for (int k = 0; k < kArmCount; ++k) {
     s.tilt_target_rad[k] = command.tilt_rad[k];
-    s.d->ctrl[s.thrust_top_actuator[k]] = command.rotor_thrust_N[k];
-    s.d->ctrl[s.thrust_bottom_actuator[k]] = command.rotor_thrust_N[k];
+    s.d->ctrl[s.thrust_actuator[k]] = command.rotor_thrust_N[k];
   }
 }
 
@@ -714,6 +723,11 @@ std::optional<Proximity> World::ClosestStructure() const {
   const mjData* d = s.d;
   const double horizon_m = s.options.distance_horizon_m;
   const Eigen::Vector3d p_WB = Vec3(d->xpos + 3 * s.base_body);
+  // As in GateContacts: nothing within the horizon while B stays within the clearance.
+  if (s.static_structure && (p_WB - s.structure_reference_W).norm() < s.structure_clearance_m) {
+    return s.closest;
+  }
+  double clearance_m = std::numeric_limits<double>::infinity();
   s.distance_candidates.clear();
   for (const int g : s.structure_geoms) {
     const Eigen::Vector3d p_W_geom = Vec3(d->geom_xpos + 3 * g);
@@ -722,13 +736,17 @@ std::optional<Proximity> World::ClosestStructure() const {
       return PointGeomDistanceLowerBound(m->geom_type[g], m->geom_size + 3 * g,
                                          m->geom_rbound[g], p_W_geom, R_W_geom, p_W);
     };
-    if (lower_bound_m(p_WB) - s.robot_reach_m >= horizon_m) continue;
+    const double beyond_m = lower_bound_m(p_WB) - s.robot_reach_m - horizon_m;
+    clearance_m = std::min(clearance_m, beyond_m);
+    if (beyond_m >= 0.0) continue;
     for (const int proxy : s.structure_partners[g]) {
       const double bound_m =
           lower_bound_m(Vec3(d->geom_xpos + 3 * proxy)) - m->geom_rbound[proxy];
       if (bound_m < horizon_m) s.distance_candidates.push_back({bound_m, proxy, g});
     }
   }
+  s.structure_reference_W = p_WB;
+  s.structure_clearance_m = clearance_m;
   std::sort(s.distance_candidates.begin(), s.distance_candidates.end(),
             [](const Impl::DistanceCandidate& a, const Impl::DistanceCandidate& b) {
               return std::tie(a.lower_bound_m, a.proxy, a.geom) <
@@ -849,9 +867,9 @@ std::array<double, kArmCount * kRotorsPerArm> World::RotorThrusts_N() const {
   const Impl& s = *impl_;
   std::array<double, kArmCount * kRotorsPerArm> thrust{};
   for (int k = 0; k < kArmCount; ++k) {
-    const int actuators[2] = {s.thrust_top_actuator[k], s.thrust_bottom_actuator[k]};
+    // The pair's actuator force is the thrust of each rotor (its gear doubles it).
     for (int r = 0; r < kRotorsPerArm; ++r) {
-      thrust[kRotorsPerArm * k + r] = s.d->actuator_force[actuators[r]];
+      thrust[kRotorsPerArm * k + r] = s.d->actuator_force[s.thrust_actuator[k]];
     }
   }
   return thrust;
