@@ -1,7 +1,8 @@
 // Simulation speed: the harness's run loop on a 200 s scenario at 1 kHz physics against
 // bare mj_step on the very same compiled model. Results go to docs/BENCHMARKS.md.
+// The machine is shared: pin to one core and compare CPU time, e.g.
 //
-//   build/bench/bench_simulation --benchmark_repetitions=3
+//   taskset -c 1 build/bench/bench_simulation --benchmark_repetitions=3
 
 #include <benchmark/benchmark.h>
 #include <mujoco/mujoco.h>
@@ -64,19 +65,26 @@ BENCHMARK(BM_HarnessRun200s)
     ->UseRealTime()
     ->Iterations(1);
 
-// Bare mj_step on the same compiled model (the harness's margins included), the robot
-// hovering on constant hover controls: the floor under any harness overhead.
+// Bare mj_step on the model the World steps (the robot's visual-only bodies cut out), the
+// robot hovering on constant hover controls. Arg 0: MuJoCo's collision detection in every
+// step (MuJoCo alone); arg 1: contacts off, as the World's contact gate runs MuJoCo while
+// no world geom is within the robot's reach (the floor under the harness's flight).
 void BM_BareMjStep200s(benchmark::State& state) {
   tofu::sim::WorldOptions options;
   options.world = "indoor_arena";
   tofu::sim::World world(options);
   world.Reset({Eigen::Vector3d(0, 0, 1.5), Eigen::Quaterniond::Identity()});
-  mjModel* m = mj_copyModel(nullptr, world.model());
+  mjModel* m = mj_copyModel(nullptr, world.physics_model());
+  if (state.range(0) == 0) {
+    m->opt.disableflags &= ~mjDSBL_CONTACT;
+  } else {
+    m->opt.disableflags |= mjDSBL_CONTACT;
+  }
   mjData* d = mj_makeData(m);
   const auto steps = static_cast<int64_t>(kDurationS / m->opt.timestep);
   double simulated_s = 0.0;
   for (auto _ : state) {
-    mj_copyData(d, m, world.data());
+    mj_copyData(d, m, world.physics_data());
     for (int64_t k = 0; k < steps; ++k) mj_step(m, d);
     benchmark::DoNotOptimize(d->qpos[0]);
     simulated_s += kDurationS;
@@ -88,7 +96,13 @@ void BM_BareMjStep200s(benchmark::State& state) {
   mj_deleteData(d);
   mj_deleteModel(m);
 }
-BENCHMARK(BM_BareMjStep200s)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+BENCHMARK(BM_BareMjStep200s)
+    ->ArgName("contacts_off")
+    ->Arg(0)
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(1);
 
 }  // namespace
 
