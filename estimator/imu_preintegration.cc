@@ -72,8 +72,11 @@ void ImuPreintegration::Integrate(const Eigen::Vector3d& accel_I_mps2,
       noise_.gyro_noise_density_radps_per_sqrthz * noise_.gyro_noise_density_radps_per_sqrthz / dt;
   const double var_a =
       noise_.accel_noise_density_mps2_per_sqrthz * noise_.accel_noise_density_mps2_per_sqrthz / dt;
-  covariance_ = A * covariance_ * A.transpose() + var_g * B_g * B_g.transpose() +
-                var_a * B_a * B_a.transpose();
+  // Lazy (coefficient-wise) products: Eigen sends 9x9 products to its GEMM, whose packing
+  // costs more than the arithmetic at this size (this runs at the IMU rate).
+  const Eigen::Matrix<double, 9, 9> A_covariance = A.lazyProduct(covariance_);
+  covariance_ = A_covariance.lazyProduct(A.transpose()) +
+                var_g * B_g.lazyProduct(B_g.transpose()) + var_a * B_a.lazyProduct(B_a.transpose());
   // The sample-held noise alone ties δp to δv within a step (δp = δv dt/2: one sample
   // gives a singular covariance). White noise in continuous time (Kalibr) also moves the
   // position inside the step: Cov(δp) = σ_a² dt³/3 instead of the held sample's σ_a² dt³/4.
@@ -88,8 +91,8 @@ void ImuPreintegration::Integrate(const Eigen::Vector3d& accel_I_mps2,
   J_bg << d_R_d_bg_, d_v_d_bg_, d_p_d_bg_;
   Matrix93d J_ba;
   J_ba << Eigen::Matrix3d::Zero(), d_v_d_ba_, d_p_d_ba_;
-  J_bg = (A * J_bg - B_g).eval();
-  J_ba = (A * J_ba - B_a).eval();
+  J_bg = (A.lazyProduct(J_bg) - B_g).eval();
+  J_ba = (A.lazyProduct(J_ba) - B_a).eval();
   d_R_d_bg_ = J_bg.block<3, 3>(0, 0);
   d_v_d_bg_ = J_bg.block<3, 3>(3, 0);
   d_p_d_bg_ = J_bg.block<3, 3>(6, 0);

@@ -54,7 +54,7 @@ template <int N>
 void SetPoseJacobian(const Eigen::Matrix<double, N, 6>& J_tangent, const double* pose,
                      double* jacobian) {
   Eigen::Map<Eigen::Matrix<double, N, kPoseSize, Eigen::RowMajor>>{jacobian} =
-      J_tangent * PoseLiftJacobian(pose);
+      J_tangent.lazyProduct(PoseLiftJacobian(pose));
 }
 
 template <int N, int M>
@@ -230,7 +230,7 @@ bool ImuFactor::Evaluate(double const* const* parameters, double* residuals,
       J.block<3, 3>(3, 3) = core::Hat(u_v);
       J.block<3, 3>(6, 0) = -R_iT;
       J.block<3, 3>(6, 3) = core::Hat(u_p);
-      SetPoseJacobian<9>(sqrt_information_ * J, parameters[0], jacobians[0]);
+      SetPoseJacobian<9>(sqrt_information_.lazyProduct(J), parameters[0], jacobians[0]);
     }
     if (jacobians[1] != nullptr) {  // speed_bias_i: [v_i, b_a, b_g]
       Eigen::Matrix<double, 9, 9> J = Eigen::Matrix<double, 9, 9>::Zero();
@@ -243,18 +243,18 @@ bool ImuFactor::Evaluate(double const* const* parameters, double* residuals,
       J.block<3, 3>(6, 0) = -R_iT * dt;
       J.block<3, 3>(6, 3) = -pre.d_p_d_ba();
       J.block<3, 3>(6, 6) = -pre.d_p_d_bg();
-      SetJacobian<9, 9>(sqrt_information_ * J, jacobians[1]);
+      SetJacobian<9, 9>(sqrt_information_.lazyProduct(J), jacobians[1]);
     }
     if (jacobians[2] != nullptr) {  // pose_j: [δp_j, δθ_j]
       Eigen::Matrix<double, 9, 6> J = Eigen::Matrix<double, 9, 6>::Zero();
       J.block<3, 3>(0, 3) = Jr_inv;
       J.block<3, 3>(6, 0) = R_iT;
-      SetPoseJacobian<9>(sqrt_information_ * J, parameters[2], jacobians[2]);
+      SetPoseJacobian<9>(sqrt_information_.lazyProduct(J), parameters[2], jacobians[2]);
     }
     if (jacobians[3] != nullptr) {  // speed_bias_j: only through v_j
       Eigen::Matrix<double, 9, 9> J = Eigen::Matrix<double, 9, 9>::Zero();
       J.block<3, 3>(3, 0) = R_iT;
-      SetJacobian<9, 9>(sqrt_information_ * J, jacobians[3]);
+      SetJacobian<9, 9>(sqrt_information_.lazyProduct(J), jacobians[3]);
     }
   }
   return OutputsFinite(*this, residuals, jacobians);
@@ -321,13 +321,13 @@ bool PoseBetweenFactor::Evaluate(double const* const* parameters, double* residu
       J.block<3, 3>(0, 0) = -R_i.transpose();
       J.block<3, 3>(0, 3) = core::Hat(u);  // R_i Exp(δθ): (I − [δθ]x) R_iᵀ Δp
       J.block<3, 3>(3, 3) = -Jr_inv * R_j.transpose() * R_i;
-      SetPoseJacobian<6>(sqrt_information_ * J, parameters[0], jacobians[0]);
+      SetPoseJacobian<6>(sqrt_information_.lazyProduct(J), parameters[0], jacobians[0]);
     }
     if (jacobians[1] != nullptr) {
       Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Zero();
       J.block<3, 3>(0, 0) = R_i.transpose();
       J.block<3, 3>(3, 3) = Jr_inv;
-      SetPoseJacobian<6>(sqrt_information_ * J, parameters[1], jacobians[1]);
+      SetPoseJacobian<6>(sqrt_information_.lazyProduct(J), parameters[1], jacobians[1]);
     }
   }
   return OutputsFinite(*this, residuals, jacobians);
@@ -358,12 +358,12 @@ bool PositionBetweenFactor::Evaluate(double const* const* parameters, double* re
     if (jacobians[0] != nullptr) {
       Eigen::Matrix<double, 3, 6> J;
       J << -Eigen::Matrix3d::Identity(), pose_i.R_LI * lever_hat;
-      SetPoseJacobian<3>(sqrt_information_ * J, parameters[0], jacobians[0]);
+      SetPoseJacobian<3>(sqrt_information_.lazyProduct(J), parameters[0], jacobians[0]);
     }
     if (jacobians[1] != nullptr) {
       Eigen::Matrix<double, 3, 6> J;
       J << Eigen::Matrix3d::Identity(), -pose_j.R_LI * lever_hat;
-      SetPoseJacobian<3>(sqrt_information_ * J, parameters[1], jacobians[1]);
+      SetPoseJacobian<3>(sqrt_information_.lazyProduct(J), parameters[1], jacobians[1]);
     }
   }
   return OutputsFinite(*this, residuals, jacobians);
@@ -397,7 +397,7 @@ bool PosePriorFactor::Evaluate(double const* const* parameters, double* residual
   if (jacobians != nullptr && jacobians[0] != nullptr) {
     Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Identity();
     J.block<3, 3>(3, 3) = core::InverseRightJacobianSO3(delta_theta);
-    SetPoseJacobian<6>(sqrt_information_ * J, parameters[0], jacobians[0]);
+    SetPoseJacobian<6>(sqrt_information_.lazyProduct(J), parameters[0], jacobians[0]);
   }
   return OutputsFinite(*this, residuals, jacobians);
 }

@@ -116,6 +116,10 @@ struct LocalSmoother::Impl {
   WindowSolver solver;
   std::vector<WindowState> window_states;
   std::vector<WindowFactor> window_factors;
+  // The newest keyframe's covariance from the last solve's final factorisation, valid
+  // until the graph changes (marginalisation after the solve keeps it: the Schur
+  // complement leaves the kept states' marginal unchanged).
+  std::optional<Eigen::Matrix<double, 15, 15>> covariance_cache;
   std::vector<std::unique_ptr<Keyframe>> keyframes;  // sorted by time
   std::vector<std::unique_ptr<Factor>> factors;
   std::deque<ImuInterval> imu;
@@ -445,6 +449,7 @@ void LocalSmoother::Reset() {
   m.chains.clear();
   m.pending.clear();
   m.propagation.reset();
+  m.covariance_cache.reset();
   m.dirty = false;
 }
 
@@ -596,8 +601,7 @@ bool LocalSmoother::Update() {
   solver.max_time_s = options_.max_solver_time_s;
   solver.function_tolerance = options_.function_tolerance;
   // The window is warm-started (new states predicted by the IMU, the others at their last
-  // optimum): start almost as Gauss-Newton. LM's usual radius (1e4) damps the first
-  // steps so much that two thirds of the solves ran into the iteration cap.
+  // optimum): its steps are Gauss-Newton; the radius only matters once one fails.
   solver.initial_trust_region_radius = options_.initial_trust_region_radius;
   m.BuildWindow();
   const auto start = std::chrono::steady_clock::now();
@@ -636,6 +640,7 @@ bool LocalSmoother::Update() {
   }
   m.unconfirmed_between.clear();
   m.dirty = false;
+  m.covariance_cache = good ? summary.last_state_covariance : std::nullopt;
   const core::Time newest = m.keyframes.back()->t_ns;
   while (m.keyframes.size() > 2 && m.keyframes.front()->t_ns < newest - options_.window_ns) {
     m.MarginalizeOldest();
@@ -682,6 +687,7 @@ std::vector<KeyframeState> LocalSmoother::Keyframes() const {
 std::optional<Eigen::Matrix<double, 15, 15>> LocalSmoother::NewestCovariance() const {
   Impl& m = *impl_;
   if (m.keyframes.empty()) return std::nullopt;
+  if (!m.dirty && m.covariance_cache) return m.covariance_cache;
   // Σ = H⁻¹ of the window's information at the current estimate (Laplace approximation),
   // read off the banded Cholesky factor with the newest keyframe ordered last.
   m.BuildWindow();

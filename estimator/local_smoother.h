@@ -55,7 +55,9 @@ struct LocalSmootherOptions {
   /// Relative cost decrease below which a solve stops. A warm-started window converges in
   /// two or three Gauss-Newton steps; what LM does after that moves states by micrometres.
   double function_tolerance = 1e-5;
-  double initial_trust_region_radius = 1e8;
+  /// Steps are Gauss-Newton until one fails (a wild measurement); LM damping then starts
+  /// at this trust-region radius (window_solver.h).
+  double initial_trust_region_radius = 1e4;
   /// > 0: Huber loss on the between factors, in standard deviations.
   double huber_delta = 0.0;
 

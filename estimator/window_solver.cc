@@ -337,6 +337,15 @@ struct WindowSolver::Impl {
     }
   }
 
+  // H = L Lᵀ with the last state ordered last: (H⁻¹)_nn = L_nn⁻ᵀ L_nn⁻¹.
+  std::optional<StateCovariance> LastBlockCovariance() {
+    StateMatrix L_inverse = StateMatrix::Identity();
+    LBlock(n - 1, n - 1).triangularView<Eigen::Lower>().solveInPlace(L_inverse);
+    StateCovariance covariance = L_inverse.transpose() * L_inverse;
+    if (!covariance.allFinite()) return std::nullopt;
+    return covariance;
+  }
+
   double DeltaNorm() const {
     double sum = 0.0;
     for (const StateVector& d : delta) sum += d.squaredNorm();
@@ -393,7 +402,10 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
     return summary;  // kFailure, states untouched
   }
   summary.initial_cost = cost;
-  double radius = options.initial_trust_region_radius;
+  // Gauss-Newton first (λ = 0, "radius" infinite): the window is warm-started and its
+  // steps are nearly always accepted. Only a failed step starts the damping, at
+  // initial_trust_region_radius, and from then on the radius follows Ceres's LM.
+  double radius = std::numeric_limits<double>::infinity();
   double decrease_factor = 2.0;
   auto finish = [&](WindowTermination termination) {
     summary.termination = termination;
@@ -408,7 +420,7 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
     if (std::chrono::duration<double>(Clock::now() - start).count() >= options.max_time_s) {
       return finish(WindowTermination::kTimeCap);
     }
-    const double lambda = 1.0 / radius;
+    const double lambda = std::isinf(radius) ? 0.0 : 1.0 / radius;
     bool step_valid = s.Factorize(lambda);
     double model_decrease = 0.0;
     if (step_valid) {
@@ -421,6 +433,8 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
       // Converged where even the quadratic model promises nothing worth a step (the GN
       // counterpart of Ceres's function tolerance, without evaluating the candidate).
       if (model_decrease <= options.function_tolerance * cost) {
+        // An undamped factor at the final states: the covariance comes for free.
+        if (lambda == 0.0) summary.last_state_covariance = s.LastBlockCovariance();
         return finish(WindowTermination::kConverged);
       }
       if (s.DeltaNorm() <= options.parameter_tolerance *
@@ -441,9 +455,11 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
     const double relative_decrease = step_valid ? actual_decrease / model_decrease : -1.0;
     if (relative_decrease > kMinRelativeDecrease) {
       // Madsen et al. (3.14): grow the region by how well the model predicted the step.
-      radius = std::min(kMaxTrustRegionRadius,
-                        radius / std::max(1.0 / 3.0,
-                                          1.0 - std::pow(2.0 * relative_decrease - 1.0, 3)));
+      if (!std::isinf(radius)) {
+        radius = std::min(kMaxTrustRegionRadius,
+                          radius / std::max(1.0 / 3.0,
+                                            1.0 - std::pow(2.0 * relative_decrease - 1.0, 3)));
+      }
       decrease_factor = 2.0;
       const double previous_cost = cost;
       cost = candidate_cost;
@@ -461,8 +477,12 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
       }
     } else {
       if (step_valid) s.Restore(states);
-      radius /= decrease_factor;
-      decrease_factor *= 2.0;
+      if (std::isinf(radius)) {
+        radius = options.initial_trust_region_radius;
+      } else {
+        radius /= decrease_factor;
+        decrease_factor *= 2.0;
+      }
       if (radius < kMinTrustRegionRadius) {
         // No step reduces the cost any more: as Ceres, this is convergence.
         return finish(WindowTermination::kConverged);
@@ -478,12 +498,7 @@ std::optional<StateCovariance> WindowSolver::LastStateCovariance(
   if (s.n == 0) return std::nullopt;
   double cost = 0.0;
   if (!s.Linearize(states, factors, &cost) || !s.Factorize(0.0)) return std::nullopt;
-  // H = L Lᵀ with the last state ordered last: (H⁻¹)_nn = L_nn⁻ᵀ L_nn⁻¹.
-  StateMatrix L_inverse = StateMatrix::Identity();
-  s.LBlock(s.n - 1, s.n - 1).triangularView<Eigen::Lower>().solveInPlace(L_inverse);
-  StateCovariance covariance = L_inverse.transpose() * L_inverse;
-  if (!covariance.allFinite()) return std::nullopt;
-  return covariance;
+  return s.LastBlockCovariance();
 }
 
 }  // namespace tofu::estimator

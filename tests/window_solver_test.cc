@@ -4,6 +4,7 @@
 //    between factors of one sensor, position between factors of another spanning two
 //    keyframes with a Huber loss and an outlier, a marginalisation prior over two states)
 //    started 5 cm / 3° / 0.2 m/s off: both reach the same optimum and cost;
+//  - the covariance a converged solve returns equals the one computed afresh;
 //  - the newest state's covariance from the banded factor equals the last block of the
 //    dense inverse of the information matrix Ceres evaluates;
 //  - a constant pose stays put and the rest matches Ceres with that block held constant;
@@ -254,17 +255,18 @@ WindowSolverOptions TightWindow() {
   options.function_tolerance = 1e-14;
   options.gradient_tolerance = 1e-14;
   options.parameter_tolerance = 1e-14;
-  options.initial_trust_region_radius = 1e4;  // Ceres's default, as TightCeres
   return options;
 }
 
+// Both minima agree in cost to ~1e-14 relative; along the window's weakest directions that
+// still leaves ~1e-7 m between them (states started 5 cm and 3° away).
 void ExpectSameStates(const std::vector<State>& a, const std::vector<State>& b, int first) {
   for (std::size_t i = first; i < a.size(); ++i) {
     SCOPED_TRACE(::testing::Message() << "state " << i);
     const Eigen::Map<const Eigen::Vector3d> pa(a[i].pose), pb(b[i].pose);
-    EXPECT_LT((pa - pb).norm(), 1e-7);
+    EXPECT_LT((pa - pb).norm(), 1e-6);
     const Eigen::Map<const Eigen::Quaterniond> qa(a[i].pose + 3), qb(b[i].pose + 3);
-    EXPECT_LT(qa.angularDistance(qb), 1e-7);
+    EXPECT_LT(qa.angularDistance(qb), 1e-6);
     const Eigen::Map<const Eigen::Matrix<double, 9, 1>> sa(a[i].speed_bias), sb(b[i].speed_bias);
     EXPECT_LT((sa - sb).cwiseAbs().maxCoeff(), 1e-6);
   }
@@ -291,6 +293,13 @@ TEST(WindowSolver, ReachesCeresOptimumOnLocalGraphFactorsWithPriorAndHuber) {
   EXPECT_NEAR(summary.initial_cost, ceres_summary.initial_cost, 1e-9 * ceres_summary.initial_cost);
   EXPECT_NEAR(summary.final_cost, ceres_summary.final_cost, 1e-9 * ceres_summary.final_cost);
   ExpectSameStates(ours.states(), theirs.states(), ours.first());
+
+  // The covariance the solve hands back from its last factorisation is the one computed
+  // afresh at the final states.
+  ASSERT_TRUE(summary.last_state_covariance.has_value());
+  const auto fresh = solver.LastStateCovariance(ours.WindowStates(), ours.WindowFactors());
+  ASSERT_TRUE(fresh.has_value());
+  EXPECT_LT((*summary.last_state_covariance - *fresh).norm(), 1e-6 * fresh->norm());
 }
 
 TEST(WindowSolver, NewestCovarianceEqualsDenseInverseOfCeresInformation) {
@@ -333,6 +342,7 @@ TEST(WindowSolver, ConstantPoseStaysAndTheRestMatchesCeres) {
   problem->SetParameterBlockConstant(theirs.states()[0].pose);
   ceres::Solver::Summary ceres_summary;
   ceres::Solve(TightCeres(), problem.get(), &ceres_summary);
+  EXPECT_NEAR(summary.final_cost, ceres_summary.final_cost, 1e-9 * ceres_summary.final_cost);
   ExpectSameStates(ours.states(), theirs.states(), 0);
 }
 
