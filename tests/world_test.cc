@@ -1,7 +1,9 @@
 // The simulated world (sim::World) on the real models: every world loads with the OMAV,
 // the robot description read from the MJCF is physically sensible, ray casts see the
 // structure and never the robot, Reset/Step keep an exact integer clock and a resting
-// hover, and MuJoCo's bad states surface as SimulationErrors instead of silent resets.
+// hover, MuJoCo's bad states surface as SimulationErrors instead of silent resets, the
+// stepped model is the scene without the robot's visual-only bodies, the contact gate never
+// hides a contact and ClosestStructure is the exact minimum over all robot-structure pairs.
 
 #include "sim/world.h"
 
