@@ -35,6 +35,11 @@ constexpr double kMaxLmDiagonal = 1e32;
 struct WindowSolver::Impl {
   int n = 0;          // states
   int bandwidth = 0;  // max state distance spanned by a factor
+  // Envelope (profile) of H: first[i] is the oldest state a factor joins to state i. The
+  // Cholesky factor has no fill-in outside it (Jennings' envelope method), so a row costs
+  // (i − first[i])² block products: with two sensors fused most rows reach back one
+  // keyframe and a few two or three, where a uniform band would pay for three everywhere.
+  std::vector<int> first;
   // Lower band of H = JᵀJ: block (i, i − d) at i (b + 1) + d; diagonal blocks are full.
   std::vector<StateMatrix> H;
   std::vector<StateMatrix> L;  // its Cholesky factor, same layout
@@ -58,6 +63,8 @@ struct WindowSolver::Impl {
   void Setup(const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors) {
     n = static_cast<int>(states.size());
     bandwidth = 0;
+    first.resize(n);
+    for (int i = 0; i < n; ++i) first[i] = i;
     for (const WindowFactor& f : factors) {
       const auto& sizes = f.cost->parameter_block_sizes();
       if (sizes.size() != f.blocks.size()) {
@@ -72,7 +79,9 @@ struct WindowSolver::Impl {
         lo = std::min(lo, b.state);
         hi = std::max(hi, b.state);
       }
-      if (hi >= lo) bandwidth = std::max(bandwidth, hi - lo);
+      if (hi < lo) continue;
+      bandwidth = std::max(bandwidth, hi - lo);
+      for (const WindowBlockRef& b : f.blocks) first[b.state] = std::min(first[b.state], lo);
     }
     const std::size_t blocks = static_cast<std::size_t>(n) * (bandwidth + 1);
     H.resize(blocks);
@@ -237,7 +246,9 @@ struct WindowSolver::Impl {
   // H = JᵀJ and g = Jᵀr at the states' values, factor by factor into the band.
   bool Linearize(const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors,
                  double* cost) {
-    for (StateMatrix& block : H) block.setZero();
+    for (int i = 0; i < n; ++i) {
+      for (int j = first[i]; j <= i; ++j) HBlock(i, j).setZero();
+    }
     for (StateVector& v : g) v.setZero();
     for (int i = 0; i < n; ++i) manifold.PlusJacobian(states[i].pose, plus_jacobian[i].data());
     *cost = 0.0;
@@ -262,15 +273,16 @@ struct WindowSolver::Impl {
     return std::isfinite(*cost);
   }
 
-  // L Lᵀ = H + λ D, D = diag(H) clamped as Ceres's LM strategy does. Block-banded Cholesky:
-  // L_ij = (H_ij − Σ_k L_ik L_jkᵀ) L_jj⁻ᵀ over the band, no fill-in outside it.
+  // L Lᵀ = H + λ D, D = diag(H) clamped as Ceres's LM strategy does. Block envelope
+  // Cholesky: L_ij = (H_ij − Σ_k L_ik L_jkᵀ) L_jj⁻ᵀ for first[i] ≤ j ≤ i.
   bool Factorize(double lambda) {
     Eigen::LLT<StateMatrix> llt;
     for (int i = 0; i < n; ++i) {
-      const int lo = std::max(0, i - bandwidth);
-      for (int j = lo; j <= i; ++j) {
+      for (int j = first[i]; j <= i; ++j) {
         StateMatrix S = HBlock(i, j);
-        for (int k = lo; k < j; ++k) S.noalias() -= LBlock(i, k) * LBlock(j, k).transpose();
+        for (int k = std::max(first[i], first[j]); k < j; ++k) {
+          S.noalias() -= LBlock(i, k) * LBlock(j, k).transpose();
+        }
         if (j < i) {
           LBlock(j, j).transpose().triangularView<Eigen::Upper>().solveInPlace<Eigen::OnTheRight>(
               S);
@@ -289,18 +301,18 @@ struct WindowSolver::Impl {
     return true;
   }
 
-  // δ = −(L Lᵀ)⁻¹ g: forward then backward substitution along the band.
+  // δ = −(L Lᵀ)⁻¹ g: forward then backward substitution within the envelope.
   void SolveForDelta() {
     for (int i = 0; i < n; ++i) {
       StateVector y = -g[i];
-      for (int k = std::max(0, i - bandwidth); k < i; ++k) y.noalias() -= LBlock(i, k) * delta[k];
+      for (int k = first[i]; k < i; ++k) y.noalias() -= LBlock(i, k) * delta[k];
       LBlock(i, i).triangularView<Eigen::Lower>().solveInPlace(y);
       delta[i] = y;
     }
     for (int i = n - 1; i >= 0; --i) {
       StateVector x = delta[i];
       for (int k = i + 1; k <= std::min(n - 1, i + bandwidth); ++k) {
-        x.noalias() -= LBlock(k, i).transpose() * delta[k];
+        if (first[k] <= i) x.noalias() -= LBlock(k, i).transpose() * delta[k];
       }
       LBlock(i, i).transpose().triangularView<Eigen::Upper>().solveInPlace(x);
       delta[i] = x;
@@ -474,6 +486,18 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
       }
       if (s.GradientMaxNorm() <= options.gradient_tolerance) {
         return finish(WindowTermination::kConverged);
+      }
+      // Simplified-Newton convergence test: the next step's model decrease ½ gᵀH⁻¹g with
+      // the factor of the previous (undamped) linearisation, H barely changing over a
+      // converging step. Converged there, the solve is done without a new factorisation
+      // (the usual end of a warm-started solve: one step, then this test); the covariance
+      // is then that of the previous iterate, one small step before the final states.
+      if (lambda == 0.0) {
+        s.SolveForDelta();
+        if (-0.5 * s.GradientDotDelta() <= options.function_tolerance * cost) {
+          summary.last_state_covariance = s.LastBlockCovariance();
+          return finish(WindowTermination::kConverged);
+        }
       }
     } else {
       if (step_valid) s.Restore(states);
