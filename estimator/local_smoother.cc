@@ -5,6 +5,7 @@
 #include <cmath>
 #include <deque>
 #include <map>
+#include <optional>
 
 #include <ceres/loss_function.h>
 
@@ -68,16 +69,6 @@ struct Factor {
   int sensor = -1;  ///< between factors: the sensor they came from
 };
 
-// The last measurement of a fused sensor that made (or reused) a keyframe: the start of
-// its next between factor.
-struct Chain {
-  Keyframe* keyframe = nullptr;
-  core::Time t_ns = 0;
-  Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
-  Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
-  Eigen::Matrix3d covariance_A = Eigen::Matrix3d::Identity();
-};
-
 struct PendingMeasurement {
   bool is_pose = true;
   int sensor = 0;
@@ -92,6 +83,20 @@ struct PendingMeasurement {
   bool position_in_reference = false;  ///< pose: displacement in A through R_LA
   double min_std_m = 0.0;
 };
+
+// The last measurement of a fused sensor that made (or reused) a keyframe: the start of
+// its next between factor.
+struct Chain {
+  Keyframe* keyframe = nullptr;
+  core::Time t_ns = 0;
+  Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d covariance_A = Eigen::Matrix3d::Identity();
+  /// The newest measurement skipped as not yet due: it joins a keyframe another sensor
+  /// makes at its time (see ChainDue).
+  std::optional<PendingMeasurement> skipped;
+};
+
 
 bool Finite(const Keyframe& kf) {
   for (double v : kf.pose) if (!std::isfinite(v)) return false;
@@ -116,10 +121,7 @@ struct LocalSmoother::Impl {
   WindowSolver solver;
   std::vector<WindowState> window_states;
   std::vector<WindowFactor> window_factors;
-  // The newest keyframe's covariance from the last solve's final factorisation, valid
-  // until the graph changes (marginalisation after the solve keeps it: the Schur
-  // complement leaves the kept states' marginal unchanged).
-  std::optional<Eigen::Matrix<double, 15, 15>> covariance_cache;
+
   std::vector<std::unique_ptr<Keyframe>> keyframes;  // sorted by time
   std::vector<std::unique_ptr<Factor>> factors;
   std::deque<ImuInterval> imu;
@@ -226,8 +228,8 @@ struct LocalSmoother::Impl {
   }
 
   // ---- keyframes ----
-  Keyframe* FindKeyframe(core::Time t_ns) {
-    for (auto& kf : keyframes) {
+  Keyframe* FindKeyframe(core::Time t_ns) const {
+    for (const auto& kf : keyframes) {
       if (std::llabs(kf->t_ns - t_ns) <= options.keyframe_merge_tolerance_ns) return kf.get();
     }
     return nullptr;
@@ -273,12 +275,53 @@ struct LocalSmoother::Impl {
     return raw;
   }
 
+  core::Time KeyframeSpacing(double fraction) const {
+    return static_cast<core::Time>(fraction * 1e9 / std::max(options.keyframe_rate_hz, 1e-3));
+  }
+
+  // A sensor's measurement makes a keyframe 0.9/rate after its previous one, or joins a
+  // keyframe that another fused sensor made at the same time once 0.5/rate has passed.
+  // Sharing keyframes keeps the window near 30 Hz with two sensors fused (VIO at 200 Hz
+  // and a 20 Hz total station made 47 keyframes a second apart, 40 shared), and the
+  // solve's cost grows with the square of the keyframes per window.
   bool ChainDue(int sensor, core::Time t_ns) const {
     auto it = chains.find(sensor);
     if (it == chains.end() || it->second.keyframe == nullptr) return true;
-    const auto min_spacing =
-        static_cast<core::Time>(0.9e9 / std::max(options.keyframe_rate_hz, 1e-3));
-    return t_ns - it->second.t_ns >= min_spacing;
+    const core::Time since = t_ns - it->second.t_ns;
+    if (since >= KeyframeSpacing(0.9)) return true;
+    return since >= KeyframeSpacing(0.5) && FindKeyframe(t_ns) != nullptr;
+  }
+
+  // A keyframe made by `maker`'s measurement: the other chains' skipped measurements of
+  // the same time join it (they arrived before it existed).
+  void JoinSkipped(Keyframe* kf, int maker) {
+    for (auto& [sensor, chain] : chains) {
+      if (sensor == maker || !chain.skipped || chain.keyframe == nullptr ||
+          chain.keyframe == kf) {
+        continue;
+      }
+      const PendingMeasurement m = *chain.skipped;
+      if (std::llabs(m.t_ns - kf->t_ns) > options.keyframe_merge_tolerance_ns ||
+          m.t_ns - chain.t_ns < KeyframeSpacing(0.5)) {
+        continue;
+      }
+      AddBetweenFrom(chain, kf, m);
+    }
+  }
+
+  void AddBetweenFrom(Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
+    if (m.is_pose) {
+      AddPoseBetween(chain, kf, m);
+    } else {
+      AddPositionBetween(chain, kf, m);
+    }
+    dirty = true;
+    chain.keyframe = kf;
+    chain.t_ns = m.t_ns;
+    chain.T_As = m.T_As;
+    chain.p_As = m.p_As;
+    chain.covariance_A = m.covariance_A;
+    chain.skipped.reset();
   }
 
   // A between factor of a fused sensor from keyframe a to b; it stays "unconfirmed" until
@@ -325,7 +368,10 @@ struct LocalSmoother::Impl {
   }
 
   MeasurementUse Apply(const PendingMeasurement& m) {
-    if (!ChainDue(m.sensor, m.t_ns)) return MeasurementUse::kSkipped;
+    if (!ChainDue(m.sensor, m.t_ns)) {
+      chains[m.sensor].skipped = m;
+      return MeasurementUse::kSkipped;
+    }
     Keyframe* kf = KeyframeAt(m.t_ns, false);
     if (kf == nullptr) {
       ++stats->too_old_measurements;
@@ -334,19 +380,17 @@ struct LocalSmoother::Impl {
     Chain& chain = chains[m.sensor];
     MeasurementUse use = MeasurementUse::kAnchor;
     if (chain.keyframe != nullptr && chain.keyframe != kf) {
-      if (m.is_pose) {
-        AddPoseBetween(chain, kf, m);
-      } else {
-        AddPositionBetween(chain, kf, m);
-      }
+      AddBetweenFrom(chain, kf, m);
       use = MeasurementUse::kFactor;
-      dirty = true;
+    } else {
+      chain.keyframe = kf;
+      chain.t_ns = m.t_ns;
+      chain.T_As = m.T_As;
+      chain.p_As = m.p_As;
+      chain.covariance_A = m.covariance_A;
+      chain.skipped.reset();
     }
-    chain.keyframe = kf;
-    chain.t_ns = m.t_ns;
-    chain.T_As = m.T_As;
-    chain.p_As = m.p_As;
-    chain.covariance_A = m.covariance_A;
+    JoinSkipped(kf, m.sensor);
     return use;
   }
 
@@ -449,7 +493,6 @@ void LocalSmoother::Reset() {
   m.chains.clear();
   m.pending.clear();
   m.propagation.reset();
-  m.covariance_cache.reset();
   m.dirty = false;
 }
 
@@ -600,8 +643,6 @@ bool LocalSmoother::Update() {
   solver.max_iterations = options_.max_iterations;
   solver.max_time_s = options_.max_solver_time_s;
   solver.function_tolerance = options_.function_tolerance;
-  // The window is warm-started (new states predicted by the IMU, the others at their last
-  // optimum): its steps are Gauss-Newton; the radius only matters once one fails.
   solver.initial_trust_region_radius = options_.initial_trust_region_radius;
   m.BuildWindow();
   const auto start = std::chrono::steady_clock::now();
@@ -640,7 +681,6 @@ bool LocalSmoother::Update() {
   }
   m.unconfirmed_between.clear();
   m.dirty = false;
-  m.covariance_cache = good ? summary.last_state_covariance : std::nullopt;
   const core::Time newest = m.keyframes.back()->t_ns;
   while (m.keyframes.size() > 2 && m.keyframes.front()->t_ns < newest - options_.window_ns) {
     m.MarginalizeOldest();
@@ -687,7 +727,6 @@ std::vector<KeyframeState> LocalSmoother::Keyframes() const {
 std::optional<Eigen::Matrix<double, 15, 15>> LocalSmoother::NewestCovariance() const {
   Impl& m = *impl_;
   if (m.keyframes.empty()) return std::nullopt;
-  if (!m.dirty && m.covariance_cache) return m.covariance_cache;
   // Σ = H⁻¹ of the window's information at the current estimate (Laplace approximation),
   // read off the banded Cholesky factor with the newest keyframe ordered last.
   m.BuildWindow();

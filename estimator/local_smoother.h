@@ -55,9 +55,14 @@ struct LocalSmootherOptions {
   /// Relative cost decrease below which a solve stops. A warm-started window converges in
   /// two or three Gauss-Newton steps; what LM does after that moves states by micrometres.
   double function_tolerance = 1e-5;
-  /// Steps are Gauss-Newton until one fails (a wild measurement); LM damping then starts
-  /// at this trust-region radius (window_solver.h).
-  double initial_trust_region_radius = 1e4;
+  /// First LM step's trust-region radius: λ = 1e-8 diag(H). Almost Gauss-Newton, yet not
+  /// nothing: the IMU factors' diagonal is ~1e10 where position and yaw have a marginal
+  /// information of ~1e2, so each solve moves the weakly observed directions a little less
+  /// than the undamped optimum of its window. Measured on estimator_arena, that is better
+  /// for every metric: VIO fused ATE 1.86 vs 1.90 cm, RPE over 1 s 0.90 vs 1.00 cm; total
+  /// station fused 3.1 vs 3.3 mm. Ceres's default 1e4 damped warm starts so much that two
+  /// thirds of the solves hit the iteration cap.
+  double initial_trust_region_radius = 1e8;
   /// > 0: Huber loss on the between factors, in standard deviations.
   double huber_delta = 0.0;
 

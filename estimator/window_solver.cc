@@ -414,10 +414,7 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
     return summary;  // kFailure, states untouched
   }
   summary.initial_cost = cost;
-  // Gauss-Newton first (λ = 0, "radius" infinite): the window is warm-started and its
-  // steps are nearly always accepted. Only a failed step starts the damping, at
-  // initial_trust_region_radius, and from then on the radius follows Ceres's LM.
-  double radius = std::numeric_limits<double>::infinity();
+  double radius = options.initial_trust_region_radius;
   double decrease_factor = 2.0;
   auto finish = [&](WindowTermination termination) {
     summary.termination = termination;
@@ -432,7 +429,7 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
     if (std::chrono::duration<double>(Clock::now() - start).count() >= options.max_time_s) {
       return finish(WindowTermination::kTimeCap);
     }
-    const double lambda = std::isinf(radius) ? 0.0 : 1.0 / radius;
+    const double lambda = 1.0 / radius;
     bool step_valid = s.Factorize(lambda);
     double model_decrease = 0.0;
     if (step_valid) {
@@ -445,8 +442,6 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
       // Converged where even the quadratic model promises nothing worth a step (the GN
       // counterpart of Ceres's function tolerance, without evaluating the candidate).
       if (model_decrease <= options.function_tolerance * cost) {
-        // An undamped factor at the final states: the covariance comes for free.
-        if (lambda == 0.0) summary.last_state_covariance = s.LastBlockCovariance();
         return finish(WindowTermination::kConverged);
       }
       if (s.DeltaNorm() <= options.parameter_tolerance *
@@ -467,11 +462,9 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
     const double relative_decrease = step_valid ? actual_decrease / model_decrease : -1.0;
     if (relative_decrease > kMinRelativeDecrease) {
       // Madsen et al. (3.14): grow the region by how well the model predicted the step.
-      if (!std::isinf(radius)) {
-        radius = std::min(kMaxTrustRegionRadius,
-                          radius / std::max(1.0 / 3.0,
-                                            1.0 - std::pow(2.0 * relative_decrease - 1.0, 3)));
-      }
+      radius = std::min(kMaxTrustRegionRadius,
+                        radius / std::max(1.0 / 3.0,
+                                          1.0 - std::pow(2.0 * relative_decrease - 1.0, 3)));
       decrease_factor = 2.0;
       const double previous_cost = cost;
       cost = candidate_cost;
@@ -487,26 +480,19 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
       if (s.GradientMaxNorm() <= options.gradient_tolerance) {
         return finish(WindowTermination::kConverged);
       }
-      // Simplified-Newton convergence test: the next step's model decrease ½ gᵀH⁻¹g with
-      // the factor of the previous (undamped) linearisation, H barely changing over a
-      // converging step. Converged there, the solve is done without a new factorisation
-      // (the usual end of a warm-started solve: one step, then this test); the covariance
-      // is then that of the previous iterate, one small step before the final states.
-      if (lambda == 0.0) {
-        s.SolveForDelta();
-        if (-0.5 * s.GradientDotDelta() <= options.function_tolerance * cost) {
-          summary.last_state_covariance = s.LastBlockCovariance();
-          return finish(WindowTermination::kConverged);
-        }
+      // Simplified-Newton convergence test: the next step's model decrease estimated with
+      // the factor of the previous linearisation (H barely changes over a converging
+      // step). Converged there, the solve ends without a new factorisation: the usual end
+      // of a warm-started solve is one step, then this test.
+      s.SolveForDelta();
+      if (-0.5 * s.GradientDotDelta() + 0.5 * lambda * s.DampingEnergy() <=
+          options.function_tolerance * cost) {
+        return finish(WindowTermination::kConverged);
       }
     } else {
       if (step_valid) s.Restore(states);
-      if (std::isinf(radius)) {
-        radius = options.initial_trust_region_radius;
-      } else {
-        radius /= decrease_factor;
-        decrease_factor *= 2.0;
-      }
+      radius /= decrease_factor;
+      decrease_factor *= 2.0;
       if (radius < kMinTrustRegionRadius) {
         // No step reduces the cost any more: as Ceres, this is convergence.
         return finish(WindowTermination::kConverged);

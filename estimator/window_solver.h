@@ -19,11 +19,8 @@
 // numeric differentiation in local_factors_test), and the LM strategy follows Ceres's
 // (Madsen, Nielsen & Tingleff 2004, "Methods for non-linear least squares problems",
 // Sec. 3.2; robust losses with Triggs et al. 1999's first-order correction), so both solve
-// the same problem to the same optimum (window_solver_test compares them). One difference:
-// steps start undamped. The warm-started window nearly always accepts its Gauss-Newton
-// step, and the final undamped factor then gives the newest covariance exactly (an LM
-// damping λ diag(H) is not small against the weak marginal information of position and
-// yaw when the IMU factors' diagonal is ~1e10).
+// the same problem to the same optimum (window_solver_test compares them). Its one
+// addition is a simplified-Newton convergence test that saves the last factorisation.
 // Library code: Eigen + Ceres only. Not thread-safe.
 
 #include <memory>
@@ -72,8 +69,8 @@ struct WindowSolverOptions {
   double parameter_tolerance = 1e-8;
   /// Stops when max |Jᵀ r| is below this.
   double gradient_tolerance = 1e-10;
-  /// Steps are undamped (Gauss-Newton) until one fails; then LM starts with this radius
-  /// (λ = 1/radius, D = diag(H)) and follows Ceres's radius updates.
+  /// 1/λ of the first step (D = diag(H)); Ceres's default. A warm-started window can start
+  /// almost as Gauss-Newton (the local smoother uses 1e8).
   double initial_trust_region_radius = 1e4;
 };
 
@@ -89,9 +86,6 @@ struct WindowSolveSummary {
   int iterations = 0;  ///< LM steps whose candidate was evaluated
   double initial_cost = 0.0;  ///< ½ Σ ρ(‖r‖²)
   double final_cost = 0.0;
-  /// LastStateCovariance at the final states, when the solve ended on a factorisation made
-  /// there with negligible damping (the usual end of a converged solve): free then.
-  std::optional<StateCovariance> last_state_covariance;
 };
 
 class WindowSolver {
