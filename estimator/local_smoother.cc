@@ -95,6 +95,15 @@ struct Chain {
   /// The newest measurement skipped as not yet due: it joins a keyframe another sensor
   /// makes at its time (see ChainDue).
   std::optional<PendingMeasurement> skipped;
+
+  void MoveTo(Keyframe* kf, const PendingMeasurement& m) {
+    keyframe = kf;
+    t_ns = m.t_ns;
+    T_As = m.T_As;
+    p_As = m.p_As;
+    covariance_A = m.covariance_A;
+    skipped.reset();
+  }
 };
 
 
@@ -316,12 +325,7 @@ struct LocalSmoother::Impl {
       AddPositionBetween(chain, kf, m);
     }
     dirty = true;
-    chain.keyframe = kf;
-    chain.t_ns = m.t_ns;
-    chain.T_As = m.T_As;
-    chain.p_As = m.p_As;
-    chain.covariance_A = m.covariance_A;
-    chain.skipped.reset();
+    chain.MoveTo(kf, m);
   }
 
   // A between factor of a fused sensor from keyframe a to b; it stays "unconfirmed" until
@@ -383,12 +387,7 @@ struct LocalSmoother::Impl {
       AddBetweenFrom(chain, kf, m);
       use = MeasurementUse::kFactor;
     } else {
-      chain.keyframe = kf;
-      chain.t_ns = m.t_ns;
-      chain.T_As = m.T_As;
-      chain.p_As = m.p_As;
-      chain.covariance_A = m.covariance_A;
-      chain.skipped.reset();
+      chain.MoveTo(kf, m);
     }
     JoinSkipped(kf, m.sensor);
     return use;
