@@ -110,7 +110,7 @@ class Window {
     const Eigen::Vector3d p_Is(0.1, -0.05, 0.2);
     const Eigen::Matrix3d R_LA = core::ExpSO3(Eigen::Vector3d(0, 0, 0.5));
     for (int i = 0; i + 2 < kStates; i += 2) {
-      auto mount = [&](int k) {
+      auto mount = [&](int k) -> Eigen::Vector3d {
         return states_true[k].p_LI + states_true[k].q_LI * p_Is;
       };
       Eigen::Vector3d delta_A = R_LA.transpose() * (mount(i + 2) - mount(i));
