@@ -461,7 +461,7 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
     const double actual_decrease = cost - candidate_cost;
     const double relative_decrease = step_valid ? actual_decrease / model_decrease : -1.0;
     if (relative_decrease > kMinRelativeDecrease) {
-      // Madsen et al. (3.14): grow the region by how well the model predicted the step.
+      // Madsen et al. (Sec. 3.2): grow the region by how well the model predicted the step.
       radius = std::min(kMaxTrustRegionRadius,
                         radius / std::max(1.0 / 3.0,
                                           1.0 - std::pow(2.0 * relative_decrease - 1.0, 3)));
