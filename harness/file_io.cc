@@ -2,7 +2,6 @@
 
 #include <unistd.h>
 
-#include <array>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -14,32 +13,6 @@
 namespace tofu::harness {
 
 namespace fs = std::filesystem;
-
-std::string ReadWholeFile(const fs::path& path, std::string_view what) {
-  std::error_code ec;
-  if (fs::is_directory(path, ec)) {
-    throw core::InputError({path.string()}, "", fmt::format("is a directory, expected a {}", what));
-  }
-  std::FILE* file = std::fopen(path.c_str(), "rb");
-  if (file == nullptr) {
-    throw core::InputError({path.string()}, "",
-                           fmt::format("cannot open the {}: {}", what, std::strerror(errno)));
-  }
-  std::string text;
-  const auto size = fs::file_size(path, ec);
-  if (!ec) text.reserve(size);
-  std::array<char, 1 << 16> buffer;
-  std::size_t n = 0;
-  while ((n = std::fread(buffer.data(), 1, buffer.size(), file)) > 0) text.append(buffer.data(), n);
-  const bool failed = std::ferror(file) != 0;
-  const int read_errno = errno;
-  std::fclose(file);
-  if (failed) {
-    throw core::InputError({path.string()}, "",
-                           fmt::format("cannot read the {}: {}", what, std::strerror(read_errno)));
-  }
-  return text;
-}
 
 void WriteFileAtomically(const fs::path& path, std::string_view text, std::string_view key) {
   const auto fail = [&](int error) {

@@ -18,7 +18,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "core/error.h"
-#include "harness/file_io.h"
+#include "core/file_io.h"
 #include "harness/trajectory_metrics.h"
 
 namespace tofu::harness {
@@ -48,7 +48,7 @@ std::string_view Trim(std::string_view s) {
 // The file's text without a UTF-8 byte-order mark (spreadsheet exports): it is not part
 // of the header.
 std::string ReadCsvText(const fs::path& path) {
-  std::string text = ReadWholeFile(path);
+  std::string text = core::ReadWholeFile(path);
   if (text.compare(0, 3, "\xEF\xBB\xBF") == 0) text.erase(0, 3);
   return text;
 }

@@ -14,7 +14,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
-#include "harness/file_io.h"
+#include "core/file_io.h"
 
 namespace tofu::harness {
 namespace {
@@ -233,7 +233,7 @@ estimator::VelocitySeries ParseVelocityCsv(std::string_view text, const std::str
 }
 
 estimator::VelocitySeries ReadVelocityCsv(const std::string& path) {
-  const std::string text = ReadWholeFile(path, "velocity CSV");
+  const std::string text = core::ReadWholeFile(path, "velocity CSV");
   return ParseVelocityCsv(text, path);
 }
 

@@ -6,8 +6,6 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <limits>
 #include <tuple>
 #include <fmt/format.h>
@@ -15,6 +13,7 @@
 #include <mujoco/mujoco.h>
 
 #include "core/error.h"
+#include "core/file_io.h"
 #include "sim/geom_distance.h"
 
 namespace tofu::sim {
@@ -99,11 +98,6 @@ double PointGeomDistanceLowerBound(int type, const mjtNum* size, double rbound_m
     default:  // meshes, height fields: their bounding sphere, or nothing known
       return rbound_m > 0.0 ? p.norm() - rbound_m : -std::numeric_limits<double>::infinity();
   }
-}
-
-std::string ReadText(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
 }
 
 // The MJCF without the spans between <!-- tofu:visual-only --> and
@@ -302,7 +296,9 @@ struct World::Impl {
     m_full = LoadScene(models, scene, std::nullopt);
     // The physics model: the same scene with the robot's visual-only parts cut out.
     const fs::path robot_path = models / "robots" / (options.robot + ".xml");
-    if (const std::optional<std::string> physics_robot = StripVisualOnly(ReadText(robot_path))) {
+    const std::optional<std::string> physics_robot =
+        StripVisualOnly(core::ReadWholeFile(robot_path, "robot model"));
+    if (physics_robot) {
       m = LoadScene(models, scene, std::make_pair(robot_path.string(), *physics_robot));
       if (!MapGeomsToFull()) {  // not a pure cut (e.g. unnamed bodies): one model for all
         mj_deleteModel(m);
