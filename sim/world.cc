@@ -7,7 +7,12 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <regex>
+#include <string>
 #include <tuple>
+#include <utility>
+#include <vector>
+
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <mujoco/mujoco.h>
@@ -122,6 +127,41 @@ std::optional<std::string> StripVisualOnly(const std::string& mjcf) {
   return out;
 }
 
+// The MJCF with each procedural (builtin) texture generated at 8 texels across, its
+// aspect kept. The physics model needs a material's texture only to know that the
+// material is textured (RayHit::textured); generating the renderer's 512-texel builtins
+// is 90 % of loading a scene, and the complete scene still has them.
+std::string ShrinkBuiltinTextures(const std::string& mjcf) {
+  static const std::regex kTexture(R"re(<texture\b[^>]*>)re");
+  static const std::regex kBuiltin(R"re(\bbuiltin\s*=\s*"(\w+)")re");
+  static const std::regex kWidth(R"re(\bwidth\s*=\s*"(\d+)")re");
+  static const std::regex kHeight(R"re(\bheight\s*=\s*"(\d+)")re");
+  constexpr long kTexels = 8;
+  std::string out;
+  auto at = mjcf.cbegin();
+  for (std::sregex_iterator it(mjcf.begin(), mjcf.end(), kTexture), end; it != end; ++it) {
+    std::string element = it->str();
+    std::smatch builtin;
+    std::smatch width;
+    std::smatch height;
+    if (std::regex_search(element, builtin, kBuiltin) && builtin[1] != "none" &&
+        std::regex_search(element, width, kWidth) && std::regex_search(element, height, kHeight)) {
+      const long w = std::stol(width[1]);
+      const long h = std::stol(height[1]);
+      if (w > kTexels) {
+        const long new_h = std::max(1L, h * kTexels / w);
+        element = std::regex_replace(element, kWidth, fmt::format("width=\"{}\"", kTexels));
+        element = std::regex_replace(element, kHeight, fmt::format("height=\"{}\"", new_h));
+      }
+    }
+    out.append(at, mjcf.cbegin() + it->position());
+    out += element;
+    at = mjcf.cbegin() + it->position() + it->length();
+  }
+  out.append(at, mjcf.cend());
+  return out;
+}
+
 bool BitmasksCollide(const mjModel* m, int g1, int g2) {
   return (m->geom_contype[g1] & m->geom_conaffinity[g2]) != 0 ||
          (m->geom_contype[g2] & m->geom_conaffinity[g1]) != 0;
@@ -173,6 +213,8 @@ struct World::Impl {
   std::array<int, kArmCount> tilt_servo_actuator{};
   std::array<int, kArmCount> thrust_actuator{};  // one per coaxial pair (both rotors alike)
   std::array<double, kArmCount> tilt_target_rad{};
+  Eigen::Vector3d external_force_W = Eigen::Vector3d::Zero();  // on the base's CoM
+  Eigen::Vector3d base_p_B_com = Eigen::Vector3d::Zero();      // the base body's own CoM
   std::vector<char> is_robot_geom;   // by geom id
   std::vector<char> is_foot_geom;    // landing gear: ground contact allowed
   std::array<int, mjNWARNING> warning_count{};
@@ -293,13 +335,17 @@ struct World::Impl {
         "  <include file=\"worlds/{0}.xml\"/>\n"
         "</mujoco>\n",
         options.world, options.robot);
-    m_full = LoadScene(models, scene, std::nullopt);
+    m_full = LoadScene(models, scene, {});
     // The physics model: the same scene with the robot's visual-only parts cut out.
     const fs::path robot_path = models / "robots" / (options.robot + ".xml");
     const std::optional<std::string> physics_robot =
         StripVisualOnly(core::ReadWholeFile(robot_path, "robot model"));
     if (physics_robot) {
-      m = LoadScene(models, scene, std::make_pair(robot_path.string(), *physics_robot));
+      const fs::path materials_path = models / "common" / "materials.xml";
+      m = LoadScene(models, scene,
+                    {{robot_path.string(), *physics_robot},
+                     {materials_path.string(),
+                      ShrinkBuiltinTextures(core::ReadWholeFile(materials_path, "materials"))}});
       if (!MapGeomsToFull()) {  // not a pure cut (e.g. unnamed bodies): one model for all
         mj_deleteModel(m);
         m = nullptr;
@@ -317,8 +363,9 @@ struct World::Impl {
     qpos_kinematics.assign(d->qpos, d->qpos + m->nq);
   }
 
+  // Loads the scene; override_files replace files it includes (path, text).
   mjModel* LoadScene(const fs::path& models, const std::string& scene,
-                     const std::optional<std::pair<std::string, std::string>>& override_file) {
+                     const std::vector<std::pair<std::string, std::string>>& override_files) {
     const std::string scene_path = (models / "scene.xml").string();
     mjVFS vfs;
     mj_defaultVFS(&vfs);
@@ -329,7 +376,7 @@ struct World::Impl {
     };
     add(scene_path, scene);
     // MuJoCo looks includes up in the VFS (by file name) before the disk.
-    if (override_file) add(override_file->first, override_file->second);
+    for (const auto& [path, text] : override_files) add(path, text);
     char error[1024] = "";
     mjModel* model = mj_loadXML(scene_path.c_str(), &vfs, error, sizeof(error));
     mj_deleteVFS(&vfs);
@@ -379,6 +426,7 @@ struct World::Impl {
     }
     qpos_root = m->jnt_qposadr[root_joint];
     qvel_root = m->jnt_dofadr[root_joint];
+    base_p_B_com = Vec3(m->body_ipos + 3 * base_body);
     for (int k = 0; k < kArmCount; ++k) {
       const int joint = Id(mjOBJ_JOINT, fmt::format("tilt_{}", k + 1), "joint");
       tilt_qpos[k] = m->jnt_qposadr[joint];
@@ -468,6 +516,25 @@ struct World::Impl {
     gate_clearance_m = -1.0;
     structure_clearance_m = -1.0;
     narrow_phase_scratch.resize(mjMAXCONPAIR);
+  }
+
+  // The external force on the base's CoM as the free joint's generalised force, J^T f:
+  // the CoM's Jacobian is I on the free joint's translation (velocity in W) and
+  // -[p_B_com]x R_WB^T on its rotation (angular velocity in B), and zero on the hinges,
+  // which do not move the base. MuJoCo's xfrc_applied computes the same J^T f with a
+  // dense Jacobian over all dofs (mj_applyFT): 2 % of the step for three numbers.
+  // Evaluated every step at the current attitude, so a force held in W stays in W.
+  void ApplyExternalForce(const Eigen::Quaterniond& q_WB) {
+    mjtNum* f = d->qfrc_applied + qvel_root;
+    if (external_force_W.isZero(0.0)) {
+      std::fill(f, f + 6, 0.0);
+      return;
+    }
+    const Eigen::Vector3d torque_B = base_p_B_com.cross(q_WB.conjugate() * external_force_W);
+    for (int k = 0; k < 3; ++k) {
+      f[k] = external_force_W(k);
+      f[3 + k] = torque_B(k);
+    }
   }
 
   // Switches MuJoCo's contacts on for the coming step when a proxy may touch a world geom
@@ -607,6 +674,7 @@ void World::Reset(const Waypoint& pose) {
   Impl& s = *impl_;
   mj_resetData(s.m, s.d);
   s.step_count = 0;
+  s.external_force_W.setZero();
   const Eigen::Quaterniond q = pose.q_WB.normalized();
   for (int k = 0; k < 3; ++k) s.d->qpos[s.qpos_root + k] = pose.p_WB(k);
   s.d->qpos[s.qpos_root + 3] = q.w();
@@ -654,8 +722,7 @@ void World::SetCommand(const ActuatorCommand& command) {
 }
 
 void World::SetExternalForce_W(const Eigen::Vector3d& force_W) {
-  mjtNum* f = impl_->d->xfrc_applied + 6 * impl_->base_body;
-  for (int k = 0; k < 3; ++k) f[k] = force_W(k);
+  impl_->external_force_W = force_W;
 }
 
 const TruthState& World::Step() {
@@ -667,6 +734,7 @@ const TruthState& World::Step() {
     setpoint += std::clamp(s.tilt_target_rad[k] - setpoint, -max_step_rad, max_step_rad);
   }
   TruthState truth = s.ReadState();
+  s.ApplyExternalForce(truth.q_WB);
   s.GateContacts();
   std::copy(s.d->qpos, s.d->qpos + s.m->nq, s.qpos_kinematics.begin());
   mj_step(s.m, s.d);

@@ -273,6 +273,22 @@ TEST(WorldStep, ExternalForceAcceleratesTheRobot) {
   EXPECT_NEAR(world.Truth().v_WB_W.x(), 0.1, 0.01);
 }
 
+TEST(WorldStep, ExternalForceIsHeldInWAtAnyAttitude) {
+  World world(OptionsFor("indoor_arena"));
+  const Eigen::Quaterniond q_WB(Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ()) *
+                                Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitX()));
+  world.Reset({Eigen::Vector3d(0, 0, 1.5), q_WB});
+  world.SetCommand(HoverCommand(world, q_WB, world.Truth().tilt_rad));
+  const double mass = world.robot().rigid_body.mass_kg;
+  world.SetExternalForce_W({0, mass * 1.0, 0});  // 1 m/s^2 along W's y
+  for (int k = 0; k < 100; ++k) world.Step();
+  const TruthState truth = world.Step();
+  EXPECT_NEAR(truth.a_WB_W.x(), 0.0, 0.02);
+  EXPECT_NEAR(truth.a_WB_W.y(), 1.0, 0.02);
+  // A force through the CoM does not turn the robot.
+  EXPECT_LT(truth.alpha_WB_B.norm(), 0.05);
+}
+
 // ---- bad states ----
 
 // Steps until a SimulationError; fails the test if none comes within `max_steps`.
@@ -358,6 +374,31 @@ TEST(World, StepsTheSceneWithoutTheRobotsVisualOnlyBodiesAndRaysStillSeeThem) {
                                                                        "tool_tip")))
                 .norm(),
             1e-12);
+}
+
+TEST(World, PhysicsModelHasSmallBuiltinTexturesAndTheSameTexturedMaterials) {
+  World world(OptionsFor("indoor_arena"));
+  const mjModel* physics = world.physics_model();
+  const mjModel* full = world.model();
+  ASSERT_EQ(physics->ntex, full->ntex);
+  ASSERT_EQ(physics->nmat, full->nmat);
+  for (int t = 0; t < physics->ntex; ++t) {
+    EXPECT_LE(physics->tex_width[t], 8) << mj_id2name(physics, mjOBJ_TEXTURE, t);
+    EXPECT_GE(full->tex_width[t], 256) << mj_id2name(full, mjOBJ_TEXTURE, t);
+  }
+  for (int k = 0; k < physics->nmat; ++k) {
+    EXPECT_EQ(physics->mat_texid[k] >= 0, full->mat_texid[k] >= 0);
+  }
+  // Rays (cast in the physics model) still tell textured from plain surfaces.
+  world.Reset(Pose({0, 0, 1.5}));
+  const auto brick = world.CastRay({0, 0, 1.5}, {0, 1, 0}, kRayScene);
+  ASSERT_TRUE(brick.has_value());
+  EXPECT_EQ(world.GeomName(brick->geom), "wall_north");
+  EXPECT_TRUE(brick->textured);
+  const auto plain = world.CastRay({0, 0, 1.5}, {0, -1, 0}, kRayScene);
+  ASSERT_TRUE(plain.has_value());
+  EXPECT_EQ(world.GeomName(plain->geom), "wall_south");
+  EXPECT_FALSE(plain->textured);
 }
 
 // ---- contacts and distances to structure ----
