@@ -1,8 +1,11 @@
 // Simulation speed: the harness's run loop on a 200 s scenario at 1 kHz physics against
 // bare mj_step on the very same compiled model. Results go to docs/BENCHMARKS.md.
-// The machine is shared: pin to one core and compare CPU time, e.g.
+// The machine is shared: pin to one core, repeat, and read the "_min" and "_median" rows:
 //
-//   taskset -c 1 build/bench/bench_simulation --benchmark_repetitions=3
+//   taskset -c 1 build/bench/bench_simulation --benchmark_repetitions=10
+
+#include <algorithm>
+#include <vector>
 
 #include <benchmark/benchmark.h>
 #include <mujoco/mujoco.h>
@@ -43,16 +46,29 @@ trajectory:
                                       "bench_figure_eight");
 }
 
+// The fastest of a benchmark's repetitions: on a shared VM, interference only ever adds
+// time, so the minimum is the best estimate of what the code costs; the median says what
+// a user on a busy machine sees. Both go to docs/BENCHMARKS.md. Google Benchmark applies
+// a statistic to every column, so the "_min" row's counters are each counter's smallest
+// (the slowest repetition's rates): read the fastest run's factor as 200 s / its time.
+double Fastest(const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); }
+
 void BM_HarnessRun200s(benchmark::State& state) {
   const Scenario scenario = BenchScenario(state.range(0) != 0);
   double simulated_s = 0.0;
+  double loop_s = 0.0;
   for (auto _ : state) {
     const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario);
     benchmark::DoNotOptimize(record.groundtruth.data());
     simulated_s += static_cast<double>(record.physics_steps) / scenario.physics.rate_hz;
+    loop_s += record.wall_time_s;
   }
+  // End to end (loading the models, building the trajectory, the run, the summary's
+  // inputs), as a user's `tofu run` experiences it.
   state.counters["real_time_factor"] =
       benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
+  // The stepping loop alone (what summary.json reports as the run's real-time factor).
+  state.counters["loop_real_time_factor"] = simulated_s / loop_s;
   state.counters["steps_per_s"] =
       benchmark::Counter(simulated_s * scenario.physics.rate_hz, benchmark::Counter::kIsRate);
 }
@@ -63,7 +79,8 @@ BENCHMARK(BM_HarnessRun200s)
     ->Arg(1)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
-    ->Iterations(1);
+    ->Iterations(1)
+    ->ComputeStatistics("min", Fastest);
 
 // Bare mj_step on the model the World steps (the robot's visual-only bodies cut out), the
 // robot hovering on constant hover controls. Arg 0: MuJoCo's collision detection in every
@@ -102,7 +119,8 @@ BENCHMARK(BM_BareMjStep200s)
     ->Arg(1)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
-    ->Iterations(1);
+    ->Iterations(1)
+    ->ComputeStatistics("min", Fastest);
 
 }  // namespace
 

@@ -384,7 +384,7 @@ TEST(World, PhysicsModelHasSmallBuiltinTexturesAndTheSameTexturedMaterials) {
   ASSERT_EQ(physics->nmat, full->nmat);
   for (int t = 0; t < physics->ntex; ++t) {
     EXPECT_LE(physics->tex_width[t], 8) << mj_id2name(physics, mjOBJ_TEXTURE, t);
-    EXPECT_GE(full->tex_width[t], 256) << mj_id2name(full, mjOBJ_TEXTURE, t);
+    EXPECT_GE(full->tex_width[t], 128) << mj_id2name(full, mjOBJ_TEXTURE, t);
   }
   for (int k = 0; k < physics->nmat; ++k) {
     EXPECT_EQ(physics->mat_texid[k] >= 0, full->mat_texid[k] >= 0);
