@@ -12,9 +12,13 @@ Wind::Wind(const WindOptions& options, core::RandomStream stream)
 
 void Wind::Advance(double dt_s) {
   if (options_.gust_std_mps <= 0.0) return;
-  const double phi = std::exp(-dt_s / options_.gust_correlation_time_s);
-  const double sigma_step = options_.gust_std_mps * std::sqrt(1.0 - phi * phi);
-  for (int k = 0; k < 3; ++k) gust_W_(k) = phi * gust_W_(k) + sigma_step * stream_.Normal();
+  // The harness advances by one fixed physics step: the transition is computed once.
+  if (dt_s != step_dt_s_) {
+    step_dt_s_ = dt_s;
+    step_phi_ = std::exp(-dt_s / options_.gust_correlation_time_s);
+    step_sigma_ = options_.gust_std_mps * std::sqrt(1.0 - step_phi_ * step_phi_);
+  }
+  for (int k = 0; k < 3; ++k) gust_W_(k) = step_phi_ * gust_W_(k) + step_sigma_ * stream_.Normal();
 }
 
 Eigen::Vector3d Wind::DragForce_W(const Eigen::Vector3d& v_WB_W) const {

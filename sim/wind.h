@@ -35,6 +35,9 @@ class Wind {
   WindOptions options_;
   core::RandomStream stream_;
   Eigen::Vector3d gust_W_ = Eigen::Vector3d::Zero();
+  double step_dt_s_ = -1.0;  // the step the transition below was computed for
+  double step_phi_ = 0.0;
+  double step_sigma_ = 0.0;
 };
 
 }  // namespace tofu::sim
