@@ -120,6 +120,16 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
     stream.name = config.name;
     stream.type = std::string(SensorTypeName(config.options));
     stream.site = SensorSite(config.options);
+    // A sample is ~1.5 kB (core::Measurement holds a pose's two 6x6 covariances): growing
+    // the streams by doubling copied them and touched twice their final memory.
+    const auto expected_samples =
+        static_cast<size_t>(std::ceil(scenario.duration_s * SensorRate_hz(config.options))) + 2;
+    stream.clean.reserve(expected_samples);
+    stream.delivered.reserve(expected_samples);
+    stream.delivered_faults.reserve(expected_samples);
+    if (std::holds_alternative<sim::ImuOptions>(config.options)) {
+      stream.imu_biases.reserve(expected_samples);
+    }
     record.sensors.push_back(std::move(stream));
     conditions.push_back(sim::kConditionNone);
   }

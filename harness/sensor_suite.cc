@@ -12,6 +12,10 @@ const std::string& SensorSite(const SensorOptions& options) {
   return std::visit([](const auto& o) -> const std::string& { return o.site; }, options);
 }
 
+double SensorRate_hz(const SensorOptions& options) {
+  return std::visit([](const auto& o) { return o.rate_hz; }, options);
+}
+
 std::unique_ptr<sim::SensorModel> MakeSensorModel(const SensorConfig& config,
                                                   const sim::World& world, uint64_t seed) {
   return std::visit(

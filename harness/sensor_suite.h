@@ -48,6 +48,9 @@ std::string_view SensorTypeName(const SensorOptions& options);
 /// The mount site a sensor's options name.
 const std::string& SensorSite(const SensorOptions& options);
 
+/// The sensor's nominal output rate [Hz].
+double SensorRate_hz(const SensorOptions& options);
+
 /// Builds the model of `config`; its random streams derive from (seed, sensor name) only,
 /// so adding or removing another sensor never changes this one's samples.
 std::unique_ptr<sim::SensorModel> MakeSensorModel(const SensorConfig& config,
