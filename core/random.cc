@@ -30,6 +30,14 @@ RandomStream::RandomStream(uint64_t scenario_seed, std::string_view stream_name)
 
 double RandomStream::Normal() { return normal_(engine_); }
 
+Eigen::Vector3d RandomStream::Normal3() {
+  Eigen::Vector3d v;
+  v.z() = Normal();
+  v.y() = Normal();
+  v.x() = Normal();
+  return v;
+}
+
 double RandomStream::Uniform(double lo, double hi) {
   return std::uniform_real_distribution<double>(lo, hi)(engine_);
 }

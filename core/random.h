@@ -6,6 +6,8 @@
 #include <random>
 #include <string_view>
 
+#include <Eigen/Core>
+
 namespace tofu::core {
 
 /// 64-bit seed derived from a scenario seed and a stream name (FNV-1a of the name,
@@ -19,6 +21,12 @@ class RandomStream {
 
   /// Standard normal sample N(0, 1).
   double Normal();
+  /// Three independent standard normal samples, drawn in the order z, y, x. Use this, not
+  /// Eigen::Vector3d(Normal(), Normal(), Normal()): the order in which a constructor's
+  /// arguments are evaluated is unspecified (GCC goes right to left, Clang left to right),
+  /// so that expression gives different runs with different compilers. z-first is the
+  /// order GCC gave the calls this replaced, which keeps every run directory as it was.
+  Eigen::Vector3d Normal3();
   /// Uniform sample in [lo, hi).
   double Uniform(double lo, double hi);
 

@@ -130,7 +130,7 @@ namespace {
 /// chi2_nu the sum of nu squared standard normals (Student 1908; e.g. Kotz & Nadarajah,
 /// "Multivariate t Distributions", 2004, eq. 1.1).
 Eigen::Vector3d StudentT3(core::RandomStream& rng, int dof) {
-  Eigen::Vector3d z(rng.Normal(), rng.Normal(), rng.Normal());
+  const Eigen::Vector3d z = rng.Normal3();
   double chi2 = 0.0;
   for (int i = 0; i < dof; ++i) {
     const double n = rng.Normal();
@@ -228,7 +228,7 @@ bool FaultInjector::Stage::Process(SensorSample* sample) {
         step_std = p.brown_std_m_per_sqrt_s * std::sqrt(0.5 * tau * (1.0 - phi * phi));
       }
       for (int i = 0; i < 3; ++i) brown_m[i] = phi * brown_m[i] + step_std * rng.Normal();
-      const Eigen::Vector3d white_m(rng.Normal(), rng.Normal(), rng.Normal());
+      const Eigen::Vector3d white_m = rng.Normal3();
       *MutablePosition(&m) += p.white_std_m * white_m + brown_m;
       return true;
     }

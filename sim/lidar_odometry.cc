@@ -213,7 +213,7 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
     if (geometry_.few_returns && !diverging_) {
       diverging_ = true;
       const double sigma = options_.divergence_velocity_mps;
-      v_div_S_ = sigma * Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+      v_div_S_ = sigma * stream_.Normal3();
     } else if (!geometry_.few_returns) {
       diverging_ = false;
       v_div_S_.setZero();
@@ -272,13 +272,13 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
     measured.v_s_s_mps = truth.v_s_s_mps + R_hat.transpose() * v_div_S_;
     if (options_.velocity_noise_mps > 0.0) {
       measured.v_s_s_mps += options_.velocity_noise_mps *
-                            Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+                            stream_.Normal3();
     }
     measured.omega_s_s_radps = truth.omega_s_s_radps;
     if (options_.angular_rate_noise_radps > 0.0) {
       measured.omega_s_s_radps +=
           options_.angular_rate_noise_radps *
-          Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+          stream_.Normal3();
     }
     Eigen::Matrix<double, 6, 1> twist_variance;
     twist_variance << Eigen::Vector3d::Constant(options_.velocity_noise_mps *

@@ -138,7 +138,7 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
     const double root = factor * std::sqrt(step_m);
     if (options_.position_random_walk_m_per_sqrtm > 0.0) {
       dp_S_ += options_.position_random_walk_m_per_sqrtm * root *
-               Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+               stream_.Normal3();
     }
     const double sigma_yaw = options_.yaw_random_walk_rad_per_sqrtm * root;
     const double sigma_tilt = options_.tilt_random_walk_rad_per_sqrtm * root;
@@ -160,14 +160,14 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
   if (lost_) {
     const double sigma_b = options_.lost_velocity_random_walk_mps_per_sqrts * std::sqrt(dt_s);
     if (sigma_b > 0.0) {
-      b_v_S_ += sigma_b * Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+      b_v_S_ += sigma_b * stream_.Normal3();
     }
     dp_S_ += b_v_S_ * dt_s;
     if (t_ns - lost_since_ns_ >= reset_after_ns_) {
       const double jump_p = options_.reset_jump_position_m;
       const double jump_yaw = options_.reset_jump_yaw_rad;
       if (jump_p > 0.0) {
-        dp_S_ += jump_p * Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+        dp_S_ += jump_p * stream_.Normal3();
       }
       if (jump_yaw > 0.0) {
         const Eigen::Vector3d g_S = R_WS.transpose() * Eigen::Vector3d::UnitZ();
@@ -207,12 +207,11 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
     Eigen::Matrix3d R_meas = R_hat;
     if (options_.position_noise_m > 0.0) {
       measured.p_Ss += options_.position_noise_m *
-                       Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+                       stream_.Normal3();
     }
     if (options_.rotation_noise_rad > 0.0) {
       R_meas = R_hat * core::ExpSO3(options_.rotation_noise_rad *
-                                    Eigen::Vector3d(stream_.Normal(), stream_.Normal(),
-                                                    stream_.Normal()));
+                                    stream_.Normal3());
     }
     measured.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_meas));
     measured.covariance = pose_variance * Eigen::Matrix<double, 6, 6>::Identity();
@@ -221,13 +220,13 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
     if (lost_) measured.v_s_s_mps += R_hat.transpose() * b_v_S_;
     if (options_.velocity_noise_mps > 0.0) {
       measured.v_s_s_mps += options_.velocity_noise_mps *
-                            Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+                            stream_.Normal3();
     }
     measured.omega_s_s_radps = truth.omega_s_s_radps;
     if (options_.angular_rate_noise_radps > 0.0) {
       measured.omega_s_s_radps +=
           options_.angular_rate_noise_radps *
-          Eigen::Vector3d(stream_.Normal(), stream_.Normal(), stream_.Normal());
+          stream_.Normal3();
     }
     measured.twist_covariance = twist_variance * Eigen::Matrix<double, 6, 6>::Identity();
 
