@@ -1,7 +1,6 @@
 #include "estimator/window_solver.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -22,17 +21,29 @@ constexpr int kSpeedBiasOffset = kPoseTangentSize;
 int TangentSize(bool is_pose) { return is_pose ? kPoseTangentSize : kSpeedBiasSize; }
 int AmbientSize(bool is_pose) { return is_pose ? kPoseSize : kSpeedBiasSize; }
 
-// Ceres's trust-region constants (ceres::Solver::Options defaults), so that both solvers
-// take the same steps.
-constexpr double kMinRelativeDecrease = 1e-3;
-constexpr double kMaxTrustRegionRadius = 1e16;
-constexpr double kMinTrustRegionRadius = 1e-32;
+// Ceres's bounds on the LM diagonal D = diag(H).
 constexpr double kMinLmDiagonal = 1e-6;
 constexpr double kMaxLmDiagonal = 1e32;
 
 }  // namespace
 
-struct WindowSolver::Impl {
+struct WindowSolver::Impl final : LmProblem {
+  // The problem MinimizeLm solves: these states and factors (set by Solve).
+  const std::vector<WindowState>* problem_states = nullptr;
+  const std::vector<WindowFactor>* problem_factors = nullptr;
+  bool Linearize(double* cost) override {
+    return Linearize(*problem_states, *problem_factors, cost);
+  }
+  double StateNorm() const override { return StateNorm(*problem_states); }
+  void ApplyDelta() override {
+    Save(*problem_states);
+    ApplyDelta(*problem_states);
+  }
+  void Restore() override { Restore(*problem_states); }
+  bool EvaluateCost(double* cost) override {
+    return EvaluateCost(*problem_states, *problem_factors, cost);
+  }
+
   int n = 0;          // states
   int bandwidth = 0;  // max state distance spanned by a factor
   // Envelope (profile) of H: first[i] is the oldest state a factor joins to state i. The
@@ -58,6 +69,7 @@ struct WindowSolver::Impl {
   PoseManifold manifold;
 
   StateMatrix& HBlock(int i, int j) { return H[i * (bandwidth + 1) + (i - j)]; }
+  const StateMatrix& HBlock(int i, int j) const { return H[i * (bandwidth + 1) + (i - j)]; }
   StateMatrix& LBlock(int i, int j) { return L[i * (bandwidth + 1) + (i - j)]; }
 
   void Setup(const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors) {
@@ -275,7 +287,7 @@ struct WindowSolver::Impl {
 
   // L Lᵀ = H + λ D, D = diag(H) clamped as Ceres's LM strategy does. Block envelope
   // Cholesky: L_ij = (H_ij − Σ_k L_ik L_jkᵀ) L_jj⁻ᵀ for first[i] ≤ j ≤ i.
-  bool Factorize(double lambda) {
+  bool Factorize(double lambda) override {
     Eigen::LLT<StateMatrix> llt;
     for (int i = 0; i < n; ++i) {
       for (int j = first[i]; j <= i; ++j) {
@@ -302,7 +314,7 @@ struct WindowSolver::Impl {
   }
 
   // δ = −(L Lᵀ)⁻¹ g: forward then backward substitution within the envelope.
-  void SolveForDelta() {
+  void SolveForDelta() override {
     for (int i = 0; i < n; ++i) {
       StateVector y = -g[i];
       for (int k = first[i]; k < i; ++k) y.noalias() -= LBlock(i, k) * delta[k];
@@ -358,7 +370,7 @@ struct WindowSolver::Impl {
     return covariance;
   }
 
-  double DeltaNorm() const {
+  double DeltaNorm() const override {
     double sum = 0.0;
     for (const StateVector& d : delta) sum += d.squaredNorm();
     return std::sqrt(sum);
@@ -371,18 +383,18 @@ struct WindowSolver::Impl {
     }
     return std::sqrt(sum);
   }
-  double GradientMaxNorm() const {
+  double GradientMaxNorm() const override {
     double max = 0.0;
     for (const StateVector& v : g) max = std::max(max, v.cwiseAbs().maxCoeff());
     return max;
   }
   // gᵀδ and δᵀ D δ of the last step.
-  double GradientDotDelta() const {
+  double GradientDotDelta() const override {
     double sum = 0.0;
     for (int i = 0; i < n; ++i) sum += g[i].dot(delta[i]);
     return sum;
   }
-  double DampingEnergy() {
+  double DampingEnergy() const override {
     double sum = 0.0;
     for (int i = 0; i < n; ++i) {
       const StateVector d =
@@ -399,106 +411,19 @@ WindowSolver::~WindowSolver() = default;
 WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
                                        const std::vector<WindowFactor>& factors,
                                        const WindowSolverOptions& options) {
-  using Clock = std::chrono::steady_clock;
-  const Clock::time_point start = Clock::now();
   Impl& s = *impl_;
-  WindowSolveSummary summary;
   s.Setup(states, factors);
   if (s.n == 0) {
+    WindowSolveSummary summary;
     summary.termination = WindowTermination::kConverged;
     return summary;
   }
-  double cost = 0.0;
-  if (!s.Linearize(states, factors, &cost)) {
-    summary.initial_cost = summary.final_cost = std::numeric_limits<double>::quiet_NaN();
-    return summary;  // kFailure, states untouched
-  }
-  summary.initial_cost = cost;
-  double radius = options.initial_trust_region_radius;
-  double decrease_factor = 2.0;
-  auto finish = [&](WindowTermination termination) {
-    summary.termination = termination;
-    summary.final_cost = cost;
-    return summary;
-  };
-  if (s.GradientMaxNorm() <= options.gradient_tolerance) {
-    return finish(WindowTermination::kConverged);
-  }
-  for (int steps = 0;; ++steps) {
-    if (steps >= options.max_iterations) return finish(WindowTermination::kIterationCap);
-    if (std::chrono::duration<double>(Clock::now() - start).count() >= options.max_time_s) {
-      return finish(WindowTermination::kTimeCap);
-    }
-    const double lambda = 1.0 / radius;
-    bool step_valid = s.Factorize(lambda);
-    double model_decrease = 0.0;
-    if (step_valid) {
-      s.SolveForDelta();
-      // With (H + λD) δ = −g: model decrease −(gᵀδ + ½ δᵀHδ) = −½ gᵀδ + ½ λ δᵀDδ.
-      model_decrease = -0.5 * s.GradientDotDelta() + 0.5 * lambda * s.DampingEnergy();
-      step_valid = std::isfinite(model_decrease);
-    }
-    if (step_valid) {
-      // Converged where even the quadratic model promises nothing worth a step (the GN
-      // counterpart of Ceres's function tolerance, without evaluating the candidate).
-      if (model_decrease <= options.function_tolerance * cost) {
-        return finish(WindowTermination::kConverged);
-      }
-      if (s.DeltaNorm() <= options.parameter_tolerance *
-                               (s.StateNorm(states) + options.parameter_tolerance)) {
-        return finish(WindowTermination::kConverged);
-      }
-    }
-    double candidate_cost = std::numeric_limits<double>::infinity();
-    if (step_valid) {
-      ++summary.iterations;
-      s.Save(states);
-      s.ApplyDelta(states);
-      if (!s.EvaluateCost(states, factors, &candidate_cost)) {
-        candidate_cost = std::numeric_limits<double>::infinity();
-      }
-    }
-    const double actual_decrease = cost - candidate_cost;
-    const double relative_decrease = step_valid ? actual_decrease / model_decrease : -1.0;
-    if (relative_decrease > kMinRelativeDecrease) {
-      // Madsen et al. (Sec. 3.2): grow the region by how well the model predicted the step.
-      radius = std::min(kMaxTrustRegionRadius,
-                        radius / std::max(1.0 / 3.0,
-                                          1.0 - std::pow(2.0 * relative_decrease - 1.0, 3)));
-      decrease_factor = 2.0;
-      const double previous_cost = cost;
-      cost = candidate_cost;
-      if (actual_decrease <= options.function_tolerance * previous_cost) {
-        return finish(WindowTermination::kConverged);
-      }
-      double relinearised_cost = 0.0;
-      if (!s.Linearize(states, factors, &relinearised_cost)) {
-        s.Restore(states);
-        cost = previous_cost;
-        return finish(WindowTermination::kFailure);
-      }
-      if (s.GradientMaxNorm() <= options.gradient_tolerance) {
-        return finish(WindowTermination::kConverged);
-      }
-      // Simplified-Newton convergence test: the next step's model decrease estimated with
-      // the factor of the previous linearisation (H barely changes over a converging
-      // step). Converged there, the solve ends without a new factorisation: the usual end
-      // of a warm-started solve is one step, then this test.
-      s.SolveForDelta();
-      if (-0.5 * s.GradientDotDelta() + 0.5 * lambda * s.DampingEnergy() <=
-          options.function_tolerance * cost) {
-        return finish(WindowTermination::kConverged);
-      }
-    } else {
-      if (step_valid) s.Restore(states);
-      radius /= decrease_factor;
-      decrease_factor *= 2.0;
-      if (radius < kMinTrustRegionRadius) {
-        // No step reduces the cost any more: as Ceres, this is convergence.
-        return finish(WindowTermination::kConverged);
-      }
-    }
-  }
+  s.problem_states = &states;
+  s.problem_factors = &factors;
+  const WindowSolveSummary summary = MinimizeLm(s, options);
+  s.problem_states = nullptr;
+  s.problem_factors = nullptr;
+  return summary;
 }
 
 std::optional<StateCovariance> WindowSolver::LastStateCovariance(

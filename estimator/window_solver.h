@@ -16,11 +16,10 @@
 // factor: Σ_nn = (L_nn L_nnᵀ)⁻¹.
 //
 // The factors stay ceres::CostFunctions with their analytic Jacobians (tested against
-// numeric differentiation in local_factors_test), and the LM strategy follows Ceres's
-// (Madsen, Nielsen & Tingleff 2004, "Methods for non-linear least squares problems",
-// Sec. 3.2; robust losses with Triggs et al. 1999's first-order correction), so both solve
-// the same problem to the same optimum (window_solver_test compares them). Its one
-// addition is a simplified-Newton convergence test that saves the last factorisation.
+// numeric differentiation in local_factors_test), robust losses get Triggs et al. 1999's
+// first-order correction as in Ceres, and the LM strategy is Ceres's (MinimizeLm,
+// levenberg_marquardt.h), so both solve the same problem to the same optimum
+// (window_solver_test compares them).
 // Library code: Eigen + Ceres only. Not thread-safe.
 
 #include <memory>
@@ -30,6 +29,8 @@
 #include <Eigen/Core>
 #include <ceres/cost_function.h>
 #include <ceres/loss_function.h>
+
+#include "estimator/levenberg_marquardt.h"
 
 namespace tofu::estimator {
 
@@ -59,34 +60,10 @@ struct WindowFactor {
   std::vector<WindowBlockRef> blocks;
 };
 
-struct WindowSolverOptions {
-  /// LM steps (accepted or rejected) at most.
-  int max_iterations = 6;
-  double max_time_s = 0.005;
-  /// Stops when a step's (predicted or actual) cost decrease is below this × the cost.
-  double function_tolerance = 1e-5;
-  /// Stops when ‖δ‖ ≤ parameter_tolerance (‖x‖ + parameter_tolerance).
-  double parameter_tolerance = 1e-8;
-  /// Stops when max |Jᵀ r| is below this.
-  double gradient_tolerance = 1e-10;
-  /// 1/λ of the first step (D = diag(H)); Ceres's default. A warm-started window can start
-  /// almost as Gauss-Newton (the local smoother uses 1e8).
-  double initial_trust_region_radius = 1e4;
-};
-
-enum class WindowTermination {
-  kConverged,
-  kIterationCap,
-  kTimeCap,
-  kFailure,  ///< cost not finite at the start, or no step could be taken: states unchanged
-};
-
-struct WindowSolveSummary {
-  WindowTermination termination = WindowTermination::kFailure;
-  int iterations = 0;  ///< LM steps whose candidate was evaluated
-  double initial_cost = 0.0;  ///< ½ Σ ρ(‖r‖²)
-  double final_cost = 0.0;
-};
+/// The LM driver's options, termination and summary (levenberg_marquardt.h).
+using WindowSolverOptions = LmOptions;
+using WindowTermination = LmTermination;
+using WindowSolveSummary = LmSummary;
 
 class WindowSolver {
  public:
