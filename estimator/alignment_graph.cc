@@ -2,20 +2,19 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <limits>
 #include <optional>
 #include <stdexcept>
 #include <utility>
 #include <vector>
 
-#include <ceres/loss_function.h>
-#include <ceres/problem.h>
-#include <ceres/solver.h>
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
 #include "core/lie.h"
 #include "estimator/frame_alignment.h"
+#include "estimator/levenberg_marquardt.h"
 #include "estimator/local_factors.h"
 
 namespace tofu::estimator {
@@ -55,6 +54,22 @@ double HuberRho(double s, double delta) {
 double HuberWeight(double s, double delta) {
   if (delta <= 0.0 || s <= delta * delta) return 1.0;
   return delta / std::sqrt(s);
+}
+
+/// Whitened residual of one pair, S (p_A − T_AL p_Ls), and its Jacobian in the tangent
+/// space [δp, δθ] of PoseManifold: ∂r/∂δp = −S, ∂r/∂δθ = S R_AL [p_Ls]× (from
+/// R_AL Exp(δθ) p_Ls ≈ R_AL (p_Ls + δθ × p_Ls)).
+Eigen::Vector3d WhitenedResidual(const Eigen::Matrix3d& S, const Eigen::Vector3d& p_A,
+                                 const Eigen::Vector3d& p_Ls, const Eigen::Isometry3d& T_AL) {
+  return S * (p_A - T_AL * p_Ls);
+}
+Eigen::Matrix<double, 3, 6> WhitenedTangentJacobian(const Eigen::Matrix3d& S,
+                                                    const Eigen::Vector3d& p_Ls,
+                                                    const Eigen::Isometry3d& T_AL) {
+  Eigen::Matrix<double, 3, 6> J;
+  J.leftCols<3>() = -S;
+  J.rightCols<3>() = S * T_AL.linear() * core::Hat(p_Ls);
+  return J;
 }
 
 bool AllFinite(const AlignmentPair& pair) {
@@ -122,15 +137,87 @@ bool PositionAlignmentCost::Evaluate(double const* const* parameters, double* re
 
 Eigen::Matrix<double, 3, 6> PositionAlignmentCost::TangentJacobian(
     const Eigen::Isometry3d& T_AL) const {
-  Eigen::Matrix<double, 3, 6> J;
-  J.leftCols<3>() = -sqrt_information_A_;
-  J.rightCols<3>() = sqrt_information_A_ * T_AL.linear() * core::Hat(p_Ls_);
-  return J;
+  return WhitenedTangentJacobian(sqrt_information_A_, p_Ls_, T_AL);
 }
 
 Eigen::Vector3d PositionAlignmentCost::Residual(const Eigen::Isometry3d& T_AL) const {
-  return sqrt_information_A_ * (p_A_measured_ - T_AL * p_Ls_);
+  return WhitenedResidual(sqrt_information_A_, p_A_measured_, p_Ls_, T_AL);
 }
+
+// ---- the graph's least squares ----
+
+// Eq. (9) over the window's pairs, ½ Σ ρ(‖S_i (p_A_i − T_AL p_Ls_i)‖²), on the six
+// tangent dimensions of T_AL: a 6x6 normal equation, where ceres::Solve spent most of an
+// update building its program for 200-400 residual blocks. The Huber loss enters as
+// Ceres's Corrector applies it: Huber's ρ'' ≤ 0, so Triggs's correction reduces to the
+// weight ρ'(s) on JᵀJ and Jᵀr.
+class AlignmentGraph::Problem final : public LmProblem {
+ public:
+  Problem(const std::deque<StoredPair>& pairs, double huber_delta, double* x)
+      : pairs_(pairs), huber_delta_(huber_delta), x_(x) {}
+
+  bool Linearize(double* cost) override {
+    const Eigen::Isometry3d T_AL = IsometryFromParameters(x_);
+    H_.setZero();
+    g_.setZero();
+    double sum = 0.0;
+    for (const StoredPair& pair : pairs_) {
+      const Eigen::Vector3d r =
+          WhitenedResidual(pair.sqrt_information_A, pair.p_A_measured, pair.p_Ls, T_AL);
+      const Eigen::Matrix<double, 3, 6> J =
+          WhitenedTangentJacobian(pair.sqrt_information_A, pair.p_Ls, T_AL);
+      const double s = r.squaredNorm();
+      const double weight = HuberWeight(s, huber_delta_);
+      sum += HuberRho(s, huber_delta_);
+      H_.noalias() += weight * J.transpose() * J;
+      g_.noalias() += weight * J.transpose() * r;
+    }
+    *cost = 0.5 * sum;
+    return std::isfinite(*cost) && H_.allFinite() && g_.allFinite();
+  }
+  double GradientMaxNorm() const override { return g_.cwiseAbs().maxCoeff(); }
+  bool Factorize(double lambda) override {
+    llt_.compute(H_ + lambda * Damping().asDiagonal().toDenseMatrix());
+    return llt_.info() == Eigen::Success;
+  }
+  void SolveForDelta() override { delta_ = -llt_.solve(g_); }
+  double GradientDotDelta() const override { return g_.dot(delta_); }
+  double DampingEnergy() const override { return delta_.cwiseProduct(Damping()).dot(delta_); }
+  double DeltaNorm() const override { return delta_.norm(); }
+  double StateNorm() const override { return Eigen::Map<const Vector7d>(x_).norm(); }
+  void ApplyDelta() override {
+    std::copy(x_, x_ + kPoseSize, saved_);
+    PoseManifold().Plus(saved_, delta_.data(), x_);
+  }
+  void Restore() override { std::copy(saved_, saved_ + kPoseSize, x_); }
+  bool EvaluateCost(double* cost) override {
+    const Eigen::Isometry3d T_AL = IsometryFromParameters(x_);
+    double sum = 0.0;
+    for (const StoredPair& pair : pairs_) {
+      sum += HuberRho(
+          WhitenedResidual(pair.sqrt_information_A, pair.p_A_measured, pair.p_Ls, T_AL)
+              .squaredNorm(),
+          huber_delta_);
+    }
+    *cost = 0.5 * sum;
+    return std::isfinite(*cost);
+  }
+
+ private:
+  using Vector6d = Eigen::Matrix<double, 6, 1>;
+  using Vector7d = Eigen::Matrix<double, 7, 1>;
+  // Ceres's LM diagonal: diag(H) clamped to [1e-6, 1e32].
+  Vector6d Damping() const { return H_.diagonal().cwiseMax(1e-6).cwiseMin(1e32); }
+
+  const std::deque<StoredPair>& pairs_;
+  double huber_delta_;
+  double* x_;
+  double saved_[kPoseSize] = {};
+  Matrix6d H_ = Matrix6d::Zero();
+  Vector6d g_ = Vector6d::Zero();
+  Vector6d delta_ = Vector6d::Zero();
+  Eigen::LLT<Matrix6d> llt_;
+};
 
 // ---- the graph ----
 
@@ -253,32 +340,17 @@ bool AlignmentGraph::Solve(core::Time now_ns) {
   // comes out unobservable.
   if (!T_AL_guess) T_AL_guess = Eigen::Isometry3d::Identity();
 
-  // Rebuilt on each update: ≤ 400 residuals of 3, one block of 7; the build is cheap
-  // next to the solve and avoids bookkeeping of removed residual blocks.
-  double x[7];
+  double x[kPoseSize];
   ParametersFromIsometry(*T_AL_guess, x);
-  PoseManifold manifold;
-  ceres::HuberLoss huber(options_.huber_delta > 0.0 ? options_.huber_delta : 1.0);
-  ceres::LossFunction* loss = options_.huber_delta > 0.0 ? &huber : nullptr;
-  ceres::Problem::Options problem_options;
-  problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  ceres::Problem problem(problem_options);
-  problem.AddParameterBlock(x, 7, &manifold);
-  for (const StoredPair& pair : pairs_) {
-    problem.AddResidualBlock(
-        new PositionAlignmentCost(pair.p_A_measured, pair.p_Ls, pair.sqrt_information_A), loss,
-        x);
-  }
-  ceres::Solver::Options solver_options;
-  solver_options.linear_solver_type = ceres::DENSE_QR;
-  solver_options.max_num_iterations = options_.max_iterations;
-  solver_options.num_threads = 1;
-  solver_options.logging_type = ceres::SILENT;
-  solver_options.minimizer_progress_to_stdout = false;
-  ceres::Solver::Summary summary;
-  ceres::Solve(solver_options, &problem, &summary);
-  if (!summary.IsSolutionUsable()) return false;
+  Problem problem(pairs_, options_.huber_delta, x);
+  LmOptions lm;  // Ceres's defaults, as the ceres::Solve this replaced
+  lm.max_iterations = options_.max_iterations;
+  lm.max_time_s = std::numeric_limits<double>::infinity();  // deterministic: no time cap
+  lm.function_tolerance = 1e-6;
+  lm.parameter_tolerance = 1e-8;
+  lm.gradient_tolerance = 1e-10;
+  lm.initial_trust_region_radius = 1e4;
+  if (MinimizeLm(problem, lm).termination == LmTermination::kFailure) return false;
 
   const Eigen::Isometry3d T_AL = IsometryFromParameters(x);
   estimate_.valid = true;

@@ -172,6 +172,8 @@ class AlignmentGraph {
     Eigen::Vector3d p_Ls;
   };
 
+  class Problem;  // eq. (9) for MinimizeLm (alignment_graph.cc)
+
   void DropOlderThan(core::Time t_oldest_ns);
   bool Solve(core::Time now_ns);
   /// Sum of ρ(|r_i|²) at T_AL (ρ = Huber or identity) and the unweighted rms (m).
