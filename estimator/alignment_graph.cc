@@ -370,9 +370,12 @@ void AlignmentGraph::AnalyseObservability(const Eigen::Isometry3d& T_AL) {
   // and the Huber weight w_i = ρ'(|r_i|²) (the IRLS weight Ceres' solve used).
   Matrix6d H = Matrix6d::Zero();
   for (const StoredPair& pair : pairs_) {
-    const PositionAlignmentCost cost(pair.p_A_measured, pair.p_Ls, pair.sqrt_information_A);
-    const Eigen::Matrix<double, 3, 6> J = cost.TangentJacobian(T_AL);
-    const double weight = HuberWeight(cost.Residual(T_AL).squaredNorm(), options_.huber_delta);
+    const Eigen::Matrix<double, 3, 6> J =
+        WhitenedTangentJacobian(pair.sqrt_information_A, pair.p_Ls, T_AL);
+    const double weight = HuberWeight(
+        WhitenedResidual(pair.sqrt_information_A, pair.p_A_measured, pair.p_Ls, T_AL)
+            .squaredNorm(),
+        options_.huber_delta);
     H.noalias() += weight * J.transpose() * J;
   }
   const double n = static_cast<double>(pairs_.size());
