@@ -270,16 +270,9 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
 
     measured.has_twist = true;
     measured.v_s_s_mps = truth.v_s_s_mps + R_hat.transpose() * v_div_S_;
-    if (options_.velocity_noise_mps > 0.0) {
-      measured.v_s_s_mps += options_.velocity_noise_mps *
-                            stream_.Normal3();
-    }
     measured.omega_s_s_radps = truth.omega_s_s_radps;
-    if (options_.angular_rate_noise_radps > 0.0) {
-      measured.omega_s_s_radps +=
-          options_.angular_rate_noise_radps *
-          stream_.Normal3();
-    }
+    AddTwistWhiteNoise(options_.velocity_noise_mps, options_.angular_rate_noise_radps, stream_,
+                       &measured);
     Eigen::Matrix<double, 6, 1> twist_variance;
     twist_variance << Eigen::Vector3d::Constant(options_.velocity_noise_mps *
                                                 options_.velocity_noise_mps),

@@ -30,4 +30,12 @@ std::string_view ConditionName(Condition condition) {
   return "unknown";
 }
 
+void AddTwistWhiteNoise(double velocity_noise_mps, double angular_rate_noise_radps,
+                        core::RandomStream& stream, core::PoseMeasurement* measured) {
+  if (velocity_noise_mps > 0.0) measured->v_s_s_mps += velocity_noise_mps * stream.Normal3();
+  if (angular_rate_noise_radps > 0.0) {
+    measured->omega_s_s_radps += angular_rate_noise_radps * stream.Normal3();
+  }
+}
+
 }  // namespace tofu::sim

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "core/measurement.h"
+#include "core/random.h"
 #include "core/time.h"
 #include "sim/allocation.h"
 #include "sim/world.h"
@@ -61,6 +62,12 @@ struct SensorSample {
   core::Measurement truth;
   uint32_t conditions = kConditionNone;  ///< degradations active for this sample
 };
+
+/// White noise on the body twist a pose sensor reports: velocity_noise_mps on
+/// measured->v_s_s_mps, then angular_rate_noise_radps on measured->omega_s_s_radps, each
+/// drawn only when positive (a noise-free option draws nothing from the stream).
+void AddTwistWhiteNoise(double velocity_noise_mps, double angular_rate_noise_radps,
+                        core::RandomStream& stream, core::PoseMeasurement* measured);
 
 class SensorModel {
  public:

@@ -218,16 +218,9 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
     measured.has_twist = true;
     measured.v_s_s_mps = truth.v_s_s_mps;
     if (lost_) measured.v_s_s_mps += R_hat.transpose() * b_v_S_;
-    if (options_.velocity_noise_mps > 0.0) {
-      measured.v_s_s_mps += options_.velocity_noise_mps *
-                            stream_.Normal3();
-    }
     measured.omega_s_s_radps = truth.omega_s_s_radps;
-    if (options_.angular_rate_noise_radps > 0.0) {
-      measured.omega_s_s_radps +=
-          options_.angular_rate_noise_radps *
-          stream_.Normal3();
-    }
+    AddTwistWhiteNoise(options_.velocity_noise_mps, options_.angular_rate_noise_radps, stream_,
+                       &measured);
     measured.twist_covariance = twist_variance * Eigen::Matrix<double, 6, 6>::Identity();
 
     SensorSample sample;
