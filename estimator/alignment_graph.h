@@ -6,9 +6,11 @@
 //    local estimate p_Ls = p_LI + R_LI p_Is of the same point at the measurement time)
 // with the paper's residual r^t_AL (eq. 9), whitened by the pair's covariance:
 //   r_i = S_i (p̄_A,i − (p_AL + R_AL p_Ls,i)),   S_iᵀ S_i = Σ_i⁻¹.
-// Closed-form (Umeyama) initialisation, Ceres refinement on [p_AL, q_AL] with a right
-// perturbation of the rotation, and an observability analysis of the rotation from the
-// information matrix at the solution.
+// Closed-form (Umeyama) initialisation, Levenberg-Marquardt refinement on [p_AL, q_AL]
+// with a right perturbation of the rotation (MinimizeLm on the 6x6 normal equations,
+// levenberg_marquardt.h; PositionAlignmentCost is the same residual as a Ceres cost, for
+// Jacobian checks and comparisons), and an observability analysis of the rotation from
+// the information matrix at the solution.
 // Library code: Eigen, Ceres, core/ and std only.
 
 #include <deque>
