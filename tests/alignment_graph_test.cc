@@ -19,6 +19,7 @@
 
 #include "core/lie.h"
 #include "core/time.h"
+#include "tests/ceres_test_support.h"
 
 namespace tofu::estimator {
 namespace {
@@ -488,15 +489,8 @@ TEST(AlignmentGraph, SolvesToTheOptimumOfCeresOnTheSameRobustProblem) {
     problem.AddResidualBlock(
         new PositionAlignmentCost(pair.p_A_measured, pair.p_Ls_estimated, S), &huber, x.data());
   }
-  ceres::Solver::Options solver_options;
-  solver_options.linear_solver_type = ceres::DENSE_QR;
-  solver_options.max_num_iterations = 200;
-  solver_options.function_tolerance = 1e-15;
-  solver_options.gradient_tolerance = 1e-15;
-  solver_options.parameter_tolerance = 1e-15;
-  solver_options.logging_type = ceres::SILENT;
   ceres::Solver::Summary summary;
-  ceres::Solve(solver_options, &problem, &summary);
+  ceres::Solve(test::ReferenceCeresOptions(), &problem, &summary);
   ASSERT_TRUE(summary.IsSolutionUsable());
 
   Eigen::Isometry3d T_ceres = Eigen::Isometry3d::Identity();

@@ -27,6 +27,7 @@
 #include "core/lie.h"
 #include "estimator/imu_preintegration.h"
 #include "estimator/local_factors.h"
+#include "tests/ceres_test_support.h"
 
 namespace tofu::estimator {
 namespace {
@@ -115,16 +116,7 @@ struct DenseSystem {
   Eigen::VectorXd b;
 };
 
-ceres::Solver::Options TightSolver() {
-  ceres::Solver::Options o;
-  o.linear_solver_type = ceres::DENSE_QR;
-  o.max_num_iterations = 100;
-  o.function_tolerance = 1e-16;
-  o.gradient_tolerance = 1e-16;
-  o.parameter_tolerance = 1e-16;
-  o.logging_type = ceres::SILENT;
-  return o;
-}
+ceres::Solver::Options TightSolver() { return test::ReferenceCeresOptions(); }
 
 ceres::Problem::Options NoOwnership() {
   ceres::Problem::Options o;

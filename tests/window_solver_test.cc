@@ -26,6 +26,7 @@
 #include "estimator/imu_preintegration.h"
 #include "estimator/local_factors.h"
 #include "estimator/marginalization.h"
+#include "tests/ceres_test_support.h"
 
 namespace tofu::estimator {
 namespace {
@@ -237,14 +238,7 @@ class Window {
 };
 
 ceres::Solver::Options TightCeres() {
-  ceres::Solver::Options options;
-  options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  options.max_num_iterations = 100;
-  options.function_tolerance = 1e-14;
-  options.gradient_tolerance = 1e-14;
-  options.parameter_tolerance = 1e-14;
-  options.logging_type = ceres::SILENT;
-  return options;
+  return test::ReferenceCeresOptions(ceres::SPARSE_NORMAL_CHOLESKY);
 }
 
 WindowSolverOptions TightWindow() {
