@@ -519,9 +519,10 @@ struct World::Impl {
   }
 
   // The external force on the base's CoM as the free joint's generalised force, J^T f:
-  // the CoM's Jacobian is I on the free joint's translation (velocity in W) and
-  // -[p_B_com]x R_WB^T on its rotation (angular velocity in B), and zero on the hinges,
-  // which do not move the base. MuJoCo's xfrc_applied computes the same J^T f with a
+  // the CoM moves with v_com = v_WB + R_WB (omega_B x p_B_com), so its Jacobian is I on
+  // the free joint's translation (velocity in W), -R_WB [p_B_com]x on its rotation
+  // (angular velocity in B) and zero on the hinges, which do not move the base; hence
+  // J^T f = (f, p_B_com x R_WB^T f). MuJoCo's xfrc_applied computes the same J^T f with a
   // dense Jacobian over all dofs (mj_applyFT): 2 % of the step for three numbers.
   // Evaluated every step at the current attitude, so a force held in W stays in W.
   void ApplyExternalForce(const Eigen::Quaterniond& q_WB) {
