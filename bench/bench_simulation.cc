@@ -53,6 +53,18 @@ trajectory:
 // (the slowest repetition's rates): read the fastest run's factor as 200 s / its time.
 double Fastest(const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); }
 
+// Both benchmarks: a flag argument (0, 1), one 200 s run per repetition, wall time in ms,
+// and the fastest repetition beside the median.
+void OneRunPerRepetition(benchmark::internal::Benchmark* b, const char* arg_name) {
+  b->ArgName(arg_name)
+      ->Arg(0)
+      ->Arg(1)
+      ->Unit(benchmark::kMillisecond)
+      ->UseRealTime()
+      ->Iterations(1)
+      ->ComputeStatistics("min", Fastest);
+}
+
 void BM_HarnessRun200s(benchmark::State& state) {
   const Scenario scenario = BenchScenario(state.range(0) != 0);
   double simulated_s = 0.0;
@@ -73,14 +85,9 @@ void BM_HarnessRun200s(benchmark::State& state) {
       benchmark::Counter(simulated_s * scenario.physics.rate_hz, benchmark::Counter::kIsRate);
 }
 // Arg 0: flight only; arg 1: with IMU, VIO, LiDAR odometry, total station and GNSS.
-BENCHMARK(BM_HarnessRun200s)
-    ->ArgName("sensors")
-    ->Arg(0)
-    ->Arg(1)
-    ->Unit(benchmark::kMillisecond)
-    ->UseRealTime()
-    ->Iterations(1)
-    ->ComputeStatistics("min", Fastest);
+BENCHMARK(BM_HarnessRun200s)->Apply([](benchmark::internal::Benchmark* b) {
+  OneRunPerRepetition(b, "sensors");
+});
 
 // Bare mj_step on the model the World steps (the robot's visual-only bodies cut out), the
 // robot hovering on constant hover controls. Arg 0: MuJoCo's collision detection in every
@@ -113,14 +120,9 @@ void BM_BareMjStep200s(benchmark::State& state) {
   mj_deleteData(d);
   mj_deleteModel(m);
 }
-BENCHMARK(BM_BareMjStep200s)
-    ->ArgName("contacts_off")
-    ->Arg(0)
-    ->Arg(1)
-    ->Unit(benchmark::kMillisecond)
-    ->UseRealTime()
-    ->Iterations(1)
-    ->ComputeStatistics("min", Fastest);
+BENCHMARK(BM_BareMjStep200s)->Apply([](benchmark::internal::Benchmark* b) {
+  OneRunPerRepetition(b, "contacts_off");
+});
 
 }  // namespace
 

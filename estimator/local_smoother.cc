@@ -106,7 +106,6 @@ struct Chain {
   }
 };
 
-
 bool Finite(const Keyframe& kf) {
   for (double v : kf.pose) if (!std::isfinite(v)) return false;
   for (double v : kf.speed_bias) if (!std::isfinite(v)) return false;
@@ -130,7 +129,6 @@ struct LocalSmoother::Impl {
   WindowSolver solver;
   std::vector<WindowState> window_states;
   std::vector<WindowFactor> window_factors;
-
   std::vector<std::unique_ptr<Keyframe>> keyframes;  // sorted by time
   std::vector<std::unique_ptr<Factor>> factors;
   std::deque<ImuInterval> imu;

@@ -2,23 +2,20 @@
 
 #include <algorithm>
 #include <array>
-#include <cerrno>
 #include <charconv>
 #include <cmath>
 #include <cstdint>
-#include <cstdio>
-#include <cstring>
 #include <iterator>
-#include <stdexcept>
 #include <string>
-#include <system_error>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "core/file_io.h"
 #include "core/lie.h"
+#include "harness/file_io.h"
 
 namespace tofu::harness {
 namespace {
@@ -40,31 +37,6 @@ std::string Quoted(std::string_view s) {
   constexpr size_t kMax = 60;
   if (s.size() <= kMax) return fmt::format("'{}'", s);
   return fmt::format("'{}...'", s.substr(0, kMax));
-}
-
-std::string ReadTextFile(const fs::path& path, std::string_view what) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) {
-    throw InputError({path.string()}, "", fmt::format("no such file, expected {}", what));
-  }
-  if (fs::is_directory(path, ec)) {
-    throw InputError({path.string()}, "", fmt::format("is a directory, expected {}", what));
-  }
-  std::FILE* file = std::fopen(path.c_str(), "rb");
-  if (file == nullptr) {
-    throw InputError({path.string()}, "",
-                     fmt::format("cannot open {}: {}", what, std::strerror(errno)));
-  }
-  std::string text;
-  const auto size = fs::file_size(path, ec);
-  if (!ec) text.reserve(size);
-  std::array<char, 1 << 16> buffer;
-  size_t n = 0;
-  while ((n = std::fread(buffer.data(), 1, buffer.size(), file)) > 0) text.append(buffer.data(), n);
-  const bool failed = std::ferror(file) != 0;
-  std::fclose(file);
-  if (failed) throw InputError({path.string()}, "", fmt::format("cannot read {}", what));
-  return text;
 }
 
 bool IsBlank(char c) { return c == ' ' || c == '\t' || c == '\r'; }
@@ -302,7 +274,7 @@ std::string FormatNanosecondsAsSeconds(Time t_ns) {
 std::vector<PoseSample> ReadTumTrajectory(const fs::path& file) {
   const std::string name = file.string();
   const std::string text =
-      ReadTextFile(file, "a TUM trajectory 't[s] x y z qx qy qz qw' per line");
+      core::ReadWholeFile(file, "TUM trajectory ('t[s] x y z qx qy qz qw' per line)");
   std::vector<PoseSample> poses;
   poses.reserve(static_cast<size_t>(std::count(text.begin(), text.end(), '\n')) + 1);
 
@@ -375,14 +347,7 @@ void WriteTumTrajectory(const fs::path& file, const std::vector<PoseSample>& pos
                    FormatNanosecondsAsSeconds(s.t_ns), s.p.x(), s.p.y(), s.p.z(), q.x(), q.y(),
                    q.z(), q.w());
   }
-  std::FILE* f = std::fopen(file.c_str(), "wb");
-  if (f == nullptr) {
-    throw std::runtime_error(
-        fmt::format("cannot write {}: {}", file.string(), std::strerror(errno)));
-  }
-  const size_t written = std::fwrite(out.data(), 1, out.size(), f);
-  const bool ok = written == out.size() && std::fclose(f) == 0;
-  if (!ok) throw std::runtime_error(fmt::format("cannot write {}", file.string()));
+  WriteFileAtomically(file, std::string_view(out.data(), out.size()));
 }
 
 TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,

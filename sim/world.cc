@@ -219,6 +219,8 @@ struct World::Impl {
   std::vector<char> is_foot_geom;    // landing gear: ground contact allowed
   std::array<int, mjNWARNING> warning_count{};
   TruthState last_step_truth;
+  mutable TruthState state_now;        // see StateNow
+  mutable int64_t state_now_step = -1;
   core::Time timestep_ns = 0;
   int64_t step_count = 0;
   std::vector<Contact> contacts_buffer;  // time is step_count * timestep_ns: no float accumulation
@@ -237,10 +239,23 @@ struct World::Impl {
   double robot_reach_m = 0.0;  // every proxy lies within this distance of B's origin
   bool gate_contacts = false;  // the gate is sound for this scene
   bool static_structure = false;  // structure geoms never move (clearances stay valid)
-  Eigen::Vector3d gate_reference_W = Eigen::Vector3d::Zero();  // B's origin at the last
-  double gate_clearance_m = -1.0;  // full gate test, and how far it may move unchecked
-  Eigen::Vector3d structure_reference_W = Eigen::Vector3d::Zero();  // likewise for
-  double structure_clearance_m = -1.0;  // "no structure within the horizon"
+  // Distances to convex sets (and to planes) change no faster than the point moves: while
+  // B's origin stays within the clearance measured at `reference_W`, whatever was out of
+  // reach there still is (a few ns instead of a pass over the world).
+  struct Clearance {
+    Eigen::Vector3d reference_W = Eigen::Vector3d::Zero();
+    double clearance_m = -1.0;  // < 0: nothing known
+    bool Holds(const Eigen::Vector3d& p_W) const {
+      return (p_W - reference_W).norm() < clearance_m;
+    }
+    void Set(const Eigen::Vector3d& p_W, double clearance) {
+      reference_W = p_W;
+      clearance_m = clearance;
+    }
+    void Forget() { clearance_m = -1.0; }
+  };
+  Clearance gate_clearance;       // no world geom within the robot's reach
+  Clearance structure_clearance;  // no structure within the distance horizon
   int model_disableflags = 0;
   int64_t closest_step = -1;   // step of the cached ClosestStructure answer
   std::optional<Proximity> closest;
@@ -513,8 +528,8 @@ struct World::Impl {
     gate_contacts = reach_bounded && !self_collision && !dynamic_colliders &&
                     (model_disableflags & mjDSBL_CONTACT) == 0;
     static_structure = reach_bounded && !dynamic_colliders;
-    gate_clearance_m = -1.0;
-    structure_clearance_m = -1.0;
+    gate_clearance.Forget();
+    structure_clearance.Forget();
     narrow_phase_scratch.resize(mjMAXCONPAIR);
   }
 
@@ -543,10 +558,7 @@ struct World::Impl {
   void GateContacts() {
     if (!gate_contacts) return;
     const Eigen::Vector3d p_WB = Vec3(d->qpos + qpos_root);
-    // Distances to convex sets (and to planes) change no faster than the point moves:
-    // while B's origin stays within the last clearance of where it was measured, every
-    // world geom is still out of reach (a few ns instead of a pass over the world).
-    if ((p_WB - gate_reference_W).norm() < gate_clearance_m) return;
+    if (gate_clearance.Holds(p_WB)) return;
     double clearance_m = std::numeric_limits<double>::infinity();
     for (const StaticGeom& w : world_colliders) {
       const double distance_m =
@@ -556,8 +568,7 @@ struct World::Impl {
       clearance_m = std::min(clearance_m, distance_m - (robot_reach_m + w.margin_m + 1e-6));
     }
     const bool reachable = clearance_m <= 0.0;
-    gate_reference_W = p_WB;
-    gate_clearance_m = clearance_m;
+    gate_clearance.Set(p_WB, clearance_m);
     m->opt.disableflags =
         reachable ? model_disableflags : (model_disableflags | mjDSBL_CONTACT);
   }
@@ -631,6 +642,16 @@ struct World::Impl {
     s.omega_WB_B = Vec3(d->qvel + qvel_root + 3);
     for (int k = 0; k < kArmCount; ++k) s.tilt_rad[k] = d->qpos[tilt_qpos[k]];
     return s;
+  }
+
+  // ReadState at the current step, read once: the harness asks for it (Truth) before each
+  // step, and Step starts from the same state.
+  const TruthState& StateNow() const {
+    if (state_now_step != step_count) {
+      state_now = ReadState();
+      state_now_step = step_count;
+    }
+    return state_now;
   }
 
   void CheckWarnings() {
@@ -708,10 +729,11 @@ void World::Reset(const Waypoint& pose) {
   s.qpos_kinematics.assign(s.d->qpos, s.d->qpos + s.m->nq);
   s.closest_step = -1;
   s.full_synced_step = -1;
-  s.gate_clearance_m = -1.0;
-  s.structure_clearance_m = -1.0;
+  s.gate_clearance.Forget();
+  s.structure_clearance.Forget();
   for (int w = 0; w < mjNWARNING; ++w) s.warning_count[w] = s.d->warning[w].number;
-  s.last_step_truth = s.ReadState();
+  s.state_now_step = -1;  // qpos was just set
+  s.last_step_truth = s.StateNow();
 }
 
 void World::SetCommand(const ActuatorCommand& command) {
@@ -734,7 +756,7 @@ const TruthState& World::Step() {
     double& setpoint = s.d->ctrl[s.tilt_servo_actuator[k]];
     setpoint += std::clamp(s.tilt_target_rad[k] - setpoint, -max_step_rad, max_step_rad);
   }
-  TruthState truth = s.ReadState();
+  TruthState truth = s.StateNow();
   s.ApplyExternalForce(truth.q_WB);
   s.GateContacts();
   std::copy(s.d->qpos, s.d->qpos + s.m->nq, s.qpos_kinematics.begin());
@@ -753,7 +775,7 @@ const TruthState& World::Step() {
 }
 
 TruthState World::Truth() const {
-  TruthState s = impl_->ReadState();
+  TruthState s = impl_->StateNow();
   s.a_WB_W = impl_->last_step_truth.a_WB_W;
   s.alpha_WB_B = impl_->last_step_truth.alpha_WB_B;
   return s;
@@ -789,7 +811,7 @@ std::optional<Proximity> World::ClosestStructure() const {
   const double horizon_m = s.options.distance_horizon_m;
   const Eigen::Vector3d p_WB = Vec3(d->xpos + 3 * s.base_body);
   // As in GateContacts: nothing within the horizon while B stays within the clearance.
-  if (s.static_structure && (p_WB - s.structure_reference_W).norm() < s.structure_clearance_m) {
+  if (s.static_structure && s.structure_clearance.Holds(p_WB)) {
     return s.closest;
   }
   double clearance_m = std::numeric_limits<double>::infinity();
@@ -810,8 +832,7 @@ std::optional<Proximity> World::ClosestStructure() const {
       if (bound_m < horizon_m) s.distance_candidates.push_back({bound_m, proxy, g});
     }
   }
-  s.structure_reference_W = p_WB;
-  s.structure_clearance_m = clearance_m;
+  s.structure_clearance.Set(p_WB, clearance_m);
   std::sort(s.distance_candidates.begin(), s.distance_candidates.end(),
             [](const Impl::DistanceCandidate& a, const Impl::DistanceCandidate& b) {
               return std::tie(a.lower_bound_m, a.proxy, a.geom) <
