@@ -114,30 +114,31 @@ estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config) {
   return options;
 }
 
-std::vector<MethodEvaluation> RunEstimation(
-    const fs::path& run_dir, const EstimationConfig& config, const std::vector<LabelEvent>& labels,
-    double run_duration_s, const std::function<void(const std::string&, double)>& progress) {
-  const RecordedLog log = ReadRecordedLog(run_dir);
-  std::optional<RecordedLog> clean_log;
-  std::vector<ReplayMethod> methods;
-  for (const std::string& name : config.methods) {
-    methods.push_back(ParseReplayMethod(name, log));
-    if (methods.back().clean_streams && !clean_log) {
-      RecordedLogOptions read;
-      read.use_clean_streams = true;
-      clean_log = ReadRecordedLog(run_dir, read);
-    }
-  }
-  estimator::MultiGraphEstimatorOptions estimator_options = DefaultEstimatorOptions(log);
-  estimator_options.local.huber_delta = config.huber_delta;
-  const std::vector<estimator::SensorSpec> specs = SensorSpecsOf(log);
-  estimator::ConsensusEstimatorOptions consensus_options;
-  consensus_options.selection = SelectionOptions(config.consensus);
-  consensus_options.consistency.consistency.window_ns = core::SecondsToTime(config.consensus.window_s);
-  consensus_options.consistency.history_ns =
-      consensus_options.consistency.consistency.window_ns + 2'000'000'000;
-  consensus_options.evaluation_period_ns = core::PeriodFromRate(config.consensus.rate_hz);
+EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config) {
+  EstimationSetup setup;
+  setup.estimator = DefaultEstimatorOptions(log);
+  setup.estimator.local.huber_delta = config.huber_delta;
+  setup.sensors = SensorSpecsOf(log);
+  setup.consensus.selection = SelectionOptions(config.consensus);
+  setup.consensus.consistency.consistency.window_ns =
+      core::SecondsToTime(config.consensus.window_s);
+  setup.consensus.consistency.history_ns =
+      setup.consensus.consistency.consistency.window_ns + 2'000'000'000;
+  setup.consensus.evaluation_period_ns = core::PeriodFromRate(config.consensus.rate_hz);
+  return setup;
+}
 
+std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
+                                                 const EstimationConfig& config,
+                                                 const std::vector<LabelEvent>& labels,
+                                                 double run_duration_s,
+                                                 const std::vector<ReplayResult>& results) {
+  // The streams' descriptions and the ground truth: the samples went through the
+  // estimators in the loop (results), not through this reader.
+  RecordedLogOptions read;
+  read.read_measurements = false;
+  const RecordedLog log = ReadRecordedLog(run_dir, read);
+  const std::vector<estimator::SensorSpec> specs = SensorSpecsOf(log);
   const core::Time run_end_ns = core::SecondsToTime(run_duration_s);
   const std::vector<LabelWindow> faults = Windows(labels, "fault", run_end_ns);
   const std::vector<LabelWindow> conditions = Windows(labels, "condition", run_end_ns);
@@ -147,13 +148,9 @@ std::vector<MethodEvaluation> RunEstimation(
   std::string decisions_csv = kDecisionsCsvHeader;
   bool any_consensus = false;
   std::vector<MethodEvaluation> evaluations;
-  for (const ReplayMethod& method : methods) {
-    const RecordedLog& source = method.clean_streams ? *clean_log : log;
-    std::function<void(double)> method_progress;
-    if (progress) method_progress = [&](double f) { progress(method.name, f); };
-    const ReplayResult result =
-        Replay(source, method, estimator_options, specs, method_progress, consensus_options);
-    const MethodFiles files = WriteMethodResult(source, result, run_dir);
+  for (const ReplayResult& result : results) {
+    const ReplayMethod& method = result.method;
+    const MethodFiles files = WriteMethodResult(log, result, run_dir);
 
     MethodEvaluation e;
     e.method = method.name;

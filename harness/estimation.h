@@ -23,11 +23,15 @@
 #include <vector>
 
 #include "core/time.h"
+#include "estimator/consensus_estimator.h"
 #include "estimator/consensus_selector.h"
+#include "estimator/multi_graph_estimator.h"
+#include "harness/recorded_log.h"
 
 namespace tofu::harness {
 
 struct LabelEvent;
+struct ReplayResult;
 
 /// `estimation.consensus` in a scenario (and the options of `consensus` methods).
 struct ConsensusConfig {
@@ -93,14 +97,25 @@ struct MethodEvaluation {
   double false_exclusion_fraction() const;
 };
 
-/// Runs every method of `config` on the run directory `run_dir` (its sensors/,
-/// sensors/clean/, calibration.yaml, groundtruth), writes the files listed above into it
-/// and returns the evaluations in the order of config.methods. `labels` are the run's
-/// fault labels; `progress` (may be null) gets (method, fraction done).
-std::vector<MethodEvaluation> RunEstimation(
-    const std::filesystem::path& run_dir, const EstimationConfig& config,
-    const std::vector<LabelEvent>& labels, double run_duration_s,
-    const std::function<void(const std::string&, double)>& progress = nullptr);
+/// What every method of a run is configured with, from the streams' description (the
+/// run directory's calibration, ReadRecordedLog or DescribeRunStreams) and the scenario's
+/// `estimation:` block: in the loop and in `tofu estimate` alike.
+struct EstimationSetup {
+  estimator::MultiGraphEstimatorOptions estimator;
+  std::vector<estimator::SensorSpec> sensors;
+  estimator::ConsensusEstimatorOptions consensus;
+};
+EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config);
+
+/// Scores the methods that ran in the loop (`results`, in the order of config.methods)
+/// against the run directory `run_dir` (its ground truth and stream descriptions), writes
+/// the files listed above into it and returns the evaluations. `labels` are the run's
+/// fault labels.
+std::vector<MethodEvaluation> EvaluateEstimation(const std::filesystem::path& run_dir,
+                                                 const EstimationConfig& config,
+                                                 const std::vector<LabelEvent>& labels,
+                                                 double run_duration_s,
+                                                 const std::vector<ReplayResult>& results);
 
 /// The options of the consensus estimator from a scenario's configuration.
 estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config);

@@ -180,7 +180,95 @@ nlohmann::json MethodsJson(const RunRecord& record) {
   return methods;
 }
 
+const RunRecord* FindClosedLoopFlight(const RunRecord& record, const std::string& method) {
+  for (const RunRecord& flight : record.closed_loop_flights) {
+    if (flight.closed_loop && flight.closed_loop->method == method) return &flight;
+  }
+  return nullptr;
+}
+
+std::optional<double> ClosedLoopMetricValue(const RunRecord& record, const std::string& pattern,
+                                            const MetricArguments& args) {
+  const RunRecord* flight = FindClosedLoopFlight(record, args.method);
+  if (flight == nullptr) return std::nullopt;
+  const ClosedLoopMetrics m = ComputeClosedLoopMetrics(*flight);
+  if (pattern == "closed_loop.<method>.tracking_rmse_m") return m.tracking_rmse_m;
+  if (pattern == "closed_loop.<method>.tracking_max_m") return m.tracking_max_m;
+  if (pattern == "closed_loop.<method>.estimate_ate_m") return m.estimate_ate_m;
+  if (pattern == "closed_loop.<method>.collisions") return static_cast<double>(m.collisions);
+  if (pattern == "closed_loop.<method>.min_structure_distance_m") {
+    return m.min_structure_distance_m;
+  }
+  if (pattern == "closed_loop.<method>.time_to_first_collision_s") {
+    return m.time_to_first_collision_s;
+  }
+  if (pattern == "closed_loop.<method>.failsafe_events") {
+    return static_cast<double>(m.failsafe_events);
+  }
+  if (pattern == "closed_loop.<method>.diverged") return m.diverged ? 1.0 : 0.0;
+  if (pattern == "closed_loop.<method>.handover_s") return m.handover_s;
+  return std::nullopt;
+}
+
 }  // namespace
+
+ClosedLoopMetrics ComputeClosedLoopMetrics(const RunRecord& flight) {
+  ClosedLoopMetrics m;
+  if (!flight.closed_loop) return m;
+  const ClosedLoopFlight& cl = *flight.closed_loop;
+  double sum = 0.0;
+  for (const TrackingSample& t : flight.tracking) {
+    sum += t.position_error_m * t.position_error_m;
+    m.tracking_max_m = std::max(m.tracking_max_m.value_or(0.0), t.position_error_m);
+  }
+  if (!flight.tracking.empty()) {
+    m.tracking_rmse_m = std::sqrt(sum / static_cast<double>(flight.tracking.size()));
+  }
+  // The estimate the controller flew on against the truth at the same output instants.
+  double est_sum = 0.0;
+  std::size_t est_count = 0;
+  for (std::size_t k = 0; k < cl.samples.size() && k < flight.groundtruth.size(); ++k) {
+    const ClosedLoopSample& s = cl.samples[k];
+    if (!s.p_WB_est || s.mode == FlightMode::kTruth) continue;
+    est_sum += (*s.p_WB_est - flight.groundtruth[k].p_WB).squaredNorm();
+    ++est_count;
+  }
+  if (est_count > 0) m.estimate_ate_m = std::sqrt(est_sum / static_cast<double>(est_count));
+  m.collisions = flight.collisions.size();
+  m.min_structure_distance_m = flight.closest_structure
+                                   ? flight.closest_structure->proximity.distance_m
+                                   : flight.distance_horizon_m;
+  if (!flight.collisions.empty()) {
+    m.time_to_first_collision_s = core::TimeToSeconds(flight.collisions.front().start_ns);
+  }
+  for (const FlightEvent& e : cl.events) m.failsafe_events += e.event == "failsafe_start" ? 1 : 0;
+  m.diverged = m.tracking_max_m.value_or(0.0) > cl.control.corridor_m;
+  if (cl.handover_ns) m.handover_s = core::TimeToSeconds(*cl.handover_ns);
+  return m;
+}
+
+nlohmann::json ClosedLoopJson(const RunRecord& flight) {
+  const ClosedLoopMetrics m = ComputeClosedLoopMetrics(flight);
+  nlohmann::json events = nlohmann::json::array();
+  if (flight.closed_loop) {
+    for (const FlightEvent& e : flight.closed_loop->events) {
+      events.push_back({{"t_s", core::TimeToSeconds(e.t_ns)}, {"event", e.event},
+                        {"detail", e.detail}});
+    }
+  }
+  return {{"tracking_rmse_m", OptionalNumber(m.tracking_rmse_m)},
+          {"tracking_max_m", OptionalNumber(m.tracking_max_m)},
+          {"estimate_ate_m", OptionalNumber(m.estimate_ate_m)},
+          {"collisions", m.collisions},
+          {"min_structure_distance_m", OptionalNumber(m.min_structure_distance_m)},
+          {"time_to_first_collision_s", OptionalNumber(m.time_to_first_collision_s)},
+          {"failsafe_events", m.failsafe_events},
+          {"diverged", m.diverged},
+          {"handover_s", OptionalNumber(m.handover_s)},
+          {"corridor_m", flight.closed_loop ? flight.closed_loop->control.corridor_m : 0.0},
+          {"failure", flight.failure ? nlohmann::json(*flight.failure) : nlohmann::json(nullptr)},
+          {"events", events}};
+}
 
 std::optional<double> MetricValue(const RunRecord& record, const std::string& metric,
                                   const std::optional<std::pair<double, double>>& window_s) {
@@ -230,6 +318,9 @@ std::optional<double> MetricValue(const RunRecord& record, const std::string& me
     return SensorMetricValue(record, match->first->name, match->second, window_s);
   }
   if (const auto match = MatchMetric(metric); match && !match->second.method.empty()) {
+    if (metric.starts_with("closed_loop.")) {
+      return ClosedLoopMetricValue(record, match->first->name, match->second);
+    }
     return MethodMetricValue(record, match->first->name, match->second);
   }
   throw std::invalid_argument("unknown metric '" + metric + "'");
@@ -312,8 +403,19 @@ Evaluation Evaluate(const RunRecord& record) {
   for (const LabelEvent& l : record.labels) fault_labels += l.source == "fault" && l.active ? 1 : 0;
   j["faults_scheduled"] = fault_labels;
   if (sc.estimation) j["methods"] = MethodsJson(record);
+  if (record.closed_loop) j["closed_loop_flight"] = ClosedLoopJson(record);
+  if (!record.closed_loop_flights.empty()) {
+    nlohmann::json closed_loop = nlohmann::json::object();
+    for (const RunRecord& flight : record.closed_loop_flights) {
+      closed_loop[flight.closed_loop->method] = ClosedLoopJson(flight);
+    }
+    j["closed_loop"] = closed_loop;
+  }
 
   bool all_passed = !record.failure.has_value();
+  for (const RunRecord& flight : record.closed_loop_flights) {
+    all_passed = all_passed && !flight.failure.has_value();
+  }
   nlohmann::json expectations = nlohmann::json::array();
   for (const Expectation& e : sc.expect) {
     ExpectationResult r{e, MetricValue(record, e.metric, e.window_s), false};

@@ -34,4 +34,21 @@ std::optional<double> MetricValue(const RunRecord& record, const std::string& me
 
 Evaluation Evaluate(const RunRecord& record);
 
+/// The judgement of a closed-loop flight (RunRecord::closed_loop) against ground truth;
+/// the `closed_loop.<method>.*` metrics.
+struct ClosedLoopMetrics {
+  std::optional<double> tracking_rmse_m;  ///< true |p_WB - p_ref|, whole flight
+  std::optional<double> tracking_max_m;
+  std::optional<double> estimate_ate_m;   ///< the controller's estimate vs truth, after handover
+  std::size_t collisions = 0;
+  std::optional<double> min_structure_distance_m;  ///< the distance horizon when nothing nearer
+  std::optional<double> time_to_first_collision_s;
+  std::size_t failsafe_events = 0;
+  bool diverged = false;  ///< tracking_max_m above control.corridor_m
+  std::optional<double> handover_s;
+};
+ClosedLoopMetrics ComputeClosedLoopMetrics(const RunRecord& flight);
+/// The metrics and the pilot's events as summary.json holds them.
+nlohmann::json ClosedLoopJson(const RunRecord& flight);
+
 }  // namespace tofu::harness

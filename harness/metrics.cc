@@ -51,6 +51,26 @@ const std::vector<MetricInfo>& MetricCatalog() {
       {"methods.<method>.false_exclusion_fraction", "fraction",
        "largest time a sensor was excluded with no fault or condition active, over the run",
        false},
+      // Closed-loop flights (`control: {state_source: estimate}`), harness/closed_loop.h:
+      // the robot flew on the method's estimate; judged against ground truth.
+      {"closed_loop.<method>.tracking_rmse_m", "m",
+       "RMS of the true |p_WB - p_ref| of the flight flown on the method", false},
+      {"closed_loop.<method>.tracking_max_m", "m", "largest true |p_WB - p_ref| of that flight",
+       false},
+      {"closed_loop.<method>.estimate_ate_m", "m",
+       "RMS of |p_WB estimated - p_WB true| as the controller saw it, after the handover",
+       false},
+      {"closed_loop.<method>.collisions", "count", "contact events of that flight", false},
+      {"closed_loop.<method>.min_structure_distance_m", "m",
+       "smallest distance to structure (ground excluded) in that flight", false},
+      {"closed_loop.<method>.time_to_first_collision_s", "s",
+       "time of the first contact; undefined when none", false},
+      {"closed_loop.<method>.failsafe_events", "count", "failsafe activations in that flight",
+       false},
+      {"closed_loop.<method>.diverged", "bool",
+       "1 when the true position left the reference by more than control.corridor_m", false},
+      {"closed_loop.<method>.handover_s", "s", "when the controller began flying on the estimate",
+       false},
   };
   return catalog;
 }

@@ -332,7 +332,7 @@ std::pair<StreamKind, size_t> ReadSensorCsv(const fs::path& path, const std::str
     const auto w = RequireAll<3>(csv, "w_RS_S_", "xyz", "IMU angular rate in rad/s");
     const auto a = RequireAll<3>(csv, "a_RS_S_", "xyz", "IMU specific force in m/s^2");
     read_prefixes.insert(read_prefixes.end(), {"w_RS_S_", "a_RS_S_"});
-    while (csv.Next()) {
+    while (options.read_measurements && csv.Next()) {
       const Time t = csv.Integer(t_col);
       core::ImuMeasurement m;
       m.gyro_I_radps = {csv.Number(w[0]), csv.Number(w[1]), csv.Number(w[2])};
@@ -355,7 +355,7 @@ std::pair<StreamKind, size_t> ReadSensorCsv(const fs::path& path, const std::str
     const std::vector<int> cov = UpperTriangleColumns<6>(csv, "cov_pose_");
     const std::vector<int> cov_twist = UpperTriangleColumns<6>(csv, "cov_twist_");
     read_prefixes.insert(read_prefixes.end(), {"cov_pose_", "cov_twist_"});
-    while (csv.Next()) {
+    while (options.read_measurements && csv.Next()) {
       const Time t = csv.Integer(t_col);
       core::PoseMeasurement m;
       m.p_Ss = {csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2])};
@@ -393,7 +393,7 @@ std::pair<StreamKind, size_t> ReadSensorCsv(const fs::path& path, const std::str
     const auto p = RequireAll<3>(csv, "p_Ss_", "xyz", "position of s in S in m");
     const std::vector<int> cov = UpperTriangleColumns<3>(csv, "cov_p_");
     read_prefixes.insert(read_prefixes.end(), {"p_Ss_", "cov_p_"});
-    while (csv.Next()) {
+    while (options.read_measurements && csv.Next()) {
       const Time t = csv.Integer(t_col);
       core::PositionMeasurement m;
       m.p_Ss = {csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2])};
@@ -529,15 +529,13 @@ Eigen::Isometry3d YamlPose(const YAML::Node& node, const std::string& file, cons
   return T;
 }
 
-Calibration ReadCalibration(const fs::path& path) {
+// calibration.yaml's text; `file` names it in messages.
+Calibration ParseCalibration(const std::string& text, const std::string& file) {
   Calibration cal;
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) return cal;
   cal.present = true;
-  const std::string file = path.string();
   YAML::Node root;
   try {
-    root = YAML::LoadFile(file);
+    root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     throw YamlError(file, e.mark, "", fmt::format("not valid YAML: {}", e.msg));
   }
@@ -559,6 +557,12 @@ Calibration ReadCalibration(const fs::path& path) {
     cal.sensors[name] = s;
   }
   return cal;
+}
+
+Calibration ReadCalibration(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return Calibration{};
+  return ParseCalibration(core::ReadWholeFile(path), path.string());
 }
 
 // The four IMU noise densities from sensors.<imu>.options; nullopt (and a note) if absent.
@@ -595,6 +599,86 @@ std::optional<RecordedImuNoise> ReadImuNoise(const Calibration& cal, const std::
   }
   notes.push_back(fmt::format("IMU noise densities from calibration.yaml sensors.{}.options", imu));
   return noise;
+}
+
+// Mounts (T_I_s = T_B_I^-1 T_B_s, nominal), odometry noise, true reference frames and
+// IMU noise of the log's streams from its calibration; returns the true IMU mount
+// T_B_I (the ground truth's B-to-I step).
+Eigen::Isometry3d ApplyCalibration(const Calibration& cal, const fs::path& cal_path,
+                                   RecordedLog& log) {
+  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_B_I_true = Eigen::Isometry3d::Identity();
+  if (!cal.present) {
+    log.notes.push_back("no calibration.yaml: identity mounts");
+  } else {
+    const auto imu = cal.sensors.find(log.imu_stream);
+    if (!log.imu_stream.empty() && imu != cal.sensors.end() && imu->second.T_B_s) {
+      T_B_I = *imu->second.T_B_s;
+      T_B_I_true = imu->second.true_T_B_s ? *imu->second.true_T_B_s : T_B_I;
+    } else {
+      log.notes.push_back("calibration.yaml: no IMU mount, T_B_I = identity");
+    }
+    for (RecordedStream& s : log.streams) {
+      const auto it = cal.sensors.find(s.name);
+      if (it != cal.sensors.end()) s.true_T_WS = it->second.true_T_WS;
+      if (it == cal.sensors.end() || !it->second.T_B_s) {
+        log.notes.push_back(fmt::format("{}: no mount in calibration.yaml, T_I_s = identity",
+                                        s.name));
+        continue;
+      }
+      s.T_I_s = T_B_I.inverse() * *it->second.T_B_s;
+    }
+    for (RecordedStream& s : log.streams) {
+      const auto it = cal.sensors.find(s.name);
+      if (it == cal.sensors.end() || !it->second.options || !it->second.options.IsMap()) continue;
+      const YAML::Node& o = it->second.options;
+      const std::string file = cal_path.string();
+      const std::string key = "sensors." + s.name + ".options.";
+      if (o["position_noise_m"]) {
+        s.position_noise_m = YamlNumber(o["position_noise_m"], file, key + "position_noise_m");
+      }
+      if (o["rotation_noise_deg"]) {
+        s.rotation_noise_rad =
+            YamlNumber(o["rotation_noise_deg"], file, key + "rotation_noise_deg") * M_PI / 180.0;
+      }
+      if (o["position_random_walk_m_per_sqrtm"]) {
+        s.position_random_walk_m_per_sqrtm =
+            YamlNumber(o["position_random_walk_m_per_sqrtm"], file,
+                       key + "position_random_walk_m_per_sqrtm");
+      }
+    }
+    log.notes.push_back("mounts: T_I_s = T_B_I^-1 T_B_s from calibration.yaml");
+  }
+  if (!log.imu_stream.empty()) {
+    if (cal.present) {
+      log.imu_noise = ReadImuNoise(cal, log.imu_stream, cal_path, log.notes);
+    } else {
+      log.notes.push_back("IMU noise densities: none (no calibration.yaml)");
+    }
+  }
+
+  return T_B_I_true;
+}
+
+// The IMU frame I: the only IMU stream, else the one named "imu", else the first by
+// name. False (and a note) when the log has none.
+bool ChooseImuStream(RecordedLog& log) {
+  std::vector<const RecordedStream*> imus;
+  for (const RecordedStream& s : log.streams) {
+    if (s.kind == StreamKind::kImu) imus.push_back(&s);
+  }
+  if (imus.empty()) {
+    log.notes.push_back("no IMU stream");
+    return false;
+  }
+  const auto named = std::find_if(imus.begin(), imus.end(),
+                                  [](const RecordedStream* s) { return s->name == "imu"; });
+  log.imu_stream = (named != imus.end() ? *named : imus.front())->name;
+  if (imus.size() > 1) {
+    log.notes.push_back(fmt::format("{} IMU streams; '{}' is the IMU frame I", imus.size(),
+                                    log.imu_stream));
+  }
+  return true;
 }
 
 // ---- assembling the log ----
@@ -770,81 +854,18 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
   }
 
   // The IMU: the only IMU stream, else the one named "imu", else the first by name.
-  std::vector<const RecordedStream*> imus;
-  for (const RecordedStream& s : log.streams) {
-    if (s.kind == StreamKind::kImu) imus.push_back(&s);
+  if (!ChooseImuStream(log) && options.require_imu) {
+    throw InputError({directory.string()}, "",
+                     fmt::format("no IMU stream found among {} stream(s): expected a CSV "
+                                 "with columns w_RS_S_x/y/z, a_RS_S_x/y/z ({})",
+                                 log.streams.size(),
+                                 run_directory ? "sensors/<name>.csv" : "mav0/imu0/data.csv"));
   }
-  if (imus.empty()) {
-    if (options.require_imu) {
-      throw InputError({directory.string()}, "",
-                       fmt::format("no IMU stream found among {} stream(s): expected a CSV "
-                                   "with columns w_RS_S_x/y/z, a_RS_S_x/y/z ({})",
-                                   log.streams.size(),
-                                   run_directory ? "sensors/<name>.csv" : "mav0/imu0/data.csv"));
-    }
-    log.notes.push_back("no IMU stream");
-  } else {
-    const auto named = std::find_if(imus.begin(), imus.end(),
-                                    [](const RecordedStream* s) { return s->name == "imu"; });
-    log.imu_stream = (named != imus.end() ? *named : imus.front())->name;
-    if (imus.size() > 1) {
-      log.notes.push_back(fmt::format("{} IMU streams; '{}' is the IMU frame I", imus.size(),
-                                      log.imu_stream));
-    }
-  }
+  log.imu_samples_are_interval_averages = run_directory;
 
   // Mounts: T_I_s = T_B_I^-1 T_B_s (nominal mounts).
-  const Calibration cal = ReadCalibration(directory / "calibration.yaml");
-  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
-  Eigen::Isometry3d T_B_I_true = Eigen::Isometry3d::Identity();
-  if (!cal.present) {
-    log.notes.push_back("no calibration.yaml: identity mounts");
-  } else {
-    const auto imu = cal.sensors.find(log.imu_stream);
-    if (!log.imu_stream.empty() && imu != cal.sensors.end() && imu->second.T_B_s) {
-      T_B_I = *imu->second.T_B_s;
-      T_B_I_true = imu->second.true_T_B_s ? *imu->second.true_T_B_s : T_B_I;
-    } else {
-      log.notes.push_back("calibration.yaml: no IMU mount, T_B_I = identity");
-    }
-    for (RecordedStream& s : log.streams) {
-      const auto it = cal.sensors.find(s.name);
-      if (it != cal.sensors.end()) s.true_T_WS = it->second.true_T_WS;
-      if (it == cal.sensors.end() || !it->second.T_B_s) {
-        log.notes.push_back(fmt::format("{}: no mount in calibration.yaml, T_I_s = identity",
-                                        s.name));
-        continue;
-      }
-      s.T_I_s = T_B_I.inverse() * *it->second.T_B_s;
-    }
-    for (RecordedStream& s : log.streams) {
-      const auto it = cal.sensors.find(s.name);
-      if (it == cal.sensors.end() || !it->second.options || !it->second.options.IsMap()) continue;
-      const YAML::Node& o = it->second.options;
-      const std::string file = (directory / "calibration.yaml").string();
-      const std::string key = "sensors." + s.name + ".options.";
-      if (o["position_noise_m"]) {
-        s.position_noise_m = YamlNumber(o["position_noise_m"], file, key + "position_noise_m");
-      }
-      if (o["rotation_noise_deg"]) {
-        s.rotation_noise_rad =
-            YamlNumber(o["rotation_noise_deg"], file, key + "rotation_noise_deg") * M_PI / 180.0;
-      }
-      if (o["position_random_walk_m_per_sqrtm"]) {
-        s.position_random_walk_m_per_sqrtm =
-            YamlNumber(o["position_random_walk_m_per_sqrtm"], file,
-                       key + "position_random_walk_m_per_sqrtm");
-      }
-    }
-    log.notes.push_back("mounts: T_I_s = T_B_I^-1 T_B_s from calibration.yaml");
-  }
-  if (!log.imu_stream.empty()) {
-    if (cal.present) {
-      log.imu_noise = ReadImuNoise(cal, log.imu_stream, directory / "calibration.yaml", log.notes);
-    } else {
-      log.notes.push_back("IMU noise densities: none (no calibration.yaml)");
-    }
-  }
+  const fs::path cal_path = directory / "calibration.yaml";
+  const Eigen::Isometry3d T_B_I_true = ApplyCalibration(ReadCalibration(cal_path), cal_path, log);
 
   // Ground truth of the IMU frame.
   if (fs::is_regular_file(ground_truth_file, ec)) {
@@ -862,6 +883,26 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
   }
 
   SortByArrival(log, stream_end);
+  return log;
+}
+
+RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> streams,
+                               const std::string& calibration_yaml,
+                               const fs::path& directory) {
+  RecordedLog log;
+  log.directory = directory;
+  std::sort(streams.begin(), streams.end());
+  for (const auto& [name, kind] : streams) {
+    RecordedStream stream;
+    stream.name = name;
+    stream.kind = kind;
+    stream.file = directory / "sensors" / (name + ".csv");
+    log.streams.push_back(std::move(stream));
+  }
+  ChooseImuStream(log);
+  log.imu_samples_are_interval_averages = true;
+  const fs::path cal_path = directory / "calibration.yaml";
+  ApplyCalibration(ParseCalibration(calibration_yaml, cal_path.string()), cal_path, log);
   return log;
 }
 

@@ -26,6 +26,7 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -93,6 +94,9 @@ struct RecordedLogOptions {
           .asDiagonal();
   /// Covariance of positions (m^2) for position streams without cov_p_* columns.
   Eigen::Matrix3d default_position_covariance = 0.02 * 0.02 * Eigen::Matrix3d::Identity();
+  /// False: the streams' descriptions, calibration and ground truth only, no samples
+  /// (scoring a run whose estimators ran in the loop).
+  bool read_measurements = true;
 };
 
 struct RecordedLog {
@@ -105,6 +109,9 @@ struct RecordedLog {
   std::vector<core::Time> arrival_ns;   ///< parallel to measurements
   /// From calibration.yaml (the IMU sensor's options) when all four densities are there.
   std::optional<RecordedImuNoise> imu_noise;
+  /// tofu's simulated IMU reports each interval's average (layout (a)); recorded real
+  /// IMUs (EuRoC's ADIS16448) are taken as instantaneous samples.
+  bool imu_samples_are_interval_averages = false;
   /// Pose of the IMU frame I in W, in file order; empty without ground truth. Layout (a):
   /// T_WI = T_WB T_B_I with the IMU's true mount (true_T_B_s when calibration.yaml has one).
   std::vector<GroundTruthPose> ground_truth;
@@ -125,5 +132,14 @@ struct RecordedLog {
 /// decimal seconds), and a malformed calibration.yaml. Empty streams are allowed.
 RecordedLog ReadRecordedLog(const std::filesystem::path& directory,
                             const RecordedLogOptions& options = {});
+
+/// A run directory's streams as ReadRecordedLog describes them (kinds, the IMU, mounts,
+/// odometry noise, true reference frames, IMU noise), from the kinds and the text of the
+/// calibration.yaml the run will write, without samples. The run loop configures its
+/// in-loop estimators from this, so that `tofu estimate` on the written directory
+/// configures them identically (same parser, same rounding of the file's numbers).
+RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> streams,
+                               const std::string& calibration_yaml,
+                               const std::filesystem::path& directory);
 
 }  // namespace tofu::harness

@@ -224,10 +224,7 @@ estimator::MultiGraphEstimatorOptions DefaultEstimatorOptions(const RecordedLog&
   }
   options.local.imu_noise.gyro_noise_density_radps_per_sqrthz *= kInFlightImuNoiseScale;
   options.local.imu_noise.accel_noise_density_mps2_per_sqrthz *= kInFlightImuNoiseScale;
-  // tofu's simulated IMU reports each interval's average; recorded real IMUs (EuRoC's
-  // ADIS16448) are taken as instantaneous samples.
-  options.local.imu_samples_are_interval_averages =
-      std::filesystem::exists(log.directory / "sensors");
+  options.local.imu_samples_are_interval_averages = log.imu_samples_are_interval_averages;
   // Replays are reproducible: no wall-time cap on the solver (it would make the result
   // depend on the machine); the iteration cap still holds.
   options.local.max_solver_time_s = 1e6;
@@ -264,10 +261,11 @@ namespace {
 // use the ground truth transform between the Leica and local frame"): once the local
 // frame L exists, anchored to the sensor that initialised it (T_A0L), every other sensor
 // B gets T_BL = T_WB⁻¹ T_WA0 T_A0L from the true reference frames.
-void GiveTrueAlignments(const RecordedLog& log, estimator::MultiGraphEstimator& estimator) {
+void GiveTrueAlignments(const std::vector<RecordedStream>& streams,
+                        estimator::MultiGraphEstimator& estimator) {
   const RecordedStream* anchor = nullptr;
   Eigen::Isometry3d T_A0L = Eigen::Isometry3d::Identity();
-  for (const RecordedStream& s : log.streams) {
+  for (const RecordedStream& s : streams) {
     if (s.kind == StreamKind::kImu || !s.true_T_WS) continue;
     if (const auto T_AL = estimator.AlignmentOf(s.name)) {
       anchor = &s;
@@ -276,7 +274,7 @@ void GiveTrueAlignments(const RecordedLog& log, estimator::MultiGraphEstimator& 
     }
   }
   if (anchor == nullptr) return;
-  for (const RecordedStream& s : log.streams) {
+  for (const RecordedStream& s : streams) {
     if (s.kind == StreamKind::kImu || !s.true_T_WS || &s == anchor) continue;
     estimator.SetKnownAlignment(s.name, s.true_T_WS->inverse() * *anchor->true_T_WS * T_A0L);
   }
@@ -284,62 +282,108 @@ void GiveTrueAlignments(const RecordedLog& log, estimator::MultiGraphEstimator& 
 
 }  // namespace
 
-ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
-                    const estimator::MultiGraphEstimatorOptions& options,
-                    const std::vector<estimator::SensorSpec>& sensors,
-                    const std::function<void(double)>& progress,
-                    const estimator::ConsensusEstimatorOptions& consensus_options) {
+struct MethodRunner::Impl {
+  ReplayMethod method;
+  std::vector<RecordedStream> streams;  // the naive baseline's true frames
   std::optional<estimator::MultiGraphEstimator> fixed;
   std::optional<estimator::ConsensusEstimator> consensus;
-  if (method.kind == ReplayMethod::Kind::kConsensus) {
-    consensus.emplace(log.imu_stream, sensors, options, consensus_options);
-  } else {
-    fixed.emplace(log.imu_stream, sensors, options);
-    fixed->SetFusedSensors(method.fused);
-  }
-  const estimator::MultiGraphEstimator& estimator = fixed ? *fixed : consensus->estimator();
   bool true_alignments_given = false;
   ReplayResult result;
-  result.method = method;
+  std::optional<core::Time> first_t_ns;
+  core::Time last_t_ns = 0;
+  std::chrono::steady_clock::duration busy{};
+
+  const estimator::MultiGraphEstimator& estimator() const {
+    return fixed ? *fixed : consensus->estimator();
+  }
+};
+
+MethodRunner::MethodRunner(const RecordedLog& log, const ReplayMethod& method,
+                           const estimator::MultiGraphEstimatorOptions& options,
+                           const std::vector<estimator::SensorSpec>& sensors,
+                           const estimator::ConsensusEstimatorOptions& consensus_options)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->method = method;
+  impl_->streams = log.streams;
+  impl_->result.method = method;
+  if (method.kind == ReplayMethod::Kind::kConsensus) {
+    impl_->consensus.emplace(log.imu_stream, sensors, options, consensus_options);
+  } else {
+    impl_->fixed.emplace(log.imu_stream, sensors, options);
+    impl_->fixed->SetFusedSensors(method.fused);
+  }
+}
+
+MethodRunner::~MethodRunner() = default;
+MethodRunner::MethodRunner(MethodRunner&&) noexcept = default;
+MethodRunner& MethodRunner::operator=(MethodRunner&&) noexcept = default;
+
+std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement) {
+  Impl& m = *impl_;
   const auto start = std::chrono::steady_clock::now();
-  const std::size_t n = log.measurements.size();
-  for (std::size_t i = 0; i < n; ++i) {
-    if (fixed) {
-      fixed->Add(log.measurements[i]);
-      if (method.kind == ReplayMethod::Kind::kNaive && !true_alignments_given &&
-          fixed->local().initialized()) {
-        GiveTrueAlignments(log, *fixed);
-        true_alignments_given = true;
-      }
-      for (estimator::EstimatorOutput& o : fixed->TakeOutputs()) result.outputs.push_back(std::move(o));
-    } else {
-      consensus->Add(log.measurements[i]);
-      for (estimator::EstimatorOutput& o : consensus->TakeOutputs()) {
-        result.outputs.push_back(std::move(o));
-      }
-      for (estimator::ConsensusRecord& r : consensus->TakeRecords()) {
-        result.consensus.push_back(std::move(r));
-      }
+  const std::size_t before = m.result.outputs.size();
+  if (!m.first_t_ns || measurement.t_ns < *m.first_t_ns) m.first_t_ns = measurement.t_ns;
+  m.last_t_ns = std::max(m.last_t_ns, measurement.t_ns);
+  if (m.fixed) {
+    m.fixed->Add(measurement);
+    if (m.method.kind == ReplayMethod::Kind::kNaive && !m.true_alignments_given &&
+        m.fixed->local().initialized()) {
+      GiveTrueAlignments(m.streams, *m.fixed);
+      m.true_alignments_given = true;
     }
-    if (progress && (i % 4096 == 0 || i + 1 == n)) progress(static_cast<double>(i + 1) / n);
+    for (estimator::EstimatorOutput& o : m.fixed->TakeOutputs()) {
+      m.result.outputs.push_back(std::move(o));
+    }
+  } else {
+    m.consensus->Add(measurement);
+    for (estimator::EstimatorOutput& o : m.consensus->TakeOutputs()) {
+      m.result.outputs.push_back(std::move(o));
+    }
+    for (estimator::ConsensusRecord& r : m.consensus->TakeRecords()) {
+      m.result.consensus.push_back(std::move(r));
+    }
   }
-  result.wall_time_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  if (!log.measurements.empty()) {
-    auto [lo, hi] = std::minmax_element(
-        log.measurements.begin(), log.measurements.end(),
-        [](const auto& a, const auto& b) { return a.t_ns < b.t_ns; });
-    result.log_duration_s = core::TimeToSeconds(hi->t_ns - lo->t_ns);
-  }
+  m.busy += std::chrono::steady_clock::now() - start;
+  return m.result.outputs.size() - before;
+}
+
+const std::vector<estimator::EstimatorOutput>& MethodRunner::outputs() const {
+  return impl_->result.outputs;
+}
+
+const estimator::MultiGraphEstimator& MethodRunner::estimator() const {
+  return impl_->estimator();
+}
+
+ReplayResult MethodRunner::Finish() && {
+  Impl& m = *impl_;
+  ReplayResult result = std::move(m.result);
+  result.wall_time_s = std::chrono::duration<double>(m.busy).count();
+  if (m.first_t_ns) result.log_duration_s = core::TimeToSeconds(m.last_t_ns - *m.first_t_ns);
+  const estimator::MultiGraphEstimator& estimator = m.estimator();
   result.counters = estimator.counters();
   result.solver = estimator.local().stats();
-  for (const RecordedStream& s : log.streams) {
+  for (const RecordedStream& s : m.streams) {
     if (const estimator::AlignmentGraph* g = estimator.AlignmentGraphOf(s.name)) {
       result.alignment[s.name] = g->estimate();
     }
     if (const auto T_AL = estimator.AlignmentOf(s.name)) result.T_AL_used[s.name] = *T_AL;
   }
   return result;
+}
+
+ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
+                    const estimator::MultiGraphEstimatorOptions& options,
+                    const std::vector<estimator::SensorSpec>& sensors,
+                    const std::function<void(double)>& progress,
+                    const estimator::ConsensusEstimatorOptions& consensus_options) {
+  MethodRunner runner(log, method, options, sensors, consensus_options);
+  const std::size_t n = log.measurements.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    runner.Add(log.measurements[i]);
+    if (progress && (i % 4096 == 0 || i + 1 == n)) progress(static_cast<double>(i + 1) / n);
+  }
+  return std::move(runner).Finish();
 }
 
 std::vector<PoseSample> OutputTrajectory(const ReplayResult& result) {

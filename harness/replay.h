@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -67,6 +68,34 @@ struct ReplayResult {
   std::vector<estimator::ConsensusRecord> consensus;
   double wall_time_s = 0.0;
   double log_duration_s = 0.0;
+};
+
+/// One method, fed one measurement at a time in arrival order: the same code replays a
+/// recorded log (Replay) and runs inside a flight (the run loop's consumers), so an
+/// in-loop estimate and `tofu estimate` on the recorded streams are the same numbers.
+/// `log` describes the streams (ReadRecordedLog or DescribeRunStreams); its
+/// measurements are not read.
+class MethodRunner {
+ public:
+  MethodRunner(const RecordedLog& log, const ReplayMethod& method,
+               const estimator::MultiGraphEstimatorOptions& options,
+               const std::vector<estimator::SensorSpec>& sensors,
+               const estimator::ConsensusEstimatorOptions& consensus = {});
+  ~MethodRunner();
+  MethodRunner(MethodRunner&&) noexcept;
+  MethodRunner& operator=(MethodRunner&&) noexcept;
+
+  /// The next measurement in arrival order; returns how many outputs it produced.
+  std::size_t Add(const core::StampedMeasurement& measurement);
+  /// Every output so far (the newest last).
+  const std::vector<estimator::EstimatorOutput>& outputs() const;
+  const estimator::MultiGraphEstimator& estimator() const;
+  /// The result; wall_time_s is the time spent inside Add.
+  ReplayResult Finish() &&;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
 };
 
 /// Runs one method over the whole log in arrival order. `progress` (may be null) is

@@ -2,12 +2,17 @@
 
 #include <algorithm>
 #include <chrono>
+#include <limits>
+#include <variant>
 #include <cmath>
 #include <stdexcept>
 
 #include "core/error.h"
 #include "core/lie.h"
 #include "core/random.h"
+#include "harness/recorded_log.h"
+#include "harness/run_directory.h"
+#include "harness/sample_stream.h"
 #include "sim/allocation.h"
 #include "sim/controller.h"
 #include "sim/wind.h"
@@ -56,6 +61,82 @@ class CollisionTracker {
   };
   std::vector<Latest> latest_;
 };
+
+// The estimation methods that run inside the flight: each fed, in arrival order, the
+// samples as the run directory will record them (RecordedMeasurement), configured from
+// the calibration the run will write (DescribeRunStreams), so that `tofu estimate` on
+// the written run reproduces them. Set up at the first release, once the models have
+// latched their reference frames.
+class InLoopMethods {
+ public:
+  InLoopMethods(std::vector<std::string> names, const EstimationConfig& config)
+      : names_(std::move(names)), config_(config) {
+    for (const std::string& name : names_) any_clean_ |= name.ends_with("@clean");
+  }
+
+  bool empty() const { return names_.empty(); }
+  bool any_clean() const { return any_clean_; }
+  bool started() const { return !runners_.empty() || names_.empty(); }
+
+  void Start(const RunRecord& record) {
+    std::vector<std::pair<std::string, StreamKind>> kinds;
+    for (const SensorStream& s : record.sensors) {
+      const StreamKind kind = s.type == "imu" ? StreamKind::kImu
+                              : (s.type == "vio" || s.type == "lidar_odometry") ? StreamKind::kPose
+                                                                                : StreamKind::kPosition;
+      kinds.emplace_back(s.name, kind);
+    }
+    const RecordedLog log = DescribeRunStreams(kinds, CalibrationYamlText(record), "");
+    const EstimationSetup setup = MakeEstimationSetup(log, config_);
+    for (const std::string& name : names_) {
+      const ReplayMethod method = ParseReplayMethod(name, log);
+      clean_.push_back(method.clean_streams);
+      runners_.emplace_back(log, method, setup.estimator, setup.sensors, setup.consensus);
+    }
+  }
+
+  void Feed(bool clean_stream, const std::vector<SensorStream>& streams, const ArrivedSample& a) {
+    const SensorStream& stream = streams[a.stream];
+    const core::StampedMeasurement m{stream.name, a.sample->t_ns,
+                                     RecordedMeasurement(stream.type, a.sample->measured)};
+    for (std::size_t i = 0; i < runners_.size(); ++i) {
+      if (clean_[i] == clean_stream) runners_[i].Add(m);
+    }
+  }
+
+  const MethodRunner& runner(std::size_t i) const { return runners_[i]; }
+
+  std::vector<ReplayResult> Finish() {
+    std::vector<ReplayResult> results;
+    for (MethodRunner& r : runners_) results.push_back(std::move(r).Finish());
+    return results;
+  }
+
+ private:
+  std::vector<std::string> names_;
+  EstimationConfig config_;
+  bool any_clean_ = false;
+  std::vector<bool> clean_;
+  std::vector<MethodRunner> runners_;
+};
+
+Eigen::Isometry3d PoseOf(const Eigen::Vector3d& p, const Eigen::Quaterniond& q) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = q.normalized().toRotationMatrix();
+  T.translation() = p;
+  return T;
+}
+
+// The IMU's nominal mount T_B_I (what the flight stack is told), identity without one.
+Eigen::Isometry3d NominalImuMount(const Scenario& scenario, const sim::RobotDescription& robot) {
+  for (const SensorConfig& config : scenario.sensors) {
+    if (!std::holds_alternative<sim::ImuOptions>(config.options)) continue;
+    const sim::MountSite* site = robot.FindSite(SensorSite(config.options));
+    if (site == nullptr) break;
+    return PoseOf(site->p_B_s, site->q_B_s) * config.calibration_error;
+  }
+  return Eigen::Isometry3d::Identity();
+}
 
 }  // namespace
 
@@ -135,6 +216,62 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   }
   std::vector<sim::SensorSample> sensor_scratch;
 
+  // The run's consumers of the arrival-ordered sample stream besides the recorder: the
+  // estimation methods in the loop, and through the flying one, the controller.
+  std::vector<std::string> in_loop_names;
+  if (options.fly_on) {
+    in_loop_names.push_back(*options.fly_on);
+  } else if (scenario.estimation) {
+    in_loop_names = scenario.estimation->methods;
+  }
+  InLoopMethods in_loop(in_loop_names,
+                        scenario.estimation ? *scenario.estimation : EstimationConfig{});
+  std::vector<uint32_t> stream_rank(record.sensors.size());
+  {
+    std::vector<std::size_t> by_name(record.sensors.size());
+    for (std::size_t i = 0; i < by_name.size(); ++i) by_name[i] = i;
+    std::sort(by_name.begin(), by_name.end(), [&](std::size_t a, std::size_t b) {
+      return record.sensors[a].name < record.sensors[b].name;
+    });
+    for (std::size_t r = 0; r < by_name.size(); ++r) stream_rank[by_name[r]] = static_cast<uint32_t>(r);
+  }
+  ArrivalQueue delivered_queue(stream_rank);
+  ArrivalQueue clean_queue(stream_rank);
+  core::Time released_until_ns = std::numeric_limits<core::Time>::min();
+  const auto release = [&](core::Time now_ns, bool flush) {
+    if (in_loop.empty()) return;
+    if (!in_loop.started()) {
+      // The models have latched their reference frames by now (first step).
+      for (size_t i = 0; i < models.size(); ++i) record.sensors[i].T_WS = models[i]->T_WS();
+      in_loop.Start(record);
+    }
+    const auto feed = [&](bool clean) {
+      return [&, clean](const ArrivedSample& a) {
+        if (a.sample->arrival_ns < released_until_ns) ++record.late_samples;
+        in_loop.Feed(clean, record.sensors, a);
+      };
+    };
+    if (flush) {
+      delivered_queue.Flush(feed(false));
+      clean_queue.Flush(feed(true));
+    } else {
+      delivered_queue.Release(now_ns, feed(false));
+      clean_queue.Release(now_ns, feed(true));
+      released_until_ns = now_ns;
+    }
+  };
+
+  // A closed-loop flight: the pilot between the flying method and the controller.
+  std::optional<ClosedLoopPilot> pilot;
+  const ControlConfig control = scenario.control.value_or(ControlConfig{});
+  if (options.fly_on) {
+    pilot.emplace(control.failsafe, NominalImuMount(scenario, record.robot));
+    record.closed_loop.emplace();
+    record.closed_loop->method = *options.fly_on;
+    record.closed_loop->control = control;
+  }
+  std::optional<double> structure_distance_m;
+
   const core::Time dt_ns = world.timestep_ns();
   const double dt_s = core::TimeToSeconds(dt_ns);
   const core::Time controller_period_ns = core::PeriodFromRate(scenario.controller.rate_hz);
@@ -160,8 +297,26 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
       const core::Time t_ns = world.time_ns();
       const sim::TruthState now = world.Truth();
       if (t_ns >= next_controller_ns) {
-        const sim::Reference reference = trajectory->Sample(t_ns);
-        const sim::Wrench wrench = controller.Compute(ToRobotState(now), reference);
+        sim::Reference reference = trajectory->Sample(t_ns);
+        sim::RobotState state = ToRobotState(now);
+        if (pilot) {
+          // The flying method's newest output: only samples with arrival <= t_ns made it.
+          const estimator::EstimatorOutput* newest = nullptr;
+          if (in_loop.started() && !in_loop.runner(0).outputs().empty()) {
+            newest = &in_loop.runner(0).outputs().back();
+          }
+          if (!pilot->handed_over() &&
+              pilot->TryHandover(t_ns, newest, PoseOf(now.p_WB, now.q_WB))) {
+            record.closed_loop->handover_ns = t_ns;
+            record.closed_loop->T_WL = pilot->T_WL();
+          }
+          if (pilot->handed_over()) {
+            const ClosedLoopPilot::Command command = pilot->Fly(t_ns, *newest, reference);
+            state = command.state;
+            reference = command.reference;
+          }
+        }
+        const sim::Wrench wrench = controller.Compute(state, reference);
         const sim::AllocationResult allocation = allocator.Allocate(wrench, now.tilt_rad);
         world.SetCommand(allocation.command);
         record.saturation.emplace_back(t_ns, allocation.saturated);
@@ -180,6 +335,17 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
             {truth.t_ns, reference, (truth.p_WB - reference.p_WB).norm(),
              core::RotationAngleBetween(reference.q_WB.toRotationMatrix(),
                                         truth.q_WB.toRotationMatrix())});
+        if (pilot) {
+          ClosedLoopSample sample;
+          sample.t_ns = truth.t_ns;
+          sample.mode = pilot->mode();
+          if (const auto& believed = pilot->last_state()) {
+            sample.p_WB_est = believed->p_WB;
+            sample.q_WB_est = believed->q_WB;
+          }
+          sample.structure_distance_m = structure_distance_m;
+          record.closed_loop->samples.push_back(sample);
+        }
         next_output_ns += output_period_ns;
       }
 
@@ -196,9 +362,16 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
           for (const sim::SensorSample& sample : sensor_scratch) {
             stream.clean.push_back(sample);
             if (imu != nullptr) stream.imu_biases.push_back(bias);
+            const size_t first_new = stream.delivered.size();
             injectors[i].Apply(sample, &stream.delivered);
             stream.delivered_faults.resize(stream.delivered.size(),
                                            injectors[i].ActiveFaults(sample.t_ns));
+            if (in_loop.empty()) continue;
+            for (size_t k = first_new; k < stream.delivered.size(); ++k) {
+              if (options.tamper) options.tamper(stream.name, stream.delivered[k]);
+              delivered_queue.Push(i, stream.delivered[k]);
+            }
+            if (in_loop.any_clean()) clean_queue.Push(i, sample);
           }
           const uint32_t now_conditions = models[i]->conditions();
           if (now_conditions != conditions[i]) {
@@ -213,10 +386,16 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
         }
       }
 
+      // Every sample that has arrived by the end of this step reaches its consumers before
+      // the controller's next update.
+      release(truth.t_ns, false);
+
       const std::vector<sim::Contact>& contacts = world.Contacts();
       collisions.Update(world.time_ns(), contacts, world, record.collisions);
-      if (const auto closest = world.ClosestStructure();
-          closest && (!record.closest_structure ||
+      const auto closest = world.ClosestStructure();
+      structure_distance_m.reset();
+      if (closest) structure_distance_m = closest->distance_m;
+      if (closest && (!record.closest_structure ||
                       closest->distance_m < record.closest_structure->proximity.distance_m)) {
         record.closest_structure = ProximityRecord{world.time_ns(), *closest};
       }
@@ -247,6 +426,13 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   // The true reference frames are known once the models have started (e.g. VIO's
   // odometry frame is where the camera booted).
   for (size_t i = 0; i < models.size(); ++i) record.sensors[i].T_WS = models[i]->T_WS();
+  // What was recorded but had not arrived when the flight ended still reaches the
+  // methods: the recorded run's replay sees it too.
+  if (!record.failure) {
+    release(0, true);
+    record.in_loop = in_loop.Finish();
+  }
+  if (pilot) record.closed_loop->events = pilot->events();
   // Scheduled faults as labels, merged with the condition transitions by time.
   const core::Time run_end_ns = record.physics_steps * dt_ns;
   for (const sim::FaultLabel& label : sim::FaultLabels(scenario.faults, run_end_ns)) {
@@ -258,6 +444,21 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
     record.consistency = EvaluateConsistency(record, *scenario.consistency);
   }
   if (options.progress) options.progress(1.0);
+
+  // `control: {state_source: estimate}`: the same scenario flown again on each method.
+  if (!options.fly_on && scenario.control &&
+      scenario.control->state_source == ControlConfig::StateSource::kEstimate) {
+    for (const std::string& method : scenario.control->methods) {
+      SimulateOptions flight;
+      flight.models_dir = options.models_dir;
+      flight.fly_on = method;
+      flight.tamper = options.tamper;
+      if (options.closed_loop_progress) {
+        flight.progress = [&](double f) { options.closed_loop_progress(method, f); };
+      }
+      record.closed_loop_flights.push_back(Simulate(scenario, flight));
+    }
+  }
   return record;
 }
 

@@ -11,8 +11,10 @@
 #include <vector>
 
 #include "core/time.h"
+#include "harness/closed_loop.h"
 #include "harness/consistency_eval.h"
 #include "harness/estimation.h"
+#include "harness/replay.h"
 #include "harness/scenario.h"
 #include "harness/sensor_suite.h"
 #include "sim/trajectory.h"
@@ -51,6 +53,28 @@ struct ApproachResult {
   std::optional<double> distance_m;  ///< nullopt if the ray hit nothing
 };
 
+/// One output-rate sample of a closed-loop flight: what the controller flew on.
+struct ClosedLoopSample {
+  core::Time t_ns = 0;
+  FlightMode mode = FlightMode::kTruth;
+  /// The estimate of B in W the controller used last (none before the handover).
+  std::optional<Eigen::Vector3d> p_WB_est;
+  std::optional<Eigen::Quaterniond> q_WB_est;
+  /// Distance of the robot to the nearest structure (ground aside), when within the
+  /// distance horizon.
+  std::optional<double> structure_distance_m;
+};
+
+/// A flight whose controller flew on an estimation method (`control:`).
+struct ClosedLoopFlight {
+  std::string method;
+  ControlConfig control;
+  std::vector<ClosedLoopSample> samples;  ///< at output.groundtruth_rate_hz
+  std::vector<FlightEvent> events;
+  std::optional<core::Time> handover_ns;
+  Eigen::Isometry3d T_WL = Eigen::Isometry3d::Identity();  ///< registration at handover
+};
+
 struct RunRecord {
   Scenario scenario;  ///< with the effective seed
   sim::RobotDescription robot;
@@ -66,9 +90,21 @@ struct RunRecord {
   std::vector<LabelEvent> labels;     ///< condition and fault transitions, by time
   /// With scenario.consistency: the sensors' velocity consistency (consistency_eval.h).
   std::optional<ConsistencyEvaluation> consistency;
-  /// With scenario.estimation: each method's scores (filled after the run directory's
-  /// streams are written, by RunEstimation).
+  /// The estimation methods that ran in the loop, fed by the run's arrival-ordered
+  /// sample stream: every method of scenario.estimation in a ground-truth flight, the
+  /// flying method in a closed-loop flight.
+  std::vector<ReplayResult> in_loop;
+  /// Samples released to the in-loop consumers after a later-arriving one (a model whose
+  /// sample arrives before the step it was produced in); 0 in a correct run.
+  std::size_t late_samples = 0;
+  /// With scenario.estimation: each method's scores (filled when the run directory is
+  /// written, by EvaluateEstimation).
   std::vector<MethodEvaluation> methods;
+  /// Set in a flight whose controller flew on an estimate.
+  std::optional<ClosedLoopFlight> closed_loop;
+  /// `control: {state_source: estimate}`: one closed-loop flight per method, flown after
+  /// this (ground-truth) flight, in the order of control.methods.
+  std::vector<RunRecord> closed_loop_flights;
   int64_t physics_steps = 0;
   double wall_time_s = 0.0;  ///< the only wall-clock figure; goes to timing.json
   /// Set when the simulation stopped early (MuJoCo bad state): what happened.
@@ -79,6 +115,16 @@ struct SimulateOptions {
   std::string models_dir = sim::DefaultModelsDir();
   /// Called about every 0.5 % of the run with the fraction done (0..1).
   std::function<void(double)> progress;
+  /// Fly this flight on the named estimation method (a closed-loop flight; only that
+  /// method runs in the loop). Unset: fly on ground truth, run every method of
+  /// scenario.estimation in the loop, then fly the closed-loop flights of
+  /// scenario.control.
+  std::optional<std::string> fly_on;
+  /// A closed-loop flight's progress: (method, fraction).
+  std::function<void(const std::string&, double)> closed_loop_progress;
+  /// Testing hook: called with every sample before the in-loop consumers see it, to
+  /// change it (the causality test alters samples arriving after a given time).
+  std::function<void(const std::string& stream, sim::SensorSample&)> tamper;
 };
 
 /// Runs the scenario. Throws core::InputError for a scenario the simulator cannot set up

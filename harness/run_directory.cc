@@ -5,10 +5,14 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <charconv>
+#include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <stdexcept>
+#include <string_view>
 
 #include <fmt/format.h>
 #include <yaml-cpp/yaml.h>
@@ -16,6 +20,7 @@
 #include "core/lie.h"
 #include "harness/estimation.h"
 #include "harness/file_io.h"
+#include "harness/replay.h"
 #include "harness/sensor_config.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
@@ -195,6 +200,33 @@ std::string UpperTriangleHeader(const std::string& prefix, const std::string& un
     for (int k = r; k < N; ++k) header += fmt::format(",{}{}{} [{}]", prefix, r, k, unit);
   }
   return header;
+}
+
+// A value as a sensor CSV holds it: formatted as the writer formats it and parsed back
+// as the reader (recorded_log.cc) parses it, so that an in-loop consumer sees exactly
+// what `tofu estimate` reads from the file.
+double AsWritten(double value, std::string_view format) {
+  const std::string text = fmt::format(fmt::runtime(format), value);
+  double parsed = 0.0;
+  const char* first = text.data();
+  const char* last = first + text.size();
+  const auto [end, ec] = std::from_chars(first, last, parsed);
+  if (ec == std::errc::result_out_of_range) return std::strtod(text.c_str(), nullptr);
+  return parsed;
+}
+
+Eigen::Vector3d AsWritten(const Eigen::Vector3d& v, std::string_view format) {
+  return {AsWritten(v.x(), format), AsWritten(v.y(), format), AsWritten(v.z(), format)};
+}
+
+// A symmetric matrix from its upper triangle as written (",{:.6e}" each).
+template <int N>
+Eigen::Matrix<double, N, N> UpperTriangleAsWritten(const Eigen::Matrix<double, N, N>& c) {
+  Eigen::Matrix<double, N, N> out;
+  for (int r = 0; r < N; ++r) {
+    for (int k = r; k < N; ++k) out(r, k) = out(k, r) = AsWritten(c(r, k), "{:.6e}");
+  }
+  return out;
 }
 
 std::string SensorCsv(const SensorStream& stream, bool delivered) {
@@ -395,6 +427,90 @@ int RunQuietly(const std::vector<std::string>& argv) {
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
+// control.csv of a closed-loop flight: at the ground-truth rate, what the controller flew
+// on (mode, its estimate of B in W) beside the truth and the mission reference.
+std::string ControlCsv(const RunRecord& record) {
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out),
+                 "#timestamp [ns],mode,p_ref_x [m],p_ref_y [m],p_ref_z [m],p_true_x [m],"
+                 "p_true_y [m],p_true_z [m],p_est_x [m],p_est_y [m],p_est_z [m],"
+                 "tracking_error [m],estimate_error [m],structure_distance [m]\n");
+  const ClosedLoopFlight& flight = *record.closed_loop;
+  const std::size_t n = std::min({flight.samples.size(), record.groundtruth.size(),
+                                  record.tracking.size()});
+  for (std::size_t k = 0; k < n; ++k) {
+    const ClosedLoopSample& s = flight.samples[k];
+    const Eigen::Vector3d& p_true = record.groundtruth[k].p_WB;
+    const Eigen::Vector3d& p_ref = record.tracking[k].reference.p_WB;
+    fmt::format_to(std::back_inserter(out), "{},{},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f}",
+                   s.t_ns, FlightModeName(s.mode), p_ref.x(), p_ref.y(), p_ref.z(), p_true.x(),
+                   p_true.y(), p_true.z());
+    if (s.p_WB_est) {
+      fmt::format_to(std::back_inserter(out), ",{:.6f},{:.6f},{:.6f}", s.p_WB_est->x(),
+                     s.p_WB_est->y(), s.p_WB_est->z());
+    } else {
+      fmt::format_to(std::back_inserter(out), ",,,");
+    }
+    fmt::format_to(std::back_inserter(out), ",{:.6f},", record.tracking[k].position_error_m);
+    if (s.p_WB_est) {
+      fmt::format_to(std::back_inserter(out), "{:.6f}", (*s.p_WB_est - p_true).norm());
+    }
+    fmt::format_to(std::back_inserter(out), ",");
+    if (s.structure_distance_m) {
+      fmt::format_to(std::back_inserter(out), "{:.6f}", *s.structure_distance_m);
+    }
+    fmt::format_to(std::back_inserter(out), "\n");
+  }
+  return fmt::to_string(out);
+}
+
+std::string EventsCsv(const ClosedLoopFlight& flight) {
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out), "#timestamp [ns],event,detail\n");
+  for (const FlightEvent& e : flight.events) {
+    fmt::format_to(std::back_inserter(out), "{},{},\"{}\"\n", e.t_ns, e.event, e.detail);
+  }
+  return fmt::to_string(out);
+}
+
+// Every file of a run (no estimation files) into `dir`, which exists.
+void WriteRunFiles(const RunRecord& record, const Evaluation& evaluation, const fs::path& dir) {
+  WriteFileAtomically(dir / "scenario.yaml", ResolvedScenarioYaml(record.scenario));
+  WriteFileAtomically(dir / "groundtruth.csv", GroundTruthCsv(record));
+  WriteFileAtomically(dir / "groundtruth.tum", GroundTruthTum(record));
+  WriteFileAtomically(dir / "tracking.csv", TrackingCsv(record));
+  WriteFileAtomically(dir / "calibration.yaml", CalibrationYaml(record));
+  WriteFileAtomically(dir / "summary.json", evaluation.summary.dump(2) + "\n");
+  WriteFileAtomically(dir / "timing.json", TimingJson(record));
+  if (!record.sensors.empty()) {
+    fs::create_directories(dir / "sensors" / "clean");
+    for (const SensorStream& stream : record.sensors) {
+      WriteFileAtomically(dir / "sensors" / (stream.name + ".csv"), SensorCsv(stream, true));
+      WriteFileAtomically(dir / "sensors" / "clean" / (stream.name + ".csv"),
+                          SensorCsv(stream, false));
+    }
+    WriteFileAtomically(dir / "labels.csv", LabelsCsv(record));
+    if (record.consistency) {
+      WriteFileAtomically(dir / "consistency.csv", ConsistencyCsv(*record.consistency));
+      WriteFileAtomically(dir / "alignment.csv", AlignmentCsv(*record.consistency));
+    }
+    // The EuRoC folder layout of the first IMU, so existing VIO tools read a run.
+    for (const SensorStream& stream : record.sensors) {
+      if (stream.type != "imu") continue;
+      fs::create_directories(dir / "mav0" / "imu0");
+      fs::create_directories(dir / "mav0" / "state_groundtruth_estimate0");
+      WriteFileAtomically(dir / "mav0" / "imu0" / "data.csv", EurocImuCsv(stream));
+      WriteFileAtomically(dir / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+                          EurocGroundTruthCsv(record, stream));
+      break;
+    }
+  }
+  if (record.closed_loop) {
+    WriteFileAtomically(dir / "control.csv", ControlCsv(record));
+    WriteFileAtomically(dir / "events.csv", EventsCsv(*record.closed_loop));
+  }
+}
+
 }  // namespace
 
 void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
@@ -408,35 +524,7 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
   fs::remove_all(staging);
   try {
     fs::create_directories(staging);
-    WriteFileAtomically(staging / "scenario.yaml", ResolvedScenarioYaml(record.scenario));
-    WriteFileAtomically(staging / "groundtruth.csv", GroundTruthCsv(record));
-    WriteFileAtomically(staging / "groundtruth.tum", GroundTruthTum(record));
-    WriteFileAtomically(staging / "tracking.csv", TrackingCsv(record));
-    WriteFileAtomically(staging / "calibration.yaml", CalibrationYaml(record));
-    WriteFileAtomically(staging / "summary.json", evaluation.summary.dump(2) + "\n");
-    WriteFileAtomically(staging / "timing.json", TimingJson(record));
-    if (!record.sensors.empty()) {
-      fs::create_directories(staging / "sensors" / "clean");
-      for (const SensorStream& stream : record.sensors) {
-        WriteFileAtomically(staging / "sensors" / (stream.name + ".csv"), SensorCsv(stream, true));
-        WriteFileAtomically(staging / "sensors" / "clean" / (stream.name + ".csv"), SensorCsv(stream, false));
-      }
-      WriteFileAtomically(staging / "labels.csv", LabelsCsv(record));
-      if (record.consistency) {
-        WriteFileAtomically(staging / "consistency.csv", ConsistencyCsv(*record.consistency));
-        WriteFileAtomically(staging / "alignment.csv", AlignmentCsv(*record.consistency));
-      }
-      // The EuRoC folder layout of the first IMU, so existing VIO tools read a run.
-      for (const SensorStream& stream : record.sensors) {
-        if (stream.type != "imu") continue;
-        fs::create_directories(staging / "mav0" / "imu0");
-        fs::create_directories(staging / "mav0" / "state_groundtruth_estimate0");
-        WriteFileAtomically(staging / "mav0" / "imu0" / "data.csv", EurocImuCsv(stream));
-        WriteFileAtomically(staging / "mav0" / "state_groundtruth_estimate0" / "data.csv",
-                  EurocGroundTruthCsv(record, stream));
-        break;
-      }
-    }
+    WriteRunFiles(record, evaluation, staging);
     if (finish) finish(staging);
     // Replace atomically from a reader's point of view: old aside, new in, old gone.
     const fs::path old = parent / (out.filename().string() + fmt::format(".old-{}", ::getpid()));
@@ -450,31 +538,102 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
   }
 }
 
+namespace {
+
+double SimulatedSeconds(const RunRecord& record) {
+  return core::TimeToSeconds(record.physics_steps *
+                             core::PeriodFromRate(record.scenario.physics.rate_hz));
+}
+
+// Draws a figure with one of scripts/; a missing interpreter or library is a warning.
+void Plot(const char* script_name, const fs::path& dir, const fs::path& png) {
+  const fs::path script = fs::path(TOFU_SCRIPTS_DIR) / script_name;
+  if (!fs::exists(script) ||
+      RunQuietly({script.string(), dir.string(), "--out", png.string()}) != 0) {
+    fmt::print(stderr, "tofu: warning: no {} ({} failed; needs python3-matplotlib)\n",
+               png.filename().string(), script.string());
+  }
+}
+
+// A closed-loop flight into <staging>/closed_loop/<method>/: its own run files, and the
+// estimate of the method that flew, scored like an open-loop method.
+void WriteClosedLoopFlight(RunRecord& flight, const fs::path& dir) {
+  fs::create_directories(dir);
+  if (flight.scenario.estimation && !flight.failure) {
+    EstimationConfig config = *flight.scenario.estimation;
+    config.methods = {flight.closed_loop->method};
+    WriteRunFiles(flight, Evaluate(flight), dir);
+    flight.methods = EvaluateEstimation(dir, config, flight.labels, SimulatedSeconds(flight),
+                                        flight.in_loop);
+  }
+  WriteRunFiles(flight, Evaluate(flight), dir);
+}
+
+}  // namespace
+
 Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
                     const RunOutputOptions& options) {
   Evaluation evaluation = Evaluate(record);
-  if (!record.scenario.estimation || record.failure) {
+  const bool estimation = record.scenario.estimation && !record.failure;
+  if (!estimation && record.closed_loop_flights.empty()) {
     WriteRunDirectory(record, evaluation, out_dir);
     return evaluation;
   }
   WriteRunDirectory(record, evaluation, out_dir, [&](const fs::path& staging) {
-    const double run_s = core::TimeToSeconds(record.physics_steps *
-                                             core::PeriodFromRate(record.scenario.physics.rate_hz));
-    record.methods = RunEstimation(staging, *record.scenario.estimation, record.labels, run_s,
-                                   options.estimation_progress);
+    if (estimation) {
+      record.methods = EvaluateEstimation(staging, *record.scenario.estimation, record.labels,
+                                          SimulatedSeconds(record), record.in_loop);
+    }
+    for (RunRecord& flight : record.closed_loop_flights) {
+      WriteClosedLoopFlight(flight,
+                            staging / "closed_loop" / MethodFileStem(flight.closed_loop->method));
+    }
     evaluation = Evaluate(record);
     WriteFileAtomically(staging / "summary.json", evaluation.summary.dump(2) + "\n");
-    if (options.plot) {
-      const fs::path script = fs::path(TOFU_SCRIPTS_DIR) / "plot_consensus.py";
-      if (!fs::exists(script) ||
-          RunQuietly({script.string(), staging.string(), "--out",
-                      (staging / "consensus.png").string()}) != 0) {
-        fmt::print(stderr, "tofu: warning: no consensus.png ({} failed; needs python3-matplotlib)\n",
-                   script.string());
-      }
+    if (options.plot && estimation) Plot("plot_consensus.py", staging, staging / "consensus.png");
+    if (options.plot && !record.closed_loop_flights.empty()) {
+      Plot("plot_closed_loop.py", staging, staging / "closed_loop.png");
     }
   });
   return evaluation;
 }
+
+core::Measurement RecordedMeasurement(const std::string& stream_type,
+                                      const core::Measurement& value) {
+  if (stream_type == "imu") {
+    const auto& m = std::get<core::ImuMeasurement>(value);
+    core::ImuMeasurement out;
+    out.gyro_I_radps = AsWritten(m.gyro_I_radps, "{:.9f}");
+    out.acc_I_mps2 = AsWritten(m.acc_I_mps2, "{:.7f}");
+    return out;
+  }
+  if (stream_type == "vio" || stream_type == "lidar_odometry") {
+    const auto& m = std::get<core::PoseMeasurement>(value);
+    core::PoseMeasurement out;
+    out.p_Ss = AsWritten(m.p_Ss, "{:.6f}");
+    const Eigen::Quaterniond q = core::CanonicalQuat(m.q_Ss);
+    // The reader normalises what it parsed (when finite and non-zero).
+    Eigen::Quaterniond q_read(AsWritten(q.w(), "{:.9f}"), AsWritten(q.x(), "{:.9f}"),
+                              AsWritten(q.y(), "{:.9f}"), AsWritten(q.z(), "{:.9f}"));
+    const double norm = q_read.norm();
+    if (std::isfinite(norm) && norm > 0.0) q_read.coeffs() /= norm;
+    out.q_Ss = q_read;
+    out.covariance = UpperTriangleAsWritten<6>(m.covariance);
+    if (m.has_twist) {
+      out.has_twist = true;
+      out.v_s_s_mps = AsWritten(m.v_s_s_mps, "{:.6f}");
+      out.omega_s_s_radps = AsWritten(m.omega_s_s_radps, "{:.6f}");
+      out.twist_covariance = UpperTriangleAsWritten<6>(m.twist_covariance);
+    }
+    return out;
+  }
+  const auto& m = std::get<core::PositionMeasurement>(value);
+  core::PositionMeasurement out;
+  out.p_Ss = AsWritten(m.p_Ss, "{:.6f}");
+  out.covariance = UpperTriangleAsWritten<3>(m.covariance);
+  return out;
+}
+
+std::string CalibrationYamlText(const RunRecord& record) { return CalibrationYaml(record); }
 
 }  // namespace tofu::harness

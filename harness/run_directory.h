@@ -22,17 +22,28 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
                        const std::function<void(const std::filesystem::path& staging)>& finish = {});
 
 struct RunOutputOptions {
-  /// Progress of each estimation method (method, fraction); may be empty.
-  std::function<void(const std::string&, double)> estimation_progress;
   /// Draw consensus.png with scripts/plot_consensus.py (python3 + matplotlib); a missing
   /// interpreter or library is a warning, never a failure of the run.
   bool plot = true;
 };
 
 /// What `tofu run` does after the simulation: writes the run directory; with an
-/// `estimation:` block, replays its methods on the written streams (record.methods),
-/// evaluates the expectations including the methods' metrics and draws the consensus
-/// plot, all before the directory is renamed into place. Returns the final evaluation.
+/// `estimation:` block, scores the methods that ran in the loop (record.methods) and
+/// writes their estimates; writes each closed-loop flight under closed_loop/<method>/;
+/// evaluates the expectations including the methods' and the closed-loop metrics and
+/// draws consensus.png and closed_loop.png, all before the directory is renamed into
+/// place. Returns the final evaluation.
+/// calibration.yaml of a run: mounts (nominal and true), the sensors' options, the true
+/// reference frames T_WS of record.sensors.
+std::string CalibrationYamlText(const RunRecord& record);
+
+/// A sample's value as its row in sensors/<name>.csv holds it (the writer's precision,
+/// the reader's parse and normalisation): what the run loop hands its in-loop consumers,
+/// so that a recorded run replays bit-identically (`tofu estimate`). `stream_type` is
+/// SensorStream::type.
+core::Measurement RecordedMeasurement(const std::string& stream_type,
+                                      const core::Measurement& value);
+
 Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
                     const RunOutputOptions& options = {});
 

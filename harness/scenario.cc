@@ -155,6 +155,86 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   return config;
 }
 
+// `control:` (harness/closed_loop.h). Needs the scenario's sensors and `estimation:`
+// block: a closed-loop method must be one of estimation.methods and needs an IMU.
+ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
+  ControlConfig config;
+  YamlMap map = value.Map({"state_source", "methods", "corridor_m", "failsafe"});
+  std::optional<YamlValue> source;
+  if ((source = map.Optional("state_source"))) {
+    const std::string name = source->String();
+    if (name == "estimate") {
+      config.state_source = ControlConfig::StateSource::kEstimate;
+    } else if (name != "ground_truth") {
+      source->FailExpected("ground_truth or estimate");
+    }
+  }
+  const bool estimate = config.state_source == ControlConfig::StateSource::kEstimate;
+  if (const auto methods = map.Optional("methods")) {
+    if (!estimate) {
+      methods->Fail("methods are flown only with state_source: estimate (the ground-truth "
+                    "flight runs every method of estimation: open loop)");
+    }
+    if (!scenario.estimation) {
+      methods->Fail("a closed-loop method must be a method of the scenario's estimation: "
+                    "block, and the scenario has none");
+    }
+    const std::vector<std::string>& known = scenario.estimation->methods;
+    for (const YamlValue& item : methods->List(/*non_empty=*/true)) {
+      const std::string name = item.String();
+      if (std::find(known.begin(), known.end(), name) == known.end()) {
+        item.Fail(fmt::format("method '{}' is not one of estimation.methods ({}): a closed-loop "
+                              "flight flies on a method the scenario estimates",
+                              name, fmt::join(known, ", ")));
+      }
+      if (name.starts_with("imu_only")) {
+        item.Fail("imu_only has no position source and cannot fly the mission; expected a "
+                  "method that fuses a sensor");
+      }
+      if (std::find(config.methods.begin(), config.methods.end(), name) != config.methods.end()) {
+        item.Fail(fmt::format("method '{}' is listed twice", name));
+      }
+      config.methods.push_back(name);
+    }
+  }
+  if (estimate) {
+    const auto fail = [&](const std::string& message) {
+      if (source) source->Fail(message);
+      value.Fail(message);
+    };
+    if (!scenario.estimation) {
+      fail("state_source: estimate needs an estimation: block (the methods the controller can "
+           "fly on)");
+    }
+    if (config.methods.empty()) {
+      fail("state_source: estimate needs control.methods: the estimation methods to fly on, "
+           "e.g. [consensus, naive]");
+    }
+    const bool has_imu = std::any_of(scenario.sensors.begin(), scenario.sensors.end(),
+                                     [](const SensorConfig& s) {
+                                       return std::holds_alternative<sim::ImuOptions>(s.options);
+                                     });
+    if (!has_imu) {
+      fail("state_source: estimate needs an IMU among sensors: (the estimator propagates on "
+           "it)");
+    }
+  }
+  ReadNumber(map, "corridor_m", NumberRule::Between(0.01, 100.0, "m"), &config.corridor_m);
+  if (const auto failsafe = map.Optional("failsafe")) {
+    FailsafeConfig& f = config.failsafe;
+    YamlMap fmap = failsafe->Map({"hold_s", "descent_rate_mps", "land_z_m", "max_position_std_m"});
+    ReadNumber(fmap, "hold_s", NumberRule::Between(0.0, 600.0, "s"), &f.hold_s);
+    ReadNumber(fmap, "descent_rate_mps", NumberRule::Between(0.05, 5.0, "m/s"),
+               &f.descent_rate_mps);
+    ReadNumber(fmap, "land_z_m", NumberRule::Between(-100.0, 1000.0, "m"), &f.land_z_m);
+    ReadNumber(fmap, "max_position_std_m", NumberRule::Between(1e-4, 100.0, "m"),
+               &f.max_position_std_m);
+    fmap.Finish();
+  }
+  map.Finish();
+  return config;
+}
+
 RenderRequest ReadRender(const YamlValue& value) {
   RenderRequest r;
   YamlMap map = value.Map({"when", "size", "fps", "camera", "clip_half_s", "error_bound_m"});
@@ -545,13 +625,18 @@ void CheckMethodOfMetric(const Scenario& scenario, const Expectation& expectatio
                          const std::string& metric, const std::string& key_path) {
   const MetricArguments args = MatchMetric(metric)->second;
   if (args.method.empty()) return;
-  const std::vector<std::string> methods =
-      scenario.estimation ? scenario.estimation->methods : std::vector<std::string>{};
+  const bool closed_loop = metric.starts_with("closed_loop.");
+  std::vector<std::string> methods;
+  if (closed_loop && scenario.control) {
+    methods = scenario.control->methods;
+  } else if (!closed_loop && scenario.estimation) {
+    methods = scenario.estimation->methods;
+  }
   if (std::find(methods.begin(), methods.end(), args.method) != methods.end()) return;
   throw core::InputError(
       expectation.location, key_path,
-      fmt::format("metric '{}' names method '{}', which estimation.methods does not list (listed: {})",
-                  metric, args.method,
+      fmt::format("metric '{}' names method '{}', which {} does not list (listed: {})", metric,
+                  args.method, closed_loop ? "control.methods" : "estimation.methods",
                   methods.empty() ? "none" : fmt::format("{}", fmt::join(methods, ", "))));
 }
 
@@ -561,8 +646,8 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   const YamlValue root = internal::ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
-                          "sensors", "faults", "consistency", "estimation", "render",
-                          "expect"});
+                          "sensors", "faults", "consistency", "estimation", "control",
+                          "render", "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -614,6 +699,9 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   }
   if (const auto estimation = map.Optional("estimation")) {
     scenario.estimation = ReadEstimation(*estimation, scenario.sensors);
+  }
+  if (const auto control = map.Optional("control")) {
+    scenario.control = ReadControl(*control, scenario);
   }
   if (const auto render = map.Optional("render")) scenario.render = ReadRender(*render);
   if (const auto expect = map.Optional("expect")) {
@@ -778,6 +866,25 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     EmitNumber(out, "rate_hz", cons.rate_hz);
     out << YAML::EndMap;
     EmitNumber(out, "huber_delta", ec.huber_delta);
+    out << YAML::EndMap;
+  }
+
+  if (scenario.control) {
+    const ControlConfig& control = *scenario.control;
+    out << YAML::Key << "control" << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "state_source" << YAML::Value << StateSourceName(control.state_source);
+    if (!control.methods.empty()) {
+      out << YAML::Key << "methods" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+      for (const std::string& m : control.methods) out << YAML::DoubleQuoted << m;
+      out << YAML::EndSeq;
+    }
+    EmitNumber(out, "corridor_m", control.corridor_m);
+    out << YAML::Key << "failsafe" << YAML::Value << YAML::BeginMap;
+    EmitNumber(out, "hold_s", control.failsafe.hold_s);
+    EmitNumber(out, "descent_rate_mps", control.failsafe.descent_rate_mps);
+    EmitNumber(out, "land_z_m", control.failsafe.land_z_m);
+    EmitNumber(out, "max_position_std_m", control.failsafe.max_position_std_m);
+    out << YAML::EndMap;
     out << YAML::EndMap;
   }
 

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "harness/closed_loop.h"
 #include "harness/consistency_eval.h"
 #include "harness/estimation.h"
 #include "harness/sensor_suite.h"
@@ -90,6 +91,9 @@ struct Scenario {
   /// `estimation:` the estimation methods `tofu run` replays on the run's streams and
   /// scores (harness/estimation.h); none when absent.
   std::optional<EstimationConfig> estimation;
+  /// `control:` where the controller gets its state: ground truth (default), or each
+  /// listed estimation method in a closed-loop flight of its own (harness/closed_loop.h).
+  std::optional<ControlConfig> control;
   std::optional<RenderRequest> render;
   std::vector<Expectation> expect;
 };

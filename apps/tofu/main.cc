@@ -112,23 +112,21 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
 
   tofu::harness::SimulateOptions options;
   std::optional<ProgressBar> bar;
+  std::optional<ProgressBar> flight_bar;
+  std::string bar_method;
   if (!quiet && ::isatty(STDERR_FILENO)) {
     bar.emplace(scenario.name);
     options.progress = [&bar](double f) { (*bar)(f); };
+    options.closed_loop_progress = [&](const std::string& method, double f) {
+      if (method != bar_method) {
+        flight_bar.emplace("  closed loop: " + method);
+        bar_method = method;
+      }
+      (*flight_bar)(f);
+    };
   }
   tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
   tofu::harness::RunOutputOptions output;
-  std::optional<ProgressBar> method_bar;
-  std::string bar_method;
-  if (!quiet && ::isatty(STDERR_FILENO)) {
-    output.estimation_progress = [&](const std::string& method, double f) {
-      if (method != bar_method) {
-        method_bar.emplace("  " + method);
-        bar_method = method;
-      }
-      (*method_bar)(f);
-    };
-  }
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
   const int status = record.failure    ? tofu::core::kExitSimulationError

@@ -1,0 +1,135 @@
+#include "harness/closed_loop.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <fmt/format.h>
+
+#include "core/lie.h"
+
+namespace tofu::harness {
+
+const char* StateSourceName(ControlConfig::StateSource source) {
+  return source == ControlConfig::StateSource::kEstimate ? "estimate" : "ground_truth";
+}
+
+const char* FlightModeName(FlightMode mode) {
+  switch (mode) {
+    case FlightMode::kTruth: return "truth";
+    case FlightMode::kEstimate: return "estimate";
+    case FlightMode::kFailsafeHold: return "failsafe_hold";
+    case FlightMode::kFailsafeLand: return "failsafe_land";
+  }
+  return "?";
+}
+
+ClosedLoopPilot::ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_B_I)
+    : failsafe_(failsafe), T_B_I_(T_B_I) {}
+
+bool ClosedLoopPilot::TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest,
+                                  const Eigen::Isometry3d& T_WB_true) {
+  if (handed_over_ || newest == nullptr || !newest->valid) return false;
+  // T_LB of the estimate; W = Rz(yaw) L + p: the z rotation nearest to R_WB R_LBᵀ.
+  Eigen::Isometry3d T_LI = Eigen::Isometry3d::Identity();
+  T_LI.linear() = newest->state.q_LI.normalized().toRotationMatrix();
+  T_LI.translation() = newest->state.p_LI;
+  const Eigen::Isometry3d T_LB = T_LI * T_B_I_.inverse();
+  const Eigen::Matrix3d R = T_WB_true.linear() * T_LB.linear().transpose();
+  const double yaw = std::atan2(R(1, 0) - R(0, 1), R(0, 0) + R(1, 1));
+  T_WL_ = Eigen::Isometry3d::Identity();
+  T_WL_.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T_WL_.translation() = T_WB_true.translation() - T_WL_.linear() * T_LB.translation();
+  handed_over_ = true;
+  mode_ = FlightMode::kEstimate;
+  events_.push_back({t_ns, "handover",
+                     fmt::format("estimate valid; W registered to L (yaw {:.3f} deg)",
+                                 yaw * 180.0 / M_PI)});
+  return true;
+}
+
+sim::RobotState ClosedLoopPilot::StateOf(core::Time t_ns,
+                                         const estimator::EstimatorOutput& o) const {
+  // Propagate the newest output to the controller's instant (constant v_L and ω_I).
+  const double dt_s = std::max(0.0, core::TimeToSeconds(t_ns - o.t_ns));
+  const Eigen::Quaterniond q_LI =
+      (o.state.q_LI.normalized() * core::ExpQuat(o.omega_I_radps * dt_s)).normalized();
+  const Eigen::Vector3d p_LI = o.state.p_LI + o.state.v_L_mps * dt_s;
+  const Eigen::Matrix3d R_LI = q_LI.toRotationMatrix();
+  const Eigen::Matrix3d R_IB = T_B_I_.linear().transpose();
+  const Eigen::Vector3d p_IB = -R_IB * T_B_I_.translation();
+  // p_LB = p_LI + R_LI p_IB, v_LB = v_LI + R_LI (ω_I × p_IB), ω_B = R_BI ω_I.
+  const Eigen::Vector3d p_LB = p_LI + R_LI * p_IB;
+  const Eigen::Vector3d v_LB = o.state.v_L_mps + R_LI * o.omega_I_radps.cross(p_IB);
+  const Eigen::Matrix3d& R_WL = T_WL_.linear();
+  sim::RobotState state;
+  state.t_ns = t_ns;
+  state.p_WB = T_WL_ * p_LB;
+  state.q_WB = Eigen::Quaterniond(R_WL * R_LI * R_IB).normalized();
+  state.v_WB_W = R_WL * v_LB;
+  state.omega_WB_B = T_B_I_.linear() * o.omega_I_radps;
+  return state;
+}
+
+ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
+                                              const estimator::EstimatorOutput& newest,
+                                              const sim::Reference& mission) {
+  if (newest.covariance) {
+    const Eigen::Vector3d var = newest.covariance->topLeftCorner<3, 3>().diagonal();
+    position_std_m_ = std::sqrt(std::max(0.0, var.maxCoeff()));
+  }
+  Command command;
+  command.state = StateOf(t_ns, newest);
+  last_state_ = command.state;
+
+  std::optional<std::string> unusable;
+  if (!newest.valid) {
+    unusable = "estimate invalid: no usable position source";
+  } else if (position_std_m_ && !(*position_std_m_ <= failsafe_.max_position_std_m)) {
+    unusable = fmt::format("position std {:.3f} m above {:.3f} m", *position_std_m_,
+                           failsafe_.max_position_std_m);
+  }
+
+  if (mode_ == FlightMode::kEstimate && unusable) {
+    mode_ = FlightMode::kFailsafeHold;
+    failsafe_start_ns_ = t_ns;
+    hold_ = sim::Reference{};
+    hold_.p_WB = command.state.p_WB;
+    hold_.q_WB = command.state.q_WB;
+    events_.push_back({t_ns, "failsafe_start", *unusable});
+  } else if (mode_ == FlightMode::kFailsafeHold && !unusable) {
+    mode_ = FlightMode::kEstimate;
+    events_.push_back({t_ns, "failsafe_end", "estimate usable again: mission resumed"});
+  } else if (mode_ == FlightMode::kFailsafeHold &&
+             t_ns - failsafe_start_ns_ >= core::SecondsToTime(failsafe_.hold_s)) {
+    mode_ = FlightMode::kFailsafeLand;
+    events_.push_back({t_ns, "failsafe_land",
+                       fmt::format("descending at {:.2f} m/s", failsafe_.descent_rate_mps)});
+  }
+
+  command.mode = mode_;
+  switch (mode_) {
+    case FlightMode::kTruth:
+    case FlightMode::kEstimate:
+      command.reference = mission;
+      break;
+    case FlightMode::kFailsafeHold:
+      command.reference = hold_;
+      break;
+    case FlightMode::kFailsafeLand: {
+      command.reference = hold_;
+      const double descending_s = core::TimeToSeconds(
+          t_ns - failsafe_start_ns_ - core::SecondsToTime(failsafe_.hold_s));
+      const double z = hold_.p_WB.z() - failsafe_.descent_rate_mps * descending_s;
+      if (z > failsafe_.land_z_m) {
+        command.reference.p_WB.z() = z;
+        command.reference.v_WB_W.z() = -failsafe_.descent_rate_mps;
+      } else {
+        command.reference.p_WB.z() = std::min(hold_.p_WB.z(), failsafe_.land_z_m);
+      }
+      break;
+    }
+  }
+  return command;
+}
+
+}  // namespace tofu::harness

@@ -1,0 +1,108 @@
+#pragma once
+// Closed-loop co-testing (a scenario's `control:` block): the controller flies on an
+// estimation method's output instead of ground truth, and the flight is judged against
+// ground truth. The pilot below is what a flight stack puts between its estimator and
+// its position controller:
+//  - start-up: until the method reports a valid estimate, the robot hovers on ground
+//    truth (the stand-in for a take-off on a surveyed pose). At the first valid output it
+//    hands over and registers the mission frame W to the estimator's local frame L in
+//    yaw and position (L is gravity aligned, its yaw and origin are arbitrary, as a VIO's
+//    are), from the true pose at that instant: the operator's "the robot is here".
+//    After the handover the pilot never reads ground truth (its interface has none).
+//  - failsafe: when the output is flagged invalid (no fused sensor for longer than the
+//    estimator's max_unfused_ns) or its position standard deviation passes a bound, the
+//    pilot holds the estimated position and attitude on IMU propagation for hold_s, then
+//    descends at descent_rate_mps to land_z_m; a usable estimate during the hold resumes
+//    the mission (PX4's position-loss failsafe: hold, then land).
+//  - the state it hands the controller is the newest output, propagated to the
+//    controller's instant at constant velocity and body rate (the output is at 200 Hz;
+//    the controller may run faster).
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/time.h"
+#include "estimator/multi_graph_estimator.h"
+#include "sim/controller.h"
+#include "sim/trajectory.h"
+
+namespace tofu::harness {
+
+struct FailsafeConfig {
+  double hold_s = 2.0;              ///< hover on IMU propagation before descending
+  double descent_rate_mps = 0.5;    ///< then descend at this rate
+  double land_z_m = 0.3;            ///< down to this height of B in W
+  double max_position_std_m = 0.5;  ///< largest position std the controller flies on
+};
+
+/// `control:` in a scenario.
+struct ControlConfig {
+  enum class StateSource { kGroundTruth, kEstimate };
+  StateSource state_source = StateSource::kGroundTruth;
+  /// `state_source: estimate`: one closed-loop flight per method (names of `estimation:`).
+  std::vector<std::string> methods;
+  /// A flight whose true position leaves the reference by more than this has diverged.
+  double corridor_m = 0.5;
+  FailsafeConfig failsafe;
+};
+
+const char* StateSourceName(ControlConfig::StateSource source);
+
+enum class FlightMode { kTruth, kEstimate, kFailsafeHold, kFailsafeLand };
+const char* FlightModeName(FlightMode mode);
+
+/// Something the pilot did: "handover", "failsafe_start" (detail: the reason),
+/// "failsafe_end", "failsafe_land".
+struct FlightEvent {
+  core::Time t_ns = 0;
+  std::string event;
+  std::string detail;
+};
+
+class ClosedLoopPilot {
+ public:
+  /// `T_B_I`: the IMU's nominal mount (what the estimator is given).
+  ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_B_I);
+
+  bool handed_over() const { return handed_over_; }
+  /// Before the handover: hands over when `newest` is valid, registering W to L with
+  /// the true pose of B now. Returns whether it handed over.
+  bool TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest,
+                   const Eigen::Isometry3d& T_WB_true);
+
+  /// After the handover: what the controller flies on at t_ns, from the newest output.
+  struct Command {
+    sim::RobotState state;
+    sim::Reference reference;
+    FlightMode mode = FlightMode::kEstimate;
+  };
+  Command Fly(core::Time t_ns, const estimator::EstimatorOutput& newest,
+              const sim::Reference& mission);
+
+  /// The estimate of B in W as the controller saw it at its last update.
+  const std::optional<sim::RobotState>& last_state() const { return last_state_; }
+  FlightMode mode() const { return mode_; }
+  const std::vector<FlightEvent>& events() const { return events_; }
+  /// W to L registration taken at the handover.
+  const Eigen::Isometry3d& T_WL() const { return T_WL_; }
+
+ private:
+  sim::RobotState StateOf(core::Time t_ns, const estimator::EstimatorOutput& o) const;
+
+  FailsafeConfig failsafe_;
+  Eigen::Isometry3d T_B_I_;
+  Eigen::Isometry3d T_WL_ = Eigen::Isometry3d::Identity();
+  bool handed_over_ = false;
+  FlightMode mode_ = FlightMode::kTruth;
+  std::optional<double> position_std_m_;  // from the newest output that carried one
+  core::Time failsafe_start_ns_ = 0;
+  sim::Reference hold_;
+  std::optional<sim::RobotState> last_state_;
+  std::vector<FlightEvent> events_;
+};
+
+}  // namespace tofu::harness

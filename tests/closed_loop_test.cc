@@ -1,0 +1,398 @@
+// Closed-loop co-testing (harness/closed_loop.h, the run loop in harness/run.cc):
+//  - the estimate a method produced inside the flight is bit-identical to `tofu estimate`'s
+//    replay of the recorded streams (same code in and out of the loop);
+//  - causality: the controller's input at time t does not change when a sample arriving
+//    after t is changed;
+//  - a closed-loop run written twice is byte-identical (timing files aside);
+//  - the pilot's handover registration and failsafe;
+//  - bad `control:` blocks are rejected with file:line and key, and `tofu run` writes nothing.
+
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <set>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "harness/closed_loop.h"
+#include "harness/estimation.h"
+#include "harness/evaluation.h"
+#include "harness/recorded_log.h"
+#include "harness/replay.h"
+#include "harness/run.h"
+#include "harness/run_directory.h"
+#include "harness/scenario.h"
+#include "tests/test_support.h"
+
+namespace tofu {
+namespace {
+
+namespace fs = std::filesystem;
+using harness::ClosedLoopPilot;
+using harness::FlightMode;
+
+// A short flight near the arena's east wall with the seed paper's sensors, the VIO
+// diverging from 6 s; consensus and naive fly on their estimates.
+constexpr const char* kScenario = R"(
+name: closed_loop_short
+world: indoor_arena
+duration_s: 12
+seed: 3
+trajectory:
+  start: {position_m: [2.0, -2.0, 1.5]}
+  limits: {max_speed_mps: 0.6, max_acceleration_mps2: 0.6}
+  segments:
+    - hover: {duration_s: 1}
+    - line: {to_m: [4.5, -2.0, 1.5]}
+    - line: {to_m: [4.5, 1.0, 1.5]}
+sensors:
+  imu: {}
+  vio: {}
+  lio: {type: lidar_odometry}
+  leica: {type: total_station}
+faults:
+  - {sensor: vio, kind: divergence, start_s: 6, end_s: 12, axis: [1, 0, 0], initial_velocity_mps: 0.3, time_constant_s: 8}
+  - {sensor: lio, kind: delay, start_s: 3, end_s: 5, delay_s: 0.15}
+estimation:
+  methods: [consensus, naive, "single:vio@clean"]
+  consensus: {threshold: 0.3, priority: [leica, lio, vio]}
+  huber_delta: 3
+control:
+  state_source: estimate
+  methods: [consensus, naive]
+)";
+
+harness::Scenario ShortScenario() { return harness::ParseScenario(kScenario, "closed_loop_short.yaml"); }
+
+void ExpectSameOutputs(const std::vector<estimator::EstimatorOutput>& in_loop,
+                       const std::vector<estimator::EstimatorOutput>& replayed,
+                       const std::string& what) {
+  ASSERT_EQ(in_loop.size(), replayed.size()) << what;
+  ASSERT_FALSE(in_loop.empty()) << what;
+  for (std::size_t i = 0; i < in_loop.size(); ++i) {
+    const estimator::EstimatorOutput& a = in_loop[i];
+    const estimator::EstimatorOutput& b = replayed[i];
+    ASSERT_EQ(a.t_ns, b.t_ns) << what << " output " << i;
+    // Bit-identical: the same samples through the same code.
+    ASSERT_TRUE(a.state.p_LI == b.state.p_LI) << what << " p_LI at output " << i;
+    ASSERT_TRUE(a.state.q_LI.coeffs() == b.state.q_LI.coeffs()) << what << " q_LI at " << i;
+    ASSERT_TRUE(a.state.v_L_mps == b.state.v_L_mps) << what << " v_L at output " << i;
+    ASSERT_TRUE(a.bias.accel_mps2 == b.bias.accel_mps2) << what << " b_a at output " << i;
+    ASSERT_EQ(a.valid, b.valid) << what << " valid at output " << i;
+    ASSERT_EQ(a.fused, b.fused) << what << " fused at output " << i;
+  }
+}
+
+// Replays one method on the run directory `dir` as `tofu estimate` does: the streams read
+// back from the CSVs, the estimator configured from the written calibration.
+harness::ReplayResult ReplayWrittenRun(const fs::path& dir, const harness::Scenario& scenario,
+                                       const std::string& method_name) {
+  harness::RecordedLogOptions read;
+  read.use_clean_streams = method_name.ends_with("@clean");
+  const harness::RecordedLog log = harness::ReadRecordedLog(dir, read);
+  const harness::EstimationSetup setup = harness::MakeEstimationSetup(log, *scenario.estimation);
+  return harness::Replay(log, harness::ParseReplayMethod(method_name, log), setup.estimator,
+                         setup.sensors, nullptr, setup.consensus);
+}
+
+TEST(ClosedLoop, InLoopEstimatesEqualTheReplayOfTheRecordedStreams) {
+  const harness::Scenario scenario = ShortScenario();
+  harness::RunRecord record = harness::Simulate(scenario);
+  ASSERT_FALSE(record.failure) << *record.failure;
+  EXPECT_EQ(record.late_samples, 0u);
+  const fs::path dir = test::PerTestDirectory("closed_loop_equal_");
+  harness::RunOutputOptions output;
+  output.plot = false;
+  harness::WriteRun(record, dir.string(), output);
+
+  // The ground-truth flight: every method of estimation: ran in the loop.
+  ASSERT_EQ(record.in_loop.size(), scenario.estimation->methods.size());
+  for (std::size_t m = 0; m < record.in_loop.size(); ++m) {
+    const std::string& name = scenario.estimation->methods[m];
+    ExpectSameOutputs(record.in_loop[m].outputs, ReplayWrittenRun(dir, scenario, name).outputs,
+                      "open loop " + name);
+  }
+  // Each closed-loop flight: the method that flew, replayed on that flight's streams.
+  ASSERT_EQ(record.closed_loop_flights.size(), 2u);
+  for (const harness::RunRecord& flight : record.closed_loop_flights) {
+    const std::string& name = flight.closed_loop->method;
+    ASSERT_EQ(flight.in_loop.size(), 1u);
+    ExpectSameOutputs(flight.in_loop[0].outputs,
+                      ReplayWrittenRun(dir / "closed_loop" / name, scenario, name).outputs,
+                      "closed loop " + name);
+  }
+  fs::remove_all(dir);
+}
+
+TEST(ClosedLoop, ControllerInputIsUnchangedByASampleArrivingLater) {
+  harness::Scenario scenario = ShortScenario();
+  scenario.control->methods = {"consensus"};
+  harness::SimulateOptions plain;
+  plain.fly_on = "consensus";
+  const harness::RunRecord a = harness::Simulate(scenario, plain);
+
+  // The same flight, but every total-station and LIO sample arriving after t_cut is moved
+  // by 0.5 m: what the controller flew on before t_cut must not change, and after it must.
+  constexpr core::Time kCutNs = 7'000'000'000;
+  harness::SimulateOptions tampered = plain;
+  tampered.tamper = [](const std::string& stream, sim::SensorSample& sample) {
+    if (sample.arrival_ns <= kCutNs) return;
+    if (auto* p = std::get_if<core::PositionMeasurement>(&sample.measured)) {
+      p->p_Ss.x() += 0.5;
+    } else if (auto* pose = std::get_if<core::PoseMeasurement>(&sample.measured);
+               pose != nullptr && stream == "lio") {
+      pose->p_Ss.x() += 0.5;
+    }
+  };
+  const harness::RunRecord b = harness::Simulate(scenario, tampered);
+
+  const auto& sa = a.closed_loop->samples;
+  const auto& sb = b.closed_loop->samples;
+  ASSERT_EQ(sa.size(), sb.size());
+  std::size_t compared = 0;
+  bool differs_after = false;
+  for (std::size_t k = 0; k < sa.size(); ++k) {
+    if (!sa[k].p_WB_est || !sb[k].p_WB_est) {
+      ASSERT_EQ(sa[k].p_WB_est.has_value(), sb[k].p_WB_est.has_value()) << k;
+      continue;
+    }
+    if (sa[k].t_ns <= kCutNs) {
+      ASSERT_TRUE(*sa[k].p_WB_est == *sb[k].p_WB_est)
+          << "the controller's input at " << sa[k].t_ns << " ns changed";
+      ASSERT_TRUE(a.groundtruth[k].p_WB == b.groundtruth[k].p_WB);
+      ++compared;
+    } else if (*sa[k].p_WB_est != *sb[k].p_WB_est) {
+      differs_after = true;
+    }
+  }
+  EXPECT_GT(compared, 1000u);
+  EXPECT_TRUE(differs_after) << "the tampered samples never reached the controller";
+}
+
+// ---- the pilot ----
+
+estimator::EstimatorOutput Output(core::Time t_ns, const Eigen::Vector3d& p_LI, double yaw_rad,
+                                  bool valid) {
+  estimator::EstimatorOutput o;
+  o.t_ns = t_ns;
+  o.state.p_LI = p_LI;
+  o.state.q_LI = Eigen::Quaterniond(Eigen::AngleAxisd(yaw_rad, Eigen::Vector3d::UnitZ()));
+  o.valid = valid;
+  o.initialized = true;
+  return o;
+}
+
+TEST(ClosedLoopPilot, HandsOverAtTheFirstValidOutputAndRegistersYawAndPosition) {
+  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
+  T_B_I.translation() = Eigen::Vector3d(0.05, 0.0, 0.02);
+  ClosedLoopPilot pilot(harness::FailsafeConfig{}, T_B_I);
+  Eigen::Isometry3d T_WB = Eigen::Isometry3d::Identity();
+  T_WB.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T_WB.translation() = Eigen::Vector3d(2.0, -1.0, 1.5);
+
+  const estimator::EstimatorOutput invalid = Output(0, Eigen::Vector3d::Zero(), 0.0, false);
+  EXPECT_FALSE(pilot.TryHandover(0, nullptr, T_WB));
+  EXPECT_FALSE(pilot.TryHandover(0, &invalid, T_WB));
+  EXPECT_FALSE(pilot.handed_over());
+
+  // L: yawed by -1.0 rad from W, its origin elsewhere; the IMU at the estimate's p_LI.
+  const estimator::EstimatorOutput first = Output(10, Eigen::Vector3d(0.4, 0.2, 0.0), -0.7, true);
+  ASSERT_TRUE(pilot.TryHandover(10, &first, T_WB));
+  EXPECT_EQ(pilot.events().front().event, "handover");
+  // The estimate, seen through the registration, is the true pose at the handover.
+  const ClosedLoopPilot::Command c = pilot.Fly(10, first, sim::Reference{});
+  EXPECT_LT((c.state.p_WB - T_WB.translation()).norm(), 1e-12);
+  EXPECT_LT(c.state.q_WB.angularDistance(Eigen::Quaterniond(T_WB.linear())), 1e-12);
+  EXPECT_EQ(c.mode, FlightMode::kEstimate);
+  // A move of the estimate along L's x moves B along W's direction of L's x.
+  const estimator::EstimatorOutput moved = Output(20, Eigen::Vector3d(1.4, 0.2, 0.0), -0.7, true);
+  const ClosedLoopPilot::Command d = pilot.Fly(20, moved, sim::Reference{});
+  const Eigen::Vector3d x_L_in_W = pilot.T_WL().linear() * Eigen::Vector3d::UnitX();
+  EXPECT_LT((d.state.p_WB - c.state.p_WB - x_L_in_W).norm(), 1e-12);
+  EXPECT_NEAR(std::atan2(x_L_in_W.y(), x_L_in_W.x()), 1.0, 1e-12);
+}
+
+TEST(ClosedLoopPilot, FailsafeHoldsThenLandsAndResumesWhenTheEstimateReturns) {
+  harness::FailsafeConfig failsafe;
+  failsafe.hold_s = 1.0;
+  failsafe.descent_rate_mps = 0.5;
+  failsafe.land_z_m = 0.3;
+  ClosedLoopPilot pilot(failsafe, Eigen::Isometry3d::Identity());
+  const Eigen::Isometry3d T_WB = Eigen::Isometry3d(Eigen::Translation3d(0, 0, 2.0));
+  const estimator::EstimatorOutput good = Output(0, Eigen::Vector3d(0, 0, 2.0), 0.0, true);
+  ASSERT_TRUE(pilot.TryHandover(0, &good, T_WB));
+  sim::Reference mission;
+  mission.p_WB = Eigen::Vector3d(1.0, 0.0, 2.0);
+  EXPECT_EQ(pilot.Fly(0, good, mission).reference.p_WB, mission.p_WB);
+
+  // Invalid: hold where the estimate was, not the mission.
+  const estimator::EstimatorOutput lost = Output(100'000'000, Eigen::Vector3d(0.1, 0, 2.0), 0.0, false);
+  ClosedLoopPilot::Command hold = pilot.Fly(100'000'000, lost, mission);
+  EXPECT_EQ(hold.mode, FlightMode::kFailsafeHold);
+  EXPECT_LT((hold.reference.p_WB - Eigen::Vector3d(0.1, 0, 2.0)).norm(), 1e-12);
+  // Usable again within the hold: the mission resumes.
+  EXPECT_EQ(pilot.Fly(500'000'000, good, mission).mode, FlightMode::kEstimate);
+  // Lost again, for longer than the hold: descend at the rate, down to land_z_m.
+  pilot.Fly(600'000'000, lost, mission);
+  const ClosedLoopPilot::Command landing = pilot.Fly(2'100'000'000, lost, mission);
+  EXPECT_EQ(landing.mode, FlightMode::kFailsafeLand);
+  EXPECT_NEAR(landing.reference.p_WB.z(), 2.0 - 0.5 * 0.5, 1e-9);
+  EXPECT_NEAR(pilot.Fly(9'000'000'000, lost, mission).reference.p_WB.z(), 0.3, 1e-12);
+  int starts = 0;
+  for (const harness::FlightEvent& e : pilot.events()) starts += e.event == "failsafe_start";
+  EXPECT_EQ(starts, 2);
+}
+
+TEST(ClosedLoopPilot, APositionCovarianceAboveTheBoundTriggersTheFailsafe) {
+  harness::FailsafeConfig failsafe;
+  failsafe.max_position_std_m = 0.2;
+  ClosedLoopPilot pilot(failsafe, Eigen::Isometry3d::Identity());
+  estimator::EstimatorOutput o = Output(0, Eigen::Vector3d::Zero(), 0.0, true);
+  ASSERT_TRUE(pilot.TryHandover(0, &o, Eigen::Isometry3d::Identity()));
+  o.covariance = Eigen::Matrix<double, 15, 15>::Identity() * 0.01;  // 0.1 m std
+  EXPECT_EQ(pilot.Fly(1, o, sim::Reference{}).mode, FlightMode::kEstimate);
+  o.covariance->topLeftCorner<3, 3>().diagonal() << 0.01, 0.09, 0.01;  // 0.3 m in y
+  EXPECT_EQ(pilot.Fly(2, o, sim::Reference{}).mode, FlightMode::kFailsafeHold);
+  EXPECT_NE(pilot.events().back().detail.find("position std"), std::string::npos);
+}
+
+// ---- bad input ----
+
+std::string WithControl(const std::string& control, const std::string& estimation =
+                                                        "estimation:\n  methods: [consensus, naive]\n") {
+  std::string yaml = R"(name: bad_control
+world: indoor_arena
+duration_s: 5
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  segments:
+    - hover: {duration_s: 5}
+sensors:
+  imu: {}
+  vio: {}
+  leica: {type: total_station}
+)";
+  return yaml + estimation + control;
+}
+
+void ExpectRejected(const std::string& yaml, const std::string& key, const std::string& message) {
+  try {
+    harness::ParseScenario(yaml, "bad.yaml");
+    FAIL() << "accepted:\n" << yaml;
+  } catch (const core::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_CONTAINS(what, "bad.yaml:");
+    EXPECT_CONTAINS(what, key);
+    EXPECT_CONTAINS(what, message);
+    EXPECT_GT(e.location().line, 0) << what;
+  }
+}
+
+TEST(ClosedLoopScenario, RejectsAnUnknownMethodNamingTheKnownOnes) {
+  ExpectRejected(WithControl("control: {state_source: estimate, methods: [consensus, single:lio]}\n"),
+                 "control.methods[1]", "not one of estimation.methods (consensus, naive)");
+}
+
+TEST(ClosedLoopScenario, RejectsAnEstimateSourceWithoutAnEstimationBlock) {
+  ExpectRejected(WithControl("control: {state_source: estimate}\n", ""), "control.state_source",
+                 "needs an estimation: block");
+  ExpectRejected(WithControl("control: {state_source: estimate, methods: [consensus]}\n", ""),
+                 "control.methods", "has none");
+}
+
+TEST(ClosedLoopScenario, RejectsAnEstimateSourceWithoutMethodsOrWithoutAnImu) {
+  ExpectRejected(WithControl("control: {state_source: estimate}\n"), "control.state_source",
+                 "needs control.methods");
+  std::string no_imu = WithControl("control: {state_source: estimate, methods: [naive]}\n");
+  no_imu.replace(no_imu.find("  imu: {}\n"), 10, "");
+  ExpectRejected(no_imu, "control.state_source", "needs an IMU");
+}
+
+TEST(ClosedLoopScenario, RejectsMethodsWithAGroundTruthSourceAndUnknownSources) {
+  ExpectRejected(WithControl("control: {methods: [consensus]}\n"), "control.methods",
+                 "only with state_source: estimate");
+  ExpectRejected(WithControl("control: {state_source: vicon}\n"), "control.state_source",
+                 "ground_truth or estimate");
+}
+
+TEST(ClosedLoopScenario, RejectsAClosedLoopMetricOfAMethodThatDoesNotFly) {
+  ExpectRejected(WithControl("control: {state_source: estimate, methods: [consensus]}\n"
+                             "expect:\n  - {metric: closed_loop.naive.collisions, max: 0}\n"),
+                 "expect[0].metric", "which control.methods does not list (listed: consensus)");
+}
+
+TEST(ClosedLoopScenario, ResolvedYamlRoundTripsTheControlBlock) {
+  const harness::Scenario a = harness::ParseScenario(
+      WithControl("control: {state_source: estimate, methods: [naive, consensus], corridor_m: 0.3,"
+                  " failsafe: {hold_s: 1.5}}\n"),
+      "a.yaml");
+  const std::string text = harness::ResolvedScenarioYaml(a);
+  const harness::Scenario b = harness::ParseScenario(text, "b.yaml");
+  ASSERT_TRUE(b.control);
+  EXPECT_EQ(b.control->methods, (std::vector<std::string>{"naive", "consensus"}));
+  EXPECT_EQ(b.control->corridor_m, 0.3);
+  EXPECT_EQ(b.control->failsafe.hold_s, 1.5);
+  EXPECT_EQ(harness::ResolvedScenarioYaml(b), text);
+  // No control block: none in the resolved scenario (ground-truth runs stay as they were).
+  EXPECT_EQ(harness::ResolvedScenarioYaml(harness::ParseScenario(WithControl(""), "c.yaml"))
+                .find("\ncontrol:"),
+            std::string::npos);
+}
+
+// ---- the command line ----
+
+int RunTofu(const std::string& args, const fs::path& cwd) {
+  const std::string command = "cd " + test::Quote(cwd.string()) + " && " +
+                              test::Quote(TOFU_BINARY) + " " + args + " >/dev/null 2>" +
+                              test::Quote((cwd / "stderr.txt").string());
+  const int status = std::system(command.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+std::set<std::string> FilesIn(const fs::path& dir) {
+  std::set<std::string> names;
+  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
+    if (entry.is_regular_file()) names.insert(fs::relative(entry.path(), dir).string());
+  }
+  return names;
+}
+
+TEST(ClosedLoopCli, TheSameClosedLoopRunTwiceIsByteIdenticalButForTiming) {
+  const fs::path work = test::PerTestDirectory("closed_loop_cli_");
+  fs::create_directories(work);
+  test::WriteFile(work / "short.yaml", kScenario);
+  ASSERT_EQ(RunTofu("run short.yaml --out A --quiet", work), 0) << test::ReadFile(work / "stderr.txt");
+  ASSERT_EQ(RunTofu("run short.yaml --out B --quiet", work), 0) << test::ReadFile(work / "stderr.txt");
+  const std::set<std::string> files = FilesIn(work / "A");
+  EXPECT_EQ(files, FilesIn(work / "B"));
+  EXPECT_TRUE(files.count("closed_loop/consensus/control.csv"));
+  EXPECT_TRUE(files.count("closed_loop/naive/estimate_naive.csv"));
+  for (const std::string& name : files) {
+    if (fs::path(name).filename().string().starts_with("timing")) continue;
+    if (fs::path(name).extension() == ".png") continue;  // matplotlib stamps nothing, but is not ours
+    EXPECT_TRUE(test::ReadFile(work / "A" / name) == test::ReadFile(work / "B" / name))
+        << name << " differs between two runs";
+  }
+  fs::remove_all(work);
+}
+
+TEST(ClosedLoopCli, ABadControlBlockExitsTwoAndWritesNothing) {
+  const fs::path work = test::PerTestDirectory("closed_loop_bad_");
+  fs::create_directories(work);
+  test::WriteFile(work / "bad.yaml",
+                  WithControl("control: {state_source: estimate, methods: [single:gnss]}\n"));
+  EXPECT_EQ(RunTofu("run bad.yaml --out out", work), 2);
+  const std::string err = test::ReadFile(work / "stderr.txt");
+  EXPECT_CONTAINS(err, "bad.yaml:");
+  EXPECT_CONTAINS(err, "control.methods[0]");
+  EXPECT_FALSE(fs::exists(work / "out"));
+  EXPECT_EQ(RunTofu("validate bad.yaml", work), 2);
+  fs::remove_all(work);
+}
+
+}  // namespace
+}  // namespace tofu
