@@ -13,7 +13,9 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
+#include "harness/estimation.h"
 #include "harness/file_io.h"
+#include "harness/scenario.h"
 #include "estimator/velocity.h"
 
 namespace tofu::harness {
@@ -603,7 +605,22 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   }
   const std::filesystem::path out_dir = options.out_dir.value_or(options.log_dir);
   std::filesystem::create_directories(out_dir);
-  estimator::MultiGraphEstimatorOptions estimator_options = DefaultEstimatorOptions(log);
+  // A tofu run directory says how its methods were configured (its scenario's
+  // estimation: block): the same configuration reproduces what ran in the flight.
+  EstimationConfig run_config;
+  if (const std::filesystem::path scenario = options.log_dir / "scenario.yaml";
+      std::filesystem::is_regular_file(scenario)) {
+    if (const std::optional<EstimationConfig> config = LoadScenario(scenario.string()).estimation) {
+      run_config = *config;
+      run_config.methods.clear();
+      if (!options.quiet) {
+        fmt::print("note: estimator configured from {} (estimation: consensus, huber_delta)\n",
+                   scenario.string());
+      }
+    }
+  }
+  const EstimationSetup setup = MakeEstimationSetup(log, run_config);
+  estimator::MultiGraphEstimatorOptions estimator_options = setup.estimator;
   if (options.window_s) estimator_options.local.window_ns = core::SecondsToTime(*options.window_s);
   if (options.keyframe_rate_hz) estimator_options.local.keyframe_rate_hz = *options.keyframe_rate_hz;
   if (options.huber_delta) estimator_options.local.huber_delta = *options.huber_delta;
@@ -624,7 +641,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   const auto log_for = [&](const ReplayMethod& m) -> const RecordedLog& {
     return m.clean_streams && clean_log ? *clean_log : log;
   };
-  std::vector<estimator::SensorSpec> specs = SensorSpecsOf(log);
+  std::vector<estimator::SensorSpec> specs = setup.sensors;
   for (estimator::SensorSpec& spec : specs) {
     if (options.between_position_std_m) spec.between_position_std_m = *options.between_position_std_m;
     if (options.between_rotation_std_rad) spec.between_rotation_std_rad = *options.between_rotation_std_rad;
@@ -638,7 +655,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
                "rot [deg]", "RPE1s [m]", "valid", "x RT", "solve [ms]", "p99 [ms]");
   }
   std::string decisions_csv = kDecisionsCsvHeader;
-  estimator::ConsensusEstimatorOptions consensus_options;
+  estimator::ConsensusEstimatorOptions consensus_options = setup.consensus;
   if (options.consensus_threshold) consensus_options.selection.threshold = *options.consensus_threshold;
   core::Time first_output_ns = std::numeric_limits<core::Time>::max();
   core::Time last_output_ns = std::numeric_limits<core::Time>::min();

@@ -371,6 +371,15 @@ TEST(ClosedLoopCli, TheSameClosedLoopRunTwiceIsByteIdenticalButForTiming) {
   EXPECT_EQ(files, FilesIn(work / "B"));
   EXPECT_TRUE(files.count("closed_loop/consensus/control.csv"));
   EXPECT_TRUE(files.count("closed_loop/naive/estimate_naive.csv"));
+  // `tofu estimate` on a closed-loop flight's recorded streams reproduces the estimate of
+  // the method that flew, configured from the run's scenario.
+  ASSERT_EQ(RunTofu("estimate A/closed_loop/consensus --method consensus --out E --quiet", work),
+            0)
+      << test::ReadFile(work / "stderr.txt");
+  EXPECT_TRUE(test::ReadFile(work / "E" / "estimate_consensus.csv") ==
+              test::ReadFile(work / "A" / "closed_loop" / "consensus" / "estimate_consensus.csv"));
+  EXPECT_TRUE(test::ReadFile(work / "E" / "decisions.csv") ==
+              test::ReadFile(work / "A" / "closed_loop" / "consensus" / "decisions.csv"));
   for (const std::string& name : files) {
     if (fs::path(name).filename().string().starts_with("timing")) continue;
     if (fs::path(name).extension() == ".png") continue;  // matplotlib stamps nothing, but is not ours

@@ -251,7 +251,7 @@ int main(int argc, char** argv) {
                        "Pose sensors: std of one relative rotation [rad] (0.01)");
   estimate->add_option("--imu-noise-scale", est.imu_noise_scale,
                        "Factor on the IMU white-noise densities");
-  estimate->add_option("--huber", est.huber_delta, "Huber loss on between factors [sigma] (off)");
+  estimate->add_option("--huber", est.huber_delta, "Huber loss on between factors [sigma] (a run directory: its scenario's huber_delta; else off)");
   estimate->add_option("--consensus-threshold", est.consensus_threshold,
                        "consensus methods: CM distance threshold (0.1)");
   estimate->add_option("--position-in-reference", est.between_position_in_reference,
