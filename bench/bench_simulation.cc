@@ -124,6 +124,40 @@ BENCHMARK(BM_BareMjStep200s)->Apply([](benchmark::internal::Benchmark* b) {
   OneRunPerRepetition(b, "contacts_off");
 });
 
+// A closed-loop flight (the controller flying on the estimate): the same 200 s figure-eights
+// with the full sensor suite, one method in the loop. Arg 0: consensus; arg 1: naive. The
+// local update's solve times in the loop (p50, p99) are reported beside the real-time
+// factor: they say whether the estimator would keep up on the robot.
+void BM_ClosedLoopFlight200s(benchmark::State& state) {
+  Scenario scenario = BenchScenario(true);
+  tofu::harness::EstimationConfig estimation;
+  estimation.methods = {"consensus", "naive"};
+  estimation.consensus.threshold = 0.3;
+  estimation.huber_delta = 3.0;
+  scenario.estimation = estimation;
+  tofu::harness::SimulateOptions options;
+  options.fly_on = estimation.methods[static_cast<std::size_t>(state.range(0))];
+  double simulated_s = 0.0;
+  std::vector<double> solve_ms;
+  for (auto _ : state) {
+    const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
+    benchmark::DoNotOptimize(record.groundtruth.data());
+    simulated_s += static_cast<double>(record.physics_steps) / scenario.physics.rate_hz;
+    for (const double t : record.in_loop.front().solver.solve_time_s) solve_ms.push_back(t * 1e3);
+  }
+  state.counters["real_time_factor"] =
+      benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
+  std::sort(solve_ms.begin(), solve_ms.end());
+  if (!solve_ms.empty()) {
+    state.counters["update_p50_ms"] = solve_ms[solve_ms.size() / 2];
+    state.counters["update_p99_ms"] = solve_ms[(solve_ms.size() * 99) / 100];
+  }
+}
+BENCHMARK(BM_ClosedLoopFlight200s)->Apply([](benchmark::internal::Benchmark* b) {
+  b->ArgName("naive")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1)
+      ->ComputeStatistics("min", Fastest);
+});
+
 }  // namespace
 
 BENCHMARK_MAIN();

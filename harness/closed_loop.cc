@@ -19,6 +19,7 @@ const char* FlightModeName(FlightMode mode) {
     case FlightMode::kEstimate: return "estimate";
     case FlightMode::kFailsafeHold: return "failsafe_hold";
     case FlightMode::kFailsafeLand: return "failsafe_land";
+    case FlightMode::kLanded: return "landed";
   }
   return "?";
 }
@@ -84,9 +85,10 @@ ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
   std::optional<std::string> unusable;
   if (!newest.valid) {
     unusable = "estimate invalid: no usable position source";
-  } else if (position_std_m_ && !(*position_std_m_ <= failsafe_.max_position_std_m)) {
+  } else if (failsafe_.max_position_std_m && position_std_m_ &&
+             !(*position_std_m_ <= *failsafe_.max_position_std_m)) {
     unusable = fmt::format("position std {:.3f} m above {:.3f} m", *position_std_m_,
-                           failsafe_.max_position_std_m);
+                           *failsafe_.max_position_std_m);
   }
 
   if (mode_ == FlightMode::kEstimate && unusable) {
@@ -106,7 +108,25 @@ ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
                        fmt::format("descending at {:.2f} m/s", failsafe_.descent_rate_mps)});
   }
 
+  // Landing: once the estimate has rested at the landing height, disarm.
+  if (mode_ == FlightMode::kFailsafeLand) {
+    const double landing_s = core::TimeToSeconds(
+        t_ns - failsafe_start_ns_ - core::SecondsToTime(failsafe_.hold_s));
+    const bool reference_down =
+        hold_.p_WB.z() - failsafe_.descent_rate_mps * landing_s <= failsafe_.land_z_m;
+    if (reference_down && command.state.p_WB.z() <= failsafe_.land_z_m + 0.05) {
+      if (!at_land_z_since_ns_) at_land_z_since_ns_ = t_ns;
+      if (t_ns - *at_land_z_since_ns_ >= kLandedAfterNs) {
+        mode_ = FlightMode::kLanded;
+        events_.push_back({t_ns, "landed", "at the landing height: disarmed"});
+      }
+    } else {
+      at_land_z_since_ns_.reset();
+    }
+  }
+
   command.mode = mode_;
+  command.disarmed = mode_ == FlightMode::kLanded;
   switch (mode_) {
     case FlightMode::kTruth:
     case FlightMode::kEstimate:
@@ -115,6 +135,7 @@ ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
     case FlightMode::kFailsafeHold:
       command.reference = hold_;
       break;
+    case FlightMode::kLanded:
     case FlightMode::kFailsafeLand: {
       command.reference = hold_;
       const double descending_s = core::TimeToSeconds(

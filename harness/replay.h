@@ -68,6 +68,8 @@ struct ReplayResult {
   std::vector<estimator::ConsensusRecord> consensus;
   double wall_time_s = 0.0;
   double log_duration_s = 0.0;
+  /// One local update per keyframe: the time an update may take on the robot.
+  core::Time keyframe_period_ns = 0;
 };
 
 /// One method, fed one measurement at a time in arrival order: the same code replays a
@@ -135,6 +137,7 @@ struct MethodFiles {
   std::optional<TrajectoryErrors> errors;  ///< with ground truth and > 10 valid outputs
   double solve_mean_ms = 0.0;
   double solve_p99_ms = 0.0;
+  double update_budget_ms = 0.0;  ///< the keyframe period
 };
 /// Writes one method's estimate_<method>.csv/.tum/.json (with T_WL, the alignment of L
 /// to W, when scored), estimate_<method>_errors.csv and timing_estimate_<method>.json

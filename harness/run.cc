@@ -271,6 +271,7 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
     record.closed_loop->control = control;
   }
   std::optional<double> structure_distance_m;
+  bool disarmed = false;
 
   const core::Time dt_ns = world.timestep_ns();
   const double dt_s = core::TimeToSeconds(dt_ns);
@@ -314,10 +315,12 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
             const ClosedLoopPilot::Command command = pilot->Fly(t_ns, *newest, reference);
             state = command.state;
             reference = command.reference;
+            disarmed = command.disarmed;
           }
         }
         const sim::Wrench wrench = controller.Compute(state, reference);
-        const sim::AllocationResult allocation = allocator.Allocate(wrench, now.tilt_rad);
+        sim::AllocationResult allocation = allocator.Allocate(wrench, now.tilt_rad);
+        if (disarmed) allocation.command.rotor_thrust_N.fill(0.0);
         world.SetCommand(allocation.command);
         record.saturation.emplace_back(t_ns, allocation.saturated);
         next_controller_ns += controller_period_ns;

@@ -227,8 +227,9 @@ ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
     ReadNumber(fmap, "descent_rate_mps", NumberRule::Between(0.05, 5.0, "m/s"),
                &f.descent_rate_mps);
     ReadNumber(fmap, "land_z_m", NumberRule::Between(-100.0, 1000.0, "m"), &f.land_z_m);
-    ReadNumber(fmap, "max_position_std_m", NumberRule::Between(1e-4, 100.0, "m"),
-               &f.max_position_std_m);
+    if (const auto bound = fmap.Optional("max_position_std_m")) {
+      f.max_position_std_m = bound->Number(NumberRule::Between(1e-4, 100.0, "m"));
+    }
     fmap.Finish();
   }
   map.Finish();
@@ -883,7 +884,9 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     EmitNumber(out, "hold_s", control.failsafe.hold_s);
     EmitNumber(out, "descent_rate_mps", control.failsafe.descent_rate_mps);
     EmitNumber(out, "land_z_m", control.failsafe.land_z_m);
-    EmitNumber(out, "max_position_std_m", control.failsafe.max_position_std_m);
+    if (control.failsafe.max_position_std_m) {
+      EmitNumber(out, "max_position_std_m", *control.failsafe.max_position_std_m);
+    }
     out << YAML::EndMap;
     out << YAML::EndMap;
   }

@@ -242,6 +242,14 @@ TEST(ClosedLoopPilot, FailsafeHoldsThenLandsAndResumesWhenTheEstimateReturns) {
   EXPECT_EQ(landing.mode, FlightMode::kFailsafeLand);
   EXPECT_NEAR(landing.reference.p_WB.z(), 2.0 - 0.5 * 0.5, 1e-9);
   EXPECT_NEAR(pilot.Fly(9'000'000'000, lost, mission).reference.p_WB.z(), 0.3, 1e-12);
+  // The estimate at the landing height for a second: disarmed, and it stays so.
+  const estimator::EstimatorOutput down = Output(9'100'000'000, Eigen::Vector3d(0.1, 0, 0.3), 0.0, false);
+  EXPECT_FALSE(pilot.Fly(9'100'000'000, down, mission).disarmed);
+  const ClosedLoopPilot::Command landed = pilot.Fly(10'200'000'000, down, mission);
+  EXPECT_TRUE(landed.disarmed);
+  EXPECT_EQ(landed.mode, FlightMode::kLanded);
+  EXPECT_TRUE(pilot.Fly(11'000'000'000, good, mission).disarmed);
+  EXPECT_EQ(pilot.events().back().event, "landed");
   int starts = 0;
   for (const harness::FlightEvent& e : pilot.events()) starts += e.event == "failsafe_start";
   EXPECT_EQ(starts, 2);

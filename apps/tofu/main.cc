@@ -81,6 +81,31 @@ void PrintReport(const tofu::harness::RunRecord& record,
                  m.wall_time_s > 0 ? m.run_duration_s / m.wall_time_s : 0.0);
     }
   }
+  if (!record.closed_loop_flights.empty()) {
+    fmt::print("closed loop (the controller flying on each method's estimate, judged against "
+               "ground truth):\n");
+    fmt::print("{:<20} {:>9} {:>9} {:>9} {:>5} {:>9} {:>5} {:>8} {:>11} {:>6}\n", "flown on",
+               "trk [m]", "max [m]", "est [m]", "hits", "dist [m]", "fail", "handover",
+               "upd p99 ms", "x RT");
+    for (const tofu::harness::RunRecord& flight : record.closed_loop_flights) {
+      const tofu::harness::ClosedLoopMetrics m = tofu::harness::ComputeClosedLoopMetrics(flight);
+      std::vector<double> solve_ms;
+      if (!flight.in_loop.empty()) {
+        for (const double t : flight.in_loop.front().solver.solve_time_s) solve_ms.push_back(t * 1e3);
+      }
+      std::sort(solve_ms.begin(), solve_ms.end());
+      const std::optional<double> p99 =
+          solve_ms.empty() ? std::nullopt
+                           : std::optional<double>(solve_ms[(solve_ms.size() * 99) / 100]);
+      const double flown_s = flight.physics_steps / flight.scenario.physics.rate_hz;
+      fmt::print("{:<20} {:>9} {:>9} {:>9} {:>5} {:>9} {:>5} {:>8} {:>11} {:>6.0f}\n",
+                 flight.closed_loop->method, FormatValue(m.tracking_rmse_m),
+                 FormatValue(m.tracking_max_m), FormatValue(m.estimate_ate_m), m.collisions,
+                 FormatValue(m.min_structure_distance_m), m.failsafe_events,
+                 FormatValue(m.handover_s), FormatValue(p99),
+                 flight.wall_time_s > 0 ? flown_s / flight.wall_time_s : 0.0);
+    }
+  }
   if (!evaluation.expectations.empty()) {
     size_t width = 12;
     for (const auto& r : evaluation.expectations) {
