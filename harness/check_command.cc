@@ -258,6 +258,13 @@ void PrintTable(const std::vector<ScenarioCheck>& checks) {
                                        : std::string("-"),
                       result});
     }
+    // Closed-loop flights: the true tracking RMSE in the ATE column, and the collisions.
+    for (const ClosedLoopStats& f : c.closed_loop) {
+      rows.push_back({c.name, seeds, "flown on " + f.method,
+                      f.tracking_rmse_mean_m ? fmt::format("trk {:.4f}", *f.tracking_rmse_mean_m)
+                                             : std::string("-"),
+                      fmt::format("{} hits", f.collisions), result});
+    }
   }
   Row header{"scenario", "seeds ok", "method", "ATE [m]", "detected", "result"};
   size_t w[5] = {header.scenario.size(), header.seeds.size(), header.method.size(),
@@ -499,6 +506,35 @@ ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRu
     if (stats.seeds_with_ate > 0) stats.ate_mean_m = ate_sum[name] / stats.seeds_with_ate;
     c.methods.push_back(stats);
   }
+  std::map<std::string, ClosedLoopStats> flights;
+  std::map<std::string, std::pair<double, int>> tracking_sum;
+  for (const SeedRun& r : c.runs) {
+    if (!r.summary.is_object() || !r.summary.contains("closed_loop") ||
+        !r.summary["closed_loop"].is_object()) {
+      continue;
+    }
+    for (const auto& [name, f] : r.summary["closed_loop"].items()) {
+      ClosedLoopStats& stats = flights[name];
+      stats.method = name;
+      ++stats.seeds;
+      if (!f.is_object()) continue;
+      if (const auto t = f.find("tracking_rmse_m"); t != f.end() && t->is_number()) {
+        tracking_sum[name].first += t->get<double>();
+        ++tracking_sum[name].second;
+      }
+      if (const auto n = f.find("collisions"); n != f.end() && n->is_number()) {
+        stats.collisions += n->get<int>();
+      }
+      if (const auto n = f.find("failsafe_events"); n != f.end() && n->is_number()) {
+        stats.failsafe_events += n->get<int>();
+      }
+    }
+  }
+  for (auto& [name, stats] : flights) {
+    const auto& [sum, count] = tracking_sum[name];
+    if (count > 0) stats.tracking_rmse_mean_m = sum / count;
+    c.closed_loop.push_back(stats);
+  }
 
   c.passed = c.runs_ok && !c.runs.empty() &&
              std::all_of(c.expectations.begin(), c.expectations.end(),
@@ -627,6 +663,18 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
         suites += fmt::format("      <property name=\"{}\" value=\"{}/{}\"/>\n",
                               attr(m.method + ".faults_detected"), m.faults_detected, m.faults);
       }
+    }
+    for (const ClosedLoopStats& f : c.closed_loop) {
+      if (f.tracking_rmse_mean_m) {
+        suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                              attr("closed_loop." + f.method + ".tracking_rmse_mean_m"),
+                              FormatDouble(*f.tracking_rmse_mean_m));
+      }
+      suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                            attr("closed_loop." + f.method + ".collisions"), f.collisions);
+      suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                            attr("closed_loop." + f.method + ".failsafe_events"),
+                            f.failsafe_events);
     }
     suites += "    </properties>\n" + cases + "  </testsuite>\n";
     total_tests += tests;

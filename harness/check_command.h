@@ -88,6 +88,15 @@ struct MethodStats {
   bool has_detections = false;       ///< some seed reported `faults`
 };
 
+/// A closed-loop flight's figures from summary.json `closed_loop`, over the seeds.
+struct ClosedLoopStats {
+  std::string method;  ///< the method the controller flew on
+  int seeds = 0;
+  std::optional<double> tracking_rmse_mean_m;  ///< mean over the seeds that have it
+  int collisions = 0;                          ///< sum over the seeds
+  int failsafe_events = 0;                     ///< sum over the seeds
+};
+
 /// One scenario of a check, over its seeds.
 struct ScenarioCheck {
   std::string name;
@@ -95,6 +104,8 @@ struct ScenarioCheck {
   std::vector<SeedRun> runs;  ///< in seed order
   std::vector<AggregatedExpectation> expectations;
   std::vector<MethodStats> methods;  ///< sorted by name
+  /// Closed-loop flights (summary.json `closed_loop`), over the seeds, sorted by method.
+  std::vector<ClosedLoopStats> closed_loop;
   int seeds_passed = 0;   ///< runs that exited 0 (every expectation held in that seed)
   bool runs_ok = true;    ///< no run exited with bad input or a failed simulation
   bool passed = false;    ///< runs_ok and every aggregated expectation passed

@@ -416,6 +416,28 @@ TEST(CheckAggregation, ScenarioCheckReadsSummariesAndMethods) {
   EXPECT_EQ(EvaluateScenarioCheck(scenario, runs).expectations[0].held, 0);
 }
 
+TEST(CheckAggregation, ClosedLoopFlightsAreAggregatedOverTheSeeds) {
+  harness::Scenario scenario;
+  scenario.name = "s";
+  scenario.expect = {MaxExpectation(0.25, 0.6)};
+  std::vector<SeedRun> runs = {FakeRun(1, 0, 0.1, true), FakeRun(2, 0, 0.1, true)};
+  runs[0].summary["closed_loop"] = {
+      {"consensus", {{"tracking_rmse_m", 0.02}, {"collisions", 0}, {"failsafe_events", 0}}},
+      {"naive", {{"tracking_rmse_m", 0.8}, {"collisions", 1}, {"failsafe_events", 0}}}};
+  runs[1].summary["closed_loop"] = {
+      {"consensus", {{"tracking_rmse_m", 0.04}, {"collisions", 0}, {"failsafe_events", 1}}},
+      {"naive", {{"tracking_rmse_m", nullptr}, {"collisions", 2}, {"failsafe_events", 0}}}};
+  const harness::ScenarioCheck c = EvaluateScenarioCheck(scenario, runs);
+  ASSERT_EQ(c.closed_loop.size(), 2u);
+  EXPECT_EQ(c.closed_loop[0].method, "consensus");
+  EXPECT_NEAR(*c.closed_loop[0].tracking_rmse_mean_m, 0.03, 1e-12);
+  EXPECT_EQ(c.closed_loop[0].failsafe_events, 1);
+  EXPECT_EQ(c.closed_loop[1].method, "naive");
+  EXPECT_NEAR(*c.closed_loop[1].tracking_rmse_mean_m, 0.8, 1e-12);  // seed 2 had none
+  EXPECT_EQ(c.closed_loop[1].collisions, 3);
+  EXPECT_EQ(c.closed_loop[1].seeds, 2);
+}
+
 TEST(CheckJUnit, EscapesTextAndAttachesRendersOfFailedSeeds) {
   const fs::path root = fs::path(::testing::TempDir()) /
                         ("tofu_check_junit_" + std::to_string(::getpid()));
