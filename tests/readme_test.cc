@@ -83,10 +83,37 @@ sensors:
   EXPECT_EQ(scenario.expect.size(), 3u);
 }
 
+// The closed-loop example: valid with an estimation block that has its methods.
+TEST(Readme, ControlExampleIsValid) {
+  const std::vector<std::string> blocks = ReadmeYamlBlocks();
+  ASSERT_GE(blocks.size(), 4u);
+  const std::string yaml = R"(name: readme_control
+world: indoor_arena
+duration_s: 20
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  segments:
+    - hover: {duration_s: 1}
+sensors:
+  imu: {}
+  vio: {}
+  leica: {type: total_station}
+estimation:
+  methods: [consensus, naive]
+)" + blocks[3];
+  Scenario scenario;
+  ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
+  ASSERT_TRUE(scenario.control.has_value());
+  EXPECT_EQ(scenario.control->state_source, ControlConfig::StateSource::kEstimate);
+  EXPECT_EQ(scenario.control->methods, (std::vector<std::string>{"consensus", "naive"}));
+  EXPECT_FALSE(scenario.control->failsafe.max_position_std_m.has_value());
+  EXPECT_EQ(scenario.expect.size(), 3u);
+}
+
 // The render example, likewise.
 TEST(Readme, RenderExampleIsValid) {
   const std::vector<std::string> blocks = ReadmeYamlBlocks();
-  ASSERT_GE(blocks.size(), 4u);
+  ASSERT_GE(blocks.size(), 5u);
   const std::string yaml = R"(name: readme_render
 world: indoor_arena
 duration_s: 5
@@ -94,7 +121,7 @@ trajectory:
   start: {position_m: [0, 0, 1.5]}
   segments:
     - hover: {duration_s: 1}
-)" + blocks[3];
+)" + blocks[4];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.render.has_value());
