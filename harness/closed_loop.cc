@@ -114,7 +114,11 @@ ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
         t_ns - failsafe_start_ns_ - core::SecondsToTime(failsafe_.hold_s));
     const bool reference_down =
         hold_.p_WB.z() - failsafe_.descent_rate_mps * landing_s <= failsafe_.land_z_m;
-    if (reference_down && command.state.p_WB.z() <= failsafe_.land_z_m + 0.05) {
+    // A land detector's test on the estimate: down at the landing height and at rest
+    // vertically (PX4's also asks for low thrust; an estimate drifting on the IMU can
+    // still fool it, as it would on the robot).
+    if (reference_down && command.state.p_WB.z() <= failsafe_.land_z_m + 0.05 &&
+        std::abs(command.state.v_WB_W.z()) < 0.2) {
       if (!at_land_z_since_ns_) at_land_z_since_ns_ = t_ns;
       if (t_ns - *at_land_z_since_ns_ >= kLandedAfterNs) {
         mode_ = FlightMode::kLanded;
