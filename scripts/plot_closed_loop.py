@@ -290,9 +290,14 @@ def main():
         d = flight["data"]
         xs += [d["p_true_x"].min(), d["p_true_x"].max(), d["p_ref_x"].min(), d["p_ref_x"].max()]
         ys += [d["p_true_y"].min(), d["p_true_y"].max(), d["p_ref_y"].min(), d["p_ref_y"].max()]
+    # A margin of 1.5 m, and at least 6 m across, so that nearby structure shows.
     margin = 1.5
-    x_lim = (min(xs) - margin, max(xs) + margin)
-    y_lim = (min(ys) - margin, max(ys) + margin)
+    x_lim = [min(xs) - margin, max(xs) + margin]
+    y_lim = [min(ys) - margin, max(ys) + margin]
+    for lim in (x_lim, y_lim):
+        if lim[1] - lim[0] < 6.0:
+            centre = 0.5 * (lim[0] + lim[1])
+            lim[0], lim[1] = centre - 3.0, centre + 3.0
     if world:
         for kind, shape in structure_outlines(args.models / "worlds" / f"{world}.xml"):
             if kind == "circle":
@@ -369,7 +374,7 @@ def main():
         if isinstance(dist, (int, float)):
             lines[-1] += f", closest {dist:.2f} m"
     fig.suptitle(f"{scenario}: closed loop (the controller flying on each method's estimate)\n"
-                 + "   |   ".join(lines), fontsize=11)
+                 + "\n".join(lines), fontsize=10)
     fig.savefig(out)
     return 0
 
