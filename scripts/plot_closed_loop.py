@@ -31,6 +31,8 @@ matplotlib.use("Agg")
 import matplotlib.patches as mpatches  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from tofu_csv import (CsvError, any_text, flag, name, number,  # noqa: E402
+                      optional_number, read_csv, timestamp)
 
 FLIGHT_COLOURS = {"consensus": "black", "naive": "tab:orange"}
 OTHER_COLOURS = ["tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:cyan", "tab:pink"]
@@ -42,83 +44,11 @@ CONTROL_COLUMNS = ["timestamp", "mode", "p_ref_x", "p_ref_y", "p_ref_z", "p_true
 MODES = ("truth", "estimate", "failsafe_hold", "failsafe_land", "landed")
 
 
-class CsvError(Exception):
-    """A malformed CSV row; the message names file and line."""
-
-
-def timestamp(text):
-    """an integer timestamp in ns"""
-    return int(text) * 1e-9
-
-
-def number(text):
-    """a finite number"""
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(text)
-    return value
-
-
-def optional_number(text):
-    """a number or nothing"""
-    return float(text) if text.strip() else float("nan")
-
-
 def mode(text):
     """a flight mode (truth, estimate, failsafe_hold, failsafe_land, landed)"""
     if text not in MODES:
         raise ValueError(text)
     return text
-
-
-def word(text):
-    """a name"""
-    if not text.strip():
-        raise ValueError(text)
-    return text
-
-
-def flag(text):
-    """0 or 1"""
-    if text not in ("0", "1"):
-        raise ValueError(text)
-    return text == "1"
-
-
-def anything(text):
-    """text"""
-    return text
-
-
-def read_csv(path, columns, parsers, last_field_may_hold_commas=False):
-    """Rows of a tofu CSV as tuples, each field converted by its parser; '#' lines are
-    headers. Raises CsvError naming file:line (and the column) on a bad row."""
-    rows = []
-    with open(path, newline="", encoding="utf-8") as f:
-        try:
-            lines = f.readlines()
-        except UnicodeDecodeError as e:
-            raise CsvError(f"{path}: not UTF-8 text ({e.reason})") from None
-    for line_number, line in enumerate(lines, start=1):
-        line = line.rstrip("\r\n")
-        if not line or line.startswith("#"):
-            continue
-        if last_field_may_hold_commas:
-            fields = line.split(",", len(columns) - 1)
-        else:
-            fields = line.split(",")
-        if len(fields) != len(columns):
-            raise CsvError(f"{path}:{line_number}: expected {len(columns)} fields "
-                           f"({','.join(columns)}), got {len(fields)}: '{line}'")
-        row = []
-        for column, parser, field in zip(columns, parsers, fields):
-            try:
-                row.append(parser(field))
-            except ValueError:
-                raise CsvError(f"{path}:{line_number}: column '{column}': expected "
-                               f"{parser.__doc__}, got '{field}'") from None
-        rows.append(tuple(row))
-    return rows
 
 
 def method_stem(method):
@@ -212,7 +142,7 @@ def fault_windows(run, end_s):
     if not path.exists():
         return []
     rows = read_csv(path, ["timestamp", "sensor", "label", "source", "active"],
-                    [timestamp, word, word, word, flag])
+                    [timestamp, name, name, name, flag])
     open_windows, windows = {}, []
     for t, sensor, label, source, active in rows:
         key = (sensor, label, source)
@@ -236,7 +166,7 @@ def load_flight(run, method):
     events = []
     if (folder / "events.csv").exists():
         events = read_csv(folder / "events.csv", ["timestamp", "event", "detail"],
-                          [timestamp, word, anything], last_field_may_hold_commas=True)
+                          [timestamp, name, any_text], last_field_may_hold_commas=True)
     summary = load_json(folder / "summary.json") or {}
     collisions = [c.get("start_s") for c in summary.get("collisions", [])
                   if isinstance(c, dict) and isinstance(c.get("start_s"), (int, float))]

@@ -18,7 +18,6 @@ naming the file and line (exit 2).
 import argparse
 import collections
 import json
-import math
 import pathlib
 import sys
 
@@ -28,6 +27,8 @@ matplotlib.use("Agg")
 import matplotlib.patches as mpatches  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from tofu_csv import (CsvError, any_text, flag, name, number,  # noqa: E402
+                      optional_number, read_csv, timestamp)
 
 DEFAULT_THRESHOLD = 0.1  # the seed paper's CM threshold [m/s]
 CLEAN = "#a5d6a7"
@@ -44,81 +45,12 @@ SENSOR_COLOURS = ["tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:cyan"
                   "tab:pink"]
 
 
-class CsvError(Exception):
-    """A malformed CSV row; the message names file and line."""
-
-
-def read_csv(path, columns, parsers):
-    """Rows of a tofu CSV as tuples, each field converted by its parser. Lines starting
-    with '#' are headers or comments. Raises CsvError naming file:line on a bad row."""
-    rows = []
-    with open(path, newline="", encoding="utf-8") as f:
-        try:
-            lines = f.readlines()
-        except UnicodeDecodeError as e:
-            raise CsvError(f"{path}: not UTF-8 text ({e.reason})") from None
-        for number, line in enumerate(lines, start=1):
-            line = line.rstrip("\r\n")
-            if not line or line.startswith("#"):
-                continue
-            fields = line.split(",")
-            if len(fields) != len(columns):
-                raise CsvError(f"{path}:{number}: expected {len(columns)} fields "
-                               f"({','.join(columns)}), got {len(fields)}: '{line}'")
-            row = []
-            for column, parser, field in zip(columns, parsers, fields):
-                try:
-                    row.append(parser(field))
-                except ValueError:
-                    raise CsvError(f"{path}:{number}: column '{column}': expected "
-                                   f"{parser.__doc__}, got '{field}'") from None
-            rows.append(tuple(row))
-    return rows
-
-
-def timestamp(text):
-    """an integer timestamp in ns"""
-    return int(text) * 1e-9
-
-
-def number(text):
-    """a finite number"""
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(text)
-    return value
-
-
-def optional_number(text):
-    """a number or nothing"""
-    return float(text) if text.strip() else float("nan")
-
-
-def flag(text):
-    """0 or 1"""
-    if text not in ("0", "1"):
-        raise ValueError(text)
-    return text == "1"
-
-
-def name(text):
-    """a name"""
-    if not text.strip():
-        raise ValueError(text)
-    return text
-
-
 def sensor_set(text):
     """'+'-joined sensor names or nothing"""
     parts = [p for p in text.split("+")] if text else []
     if any(not p.strip() for p in parts):
         raise ValueError(text)
     return tuple(parts)
-
-
-def any_text(text):
-    """text"""
-    return text
 
 
 def intervals(events, end_s):

@@ -26,6 +26,7 @@ namespace tofu {
 namespace {
 
 namespace fs = std::filesystem;
+using test::FilesIn;
 using test::ReadFile;
 using test::WriteFile;
 using test::Quote;
@@ -79,13 +80,6 @@ class CliTest : public ::testing::Test {
   fs::path root_, work_, logs_;
 };
 
-std::set<std::string> FilesIn(const fs::path& dir) {
-  std::set<std::string> names;
-  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
-    if (entry.is_regular_file()) names.insert(fs::relative(entry.path(), dir).string());
-  }
-  return names;
-}
 
 // ---- determinism ----
 

@@ -32,6 +32,7 @@ namespace tofu {
 namespace {
 
 namespace fs = std::filesystem;
+using test::FilesIn;
 using harness::ClosedLoopPilot;
 using harness::FlightMode;
 
@@ -361,13 +362,6 @@ int RunTofu(const std::string& args, const fs::path& cwd) {
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
-std::set<std::string> FilesIn(const fs::path& dir) {
-  std::set<std::string> names;
-  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
-    if (entry.is_regular_file()) names.insert(fs::relative(entry.path(), dir).string());
-  }
-  return names;
-}
 
 TEST(ClosedLoopCli, TheSameClosedLoopRunTwiceIsByteIdenticalButForTiming) {
   const fs::path work = test::PerTestDirectory("closed_loop_cli_");

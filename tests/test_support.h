@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <set>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -53,6 +54,15 @@ inline std::filesystem::path PerTestDirectory(const std::string& prefix) {
       (prefix + info->name() + "_" + std::to_string(::getpid()));
   std::filesystem::remove_all(dir);
   return dir;
+}
+
+/// The regular files below `dir`, as paths relative to it.
+inline std::set<std::string> FilesIn(const std::filesystem::path& dir) {
+  std::set<std::string> names;
+  for (const auto& entry : std::filesystem::recursive_directory_iterator(dir)) {
+    if (entry.is_regular_file()) names.insert(std::filesystem::relative(entry.path(), dir).string());
+  }
+  return names;
 }
 
 }  // namespace tofu::test
