@@ -431,6 +431,43 @@ void ReadEstimates(RunData& run) {
   if (errors_csv) ReadErrorsFile(run, run.directory / "errors.csv", "");
 }
 
+// Closed-loop flights (closed_loop/<method>/, a run directory each): each flight's TRUE
+// path becomes a ghost "flown on <method>" beside the ground-truth flight's robot, and its
+// collisions are the run's events, so a render of the critical moment shows every
+// method's robot where it really was.
+void ReadClosedLoopFlights(RunData& run) {
+  const fs::path folder = run.directory / "closed_loop";
+  if (!fs::is_directory(folder)) return;
+  std::vector<fs::path> flights;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_directory() && fs::exists(entry.path() / "groundtruth.csv")) {
+      flights.push_back(entry.path());
+    }
+  }
+  std::sort(flights.begin(), flights.end());
+  for (const fs::path& dir : flights) {
+    RunData flight;
+    flight.directory = dir;
+    ReadGroundTruth(flight);
+    ReadSummary(flight);
+    const std::string label = "flown on " + dir.filename().string();
+    MethodEstimate ghost;
+    ghost.method = label;
+    ghost.T_WB = std::move(flight.groundtruth);
+    ghost.fused.assign(ghost.T_WB.size(), "");
+    ghost.alignment_source = "the true path of closed_loop/" + dir.filename().string();
+    run.notes.push_back(fmt::format("ghost '{}': {} true poses of the closed-loop flight",
+                                    label, ghost.T_WB.size()));
+    run.estimates.push_back(std::move(ghost));
+    for (CollisionRow c : flight.collisions) {
+      c.robot_geom = "(" + label + ") " + c.robot_geom;
+      run.collisions.push_back(std::move(c));
+    }
+  }
+  std::sort(run.collisions.begin(), run.collisions.end(),
+            [](const CollisionRow& a, const CollisionRow& b) { return a.t_ns < b.t_ns; });
+}
+
 void ReadDecisions(RunData& run) {
   const fs::path path = run.directory / "decisions.csv";
   if (!fs::exists(path)) return;
@@ -568,6 +605,7 @@ RunData ReadRunData(const fs::path& directory) {
   ReadLabels(run);
   ReadSummary(run);
   ReadEstimates(run);
+  ReadClosedLoopFlights(run);
   ReadDecisions(run);
   ReadConsistency(run);
   return run;

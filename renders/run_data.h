@@ -107,7 +107,8 @@ struct RunData {
   std::vector<SensorTrack> sensors;  ///< sorted by name; IMU streams excluded
   std::vector<LabelRow> labels;
   std::vector<CollisionRow> collisions;
-  std::vector<MethodEstimate> estimates;  ///< sorted by method name
+  /// Sorted by method name, then the closed-loop flights' true paths ("flown on <m>").
+  std::vector<MethodEstimate> estimates;
   std::vector<DecisionRow> decisions;
   /// Consistency rows by method ("" = the run's consistency.csv).
   std::map<std::string, std::vector<ConsistencyRow>> consistency;

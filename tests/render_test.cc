@@ -318,6 +318,43 @@ TEST(RenderEvents, ChosenFromFaultsDecisionsErrorsAndCollisions) {
   for (const RenderEvent& e : FindEvents(run, options)) EXPECT_NE(e.kind, EventKind::kErrorAboveBound);
 }
 
+// A closed-loop flight (closed_loop/<method>/): its true path is a ghost "flown on
+// <method>" and its collision an event of the run, drawn where that flight's robot was.
+TEST(RenderRunData, ClosedLoopFlightsAreGhostsAndTheirCollisionsEvents) {
+  const RunDirectory dir("closed_loop");
+  const fs::path flight = dir / "closed_loop" / "naive";
+  std::string gt =
+      "#timestamp [ns],p_WB_x [m],p_WB_y [m],p_WB_z [m],q_WB_w [],q_WB_x [],q_WB_y [],q_WB_z []\n";
+  for (int k = 0; k <= 400; ++k) {
+    const Eigen::Vector3d p = TruePosition_W(0.01 * k) + Eigen::Vector3d(0.0, 0.8, 0.0);
+    gt += fmt::format("{},{:.6f},{:.6f},{:.6f},1,0,0,0\n", int64_t{10'000'000} * k, p.x(), p.y(),
+                      p.z());
+  }
+  Write(flight / "groundtruth.csv", gt);
+  Write(flight / "summary.json",
+        R"({"collisions": [{"start_s": 2.2, "end_s": 2.3, "robot_geom": "arm_2", "structure_geom": "wall_east"}]})");
+  const RunData run = ReadRunData(dir);
+  const auto ghost = std::find_if(run.estimates.begin(), run.estimates.end(),
+                                  [](const MethodEstimate& e) { return e.method == "flown on naive"; });
+  ASSERT_NE(ghost, run.estimates.end());
+  ASSERT_EQ(ghost->T_WB.size(), 401u);
+  EXPECT_NEAR(ghost->T_WB[100].p_W.y(), TruePosition_W(1.0).y() + 0.8, 1e-6);
+  EventOptions options;
+  options.settle_s = 0.5;
+  const std::vector<std::string> events = Describe(FindEvents(run, options));
+  EXPECT_NE(std::find(events.begin(), events.end(), "2.2 collision wall_east"), events.end());
+  // Drawn: the frame with the flight's ghost differs from the frame with the estimate's only.
+  RenderOptions o = SmallOptions();
+  o.text_overlay = false;
+  o.heatmap = false;
+  o.methods = {"flown on naive"};
+  SceneRenderer with(run, o);
+  o.methods = {"ghost"};
+  SceneRenderer without(run, o);
+  EXPECT_NE(with.Render(core::SecondsToTime(2.2), "overview").rgb,
+            without.Render(core::SecondsToTime(2.2), "overview").rgb);
+}
+
 TEST(RenderEvents, FlappingMergesIntoOneClipAndTheTotalKeepsTheTellingKinds) {
   RunData run;
   const auto decision = [](double t_s, std::vector<std::string> fused, std::vector<std::string> excluded) {
