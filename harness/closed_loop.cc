@@ -85,6 +85,11 @@ ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
   std::optional<std::string> unusable;
   if (!newest.valid) {
     unusable = "estimate invalid: no usable position source";
+  } else if (t_ns - newest.t_ns > kStaleAfterNs) {
+    // No output for a while (no IMU data reached the estimator): the last one, however
+    // valid, is being extrapolated blindly.
+    unusable = fmt::format("estimate stale: newest output {:.3f} s old",
+                           core::TimeToSeconds(t_ns - newest.t_ns));
   } else if (failsafe_.max_position_std_m && position_std_m_ &&
              !(*position_std_m_ <= *failsafe_.max_position_std_m)) {
     unusable = fmt::format("position std {:.3f} m above {:.3f} m", *position_std_m_,

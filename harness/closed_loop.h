@@ -10,7 +10,8 @@
 //    are), from the true pose at that instant: the operator's "the robot is here".
 //    After the handover the pilot never reads ground truth (its interface has none).
 //  - failsafe: when the output is flagged invalid (no fused sensor for longer than the
-//    estimator's max_unfused_ns) or its position standard deviation passes a bound, the
+//    estimator's max_unfused_ns), stale (none for 100 ms: the IMU stopped reaching the
+//    estimator) or its position standard deviation passes an opt-in bound, the
 //    pilot holds the estimated position and attitude on IMU propagation for hold_s, then
 //    descends at descent_rate_mps to land_z_m; a usable estimate during the hold resumes
 //    the mission (PX4's position-loss failsafe: hold, then land). Once the estimate has
@@ -88,6 +89,8 @@ class ClosedLoopPilot {
     FlightMode mode = FlightMode::kEstimate;
     bool disarmed = false;  ///< landed: the rotors stop
   };
+  /// An output older than this at the controller's instant is stale (unusable).
+  static constexpr core::Time kStaleAfterNs = 100'000'000;
   /// How long the estimate must rest at land_z_m before the pilot disarms.
   static constexpr core::Time kLandedAfterNs = 1'000'000'000;
   Command Fly(core::Time t_ns, const estimator::EstimatorOutput& newest,

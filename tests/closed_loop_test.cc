@@ -236,7 +236,9 @@ TEST(ClosedLoopPilot, FailsafeHoldsThenLandsAndResumesWhenTheEstimateReturns) {
   EXPECT_EQ(hold.mode, FlightMode::kFailsafeHold);
   EXPECT_LT((hold.reference.p_WB - Eigen::Vector3d(0.1, 0, 2.0)).norm(), 1e-12);
   // Usable again within the hold: the mission resumes.
-  EXPECT_EQ(pilot.Fly(500'000'000, good, mission).mode, FlightMode::kEstimate);
+  const estimator::EstimatorOutput good_again =
+      Output(500'000'000, Eigen::Vector3d(0.1, 0, 2.0), 0.0, true);
+  EXPECT_EQ(pilot.Fly(500'000'000, good_again, mission).mode, FlightMode::kEstimate);
   // Lost again, for longer than the hold: descend at the rate, down to land_z_m.
   pilot.Fly(600'000'000, lost, mission);
   const ClosedLoopPilot::Command landing = pilot.Fly(2'100'000'000, lost, mission);
@@ -254,6 +256,17 @@ TEST(ClosedLoopPilot, FailsafeHoldsThenLandsAndResumesWhenTheEstimateReturns) {
   int starts = 0;
   for (const harness::FlightEvent& e : pilot.events()) starts += e.event == "failsafe_start";
   EXPECT_EQ(starts, 2);
+}
+
+TEST(ClosedLoopPilot, AStaleOutputTriggersTheFailsafe) {
+  ClosedLoopPilot pilot(harness::FailsafeConfig{}, Eigen::Isometry3d::Identity());
+  const estimator::EstimatorOutput o = Output(0, Eigen::Vector3d::Zero(), 0.0, true);
+  ASSERT_TRUE(pilot.TryHandover(0, &o, Eigen::Isometry3d::Identity()));
+  EXPECT_EQ(pilot.Fly(ClosedLoopPilot::kStaleAfterNs, o, sim::Reference{}).mode,
+            FlightMode::kEstimate);
+  EXPECT_EQ(pilot.Fly(ClosedLoopPilot::kStaleAfterNs + 5'000'000, o, sim::Reference{}).mode,
+            FlightMode::kFailsafeHold);
+  EXPECT_NE(pilot.events().back().detail.find("stale"), std::string::npos);
 }
 
 TEST(ClosedLoopPilot, APositionCovarianceAboveTheBoundTriggersTheFailsafe) {
