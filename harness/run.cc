@@ -138,6 +138,18 @@ Eigen::Isometry3d NominalImuMount(const Scenario& scenario, const sim::RobotDesc
   return Eigen::Isometry3d::Identity();
 }
 
+// Each stream's place among the streams sorted by name: the tie-break ReadRecordedLog
+// uses between samples of equal arrival, so the queue must use it too.
+std::vector<uint32_t> RanksByName(const std::vector<SensorStream>& streams) {
+  std::vector<std::size_t> by_name(streams.size());
+  for (std::size_t i = 0; i < by_name.size(); ++i) by_name[i] = i;
+  std::sort(by_name.begin(), by_name.end(),
+            [&](std::size_t a, std::size_t b) { return streams[a].name < streams[b].name; });
+  std::vector<uint32_t> rank(streams.size());
+  for (std::size_t r = 0; r < by_name.size(); ++r) rank[by_name[r]] = static_cast<uint32_t>(r);
+  return rank;
+}
+
 }  // namespace
 
 RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
@@ -226,15 +238,7 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   }
   InLoopMethods in_loop(in_loop_names,
                         scenario.estimation ? *scenario.estimation : EstimationConfig{});
-  std::vector<uint32_t> stream_rank(record.sensors.size());
-  {
-    std::vector<std::size_t> by_name(record.sensors.size());
-    for (std::size_t i = 0; i < by_name.size(); ++i) by_name[i] = i;
-    std::sort(by_name.begin(), by_name.end(), [&](std::size_t a, std::size_t b) {
-      return record.sensors[a].name < record.sensors[b].name;
-    });
-    for (std::size_t r = 0; r < by_name.size(); ++r) stream_rank[by_name[r]] = static_cast<uint32_t>(r);
-  }
+  const std::vector<uint32_t> stream_rank = RanksByName(record.sensors);
   ArrivalQueue delivered_queue(stream_rank);
   ArrivalQueue clean_queue(stream_rank);
   core::Time released_until_ns = std::numeric_limits<core::Time>::min();
@@ -448,21 +452,28 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   }
   if (options.progress) options.progress(1.0);
 
-  // `control: {state_source: estimate}`: the same scenario flown again on each method.
-  if (!options.fly_on && scenario.control &&
-      scenario.control->state_source == ControlConfig::StateSource::kEstimate) {
-    for (const std::string& method : scenario.control->methods) {
-      SimulateOptions flight;
-      flight.models_dir = options.models_dir;
-      flight.fly_on = method;
-      flight.tamper = options.tamper;
-      if (options.closed_loop_progress) {
-        flight.progress = [&](double f) { options.closed_loop_progress(method, f); };
-      }
-      record.closed_loop_flights.push_back(Simulate(scenario, flight));
-    }
-  }
+  if (!options.fly_on) record.closed_loop_flights = FlyClosedLoopFlights(scenario, options);
   return record;
+}
+
+std::vector<RunRecord> FlyClosedLoopFlights(const Scenario& scenario,
+                                            const SimulateOptions& options) {
+  std::vector<RunRecord> flights;
+  if (!scenario.control ||
+      scenario.control->state_source != ControlConfig::StateSource::kEstimate) {
+    return flights;
+  }
+  for (const std::string& method : scenario.control->methods) {
+    SimulateOptions flight;
+    flight.models_dir = options.models_dir;
+    flight.fly_on = method;
+    flight.tamper = options.tamper;
+    if (options.closed_loop_progress) {
+      flight.progress = [&](double f) { options.closed_loop_progress(method, f); };
+    }
+    flights.push_back(Simulate(scenario, flight));
+  }
+  return flights;
 }
 
 }  // namespace tofu::harness

@@ -132,4 +132,10 @@ struct SimulateOptions {
 /// bad state) returns the record so far with `failure` set.
 RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options = {});
 
+/// `control: {state_source: estimate}`: the scenario flown once per control.methods,
+/// each a Simulate with fly_on set (what Simulate does after a ground-truth flight).
+/// Empty without such a block.
+std::vector<RunRecord> FlyClosedLoopFlights(const Scenario& scenario,
+                                            const SimulateOptions& options);
+
 }  // namespace tofu::harness
