@@ -10,8 +10,8 @@ work="$2"
 script="$source_dir/scripts/plot_closed_loop.py"
 fixture="$source_dir/tests/data/closed_loop_run"
 
-fail() { echo "plot_closed_loop_check: FAIL: $*" >&2; exit 1; }
-is_png() { [[ -s "$1" ]] && [[ "$(head -c 8 "$1" | od -An -tx1 | tr -d ' \n')" == "89504e470d0a1a0a" ]]; }
+check=plot_closed_loop_check
+source "$source_dir/tests/plot_check_support.sh"
 
 rm -rf "$work"
 mkdir -p "$work"
@@ -37,32 +37,16 @@ cp -r "$fixture" "$work/bad"
 control="$work/bad/closed_loop/consensus/control.csv"
 lines=$(wc -l < "$control")
 echo "40000000000,estimate,1,2,3,1,2,3,1,2,3,oops,0.1,0.5" >> "$control"
-set +e
-"$script" "$work/bad" 2> "$work/bad.err"
-status=$?
-set -e
-[[ $status -eq 2 ]] || fail "malformed control.csv: exit $status, expected 2"
-grep -q "control.csv:$((lines + 1)): column 'tracking_error'" "$work/bad.err" ||
-  fail "message does not name control.csv:$((lines + 1)) and the column: $(cat "$work/bad.err")"
-[[ ! -e "$work/bad/closed_loop.png" ]] || fail "a PNG was written despite the malformed CSV"
+expect_rejected "malformed control.csv" "control.csv:$((lines + 1)): column 'tracking_error'" \
+  "$work/bad/closed_loop.png" -- "$script" "$work/bad"
 
 # An unknown flight mode, and a row with too few fields.
 cp -r "$fixture" "$work/mode"
 echo "40000000000,cruise,1,2,3,1,2,3,1,2,3,0.1,0.1,0.5" >> "$work/mode/closed_loop/naive/control.csv"
-set +e
-"$script" "$work/mode" 2> "$work/mode.err"
-status=$?
-set -e
-[[ $status -eq 2 ]] || fail "unknown mode: exit $status, expected 2"
-grep -q "column 'mode'" "$work/mode.err" || fail "unknown mode not named: $(cat "$work/mode.err")"
+expect_rejected "unknown mode" "column 'mode'" "$work/mode/closed_loop.png" -- "$script" "$work/mode"
 cp -r "$fixture" "$work/short"
 echo "5000000000,handover" >> "$work/short/closed_loop/naive/events.csv"
-set +e
-"$script" "$work/short" 2> "$work/short.err"
-status=$?
-set -e
-[[ $status -eq 2 ]] || fail "short events.csv row: exit $status, expected 2"
-grep -q "events.csv:[0-9]*: expected 3 fields" "$work/short.err" ||
-  fail "message does not name events.csv:line: $(cat "$work/short.err")"
+expect_rejected "short events.csv row" "events.csv:[0-9]*: expected 3 fields" \
+  "$work/short/closed_loop.png" -- "$script" "$work/short"
 
 echo "plot_closed_loop_check: ok"

@@ -9,8 +9,8 @@ work="$2"
 script="$source_dir/scripts/plot_consensus.py"
 fixture="$source_dir/tests/data/consensus_run"
 
-fail() { echo "plot_consensus_check: FAIL: $*" >&2; exit 1; }
-is_png() { [[ -s "$1" ]] && [[ "$(head -c 8 "$1" | od -An -tx1 | tr -d ' \n')" == "89504e470d0a1a0a" ]]; }
+check=plot_consensus_check
+source "$source_dir/tests/plot_check_support.sh"
 
 rm -rf "$work"
 mkdir -p "$work"
@@ -38,24 +38,13 @@ mkdir -p "$work/empty"
 cp -r "$fixture" "$work/bad"
 lines=$(wc -l < "$work/bad/errors.csv")
 echo "1000000000,consensus,0.1,not_a_number,1," >> "$work/bad/errors.csv"
-set +e
-"$script" "$work/bad" 2> "$work/bad.err"
-status=$?
-set -e
-[[ $status -eq 2 ]] || fail "malformed errors.csv: exit $status, expected 2"
-grep -q "errors.csv:$((lines + 1)): column 'rotation_error'" "$work/bad.err" ||
-  fail "message does not name errors.csv:$((lines + 1)) and the column: $(cat "$work/bad.err")"
-[[ ! -e "$work/bad/consensus.png" ]] || fail "a PNG was written despite the malformed CSV"
+expect_rejected "malformed errors.csv" "errors.csv:$((lines + 1)): column 'rotation_error'" \
+  "$work/bad/consensus.png" -- "$script" "$work/bad"
 
 # A row with the wrong number of fields.
 cp -r "$fixture" "$work/short"
 echo "5000000000,consensus,vio" >> "$work/short/decisions.csv"
-set +e
-"$script" "$work/short" 2> "$work/short.err"
-status=$?
-set -e
-[[ $status -eq 2 ]] || fail "short decisions.csv row: exit $status, expected 2"
-grep -q "decisions.csv:[0-9]*: expected 6 fields" "$work/short.err" ||
-  fail "message does not name decisions.csv:line: $(cat "$work/short.err")"
+expect_rejected "short decisions.csv row" "decisions.csv:[0-9]*: expected 6 fields" \
+  "$work/short/consensus.png" -- "$script" "$work/short"
 
 echo "plot_consensus_check: ok"

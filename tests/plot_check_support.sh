@@ -1,0 +1,23 @@
+# Shared by the plot-script checks (plot_consensus_check.sh, plot_closed_loop_check.sh):
+# source it after setting `check` (the check's name, for messages).
+
+fail() { echo "$check: FAIL: $*" >&2; exit 1; }
+
+is_png() { [[ -s "$1" ]] && [[ "$(head -c 8 "$1" | od -An -tx1 | tr -d ' \n')" == "89504e470d0a1a0a" ]]; }
+
+# expect_rejected WHAT PATTERN PNG -- COMMAND...: COMMAND exits 2, its stderr matches
+# PATTERN (grep), and PNG was not written.
+expect_rejected() {
+  local what="$1" pattern="$2" png="$3"
+  shift 4
+  local err
+  err="$(mktemp)"
+  set +e
+  "$@" 2> "$err"
+  local status=$?
+  set -e
+  [[ $status -eq 2 ]] || fail "$what: exit $status, expected 2"
+  grep -q "$pattern" "$err" || fail "$what: message does not match '$pattern': $(cat "$err")"
+  [[ ! -e "$png" ]] || fail "$what: a PNG was written despite the malformed input"
+  rm -f "$err"
+}
