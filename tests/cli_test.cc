@@ -339,6 +339,40 @@ TEST_F(CliTest, MisuseExitsTwo) {
   EXPECT_CONTAINS(help.out, "run");
 }
 
+// Every numeric option of `tofu estimate`, `tofu consistency` and the seeds and counts of
+// `tofu run` and `tofu check` is checked against its range before anything runs (before
+// these checks: exit 0 with a nonsense estimate, an internal error, minutes of work or
+// bad_alloc, and --seed -1 silently became 2^64 - 1).
+TEST_F(CliTest, OutOfRangeNumericOptionsExitTwoNamingTheOptionAndItsRange) {
+  const struct {
+    std::string args;
+    std::string expected;
+  } cases[] = {
+      {"estimate log --window -1", "--window: expected a number in (0, 60] s, got -1"},
+      {"estimate log --window nan", "--window: expected a number in (0, 60] s, got nan"},
+      {"estimate log --huber nan", "--huber: expected a number in [0, 100] sigma"},
+      {"estimate log --imu-noise-scale -1", "--imu-noise-scale: expected a number in (0, 1000]"},
+      {"estimate log --imu-noise-scale 0", "--imu-noise-scale: expected a number in (0, 1000]"},
+      {"estimate log --keyframe-rate 0", "--keyframe-rate: expected a number in [0.1, 1000] Hz"},
+      {"estimate log --consensus-threshold nan", "--consensus-threshold: expected a number"},
+      {"estimate log --between-position-std inf", "--between-position-std: expected a number"},
+      {"consistency --metric cm --rate 1e6 a.csv b.csv", "--rate: expected a number in (0, 1000] Hz"},
+      {"run s.yaml --seed -1", "--seed: expected a whole number in [0, 18446744073709551615], got -1"},
+      {"check s.yaml --seeds -2", "--seeds: expected a whole number in [1, 100000]"},
+      {"check s.yaml --jobs 1.5", "--jobs: expected a whole number in [0, 256]"},
+  };
+  for (const auto& c : cases) {
+    const Result r = Tofu(c.args);
+    EXPECT_EQ(r.exit_code, 2) << c.args;
+    EXPECT_CONTAINS(r.err, c.expected);
+    EXPECT_EQ(WorkEntries(), std::set<std::string>{}) << c.args << " left something behind";
+  }
+  // In range is accepted (the command then fails on its missing input, not on the option).
+  const Result ok = Tofu("estimate log --window 0.5 --huber 0 --keyframe-rate 30");
+  EXPECT_EQ(ok.exit_code, 2);
+  EXPECT_EQ(ok.err.find("expected a number"), std::string::npos) << ok.err;
+}
+
 TEST_F(CliTest, MetricsListsTheCatalogue) {
   const Result r = Tofu("metrics");
   EXPECT_EQ(r.exit_code, 0);

@@ -4,6 +4,9 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
 #include <cstdio>
 #include <iostream>
 #include <optional>
@@ -48,6 +51,47 @@ class ProgressBar {
   std::string label_;
   int last_percent_ = -1;
 };
+
+// A number option's range, checked on the text before CLI11 converts it: finite (NaN and
+// inf are not numbers of any range), in [min, max] or (min, max]; the message names the
+// range and the unit, and the option is exit 2 like any misuse.
+CLI::Validator FiniteIn(double min, double max, const std::string& unit, bool min_exclusive) {
+  const std::string range =
+      fmt::format("{}{:g}, {:g}]{}{}", min_exclusive ? "(" : "[", min, max, unit.empty() ? "" : " ", unit);
+  return CLI::Validator(
+      [=](std::string& text) -> std::string {
+        double value = 0.0;
+        try {
+          std::size_t used = 0;
+          value = std::stod(text, &used);
+          if (used != text.size()) return "expected a number in " + range + ", got " + text;
+        } catch (const std::exception&) {
+          return "expected a number in " + range + ", got " + text;
+        }
+        const bool above_min = min_exclusive ? value > min : value >= min;
+        if (!std::isfinite(value) || !above_min || value > max) {
+          return "expected a number in " + range + ", got " + text;
+        }
+        return std::string();
+      },
+      range);
+}
+
+// A count or seed: digits only (CLI11 would turn "-1" into 2^64 - 1 for an unsigned).
+CLI::Validator WholeNumber(std::uint64_t min, std::uint64_t max) {
+  const std::string range = fmt::format("a whole number in [{}, {}]", min, max);
+  return CLI::Validator(
+      [=](std::string& text) -> std::string {
+        if (text.empty() || text.size() > 20 ||
+            text.find_first_not_of("0123456789") != std::string::npos) {
+          return "expected " + range + ", got " + text;
+        }
+        const unsigned long long value = std::stoull(text);
+        if (value < min || value > max) return "expected " + range + ", got " + text;
+        return std::string();
+      },
+      range);
+}
 
 std::string FormatValue(const std::optional<double>& v) {
   return v ? fmt::format("{:.4g}", *v) : std::string("n/a");
@@ -216,7 +260,8 @@ int main(int argc, char** argv) {
   bool quiet = false;
   run->add_option("scenario", scenario_path, "Scenario YAML file")->required();
   run->add_option("--out", out_dir, "Run directory (default: runs/<scenario name>)");
-  run->add_option("--seed", seed, "Seed overriding the scenario's");
+  run->add_option("--seed", seed, "Seed overriding the scenario's")
+      ->check(WholeNumber(0, std::numeric_limits<std::uint64_t>::max()));
   run->add_flag("--quiet", quiet, "No progress bar and no report");
 
   CLI::App* validate = app.add_subcommand("validate", "Check scenario files without running");
@@ -231,10 +276,12 @@ int main(int argc, char** argv) {
   check->add_option("scenarios", check_options.inputs,
                     "Scenario files or directories of *.yaml (default: scenarios)");
   check->add_option("--junit", check_options.junit_path, "Write JUnit XML to this file");
-  check->add_option("--jobs", check_options.jobs, "Parallel runs (default: number of cores)");
+  check->add_option("--jobs", check_options.jobs, "Parallel runs (default: number of cores)")
+      ->check(WholeNumber(0, 256));
   check->add_option("--seeds", check_options.seeds,
                     "Seeds per scenario: its seed + 0..N-1 (pass_fraction applies)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(WholeNumber(1, 100000));
   check->add_option("--out", check_options.out_dir, "Output directory: <out>/<scenario>/seed_<s>")
       ->capture_default_str();
   check->add_flag("--quiet", check_options.quiet, "No progress and no table (failures still)");
@@ -243,11 +290,19 @@ int main(int argc, char** argv) {
       "consistency", "Consistency metric between two velocity CSVs over a sliding window");
   tofu::harness::ConsistencyCommandOptions cons;
   consistency->add_option("--metric", cons.metric, "mae, pcc, kl or cm")->required();
-  consistency->add_option("--window", cons.window_s, "Window length [s]")->capture_default_str();
-  consistency->add_option("--rate", cons.rate_hz, "Evaluation rate [Hz]")->capture_default_str();
+  consistency->add_option("--window", cons.window_s, "Window length [s]")
+      ->capture_default_str()
+      ->check(FiniteIn(0.0, 3600.0, "s", true));
+  // Velocity streams come at most at a few kHz: a faster evaluation only repeats windows
+  // (1e6 Hz ran for minutes, 1e7 Hz ran out of memory).
+  consistency->add_option("--rate", cons.rate_hz, "Evaluation rate [Hz]")
+      ->capture_default_str()
+      ->check(FiniteIn(0.0, 1000.0, "Hz", true));
   consistency->add_flag("--standardize", cons.standardize, "Pooled standardization per axis");
   consistency->add_option("--kl-bandwidth-scale", cons.kl_bandwidth_scale,
-                          "KL only: factor on the Silverman bandwidth")->capture_default_str();
+                          "KL only: factor on the Silverman bandwidth")
+      ->capture_default_str()
+      ->check(FiniteIn(0.0, 100.0, "", true));
   consistency->add_option("A", cons.path_a, "Velocity CSV of stream A")->required();
   consistency->add_option("B", cons.path_b, "Velocity CSV of stream B")->required();
   consistency->add_option("--out", cons.out_path, "Output CSV (default: stdout)");
@@ -268,17 +323,26 @@ int main(int argc, char** argv) {
   estimate->add_flag("--clean", est.use_clean_streams,
                      "Replay the un-faulted streams (sensors/clean/) of a run directory");
   estimate->add_flag("--quiet", est.quiet, "No progress bar and no table");
-  estimate->add_option("--window", est.window_s, "Fixed lag of the local graph [s] (0.5)");
-  estimate->add_option("--keyframe-rate", est.keyframe_rate_hz, "Keyframes per sensor [Hz] (30)");
+  estimate->add_option("--window", est.window_s, "Fixed lag of the local graph [s] (0.5)")
+      ->check(FiniteIn(0.0, 60.0, "s", true));
+  estimate->add_option("--keyframe-rate", est.keyframe_rate_hz, "Keyframes per sensor [Hz] (30)")
+      ->check(FiniteIn(0.1, 1000.0, "Hz", false));
   estimate->add_option("--between-position-std", est.between_position_std_m,
-                       "Pose sensors: std of one relative position [m] (0.01)");
+                       "Pose sensors: std of one relative position [m] (0.01)")
+      ->check(FiniteIn(0.0, 100.0, "m", true));
   estimate->add_option("--between-rotation-std", est.between_rotation_std_rad,
-                       "Pose sensors: std of one relative rotation [rad] (0.01)");
+                       "Pose sensors: std of one relative rotation [rad] (0.01)")
+      ->check(FiniteIn(0.0, M_PI, "rad", true));
   estimate->add_option("--imu-noise-scale", est.imu_noise_scale,
-                       "Factor on the IMU white-noise densities");
-  estimate->add_option("--huber", est.huber_delta, "Huber loss on between factors [sigma] (a run directory: its scenario's huber_delta; else off)");
+                       "Factor on the IMU white-noise densities")
+      ->check(FiniteIn(0.0, 1000.0, "", true));
+  estimate->add_option("--huber", est.huber_delta,
+                       "Huber loss on between factors [sigma] (a run directory: its scenario's "
+                       "huber_delta; else off)")
+      ->check(FiniteIn(0.0, 100.0, "sigma", false));
   estimate->add_option("--consensus-threshold", est.consensus_threshold,
-                       "consensus methods: CM distance threshold (0.1)");
+                       "consensus methods: CM distance threshold (0.1)")
+      ->check(FiniteIn(0.0, 100.0, "m/s", true));
   estimate->add_option("--position-in-reference", est.between_position_in_reference,
                        "Pose sensors: relative position in the sensor's frame (true/false)");
 
