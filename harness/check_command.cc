@@ -72,8 +72,9 @@ std::string LogTail(const std::string& path, size_t max_lines = 5) {
 // Returns the child's pid, or -1 with the reason in job.run.error.
 pid_t SpawnRun(const std::string& binary, Job& job) {
   const std::string seed = std::to_string(job.run.seed);
-  std::vector<std::string> args = {binary,      "run",     job.scenario_path, "--seed",
-                                   seed,        "--out",   job.run.run_dir,   "--quiet"};
+  // --force: the seed's directory is the check's own, an earlier check's run is replaced.
+  std::vector<std::string> args = {binary, "run",   job.scenario_path, "--seed", seed,
+                                   "--out", job.run.run_dir, "--quiet", "--force"};
   std::vector<char*> argv;
   for (std::string& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);

@@ -17,6 +17,7 @@
 #include <fmt/format.h>
 #include <yaml-cpp/yaml.h>
 
+#include "core/error.h"
 #include "core/lie.h"
 #include "harness/estimation.h"
 #include "harness/file_io.h"
@@ -513,6 +514,30 @@ void WriteRunFiles(const RunRecord& record, const Evaluation& evaluation, const 
 
 }  // namespace
 
+void CheckOutputDirectory(const fs::path& out_dir, bool force) {
+  std::error_code ec;
+  const fs::file_status status = fs::status(out_dir, ec);
+  if (ec || !fs::exists(status)) return;
+  if (!fs::is_directory(status)) {
+    throw core::InputError({out_dir.string()}, "--out",
+                           "exists and is not a directory: expected a new or empty directory, "
+                           "or an earlier tofu run directory with --force");
+  }
+  if (fs::is_empty(out_dir, ec)) return;
+  if (!fs::exists(out_dir / kRunMarkerFile)) {
+    throw core::InputError(
+        {out_dir.string()}, "--out",
+        fmt::format("holds files that are not a tofu run directory (no {}): refusing to replace "
+                    "it; choose a new or empty directory",
+                    kRunMarkerFile));
+  }
+  if (!force) {
+    throw core::InputError({out_dir.string()}, "--out",
+                           "holds an earlier tofu run: --force replaces it (atomically: the old "
+                           "run stays until the new one is complete)");
+  }
+}
+
 void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
                        const std::string& out_dir,
                        const std::function<void(const std::filesystem::path& staging)>& finish) {
@@ -524,6 +549,8 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
   fs::remove_all(staging);
   try {
     fs::create_directories(staging);
+    WriteFileAtomically(staging / kRunMarkerFile,
+                        "a tofu run directory: `tofu run --out` replaces it only with --force\n");
     WriteRunFiles(record, evaluation, staging);
     if (finish) finish(staging);
     // Replace atomically from a reader's point of view: old aside, new in, old gone.

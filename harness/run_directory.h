@@ -12,6 +12,16 @@
 
 namespace tofu::harness {
 
+/// The file every run directory holds (written with the run): `--out` replaces only a
+/// directory that has it, and only with --force.
+inline constexpr const char* kRunMarkerFile = ".tofu-run";
+
+/// Whether `tofu run --out out_dir` may write there, checked before the flight: a missing
+/// or empty directory, or an earlier run (marker file) with `force`. Throws
+/// core::InputError (exit 2) for anything else (a file; a directory holding other files,
+/// never touched; an earlier run without --force), saying why and what to do.
+void CheckOutputDirectory(const std::filesystem::path& out_dir, bool force);
+
 /// Writes scenario.yaml, groundtruth.csv/.tum, tracking.csv, calibration.yaml,
 /// summary.json and timing.json into `out_dir`, replacing an existing directory.
 /// Throws std::runtime_error on I/O failure (nothing is left behind). `finish` (may be

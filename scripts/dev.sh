@@ -23,7 +23,7 @@ case "${1:-}" in
   demo)
     build
     scenario="${2:-scenarios/figure_eight_arena.yaml}"
-    "$build_dir/tofu" run "$scenario" --out runs/demo
+    "$build_dir/tofu" run "$scenario" --out runs/demo --force
     # A picture of the flight: path against the reference, tracking errors.
     scripts/plot_run.py runs/demo --out runs/demo/tracking.png
     # The estimator on real data: EuRoC V1_02 (IMU + a visual pose estimate), if present.

@@ -23,7 +23,7 @@ fly() {
   [[ -f "$runs/$name/summary.json" ]] && return 0
   mkdir -p "$runs"
   echo "flying $name"
-  "$tofu" run "scenarios/$name.yaml" --out "$runs/$name" --quiet || [[ $? == 1 ]]
+  "$tofu" run "scenarios/$name.yaml" --out "$runs/$name" --quiet --force || [[ $? == 1 ]]
 }
 
 staging="$(mktemp -d "$root/renders/.gallery.XXXXXX")"

@@ -255,7 +255,7 @@ TEST_F(CheckCommandTest, DuplicateScenarioNamesAreBadInput) {
 }
 
 // A stand-in for `tofu run` (RunCheckCommand's tofu_binary): a shell script given
-// `run SCENARIO --seed S --out DIR --quiet`, so that failures that a real scenario cannot
+// `run SCENARIO --seed S --out DIR --quiet --force`, so that failures that a real scenario cannot
 // produce on demand (a crashed simulation, renders) are checked end to end.
 fs::path FakeTofu(const fs::path& dir, const std::string& body) {
   const fs::path script = dir / "fake_tofu.sh";

@@ -210,15 +210,42 @@ TEST_F(CliTest, RunDirectoryHasTheDocumentedFilesAndFormats) {
             1e-12);
 }
 
-TEST_F(CliTest, RerunReplacesAnExistingRunDirectory) {
-  const std::string scenario = Quote(SourcePath("tests/data/scenarios/gusty_hover_short.yaml"));
-  fs::create_directories(work_ / "run");
+// --out never destroys what is not a tofu run (issue 19, finding 1: a directory holding
+// the user's notes and the scenario itself was emptied with exit 0), and replaces an
+// earlier run only with --force, atomically.
+TEST_F(CliTest, OutRefusesADirectoryOfOtherFilesAndReplacesAnEarlierRunOnlyWithForce) {
+  const fs::path scenario_file = work_ / "notes" / "my.yaml";
+  fs::create_directories(work_ / "notes");
+  WriteFile(scenario_file, ReadFile(SourcePath("tests/data/scenarios/gusty_hover_short.yaml")));
+  WriteFile(work_ / "notes" / "notes.txt", "my notes");
+  const Result refused = Tofu("run notes/my.yaml --out notes --quiet --force");
+  EXPECT_EQ(refused.exit_code, 2);
+  EXPECT_CONTAINS(refused.err, "not a tofu run directory");
+  EXPECT_EQ(ReadFile(work_ / "notes" / "notes.txt"), "my notes");
+  EXPECT_TRUE(fs::exists(scenario_file));
+  EXPECT_EQ(WorkEntries(), (std::set<std::string>{"notes"}));
+
+  // A file where the directory should be.
+  WriteFile(work_ / "afile", "x");
+  EXPECT_EQ(Tofu("run notes/my.yaml --out afile --quiet").exit_code, 2);
+  EXPECT_EQ(ReadFile(work_ / "afile"), "x");
+
+  // An earlier run: refused without --force, replaced with it.
+  ASSERT_EQ(Tofu("run notes/my.yaml --out run --quiet").exit_code, 0);
+  EXPECT_TRUE(fs::exists(work_ / "run" / ".tofu-run"));
   WriteFile(work_ / "run" / "stale.txt", "from an older run");
-  const Result r = Tofu("run " + scenario + " --out run --quiet");
-  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const Result again = Tofu("run notes/my.yaml --out run --quiet");
+  EXPECT_EQ(again.exit_code, 2);
+  EXPECT_CONTAINS(again.err, "--force replaces it");
+  EXPECT_TRUE(fs::exists(work_ / "run" / "stale.txt"));
+  const Result forced = Tofu("run notes/my.yaml --out run --quiet --force");
+  ASSERT_EQ(forced.exit_code, 0) << forced.err;
   EXPECT_FALSE(fs::exists(work_ / "run" / "stale.txt"));
   EXPECT_TRUE(fs::exists(work_ / "run" / "summary.json"));
-  EXPECT_EQ(WorkEntries(), (std::set<std::string>{"run"}));
+  EXPECT_EQ(WorkEntries(), (std::set<std::string>{"notes", "afile", "run"}));
+  // An empty directory is fine.
+  fs::create_directories(work_ / "empty");
+  EXPECT_EQ(Tofu("run notes/my.yaml --out empty --quiet").exit_code, 0);
 }
 
 TEST_F(CliTest, DefaultRunDirectoryIsRunsSlashScenarioName) {

@@ -2,7 +2,8 @@
 """Ground-truth runs unchanged by the run-loop redesign: every file of every scenario's run
 directory (timing files and figures aside) has the SHA-256 recorded in
 tests/data/golden_runs.json, which was made with the code before the estimators moved into
-the run loop (the post-pass over the written CSVs).
+the run loop (the post-pass over the written CSVs); re-recorded once since, when every run
+directory gained its marker file .tofu-run (nothing else differed).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)

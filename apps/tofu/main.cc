@@ -174,10 +174,12 @@ void PrintReport(const tofu::harness::RunRecord& record,
 }
 
 int RunCommand(const std::string& scenario_path, std::optional<std::string> out_dir,
-               std::optional<uint64_t> seed, bool quiet) {
+               std::optional<uint64_t> seed, bool quiet, bool force) {
   tofu::harness::Scenario scenario = tofu::harness::LoadScenario(scenario_path);
   if (seed) scenario.seed = *seed;
   const std::string out = out_dir.value_or("runs/" + scenario.name);
+  // Before the flight: a run never ends by refusing its directory.
+  tofu::harness::CheckOutputDirectory(out, force);
 
   tofu::harness::SimulateOptions options;
   std::optional<ProgressBar> bar;
@@ -263,6 +265,9 @@ int main(int argc, char** argv) {
   run->add_option("--seed", seed, "Seed overriding the scenario's")
       ->check(WholeNumber(0, std::numeric_limits<std::uint64_t>::max()));
   run->add_flag("--quiet", quiet, "No progress bar and no report");
+  bool force = false;
+  run->add_flag("--force", force,
+                "Replace an earlier run directory at --out (never a directory of other files)");
 
   CLI::App* validate = app.add_subcommand("validate", "Check scenario files without running");
   std::vector<std::string> validate_paths;
@@ -385,7 +390,7 @@ int main(int argc, char** argv) {
   }
 
   try {
-    if (*run) return RunCommand(scenario_path, out_dir, seed, quiet);
+    if (*run) return RunCommand(scenario_path, out_dir, seed, quiet, force);
     if (*validate) return ValidateCommand(validate_paths);
     if (*check) return tofu::harness::RunCheckCommand(check_options);
     if (*consistency) {
