@@ -2,7 +2,8 @@
 // Error types that cross module boundaries. Bad user input (scenario YAML, CSV, CLI)
 // is an InputError: the CLI prints it and exits with code 2, leaving no output behind.
 // A simulation that cannot go on (MuJoCo's bad-state warnings, a diverged run) is a
-// SimulationError. Internal invariants are asserts, not exceptions.
+// SimulationError. An output that cannot be written is an IoError. Internal invariants
+// are asserts, not exceptions.
 
 #include <stdexcept>
 #include <string>
@@ -37,12 +38,20 @@ class SimulationError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// An output could not be written (disk full, no permission, a path that is a file): not
+/// the user's input and not the simulation. what() names the path.
+class IoError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 /// Process exit codes of the CLI, one meaning each.
 enum ExitCode : int {
   kExitOk = 0,
   kExitExpectationFailed = 1,
   kExitBadInput = 2,
   kExitSimulationError = 3,
+  kExitIoError = 4,
 };
 
 }  // namespace tofu::core

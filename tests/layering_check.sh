@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # DESIGN.md layering: estimator/ never includes MuJoCo, sim/ or harness/; sim/ never
 # includes estimator/ or harness/; core/ includes nothing of the project but core/;
-# harness/ never includes renders/ (renders read its outputs).
+# harness/ never includes renders/ (renders read its outputs); nothing but apps/ includes
+# report/ (MCAP and HTML of finished runs), and report/ never includes apps/.
 set -u
 root="${1:?usage: layering_check.sh SOURCE_DIR}"
 status=0
@@ -18,6 +19,10 @@ check estimator 'mujoco/|sim/|harness/|apps/' "estimator depends on core, Eigen,
 check sim 'estimator/|harness/|apps/' "sim does not know who consumes its streams"
 check core 'mujoco/|sim/|harness/|estimator/|apps/|ceres/' "core is the vocabulary"
 check harness 'renders/|apps/' "renders read harness outputs, never the other way"
-check estimator 'renders/' "the estimator is a library of its own"
+check estimator 'renders/|report/' "the estimator is a library of its own"
+check harness 'report/' "reports read finished run directories"
+check renders 'report/|apps/' "reports draw on renders, never the other way"
+check sim 'report/|renders/' "sim does not know who reads its runs"
+check report 'apps/' "the CLI calls reports, never the other way"
 [[ $status == 0 ]] && echo "layering ok"
 exit $status

@@ -26,6 +26,7 @@
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
 #include "renders/render_command.h"
+#include "report/mcap_export.h"
 
 namespace {
 
@@ -173,8 +174,22 @@ void PrintReport(const tofu::harness::RunRecord& record,
   fmt::print("{}\n", evaluation.passed ? "PASSED" : "FAILED");
 }
 
+// `tofu export RUN --mcap FILE` and `tofu run --mcap FILE`: the run as one MCAP file.
+void ExportMcap(const std::string& run_dir, const std::string& mcap_file, bool compress, bool quiet) {
+  tofu::report::McapExportOptions options;
+  options.compression =
+      compress ? tofu::report::McapCompression::kZstd : tofu::report::McapCompression::kNone;
+  const tofu::report::McapExportResult result =
+      tofu::report::ExportRunToMcap(run_dir, mcap_file, options);
+  if (!quiet) {
+    fmt::print("wrote {} ({} messages on {} topics, {:.1f} MB)\n", mcap_file, result.messages,
+               result.messages_per_topic.size(), static_cast<double>(result.bytes) / 1e6);
+  }
+}
+
 int RunCommand(const std::string& scenario_path, std::optional<std::string> out_dir,
-               std::optional<uint64_t> seed, bool quiet, bool force) {
+               std::optional<uint64_t> seed, bool quiet, bool force,
+               const std::optional<std::string>& mcap_file) {
   tofu::harness::Scenario scenario = tofu::harness::LoadScenario(scenario_path);
   if (seed) scenario.seed = *seed;
   const std::string out = out_dir.value_or("runs/" + scenario.name);
@@ -200,6 +215,7 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   tofu::harness::RunOutputOptions output;
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
+  if (mcap_file) ExportMcap(out, *mcap_file, true, quiet);
   const int status = record.failure    ? tofu::core::kExitSimulationError
                      : evaluation.passed ? tofu::core::kExitOk
                                          : tofu::core::kExitExpectationFailed;
@@ -268,6 +284,21 @@ int main(int argc, char** argv) {
   bool force = false;
   run->add_flag("--force", force,
                 "Replace an earlier run directory at --out (never a directory of other files)");
+
+  std::optional<std::string> run_mcap;
+  run->add_option("--mcap", run_mcap, "Also write the run as an MCAP file (Foxglove Studio)");
+
+  CLI::App* export_cmd =
+      app.add_subcommand("export", "Write a run directory as one MCAP file (Foxglove Studio)");
+  std::string export_run;
+  std::string export_mcap;
+  bool export_uncompressed = false;
+  bool export_quiet = false;
+  export_cmd->add_option("run", export_run, "Run directory")->required()->check(CLI::ExistingDirectory);
+  export_cmd->add_option("--mcap", export_mcap, "MCAP file to write (replaced atomically)")->required();
+  export_cmd->add_flag("--uncompressed", export_uncompressed, "Store chunks without zstd");
+  export_cmd->add_flag("--quiet", export_quiet, "No summary line");
+  export_cmd->footer("Topics and schemas: docs/MCAP.md. Layout for Foxglove: docs/foxglove_layout.json.");
 
   CLI::App* validate = app.add_subcommand("validate", "Check scenario files without running");
   std::vector<std::string> validate_paths;
@@ -390,7 +421,11 @@ int main(int argc, char** argv) {
   }
 
   try {
-    if (*run) return RunCommand(scenario_path, out_dir, seed, quiet, force);
+    if (*run) return RunCommand(scenario_path, out_dir, seed, quiet, force, run_mcap);
+    if (*export_cmd) {
+      ExportMcap(export_run, export_mcap, !export_uncompressed, export_quiet);
+      return tofu::core::kExitOk;
+    }
     if (*validate) return ValidateCommand(validate_paths);
     if (*check) return tofu::harness::RunCheckCommand(check_options);
     if (*consistency) {
@@ -436,6 +471,9 @@ int main(int argc, char** argv) {
   } catch (const tofu::core::InputError& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return tofu::core::kExitBadInput;
+  } catch (const tofu::core::IoError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return tofu::core::kExitIoError;
   } catch (const std::exception& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return tofu::core::kExitSimulationError;

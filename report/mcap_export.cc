@@ -1,0 +1,624 @@
+#include "report/mcap_export.h"
+
+#include <mujoco/mujoco.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <optional>
+#include <set>
+#include <string_view>
+#include <system_error>
+#include <vector>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "renders/csv_table.h"
+#include "renders/events.h"
+#include "renders/run_data.h"
+#include "report/json_text.h"
+#include "report/mcap_schemas.h"
+#include "sim/world.h"
+
+namespace tofu::report {
+namespace {
+
+namespace fs = std::filesystem;
+using renders::CsvTable;
+using renders::RunData;
+using renders::TimedPose;
+
+constexpr const char* kWorldFrame = "world";
+constexpr const char* kBodyFrame = "base_link";
+
+std::uint64_t LogTime(core::Time t_ns) { return t_ns < 0 ? 0 : static_cast<std::uint64_t>(t_ns); }
+
+// Foxglove's Log levels (foxglove.LogLevel).
+enum LogLevel { kInfo = 2, kWarning = 3, kError = 4 };
+
+// The channels of one export: a topic's id by name, created on first use with its schema.
+class Channels {
+ public:
+  explicit Channels(McapWriter& writer) : writer_(writer) {}
+
+  std::uint16_t Get(const std::string& topic, const std::string& schema_name) {
+    const auto it = channels_.find(topic);
+    if (it != channels_.end()) return it->second;
+    auto schema = schemas_.find(schema_name);
+    if (schema == schemas_.end()) {
+      schema = schemas_.emplace(schema_name, writer_.AddSchema(schema_name, "jsonschema",
+                                                               JsonSchemaText(schema_name)))
+                   .first;
+    }
+    const std::uint16_t id = writer_.AddChannel(schema->second, topic, "json");
+    channels_.emplace(topic, id);
+    return id;
+  }
+
+  void Add(const std::string& topic, const std::string& schema_name, core::Time log_ns,
+           core::Time publish_ns, const std::string& json) {
+    writer_.AddMessage(Get(topic, schema_name), LogTime(log_ns), LogTime(publish_ns), json);
+    ++counts_[topic];
+  }
+
+  const std::map<std::string, std::uint64_t>& counts() const { return counts_; }
+
+ private:
+  McapWriter& writer_;
+  std::map<std::string, std::uint16_t> schemas_;
+  std::map<std::string, std::uint16_t> channels_;
+  std::map<std::string, std::uint64_t> counts_;
+};
+
+std::string PoseInFrame(core::Time t_ns, const char* frame, const Eigen::Vector3d& p,
+                        const Eigen::Quaterniond& q) {
+  JsonText j;
+  j.Begin();
+  j.Time("timestamp", t_ns);
+  j.String("frame_id", frame);
+  j.Pose("pose", p, q);
+  j.End();
+  return j.str();
+}
+
+std::string LogMessage(core::Time t_ns, int level, const std::string& message,
+                       const std::string& name, const std::string& file, int line) {
+  JsonText j;
+  j.Begin();
+  j.Time("timestamp", t_ns);
+  j.Int("level", level);
+  j.String("message", message);
+  j.String("name", name);
+  j.String("file", file);
+  j.Int("line", std::max(0, line));
+  j.End();
+  return j.str();
+}
+
+// '|'-joined labels as a JSON array of strings.
+std::vector<std::string> SplitLabels(std::string_view text, char separator = '|') {
+  std::vector<std::string> out;
+  std::size_t start = 0;
+  while (start <= text.size() && !text.empty()) {
+    const std::size_t end = text.find(separator, start);
+    const std::string_view item = text.substr(start, end == std::string_view::npos ? end : end - start);
+    if (!item.empty()) out.emplace_back(item);
+    if (end == std::string_view::npos) break;
+    start = end + 1;
+  }
+  return out;
+}
+
+// ---- ground truth ----
+
+void ExportGroundTruth(const RunData& run, Channels& out) {
+  for (const TimedPose& T_WB : run.groundtruth) {
+    JsonText tf;
+    tf.Begin();
+    tf.Time("timestamp", T_WB.t_ns);
+    tf.String("parent_frame_id", kWorldFrame);
+    tf.String("child_frame_id", kBodyFrame);
+    tf.Vector("translation", T_WB.p_W);
+    tf.Quaternion("rotation", T_WB.q_W);
+    tf.End();
+    out.Add("/tf", "foxglove.FrameTransform", T_WB.t_ns, T_WB.t_ns, tf.str());
+    out.Add("/groundtruth", "foxglove.PoseInFrame", T_WB.t_ns, T_WB.t_ns,
+            PoseInFrame(T_WB.t_ns, kWorldFrame, T_WB.p_W, T_WB.q_W));
+  }
+}
+
+// ---- sensor streams: every row as written, and its measurement mapped into W ----
+
+// The columns <prefix><r><k> of the upper triangle of an N x N symmetric matrix (-1:
+// missing), and the full row-major matrix they give (the convention of ROS and Foxglove
+// covariances; a missing or empty column is null).
+template <int N>
+std::vector<int> UpperTriangleColumns(const CsvTable& csv, const std::string& prefix) {
+  std::vector<int> columns;
+  for (int r = 0; r < N; ++r) {
+    for (int k = r; k < N; ++k) columns.push_back(csv.Find(fmt::format("{}{}{}", prefix, r, k)));
+  }
+  return columns;
+}
+
+template <int N>
+std::vector<double> FullCovariance(const CsvTable& csv, std::size_t row, const std::vector<int>& columns) {
+  std::vector<double> c(N * N, std::nan(""));
+  std::size_t i = 0;
+  for (int r = 0; r < N; ++r) {
+    for (int k = r; k < N; ++k, ++i) {
+      const double v = columns[i] >= 0 ? csv.Double(row, columns[i], true) : std::nan("");
+      c[r * N + k] = c[k * N + r] = v;
+    }
+  }
+  return c;
+}
+
+void ExportSensors(const RunData& run, Channels& out) {
+  const fs::path folder = run.directory / "sensors";
+  if (!fs::is_directory(folder)) return;
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_regular_file() && entry.path().extension() == ".csv") files.push_back(entry.path());
+  }
+  std::sort(files.begin(), files.end());
+  for (const fs::path& file : files) {
+    const std::string name = file.stem().string();
+    const std::string topic = "/sensors/" + name;
+    const CsvTable csv(file, "#timestamp [ns],... (a sensor stream of README 'Run directory')");
+    const int t = csv.Require("timestamp");
+    const int arrival = csv.Find("arrival");
+    const int conditions = csv.Find("conditions");
+    const int faults = csv.Find("faults");
+    const auto common = [&](JsonText& j, std::size_t r) {
+      const core::Time t_ns = csv.Int(r, t);
+      j.Time("timestamp", t_ns);
+      j.Time("arrival", arrival >= 0 ? csv.Int(r, arrival) : t_ns);
+      j.Strings("conditions", SplitLabels(conditions >= 0 ? csv.Text(r, conditions) : ""));
+      j.Strings("faults", SplitLabels(faults >= 0 ? csv.Text(r, faults) : ""));
+    };
+    if (csv.Find("w_RS_S_x") >= 0) {
+      const int w[3] = {csv.Require("w_RS_S_x"), csv.Require("w_RS_S_y"), csv.Require("w_RS_S_z")};
+      const int a[3] = {csv.Require("a_RS_S_x"), csv.Require("a_RS_S_y"), csv.Require("a_RS_S_z")};
+      for (std::size_t r = 0; r < csv.rows(); ++r) {
+        JsonText j;
+        j.Begin();
+        common(j, r);
+        j.Vector("angular_velocity_radps",
+                 {csv.Double(r, w[0]), csv.Double(r, w[1]), csv.Double(r, w[2])});
+        j.Vector("linear_acceleration_mps2",
+                 {csv.Double(r, a[0]), csv.Double(r, a[1]), csv.Double(r, a[2])});
+        j.End();
+        const core::Time t_ns = csv.Int(r, t);
+        out.Add(topic, "tofu.ImuSample", t_ns, arrival >= 0 ? csv.Int(r, arrival) : t_ns, j.str());
+      }
+      continue;
+    }
+    const renders::SensorTrack* track = run.FindSensor(name);
+    const Eigen::Isometry3d T_WS = track ? track->true_T_WS : Eigen::Isometry3d::Identity();
+    const int p[3] = {csv.Require("p_Ss_x"), csv.Require("p_Ss_y"), csv.Require("p_Ss_z")};
+    const bool is_pose = csv.Find("q_Ss_w") >= 0;
+    int q[4] = {-1, -1, -1, -1};
+    int v[3] = {-1, -1, -1};
+    int omega[3] = {-1, -1, -1};
+    if (is_pose) {
+      q[0] = csv.Require("q_Ss_w"), q[1] = csv.Require("q_Ss_x");
+      q[2] = csv.Require("q_Ss_y"), q[3] = csv.Require("q_Ss_z");
+      v[0] = csv.Find("v_s_x"), v[1] = csv.Find("v_s_y"), v[2] = csv.Find("v_s_z");
+      omega[0] = csv.Find("omega_s_x"), omega[1] = csv.Find("omega_s_y"), omega[2] = csv.Find("omega_s_z");
+    }
+    const std::string frame = name + "_reference";
+    const std::vector<int> cov_pose = UpperTriangleColumns<6>(csv, "cov_pose_");
+    const std::vector<int> cov_twist = UpperTriangleColumns<6>(csv, "cov_twist_");
+    const std::vector<int> cov_p = UpperTriangleColumns<3>(csv, "cov_p_");
+    for (std::size_t r = 0; r < csv.rows(); ++r) {
+      const core::Time t_ns = csv.Int(r, t);
+      const core::Time arrival_ns = arrival >= 0 ? csv.Int(r, arrival) : t_ns;
+      const Eigen::Vector3d p_Ss(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
+      Eigen::Quaterniond q_Ss = Eigen::Quaterniond::Identity();
+      JsonText j;
+      j.Begin();
+      common(j, r);
+      j.String("frame_id", frame);
+      if (is_pose) {
+        q_Ss = Eigen::Quaterniond(csv.Double(r, q[0]), csv.Double(r, q[1]), csv.Double(r, q[2]),
+                                  csv.Double(r, q[3]));
+        j.Pose("pose", p_Ss, q_Ss);
+        j.Numbers("covariance", FullCovariance<6>(csv, r, cov_pose));
+        const bool has_twist = v[0] >= 0 && !csv.Text(r, v[0]).empty();
+        if (has_twist) {
+          j.Vector("linear_velocity_mps",
+                   {csv.Double(r, v[0]), csv.Double(r, v[1]), csv.Double(r, v[2])});
+          j.Vector("angular_velocity_radps", {csv.Double(r, omega[0]), csv.Double(r, omega[1]),
+                                              csv.Double(r, omega[2])});
+          j.Numbers("twist_covariance", FullCovariance<6>(csv, r, cov_twist));
+        }
+      } else {
+        j.Vector("position", p_Ss);
+        j.Numbers("covariance", FullCovariance<3>(csv, r, cov_p));
+      }
+      j.End();
+      out.Add(topic, is_pose ? "tofu.PoseMeasurement" : "tofu.PositionMeasurement", t_ns,
+              arrival_ns, j.str());
+
+      // In W through the sensor's true reference frame (calibration.yaml true_T_WS), as
+      // the renderer places it; a NaN sample (a fault) has no place.
+      if (!p_Ss.allFinite() || (is_pose && !q_Ss.coeffs().allFinite())) continue;
+      const Eigen::Vector3d p_W = T_WS * p_Ss;
+      const Eigen::Quaterniond q_W =
+          is_pose ? Eigen::Quaterniond(T_WS.linear() * q_Ss.normalized().toRotationMatrix())
+                  : Eigen::Quaterniond::Identity();
+      out.Add(topic + "/world", "foxglove.PoseInFrame", t_ns, arrival_ns,
+              PoseInFrame(t_ns, kWorldFrame, p_W, q_W.normalized()));
+    }
+  }
+}
+
+// ---- estimates, errors, decisions, consistency ----
+
+void ExportEstimates(const RunData& run, Channels& out) {
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(run.directory)) {
+    const std::string name = entry.path().filename().string();
+    if (entry.is_regular_file() && name.rfind("estimate_", 0) == 0 && name.ends_with(".csv") &&
+        !name.ends_with("_errors.csv")) {
+      files.push_back(entry.path());
+    }
+  }
+  std::sort(files.begin(), files.end());
+  for (const fs::path& file : files) {
+    const std::string stem = file.stem().string();
+    std::string method = stem.substr(std::string("estimate_").size());
+    const fs::path json_path = run.directory / (stem + ".json");
+    if (fs::exists(json_path)) {
+      std::ifstream in(json_path);
+      const nlohmann::json j = nlohmann::json::parse(in, nullptr, false);
+      if (j.is_object() && j.contains("method") && j["method"].is_string()) method = j["method"];
+    }
+    const CsvTable csv(file, "#timestamp [ns],p_LI_x [m],...,valid,fused");
+    const int t = csv.Require("timestamp");
+    const auto columns = [&](std::initializer_list<const char*> keys) {
+      std::vector<int> c;
+      for (const char* k : keys) c.push_back(csv.Require(k));
+      return c;
+    };
+    const std::vector<int> p = columns({"p_LI_x", "p_LI_y", "p_LI_z"});
+    const std::vector<int> q = columns({"q_LI_w", "q_LI_x", "q_LI_y", "q_LI_z"});
+    const std::vector<int> v = columns({"v_L_x", "v_L_y", "v_L_z"});
+    const std::vector<int> ba = columns({"b_a_x", "b_a_y", "b_a_z"});
+    const std::vector<int> bg = columns({"b_g_x", "b_g_y", "b_g_z"});
+    const std::vector<int> sp = columns({"std_p_x", "std_p_y", "std_p_z"});
+    const int valid = csv.Require("valid");
+    const int fused = csv.Find("fused");
+    const auto vec = [&](std::size_t r, const std::vector<int>& c) {
+      return Eigen::Vector3d(csv.Double(r, c[0], true), csv.Double(r, c[1], true),
+                             csv.Double(r, c[2], true));
+    };
+    const std::string topic = "/estimates/" + method;
+    for (std::size_t r = 0; r < csv.rows(); ++r) {
+      const core::Time t_ns = csv.Int(r, t);
+      JsonText j;
+      j.Begin();
+      j.Time("timestamp", t_ns);
+      j.String("frame_id", "L");
+      j.Pose("pose", vec(r, p),
+             Eigen::Quaterniond(csv.Double(r, q[0]), csv.Double(r, q[1]), csv.Double(r, q[2]),
+                                csv.Double(r, q[3])));
+      j.Vector("velocity_mps", vec(r, v));
+      j.Vector("accel_bias_mps2", vec(r, ba));
+      j.Vector("gyro_bias_radps", vec(r, bg));
+      j.Vector("position_std_m", vec(r, sp));
+      j.Bool("valid", csv.Text(r, valid) == "1");
+      j.Strings("fused", SplitLabels(fused >= 0 ? csv.Text(r, fused) : "", '+'));
+      j.End();
+      out.Add(topic, "tofu.Estimate", t_ns, t_ns, j.str());
+    }
+    // T_WB of the valid rows, as the renderer's ghost (the evaluation's alignment T_WL).
+    const auto estimate = std::find_if(run.estimates.begin(), run.estimates.end(),
+                                       [&](const renders::MethodEstimate& e) { return e.method == method; });
+    if (estimate == run.estimates.end()) continue;
+    for (const TimedPose& T_WB : estimate->T_WB) {
+      out.Add(topic + "/world", "foxglove.PoseInFrame", T_WB.t_ns, T_WB.t_ns,
+              PoseInFrame(T_WB.t_ns, kWorldFrame, T_WB.p_W, T_WB.q_W));
+    }
+  }
+
+  for (const renders::ErrorRow& e : run.errors) {
+    JsonText j;
+    j.Begin();
+    j.Time("timestamp", e.t_ns);
+    j.Number("position_error_m", e.position_error_m);
+    j.Number("rotation_error_deg", e.rotation_error_deg);
+    j.End();
+    out.Add("/errors/" + e.method, "tofu.EstimateError", e.t_ns, e.t_ns, j.str());
+  }
+
+  for (const renders::DecisionRow& d : run.decisions) {
+    JsonText j;
+    j.Begin();
+    j.Time("timestamp", d.t_ns);
+    j.String("method", d.method);
+    j.Strings("fused", d.fused);
+    j.Strings("excluded", d.excluded);
+    j.Strings("unavailable", d.unavailable);
+    j.String("reason", d.reason);
+    j.End();
+    out.Add("/consensus/decisions", "tofu.ConsensusDecision", d.t_ns, d.t_ns, j.str());
+  }
+
+  // One matrix per evaluation: the rows of one time stamp.
+  for (const auto& [method, rows] : run.consistency) {
+    const std::string topic = "/consensus/consistency/" + (method.empty() ? "run" : method);
+    std::size_t i = 0;
+    while (i < rows.size()) {
+      const core::Time t_ns = rows[i].t_ns;
+      JsonText j;
+      j.Begin();
+      j.Time("timestamp", t_ns);
+      j.Key("entries");
+      j.BeginArray();
+      for (; i < rows.size() && rows[i].t_ns == t_ns; ++i) {
+        j.Begin();
+        j.String("a", rows[i].a);
+        j.String("b", rows[i].b);
+        j.String("metric", rows[i].metric);
+        j.Number("value", rows[i].value);
+        j.End();
+      }
+      j.EndArray();
+      j.End();
+      out.Add(topic, "tofu.ConsistencyMatrix", t_ns, t_ns, j.str());
+    }
+  }
+}
+
+// ---- labels, failure events, closed-loop flights ----
+
+void ExportLabelsAndEvents(const RunData& run, Channels& out) {
+  for (std::size_t i = 0; i < run.labels.size(); ++i) {
+    const renders::LabelRow& l = run.labels[i];
+    const bool fault = l.source == "fault";
+    const int level = l.active ? (fault ? kError : kWarning) : kInfo;
+    out.Add("/labels", "foxglove.Log", l.t_ns, l.t_ns,
+            LogMessage(l.t_ns, level,
+                       fmt::format("{} {} {} {}", l.sensor, l.source, l.label,
+                                   l.active ? "starts" : "ends"),
+                       l.sensor, "labels.csv", static_cast<int>(i) + 2));
+  }
+  for (const renders::RenderEvent& e : renders::FindEvents(run)) {
+    const bool severe = e.kind == renders::EventKind::kCollision ||
+                        e.kind == renders::EventKind::kFaultOnset;
+    out.Add("/events", "foxglove.Log", e.t_ns, e.t_ns,
+            LogMessage(e.t_ns, severe ? kError : kWarning,
+                       fmt::format("{}: {}", renders::EventKindName(e.kind), e.detail), e.subject,
+                       "", 0));
+  }
+
+  const fs::path folder = run.directory / "closed_loop";
+  if (!fs::is_directory(folder)) return;
+  std::vector<fs::path> flights;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_directory() && fs::exists(entry.path() / "groundtruth.csv")) {
+      flights.push_back(entry.path());
+    }
+  }
+  std::sort(flights.begin(), flights.end());
+  for (const fs::path& dir : flights) {
+    const std::string stem = dir.filename().string();
+    const auto ghost = std::find_if(run.estimates.begin(), run.estimates.end(),
+                                    [&](const renders::MethodEstimate& e) {
+                                      return e.method == "flown on " + stem;
+                                    });
+    if (ghost != run.estimates.end()) {
+      for (const TimedPose& T_WB : ghost->T_WB) {
+        out.Add("/closed_loop/" + stem + "/groundtruth", "foxglove.PoseInFrame", T_WB.t_ns,
+                T_WB.t_ns, PoseInFrame(T_WB.t_ns, kWorldFrame, T_WB.p_W, T_WB.q_W));
+      }
+    }
+    const fs::path events = dir / "events.csv";
+    if (!fs::exists(events)) continue;
+    const CsvTable csv(events, "#timestamp [ns],event,detail", true);
+    const int t = csv.Require("timestamp");
+    const int event = csv.Require("event");
+    const int detail = csv.Find("detail");
+    for (std::size_t r = 0; r < csv.rows(); ++r) {
+      const std::string kind(csv.Text(r, event));
+      const core::Time t_ns = csv.Int(r, t);
+      const std::string text(detail >= 0 ? csv.Text(r, detail) : "");
+      out.Add("/closed_loop/" + stem + "/events", "foxglove.Log", t_ns, t_ns,
+              LogMessage(t_ns, kind.rfind("failsafe", 0) == 0 ? kWarning : kInfo,
+                         text.empty() ? kind : kind + ": " + text, "flown on " + stem,
+                         "closed_loop/" + stem + "/events.csv", csv.Line(r)));
+    }
+  }
+}
+
+// ---- the scene: the world's geoms in W and the robot's in base_link ----
+
+struct Primitive {
+  Eigen::Vector3d p;
+  Eigen::Quaterniond q;
+  std::array<float, 4> rgba;
+};
+
+void ExportScene(const RunData& run, Channels& out) {
+  sim::WorldOptions options;
+  options.world = run.world;
+  options.robot = run.robot;
+  const sim::World world(options);
+  const mjModel* m = world.model();
+  mjData* d = mj_makeData(m);
+  mj_forward(m, d);
+  const int root_joint = mj_name2id(m, mjOBJ_JOINT, "root");
+  const int robot_body = root_joint >= 0 ? m->body_rootid[m->jnt_bodyid[root_joint]] : -1;
+  const Eigen::Vector3d p_WB0(d->xpos[3 * std::max(robot_body, 0)], d->xpos[3 * std::max(robot_body, 0) + 1],
+                              d->xpos[3 * std::max(robot_body, 0) + 2]);
+  const mjtNum* xq = d->xquat + 4 * std::max(robot_body, 0);
+  const Eigen::Quaterniond q_WB0(xq[0], xq[1], xq[2], xq[3]);
+
+  JsonText world_cubes, world_cylinders, world_spheres, robot_cubes, robot_cylinders, robot_spheres;
+  for (JsonText* j : {&world_cubes, &world_cylinders, &world_spheres, &robot_cubes,
+                      &robot_cylinders, &robot_spheres}) {
+    j->BeginArray();
+  }
+  for (int g = 0; g < m->ngeom; ++g) {
+    // MuJoCo's viewer shows groups 0-2 by default; the robot's collision proxies (group 2)
+    // are hidden and its visuals (3) shown, as models/robots/omav.xml asks of renders.
+    const int group = m->geom_group[g];
+    const bool is_robot = robot_body >= 0 && m->body_rootid[m->geom_bodyid[g]] == robot_body;
+    if (group == 2 || group > 4) continue;
+    std::array<float, 4> rgba;
+    const int material = m->geom_matid[g];
+    const float* c = material >= 0 ? m->mat_rgba + 4 * material : m->geom_rgba + 4 * g;
+    std::copy(c, c + 4, rgba.begin());
+    if (rgba[3] <= 0.0f) continue;
+    const Eigen::Vector3d p_W(d->geom_xpos[3 * g], d->geom_xpos[3 * g + 1], d->geom_xpos[3 * g + 2]);
+    Eigen::Matrix3d R_W;
+    for (int r = 0; r < 3; ++r) {
+      for (int k = 0; k < 3; ++k) R_W(r, k) = d->geom_xmat[9 * g + 3 * r + k];
+    }
+    Eigen::Vector3d p = p_W;
+    Eigen::Quaterniond q(R_W);
+    if (is_robot) {
+      p = q_WB0.conjugate() * (p_W - p_WB0);
+      q = q_WB0.conjugate() * q;
+    }
+    const mjtNum* size = m->geom_size + 3 * g;
+    JsonText& cubes = is_robot ? robot_cubes : world_cubes;
+    JsonText& cylinders = is_robot ? robot_cylinders : world_cylinders;
+    JsonText& spheres = is_robot ? robot_spheres : world_spheres;
+    const auto primitive = [&](JsonText& list, const Eigen::Vector3d& at, const Eigen::Vector3d& extent,
+                               bool cylinder) {
+      list.Begin();
+      list.Pose("pose", at, q);
+      list.Vector("size", extent);
+      if (cylinder) {
+        list.Number("bottom_scale", 1.0);
+        list.Number("top_scale", 1.0);
+      }
+      list.Color("color", rgba);
+      list.End();
+    };
+    switch (m->geom_type[g]) {
+      case mjGEOM_PLANE: {
+        // A plane of size 0 is infinite; draw 40 m of it.
+        const double sx = size[0] > 0 ? 2.0 * size[0] : 40.0;
+        const double sy = size[1] > 0 ? 2.0 * size[1] : 40.0;
+        primitive(cubes, p - q * Eigen::Vector3d(0, 0, 0.005), {sx, sy, 0.01}, false);
+        break;
+      }
+      case mjGEOM_BOX:
+        primitive(cubes, p, 2.0 * Eigen::Vector3d(size[0], size[1], size[2]), false);
+        break;
+      case mjGEOM_SPHERE:
+        primitive(spheres, p, Eigen::Vector3d::Constant(2.0 * size[0]), false);
+        break;
+      case mjGEOM_ELLIPSOID:
+        primitive(spheres, p, 2.0 * Eigen::Vector3d(size[0], size[1], size[2]), false);
+        break;
+      case mjGEOM_CYLINDER:
+        primitive(cylinders, p, {2.0 * size[0], 2.0 * size[0], 2.0 * size[1]}, true);
+        break;
+      case mjGEOM_CAPSULE: {
+        // A cylinder and its two hemispherical caps (as spheres).
+        primitive(cylinders, p, {2.0 * size[0], 2.0 * size[0], 2.0 * size[1]}, true);
+        const Eigen::Vector3d axis = q * Eigen::Vector3d(0, 0, size[1]);
+        primitive(spheres, p + axis, Eigen::Vector3d::Constant(2.0 * size[0]), false);
+        primitive(spheres, p - axis, Eigen::Vector3d::Constant(2.0 * size[0]), false);
+        break;
+      }
+      default:
+        break;  // meshes and height fields: none in tofu's models
+    }
+  }
+  mj_deleteData(d);
+  for (JsonText* j : {&world_cubes, &world_cylinders, &world_spheres, &robot_cubes,
+                      &robot_cylinders, &robot_spheres}) {
+    j->EndArray();
+  }
+
+  const core::Time t0 = run.start_ns();
+  const auto entity = [&](JsonText& j, const char* id, const char* frame, const JsonText& cubes,
+                          const JsonText& cylinders, const JsonText& spheres) {
+    j.Begin();
+    j.Time("timestamp", t0);
+    j.String("frame_id", frame);
+    j.String("id", id);
+    j.Time("lifetime", 0);  // forever
+    j.Bool("frame_locked", std::string_view(frame) != kWorldFrame);
+    j.Raw("metadata", "[]");
+    j.Raw("arrows", "[]");
+    j.Raw("cubes", cubes.str());
+    j.Raw("spheres", spheres.str());
+    j.Raw("cylinders", cylinders.str());
+    j.Raw("lines", "[]");
+    j.Raw("triangles", "[]");
+    j.Raw("texts", "[]");
+    j.Raw("models", "[]");
+    j.End();
+  };
+  JsonText scene;
+  scene.Begin();
+  scene.Raw("deletions", "[]");
+  scene.Key("entities");
+  scene.BeginArray();
+  entity(scene, "world", kWorldFrame, world_cubes, world_cylinders, world_spheres);
+  entity(scene, "robot", kBodyFrame, robot_cubes, robot_cylinders, robot_spheres);
+  scene.EndArray();
+  scene.End();
+  out.Add("/scene", "foxglove.SceneUpdate", t0, t0, scene.str());
+}
+
+std::string ReadText(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+}  // namespace
+
+McapExportResult ExportRunToMcap(const fs::path& run_dir, const fs::path& mcap_file,
+                                 const McapExportOptions& options) {
+  const RunData run = renders::ReadRunData(run_dir);
+  if (mcap_file.has_parent_path() && !fs::is_directory(mcap_file.parent_path())) {
+    throw core::IoError(fmt::format("cannot write {}: {} is not a directory", mcap_file.string(),
+                                    mcap_file.parent_path().string()));
+  }
+  const fs::path partial = mcap_file.string() + ".partial";
+  McapExportResult result;
+  try {
+    McapWriterOptions writer_options;
+    writer_options.compression = options.compression;
+    McapWriter writer(partial, writer_options);
+    Channels channels(writer);
+    ExportScene(run, channels);
+    ExportGroundTruth(run, channels);
+    ExportSensors(run, channels);
+    ExportEstimates(run, channels);
+    ExportLabelsAndEvents(run, channels);
+    writer.AddMetadata("scenario", {{"name", run.scenario_name},
+                                    {"world", run.world},
+                                    {"robot", run.robot},
+                                    {"scenario.yaml", ReadText(run_dir / "scenario.yaml")}});
+    writer.AddMetadata("tofu", {{"version", TOFU_VERSION_STRING},
+                                {"run", fs::absolute(run_dir).lexically_normal().filename().string()}});
+    writer.Close();
+    result.messages_per_topic = channels.counts();
+    result.messages = writer.statistics().message_count;
+  } catch (...) {
+    std::error_code ignored;
+    fs::remove(partial, ignored);
+    throw;
+  }
+  std::error_code ec;
+  fs::rename(partial, mcap_file, ec);
+  if (ec) {
+    fs::remove(partial, ec);
+    throw core::IoError(fmt::format("cannot write {}: {}", mcap_file.string(), ec.message()));
+  }
+  result.bytes = fs::file_size(mcap_file);
+  return result;
+}
+
+}  // namespace tofu::report
