@@ -1,5 +1,6 @@
 #pragma once
-// Private to harness: a strict reader over yaml-cpp nodes. Every value it hands out knows
+// The strict reader of tofu's YAML files (scenarios in harness/, corpus specs in corpus/)
+// over yaml-cpp nodes. Every value it hands out knows
 // its key path ("trajectory.segments[2].circle.radius_m") and where it was written, so a
 // loader can turn any problem into a one-line core::InputError naming file:line:column,
 // the key and the expected form. Maps are opened with the list of their allowed keys:

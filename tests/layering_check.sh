@@ -2,7 +2,8 @@
 # DESIGN.md layering: estimator/ never includes MuJoCo, sim/ or harness/; sim/ never
 # includes estimator/ or harness/; core/ includes nothing of the project but core/;
 # harness/ never includes renders/ (renders read its outputs); nothing but apps/ includes
-# report/ (MCAP and HTML of finished runs), and report/ never includes apps/.
+# report/ (MCAP and HTML of finished runs), and report/ never includes apps/; nothing but
+# apps/ includes corpus/, which builds on harness alone.
 set -u
 root="${1:?usage: layering_check.sh SOURCE_DIR}"
 status=0
@@ -23,6 +24,10 @@ check estimator 'renders/|report/' "the estimator is a library of its own"
 check harness 'report/' "reports read finished run directories"
 check renders 'report/|apps/' "reports draw on renders, never the other way"
 check sim 'report/|renders/' "sim does not know who reads its runs"
-check report 'apps/' "the CLI calls reports, never the other way"
+check report 'apps/|corpus/' "the CLI calls reports, never the other way"
+for layer in core sim estimator harness renders report; do
+  check "$layer" 'corpus/' "corpora are built from harness runs; nothing below includes them"
+done
+check corpus 'apps/|renders/|report/' "corpus needs harness runs only"
 [[ $status == 0 ]] && echo "layering ok"
 exit $status

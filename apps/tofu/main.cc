@@ -27,6 +27,7 @@
 #include "harness/scenario.h"
 #include "renders/render_command.h"
 #include "report/mcap_export.h"
+#include "corpus/corpus_command.h"
 
 namespace {
 
@@ -300,6 +301,34 @@ int main(int argc, char** argv) {
   export_cmd->add_flag("--quiet", export_quiet, "No summary line");
   export_cmd->footer("Topics and schemas: docs/MCAP.md. Layout for Foxglove: docs/foxglove_layout.json.");
 
+  CLI::App* corpus = app.add_subcommand(
+      "corpus", "Failure corpora: sampled scenarios into labelled HDF5 shards (docs/CORPUS.md)");
+  corpus->require_subcommand(1);
+  CLI::App* corpus_plan = corpus->add_subcommand("plan", "Write each episode's scenario and the planned label counts");
+  std::string corpus_spec;
+  std::string corpus_out;
+  bool corpus_quiet = false;
+  corpus_plan->add_option("spec", corpus_spec, "Corpus spec (corpora/*.yaml)")->required();
+  corpus_plan->add_option("--out", corpus_out, "Plan directory")->required();
+  corpus_plan->add_flag("--quiet", corpus_quiet, "No listing");
+  CLI::App* corpus_generate = corpus->add_subcommand(
+      "generate", "Fly one shard's episodes into <out>/shard_<I>_of_<N>.h5 (resumes a killed shard)");
+  std::optional<std::string> corpus_shard;
+  std::optional<std::uint64_t> corpus_shard_count;
+  corpus_generate->add_option("spec", corpus_spec, "Corpus spec (corpora/*.yaml)")->required();
+  corpus_generate->add_option("--out", corpus_out, "Corpus directory")->required();
+  corpus_generate->add_option("--shard", corpus_shard,
+                              "I/N: this process generates episodes i with i % N == I (default: from "
+                              "SLURM_ARRAY_TASK_ID/COUNT or JOB_COMPLETION_INDEX, else 0/1)");
+  corpus_generate->add_option("--shard-count", corpus_shard_count,
+                              "N, with JOB_COMPLETION_INDEX (a Kubernetes Indexed Job's completions)")
+      ->check(WholeNumber(1, 1000000));
+  corpus_generate->add_flag("--quiet", corpus_quiet, "No per-episode lines");
+  CLI::App* corpus_verify = corpus->add_subcommand(
+      "verify", "Check a corpus directory; write manifest.csv/.json and CARD.md (exit 1 on a problem)");
+  corpus_verify->add_option("dir", corpus_out, "Corpus directory")->required();
+  corpus_verify->add_flag("--quiet", corpus_quiet, "Only problems");
+
   CLI::App* validate = app.add_subcommand("validate", "Check scenario files without running");
   std::vector<std::string> validate_paths;
   validate->add_option("scenarios", validate_paths, "Scenario YAML files")->required();
@@ -422,6 +451,23 @@ int main(int argc, char** argv) {
 
   try {
     if (*run) return RunCommand(scenario_path, out_dir, seed, quiet, force, run_mcap);
+    if (*corpus_plan) return tofu::corpus::RunCorpusPlan(corpus_spec, corpus_out, corpus_quiet);
+    if (*corpus_generate) {
+      tofu::corpus::GenerateOptions options;
+      options.spec = corpus_spec;
+      options.out_dir = corpus_out;
+      options.shard = tofu::corpus::ResolveShard(corpus_shard, corpus_shard_count);
+      options.quiet = corpus_quiet;
+      std::optional<ProgressBar> bar;
+      if (!corpus_quiet && ::isatty(STDERR_FILENO)) {
+        bar.emplace("corpus");
+        options.progress = [&bar](std::uint64_t done, std::uint64_t total, double) {
+          (*bar)(static_cast<double>(done) / static_cast<double>(std::max<std::uint64_t>(total, 1)));
+        };
+      }
+      return tofu::corpus::RunCorpusGenerate(options);
+    }
+    if (*corpus_verify) return tofu::corpus::RunCorpusVerify(corpus_out, corpus_quiet);
     if (*export_cmd) {
       ExportMcap(export_run, export_mcap, !export_uncompressed, export_quiet);
       return tofu::core::kExitOk;

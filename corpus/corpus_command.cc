@@ -1,0 +1,501 @@
+#include "corpus/corpus_command.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <charconv>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <system_error>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "corpus/corpus_spec.h"
+#include "corpus/episode_writer.h"
+#include "corpus/hdf5_file.h"
+#include "harness/run.h"
+#include "harness/run_directory.h"
+#include "harness/scenario.h"
+#include "sim/faults.h"
+#include "sim/sensor.h"
+
+namespace tofu::corpus {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr const char* kSpecFile = "corpus.yaml";
+constexpr int kSchemaVersion = 1;
+
+std::string ReadText(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+// Written beside its destination and renamed: a reader never sees half a file.
+void WriteAtomically(const fs::path& path, const std::string& text) {
+  const fs::path partial = path.string() + fmt::format(".partial{}", ::getpid());
+  {
+    std::ofstream out(partial, std::ios::binary | std::ios::trunc);
+    out << text;
+    if (!out) throw core::IoError(fmt::format("cannot write {}", partial.string()));
+  }
+  std::error_code ec;
+  fs::rename(partial, path, ec);
+  if (ec) throw core::IoError(fmt::format("cannot write {}: {}", path.string(), ec.message()));
+}
+
+std::string ShardStem(const Shard& shard) {
+  return fmt::format("shard_{:04d}_of_{:04d}", shard.index, shard.count);
+}
+
+std::optional<std::uint64_t> ParseWhole(std::string_view text) {
+  std::uint64_t v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || end != text.data() + text.size() || text.empty()) return std::nullopt;
+  return v;
+}
+
+// The corpus directory for `spec`: created with corpus.yaml, or an existing one made
+// from the very same spec text. Anything else is refused (exit 2), untouched.
+void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
+  const fs::path spec_copy = dir / kSpecFile;
+  if (fs::exists(dir) && !fs::is_directory(dir)) {
+    throw core::InputError({dir.string()}, "--out", "exists and is not a directory");
+  }
+  if (fs::exists(spec_copy)) {
+    if (ReadText(spec_copy) != spec.text) {
+      throw core::InputError({dir.string()}, "--out",
+                             fmt::format("holds the shards of another spec ({} differs from {}); "
+                                         "use another directory", spec_copy.string(), spec.file));
+    }
+    return;
+  }
+  if (fs::exists(dir) && !fs::is_empty(dir)) {
+    throw core::InputError({dir.string()}, "--out",
+                           "is not empty and not a corpus directory (no corpus.yaml): refused, untouched");
+  }
+  fs::create_directories(dir);
+  WriteAtomically(spec_copy, spec.text);  // concurrent shards write the same bytes
+}
+
+std::vector<std::uint64_t> ShardEpisodes(const CorpusSpec& spec, const Shard& shard) {
+  std::vector<std::uint64_t> episodes;
+  for (std::uint64_t i = shard.index; i < spec.episodes; i += shard.count) episodes.push_back(i);
+  return episodes;
+}
+
+std::string FormatDuration(double s) {
+  if (!std::isfinite(s) || s < 0) return "?";
+  const int total = static_cast<int>(std::lround(s));
+  return total >= 3600 ? fmt::format("{}h{:02d}m", total / 3600, (total / 60) % 60)
+                       : fmt::format("{}m{:02d}s", total / 60, total % 60);
+}
+
+std::vector<std::string> MethodsOf(const std::vector<ManifestRow>& rows) {
+  std::set<std::string> methods;
+  for (const ManifestRow& r : rows) {
+    for (const auto& [m, v] : r.ate_m) methods.insert(m);
+  }
+  return {methods.begin(), methods.end()};
+}
+
+// Flies one episode; its run directory is written (scores need it) and removed.
+ManifestRow GenerateEpisode(const CorpusSpec& spec, const EpisodePlan& plan, const fs::path& work) {
+  const harness::Scenario scenario =
+      harness::ParseScenario(plan.scenario_yaml, fmt::format("{} episode {}", spec.file, plan.index));
+  harness::RunRecord record = harness::Simulate(scenario);
+  if (record.failure) {
+    throw core::SimulationError(fmt::format("episode {} ({}): {}", plan.index, plan.id, *record.failure));
+  }
+  const fs::path run_dir = work / fmt::format("run_{}", plan.id);
+  fs::remove_all(run_dir);
+  harness::RunOutputOptions output;
+  output.plot = false;
+  const harness::Evaluation evaluation = harness::WriteRun(record, run_dir.string(), output);
+  fs::remove_all(run_dir);
+
+  const fs::path partial = work / (plan.id + ".h5.partial");
+  const fs::path committed = work / (plan.id + ".h5");
+  ManifestRow row;
+  {
+    Hdf5File file = Hdf5File::Create(partial);
+    const Hdf5Group episodes = file.root().CreateGroup("episodes");
+    row = WriteEpisode(episodes, plan, record, evaluation.summary);
+    file.Close();
+  }
+  std::error_code ec;
+  fs::rename(partial, committed, ec);
+  if (ec) throw core::IoError(fmt::format("cannot commit {}: {}", committed.string(), ec.message()));
+  return row;
+}
+
+void SetCorpusAttributes(const Hdf5Group& root, const CorpusSpec& spec, const Shard& shard) {
+  root.SetAttribute("corpus", spec.name);
+  root.SetAttribute("corpus_seed", std::to_string(spec.seed));
+  root.SetAttribute("episodes_planned", static_cast<std::int64_t>(spec.episodes));
+  root.SetAttribute("spec_yaml", spec.text);
+  root.SetAttribute("shard_index", static_cast<std::int64_t>(shard.index));
+  root.SetAttribute("shard_count", static_cast<std::int64_t>(shard.count));
+  root.SetAttribute("schema_version", static_cast<std::int64_t>(kSchemaVersion));
+  root.SetAttribute("tofu_version", TOFU_VERSION_STRING);
+  root.SetAttribute("tofu_commit", TOFU_GIT_COMMIT);
+}
+
+}  // namespace
+
+Shard ResolveShard(const std::optional<std::string>& shard_arg, const std::optional<std::uint64_t>& shard_count) {
+  Shard shard;
+  std::string origin;
+  if (shard_arg) {
+    origin = "--shard";
+    const std::size_t slash = shard_arg->find('/');
+    const auto index = slash == std::string::npos ? std::nullopt : ParseWhole(std::string_view(*shard_arg).substr(0, slash));
+    const auto count = slash == std::string::npos ? std::nullopt : ParseWhole(std::string_view(*shard_arg).substr(slash + 1));
+    if (!index || !count) {
+      throw core::InputError({}, "--shard", fmt::format("expected I/N (e.g. 0/4), got '{}'", *shard_arg));
+    }
+    shard = {*index, *count};
+  } else if (const char* id = std::getenv("SLURM_ARRAY_TASK_ID")) {
+    origin = "SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT";
+    const char* count = std::getenv("SLURM_ARRAY_TASK_COUNT");
+    const auto i = ParseWhole(id);
+    const auto n = count ? ParseWhole(count) : std::nullopt;
+    if (!i || !n) {
+      throw core::InputError({}, origin, fmt::format("expected whole numbers, got '{}' and '{}'", id, count ? count : "(unset)"));
+    }
+    // `sbatch --array=A-B` numbers tasks from A; shards are counted from 0.
+    const char* min = std::getenv("SLURM_ARRAY_TASK_MIN");
+    const auto lo = min ? ParseWhole(min) : std::optional<std::uint64_t>(0);
+    shard = {*i - std::min(*i, lo.value_or(0)), *n};
+  } else if (const char* k8s = std::getenv("JOB_COMPLETION_INDEX")) {
+    origin = "JOB_COMPLETION_INDEX";
+    const auto i = ParseWhole(k8s);
+    if (!i) throw core::InputError({}, origin, fmt::format("expected a whole number, got '{}'", k8s));
+    if (!shard_count) throw core::InputError({}, "--shard-count", "JOB_COMPLETION_INDEX is set: give the job's completions as --shard-count N");
+    shard = {*i, *shard_count};
+  } else {
+    return shard;
+  }
+  if (shard.count == 0 || shard.index >= shard.count) {
+    throw core::InputError({}, origin, fmt::format("shard {}/{} is out of range (expected 0 <= I < N)", shard.index, shard.count));
+  }
+  return shard;
+}
+
+int RunCorpusPlan(const fs::path& spec_path, const fs::path& out_dir, bool quiet) {
+  const CorpusSpec spec = LoadCorpusSpec(spec_path);
+  if (fs::exists(out_dir) && !fs::is_empty(out_dir) && !fs::exists(out_dir / "plan.json")) {
+    throw core::InputError({out_dir.string()}, "--out", "is not empty and not a corpus plan (no plan.json): refused, untouched");
+  }
+  const fs::path staging = out_dir.string() + ".partial";
+  fs::remove_all(staging);
+  fs::create_directories(staging / "episodes");
+  // Planned label counts: fault kind x sensor (scheduled faults; physical ones happen in
+  // flight and are counted by `generate`).
+  std::map<std::string, std::map<std::string, int>> counts;
+  std::map<std::string, int> families, worlds;
+  for (std::uint64_t i = 0; i < spec.episodes; ++i) {
+    const EpisodePlan plan = PlanEpisode(spec, i);
+    harness::ParseScenario(plan.scenario_yaml, fmt::format("{} episode {}", spec.file, i));
+    std::ofstream(staging / "episodes" / (plan.id + ".yaml"), std::ios::binary) << plan.scenario_yaml;
+    for (const PlannedFault& f : plan.faults) ++counts[std::string(sim::FaultKindName(f.kind))][f.sensor];
+    ++families[plan.family];
+    ++worlds[plan.world];
+  }
+  nlohmann::ordered_json j = {{"corpus", spec.name},
+                              {"seed", spec.seed},
+                              {"episodes", spec.episodes},
+                              {"flight_hours", static_cast<double>(spec.episodes) * spec.duration_s / 3600.0},
+                              {"scheduled_faults", counts},
+                              {"families", families},
+                              {"worlds", worlds}};
+  std::ofstream(staging / "plan.json") << j.dump(2) << "\n";
+  fs::remove_all(out_dir);
+  fs::rename(staging, out_dir);
+  if (!quiet) {
+    fmt::print("planned {} episodes of '{}' into {}/episodes ({:.2f} h of flight)\n", spec.episodes, spec.name,
+               out_dir.string(), j["flight_hours"].get<double>());
+    for (const auto& [kind, per_sensor] : counts) {
+      for (const auto& [sensor, n] : per_sensor) fmt::print("  {:<20} {:<10} {}\n", kind, sensor, n);
+    }
+  }
+  return core::kExitOk;
+}
+
+int RunCorpusGenerate(const GenerateOptions& options) {
+  const CorpusSpec spec = LoadCorpusSpec(options.spec);
+  PrepareCorpusDirectory(spec, options.out_dir);
+  const Shard shard = options.shard;
+  const std::string stem = ShardStem(shard);
+  const fs::path shard_file = options.out_dir / (stem + ".h5");
+  const fs::path manifest_part = options.out_dir / (stem + ".manifest.json");
+  // Another layout's shards in the same directory would hold the same episodes twice.
+  for (const auto& entry : fs::directory_iterator(options.out_dir)) {
+    const std::string name = entry.path().filename().string();
+    if (name.rfind("shard_", 0) == 0 && name.ends_with(".h5") && name.find(fmt::format("_of_{:04d}", shard.count)) == std::string::npos) {
+      throw core::InputError({options.out_dir.string()}, "--shard",
+                             fmt::format("the directory holds {} of another shard count than {}: use one layout per directory",
+                                         name, shard.count));
+    }
+  }
+  if (fs::exists(shard_file) && fs::exists(manifest_part)) {
+    if (!options.quiet) fmt::print("{}: already complete ({})\n", stem, shard_file.string());
+    return core::kExitOk;
+  }
+  const fs::path work = options.out_dir / ("." + stem);
+  fs::create_directories(work);
+  // Leftovers of a killed run: half-written episodes and run directories.
+  for (const auto& entry : fs::directory_iterator(work)) {
+    const std::string name = entry.path().filename().string();
+    if (name.ends_with(".partial") || name.rfind("run_", 0) == 0) fs::remove_all(entry.path());
+  }
+
+  const std::vector<std::uint64_t> episodes = ShardEpisodes(spec, shard);
+  std::uint64_t done = 0, resumed = 0, committed_now = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  for (const std::uint64_t i : episodes) {
+    const EpisodePlan plan = PlanEpisode(spec, i);
+    if (fs::exists(work / (plan.id + ".h5"))) {
+      ++done;
+      ++resumed;
+      continue;
+    }
+    const ManifestRow row = GenerateEpisode(spec, plan, work);
+    ++done;
+    ++committed_now;
+    const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (options.progress) options.progress(done, episodes.size(), elapsed);
+    if (!options.quiet) {
+      const double rate = static_cast<double>(committed_now) / std::max(elapsed, 1e-9);
+      const double eta = static_cast<double>(episodes.size() - done) / std::max(rate, 1e-9);
+      fmt::print("{} {}/{} {} ({}, {}, {} faults, {} physical events) {:.1f} episodes/min, ETA {}\n", stem, done,
+                 episodes.size(), plan.id, plan.world, plan.family, row.scheduled_faults, row.physical_events,
+                 rate * 60.0, FormatDuration(eta));
+      std::fflush(stdout);
+    }
+  }
+
+  // Assemble the shard: every committed episode copied into one file, renamed into place.
+  const fs::path partial = shard_file.string() + ".partial";
+  nlohmann::ordered_json rows = nlohmann::ordered_json::array();
+  {
+    Hdf5File file = Hdf5File::Create(partial);
+    SetCorpusAttributes(file.root(), spec, shard);
+    file.root().CreateGroup("episodes");
+    for (const std::uint64_t i : episodes) {
+      const EpisodePlan plan = PlanEpisode(spec, i);
+      Hdf5File episode = Hdf5File::OpenReadOnly(work / (plan.id + ".h5"));
+      file.CopyFrom(episode, "/episodes/" + plan.id, "/episodes/" + plan.id);
+      ManifestRow row = ReadManifestRow(episode.root().OpenGroup("episodes").OpenGroup(plan.id));
+      row.shard = fmt::format("{}/{}", shard.index, shard.count);
+      rows.push_back(ManifestJson(row));
+    }
+    file.Close();
+  }
+  std::error_code ec;
+  fs::rename(partial, shard_file, ec);
+  if (ec) throw core::IoError(fmt::format("cannot write {}: {}", shard_file.string(), ec.message()));
+  WriteAtomically(manifest_part, rows.dump(1) + "\n");
+  fs::remove_all(work);
+  if (!options.quiet) {
+    fmt::print("{}: {} episodes ({} resumed) in {}\n", stem, episodes.size(), resumed, shard_file.string());
+  }
+  return core::kExitOk;
+}
+
+namespace {
+
+// The events of an episode must agree with its per-sample masks: every sample inside a
+// (sensor, kind) event window carries the bit, every sample carrying it lies in one.
+std::vector<std::string> CheckEventsAgainstMasks(const Hdf5Group& episode) {
+  std::vector<std::string> problems;
+  const Hdf5Group events = episode.OpenGroup("events");
+  const std::vector<std::string> sensor = events.ReadStrings("sensor");
+  const std::vector<std::string> kind = events.ReadStrings("kind");
+  const std::vector<std::string> cause = events.ReadStrings("cause");
+  const std::vector<std::int64_t> onset = events.ReadInt64("onset_ns");
+  const std::vector<std::int64_t> offset = events.ReadInt64("offset_ns");
+  const std::vector<std::uint8_t> open = events.ReadUInt8("open");
+  const Hdf5Group sensors = episode.OpenGroup("sensors");
+  for (const std::string& name : sensors.Children()) {
+    const Hdf5Group s = sensors.OpenGroup(name);
+    const std::vector<std::int64_t> t = s.ReadInt64("t_ns");
+    const std::vector<std::uint32_t> faults = s.ReadUInt32("fault_mask");
+    const std::vector<std::uint32_t> conditions = s.ReadUInt32("condition_mask");
+    const auto check = [&](const std::string& label, std::uint32_t bit, bool is_fault) {
+      const std::vector<std::uint32_t>& mask = is_fault ? faults : conditions;
+      std::size_t outside = 0, missing = 0;
+      for (std::size_t k = 0; k < t.size(); ++k) {
+        bool inside = false;
+        for (std::size_t e = 0; e < sensor.size(); ++e) {
+          if (sensor[e] != name || kind[e] != label || (cause[e] == "scheduled") != is_fault) continue;
+          if (t[k] >= onset[e] && (t[k] < offset[e] || open[e])) inside = true;
+        }
+        const bool set = (mask[k] & bit) != 0;
+        if (set && !inside) ++outside;
+        if (!set && inside) ++missing;
+      }
+      if (outside + missing > 0) {
+        problems.push_back(fmt::format("{}: sensor {} {} '{}': {} samples flagged outside its events, {} inside unflagged",
+                                       episode.path(), name, is_fault ? "fault" : "condition", label, outside, missing));
+      }
+    };
+    for (const sim::FaultKind k : sim::AllFaultKinds()) check(std::string(sim::FaultKindName(k)), sim::FaultBit(k), true);
+    for (const sim::Condition c : sim::AllConditions()) check(std::string(sim::ConditionName(c)), c, false);
+  }
+  return problems;
+}
+
+std::string CardText(const CorpusSpec& spec, const std::vector<ManifestRow>& rows,
+                     const std::map<std::tuple<std::string, std::string, std::string>, int>& events,
+                     const std::map<std::string, std::pair<std::uint64_t, std::uint64_t>>& balance,
+                     const std::string& version, const std::string& commit) {
+  double hours = 0.0;
+  std::size_t samples = 0, collisions = 0;
+  for (const ManifestRow& r : rows) {
+    hours += r.duration_s / 3600.0;
+    samples += r.samples;
+    collisions += r.collisions;
+  }
+  std::string card = fmt::format(
+      "# {} — a tofu failure corpus\n\n{}\n\n"
+      "| | |\n|---|---|\n| episodes | {} |\n| flight | {:.2f} h |\n| sensor samples | {} |\n"
+      "| collisions | {} |\n| corpus seed | {} |\n| made by | tofu {} (commit {}) |\n\n",
+      spec.name, spec.description.empty() ? "(no description)" : spec.description, rows.size(), hours, samples,
+      collisions, spec.seed, version, commit);
+  card += "## Fault and condition events (fault kind or condition × sensor × cause)\n\n"
+          "| kind | sensor | cause | events |\n|---|---|---|---|\n";
+  for (const auto& [key, n] : events) {
+    card += fmt::format("| {} | {} | {} | {} |\n", std::get<0>(key), std::get<1>(key), std::get<2>(key), n);
+  }
+  card += "\n## Class balance (samples with a fault or condition active)\n\n"
+          "| sensor | anomalous samples | all samples | fraction |\n|---|---|---|---|\n";
+  for (const auto& [sensor, counts] : balance) {
+    card += fmt::format("| {} | {} | {} | {:.3f} |\n", sensor, counts.first, counts.second,
+                        counts.second > 0 ? static_cast<double>(counts.first) / static_cast<double>(counts.second) : 0.0);
+  }
+  card += fmt::format(
+      "\n## How it was made\n\n"
+      "`tofu corpus generate corpus.yaml --out DIR --shard I/N` for each shard, then `tofu corpus verify DIR`. "
+      "Episode i is drawn from (corpus seed {}, i) alone: its scenario is the attribute `scenario_yaml` of "
+      "`/episodes/<id>` and `tofu run` on it reproduces the episode. Labels (fault masks, condition masks, the "
+      "event table) are ground truth from the simulator; `methods/*/decisions` are the estimator's predictions. "
+      "Schema: docs/CORPUS.md of tofu.\n",
+      spec.seed);
+  return card;
+}
+
+}  // namespace
+
+int RunCorpusVerify(const fs::path& dir, bool quiet) {
+  if (!fs::is_directory(dir) || !fs::exists(dir / kSpecFile)) {
+    throw core::InputError({dir.string()}, "", "not a corpus directory (expected corpus.yaml and shard_*.h5)");
+  }
+  const CorpusSpec spec = ParseCorpusSpec(ReadText(dir / kSpecFile), (dir / kSpecFile).string());
+  std::vector<std::string> problems;
+  std::vector<fs::path> shards;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    const std::string name = entry.path().filename().string();
+    if (name.rfind("shard_", 0) == 0 && name.ends_with(".h5")) shards.push_back(entry.path());
+    if (name.rfind(".shard_", 0) == 0) problems.push_back(fmt::format("{}: a shard that did not finish (run it again to resume)", name));
+  }
+  std::sort(shards.begin(), shards.end());
+  if (shards.empty()) problems.push_back("no shard_*.h5 file");
+
+  std::map<std::uint64_t, int> seen;
+  std::vector<ManifestRow> rows;
+  std::map<std::tuple<std::string, std::string, std::string>, int> events;
+  std::map<std::string, std::pair<std::uint64_t, std::uint64_t>> balance;
+  std::string version = "?", commit = "?";
+  for (const fs::path& path : shards) {
+    const Hdf5File file = Hdf5File::OpenReadOnly(path);
+    version = file.root().StringAttribute("tofu_version");
+    commit = file.root().StringAttribute("tofu_commit");
+    if (file.root().StringAttribute("spec_yaml") != spec.text) {
+      problems.push_back(fmt::format("{}: made from another spec than {}", path.filename().string(), kSpecFile));
+    }
+    // The manifest part: what the generator recorded of each episode.
+    std::map<std::string, std::string> recorded_hash;
+    const fs::path part = path.parent_path() / (path.stem().string() + ".manifest.json");
+    if (!fs::exists(part)) {
+      problems.push_back(fmt::format("{}: missing", part.filename().string()));
+    } else {
+      for (const auto& row : nlohmann::json::parse(ReadText(part))) {
+        recorded_hash[row.at("id").get<std::string>()] = row.at("content_hash").get<std::string>();
+      }
+    }
+    const Hdf5Group episodes = file.root().OpenGroup("episodes");
+    for (const std::string& id : episodes.Children()) {
+      const Hdf5Group episode = episodes.OpenGroup(id);
+      ManifestRow row = ReadManifestRow(episode);
+      row.shard = fmt::format("{}/{}", file.root().Int64Attribute("shard_index"), file.root().Int64Attribute("shard_count"));
+      ++seen[row.index];
+      const std::string hash = fmt::format("{:016x}", episode.ContentHash());
+      const auto recorded = recorded_hash.find(id);
+      if (recorded == recorded_hash.end()) {
+        problems.push_back(fmt::format("{}: episode {} is not in the shard's manifest", path.filename().string(), id));
+      } else if (recorded->second != hash || row.content_hash != hash) {
+        problems.push_back(fmt::format("{}: episode {}: content hash {} does not match its manifest row ({})",
+                                       path.filename().string(), id, hash, recorded->second));
+      }
+      if (PlanEpisode(spec, row.index).id != id) {
+        problems.push_back(fmt::format("{}: episode {} is not episode {} of the spec", path.filename().string(), id, row.index));
+      }
+      for (const std::string& p : CheckEventsAgainstMasks(episode)) problems.push_back(p);
+      const Hdf5Group table = episode.OpenGroup("events");
+      const auto sensor = table.ReadStrings("sensor");
+      const auto kind = table.ReadStrings("kind");
+      const auto cause = table.ReadStrings("cause");
+      for (std::size_t e = 0; e < sensor.size(); ++e) ++events[{kind[e], sensor[e], cause[e]}];
+      const Hdf5Group sensors = episode.OpenGroup("sensors");
+      for (const std::string& s : sensors.Children()) {
+        const auto anomaly = sensors.OpenGroup(s).ReadUInt8("anomaly");
+        balance[s].first += static_cast<std::uint64_t>(std::count(anomaly.begin(), anomaly.end(), 1));
+        balance[s].second += anomaly.size();
+      }
+      rows.push_back(row);
+    }
+  }
+  for (std::uint64_t i = 0; i < spec.episodes; ++i) {
+    const int n = seen.count(i) ? seen[i] : 0;
+    if (n != 1) problems.push_back(fmt::format("episode {} ({}) is present {} times (expected once)", i, PlanEpisode(spec, i).id, n));
+  }
+  for (const auto& [i, n] : seen) {
+    if (i >= spec.episodes) problems.push_back(fmt::format("episode {} is not planned (the spec has {})", i, spec.episodes));
+  }
+
+  std::sort(rows.begin(), rows.end(), [](const ManifestRow& a, const ManifestRow& b) { return a.index < b.index; });
+  const std::vector<std::string> methods = MethodsOf(rows);
+  std::string csv = ManifestCsvHeader(methods);
+  nlohmann::ordered_json json = nlohmann::ordered_json::array();
+  for (const ManifestRow& r : rows) {
+    csv += ManifestCsvRow(r, methods);
+    json.push_back(ManifestJson(r));
+  }
+  WriteAtomically(dir / "manifest.csv", csv);
+  WriteAtomically(dir / "manifest.json", json.dump(1) + "\n");
+  WriteAtomically(dir / "CARD.md", CardText(spec, rows, events, balance, version, commit));
+
+  if (!problems.empty()) {
+    fmt::print(stderr, "tofu corpus verify: {}: {} problem(s)\n", dir.string(), problems.size());
+    for (const std::string& p : problems) fmt::print(stderr, "  {}\n", p);
+    return core::kExitExpectationFailed;
+  }
+  if (!quiet) {
+    fmt::print("{}: {} episodes in {} shard(s), every planned episode once, content hashes and event tables "
+               "agree; wrote manifest.csv, manifest.json, CARD.md\n", dir.string(), rows.size(), shards.size());
+  }
+  return core::kExitOk;
+}
+
+}  // namespace tofu::corpus

@@ -1,0 +1,381 @@
+#include "corpus/corpus_spec.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <yaml-cpp/yaml.h>
+
+#include "core/error.h"
+#include "core/random.h"
+#include "harness/scenario.h"
+#include "harness/yaml_reader.h"
+
+namespace tofu::corpus {
+namespace {
+
+using harness::internal::FormatDouble;
+using harness::internal::NumberRule;
+using harness::internal::YamlMap;
+using harness::internal::YamlValue;
+
+constexpr double kPi = 3.14159265358979323846;
+
+// [lo, hi] or a single number (a constant), each in `rule`; lo <= hi.
+Range ReadRange(const YamlValue& value, const NumberRule& rule) {
+  if (value.node().IsScalar()) {
+    const double v = value.Number(rule);
+    return {v, v};
+  }
+  const std::vector<double> v = value.Numbers(2, rule);
+  if (v[0] > v[1]) value.Fail(fmt::format("expected a range [lo, hi] with lo <= hi, got [{}, {}]",
+                                          FormatDouble(v[0]), FormatDouble(v[1])));
+  return {v[0], v[1]};
+}
+
+Eigen::Vector2d ReadXY(const YamlValue& value) {
+  const std::vector<double> v = value.Numbers(2, NumberRule::Any("m"));
+  return {v[0], v[1]};
+}
+
+// The YAML text of a node, block style (a verbatim copy of a spec's block).
+std::string EmitNode(const YAML::Node& node) {
+  YAML::Emitter out;
+  out << node;
+  return out.c_str();
+}
+
+std::string Indent(const std::string& text, const std::string& prefix) {
+  std::istringstream in(text);
+  std::string line, out;
+  while (std::getline(in, line)) out += prefix + line + "\n";
+  return out;
+}
+
+double Draw(core::RandomStream& random, const Range& r) {
+  // Always one draw, constant or not, so that a spec's other draws do not shift when a
+  // range is narrowed to a constant.
+  const double u = random.Uniform(0.0, 1.0);
+  return r.lo + u * (r.hi - r.lo);
+}
+
+std::size_t DrawIndex(core::RandomStream& random, std::size_t n) {
+  const double u = random.Uniform(0.0, 1.0);
+  return std::min(n - 1, static_cast<std::size_t>(u * static_cast<double>(n)));
+}
+
+// A unit vector uniformly on the sphere (a fault's direction).
+Eigen::Vector3d DrawDirection(core::RandomStream& random) {
+  const double z = random.Uniform(-1.0, 1.0);
+  const double phi = random.Uniform(0.0, 2.0 * kPi);
+  const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+
+std::string Vec(const Eigen::Vector3d& v) {
+  return fmt::format("[{}, {}, {}]", FormatDouble(v.x()), FormatDouble(v.y()), FormatDouble(v.z()));
+}
+
+// Rounded to a tenth of a millimetre / degree / ms: the episode's YAML stays readable, and
+// the plan records exactly what the scenario says.
+double Round4(double v) { return std::round(v * 1e4) / 1e4 + 0.0; }  // + 0.0: no "-0"
+
+// The kind-specific keys of a fault of `magnitude` (sim/faults.h for their meaning).
+std::string FaultParameters(sim::FaultKind kind, double magnitude, core::RandomStream& random) {
+  const Eigen::Vector3d d = DrawDirection(random);
+  switch (kind) {
+    case sim::FaultKind::kDivergence:
+      return fmt::format(", axis: {}, initial_velocity_mps: {}, time_constant_s: 8", Vec(d.unaryExpr(&Round4)),
+                         FormatDouble(magnitude));
+    case sim::FaultKind::kJump:
+      return fmt::format(", translation_m: {}", Vec((magnitude * d).unaryExpr(&Round4)));
+    case sim::FaultKind::kNonGaussianNoise:
+      return fmt::format(", white_std_m: {}, brown_std_m_per_sqrt_s: {}", FormatDouble(magnitude),
+                         FormatDouble(Round4(magnitude / 3.0)));
+    case sim::FaultKind::kOutliers:
+      return fmt::format(", rate_hz: 1, scale_m: {}", FormatDouble(magnitude));
+    case sim::FaultKind::kDelay:
+      return fmt::format(", delay_s: {}", FormatDouble(magnitude));
+    case sim::FaultKind::kMisalignment:
+      return fmt::format(", rpy_deg: {}", Vec((magnitude * d).unaryExpr(&Round4)));
+    case sim::FaultKind::kDropout:
+    case sim::FaultKind::kFreeze:
+      return "";
+  }
+  return "";
+}
+
+}  // namespace
+
+const std::vector<std::string>& TrajectoryFamilies() {
+  static const std::vector<std::string> families = {"figure_eight", "circle", "wall_pass"};
+  return families;
+}
+
+CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label) {
+  CorpusSpec spec;
+  spec.file = file_label;
+  spec.text = text;
+  const YamlValue root = harness::internal::ParseDocument(text, file_label);
+  YamlMap top = root.Map({"name", "description", "seed", "episodes", "duration_s", "worlds",
+                          "trajectory", "sensors", "wind", "faults", "estimation", "closed_loop"});
+  spec.name = top.Required("name").Identifier();
+  if (auto d = top.Optional("description")) spec.description = d->String();
+  spec.seed = top.Required("seed").UnsignedInteger();
+  const YamlValue episodes = top.Required("episodes");
+  spec.episodes = episodes.UnsignedInteger();
+  if (spec.episodes == 0 || spec.episodes > 10'000'000) {
+    episodes.Fail("expected a whole number of episodes in [1, 10000000]");
+  }
+  spec.duration_s = top.Required("duration_s").Number(NumberRule::Between(2.0, 3600.0, "s"));
+
+  for (const YamlValue& item : top.Required("worlds").List(true)) {
+    YamlMap w = item.Map({"world", "center_m", "wall"});
+    WorldChoice choice;
+    choice.world = w.Required("world").String();
+    if (auto c = w.Optional("center_m")) choice.center_xy_m = ReadXY(*c);
+    if (auto wall = w.Optional("wall")) {
+      YamlMap wm = wall->Map({"point_m", "normal"});
+      choice.wall_point_xy_m = ReadXY(wm.Required("point_m"));
+      const YamlValue normal = wm.Required("normal");
+      const Eigen::Vector2d n = ReadXY(normal);
+      if (n.norm() < 1e-6) normal.Fail("expected a non-zero horizontal normal [nx, ny]");
+      choice.wall_normal_xy = n.normalized();
+      wm.Finish();
+    }
+    w.Finish();
+    spec.worlds.push_back(choice);
+  }
+
+  YamlMap t = top.Required("trajectory").Map(
+      {"families", "speed_mps", "size_m", "height_m", "structure_distance_m", "tilt_deg"});
+  const YamlValue families = t.Required("families");
+  for (const YamlValue& f : families.List(true)) {
+    const std::string name = f.String();
+    const auto& known = TrajectoryFamilies();
+    if (std::find(known.begin(), known.end(), name) == known.end()) {
+      f.Fail(fmt::format("unknown trajectory family '{}' (expected one of figure_eight, circle, wall_pass)", name));
+    }
+    if (name == "wall_pass") {
+      for (const WorldChoice& w : spec.worlds) {
+        if (!w.wall_point_xy_m) {
+          f.Fail(fmt::format("wall_pass needs every world to have a `wall:` (world '{}' has none)", w.world));
+        }
+      }
+    }
+    spec.families.push_back(name);
+  }
+  spec.speed_mps = ReadRange(t.Required("speed_mps"), NumberRule::PositiveAtMost(3.0, "m/s"));
+  spec.size_m = ReadRange(t.Required("size_m"), NumberRule::Between(0.3, 20.0, "m"));
+  spec.height_m = ReadRange(t.Required("height_m"), NumberRule::Between(0.5, 50.0, "m"));
+  if (auto d = t.Optional("structure_distance_m")) {
+    spec.structure_distance_m = ReadRange(*d, NumberRule::Between(0.3, 50.0, "m"));
+  } else {
+    spec.structure_distance_m = {1.0, 1.0};
+  }
+  if (auto d = t.Optional("tilt_deg")) spec.tilt_deg = ReadRange(*d, NumberRule::Between(0.0, 45.0, "deg"));
+  t.Finish();
+
+  const YamlValue sensors = top.Required("sensors");
+  for (const auto& [name, value] : sensors.Entries()) spec.sensor_names.push_back(name);
+  if (spec.sensor_names.empty()) sensors.Fail("expected at least one sensor (a scenario's sensors: block)");
+  spec.sensors_yaml = EmitNode(sensors.node());
+
+  if (auto w = top.Optional("wind")) {
+    YamlMap wm = w->Map({"gust_std_mps", "mean_speed_mps"});
+    if (auto g = wm.Optional("gust_std_mps")) spec.gust_std_mps = ReadRange(*g, NumberRule::Between(0.0, 10.0, "m/s"));
+    if (auto m = wm.Optional("mean_speed_mps")) spec.mean_wind_mps = ReadRange(*m, NumberRule::Between(0.0, 20.0, "m/s"));
+    wm.Finish();
+  }
+
+  if (auto f = top.Optional("faults")) {
+    YamlMap fm = f->Map({"count", "onset_s", "duration_s", "kinds"});
+    const YamlValue count = fm.Required("count");
+    spec.fault_count = ReadRange(count, NumberRule::Between(0.0, 20.0, ""));
+    if (spec.fault_count.lo != std::floor(spec.fault_count.lo) || spec.fault_count.hi != std::floor(spec.fault_count.hi)) {
+      count.Fail("expected whole numbers [min, max] of faults per episode");
+    }
+    spec.fault_onset_s = ReadRange(fm.Required("onset_s"), NumberRule::Between(0.0, 3600.0, "s"));
+    spec.fault_duration_s = ReadRange(fm.Required("duration_s"), NumberRule::Between(0.1, 3600.0, "s"));
+    if (spec.fault_onset_s.lo >= spec.duration_s) {
+      fm.self().Fail(fmt::format("onset_s starts at or after the episode's end ({} s)", FormatDouble(spec.duration_s)));
+    }
+    const YamlValue kinds = fm.Required("kinds");
+    for (const YamlValue& item : kinds.List(spec.fault_count.hi > 0)) {
+      YamlMap k = item.Map({"kind", "sensors", "weight", "magnitude"});
+      FaultChoice choice;
+      const YamlValue kind = k.Required("kind");
+      const auto parsed = sim::FaultKindFromName(kind.String());
+      if (!parsed) {
+        kind.Fail(fmt::format("unknown fault kind '{}' (expected misalignment, non_gaussian_noise, "
+                              "divergence, dropout, freeze, delay, jump or outliers)", kind.String()));
+      }
+      choice.kind = *parsed;
+      for (const YamlValue& s : k.Required("sensors").List(true)) {
+        const std::string name = s.String();
+        if (std::find(spec.sensor_names.begin(), spec.sensor_names.end(), name) == spec.sensor_names.end()) {
+          s.Fail(fmt::format("'{}' is not a sensor of the spec's sensors: block", name));
+        }
+        choice.sensors.push_back(name);
+      }
+      if (auto w = k.Optional("weight")) choice.weight = w->Number(NumberRule::Positive(""));
+      const bool sized = choice.kind != sim::FaultKind::kDropout && choice.kind != sim::FaultKind::kFreeze;
+      if (auto m = k.Optional("magnitude")) {
+        if (!sized) m->Fail(fmt::format("{} has no magnitude", sim::FaultKindName(choice.kind)));
+        choice.magnitude = ReadRange(*m, NumberRule::Positive(""));
+      } else if (sized) {
+        k.self().Fail(fmt::format("missing required key 'magnitude' for a {} fault",
+                                  sim::FaultKindName(choice.kind)));
+      }
+      k.Finish();
+      spec.faults.push_back(choice);
+    }
+    fm.Finish();
+  }
+
+  if (auto e = top.Optional("estimation")) spec.estimation_yaml = EmitNode(e->node());
+  if (auto c = top.Optional("closed_loop")) {
+    YamlMap cm = c->Map({"methods"});
+    for (const YamlValue& m : cm.Required("methods").List(true)) spec.closed_loop_methods.push_back(m.String());
+    if (spec.estimation_yaml.empty()) c->Fail("closed_loop needs an estimation: block (its methods fly)");
+    cm.Finish();
+  }
+  top.Finish();
+
+  // A spec that loads plans scenarios that load: check episode 0 (and report its errors
+  // against the spec, since its YAML is the spec's doing).
+  const EpisodePlan first = PlanEpisode(spec, 0);
+  try {
+    harness::ParseScenario(first.scenario_yaml, file_label + " (episode 0 as planned)");
+  } catch (const core::InputError& e) {
+    throw core::InputError({file_label}, "", fmt::format("the spec plans an invalid scenario: {}", e.what()));
+  }
+  return spec;
+}
+
+CorpusSpec LoadCorpusSpec(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw core::InputError({path.string()}, "", "cannot read the corpus spec (missing or unreadable)");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return ParseCorpusSpec(text.str(), path.string());
+}
+
+EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {
+  EpisodePlan plan;
+  plan.index = index;
+  plan.id = fmt::format("{}_e{:06d}", spec.name, index);
+  plan.scenario_seed = core::StreamSeed(spec.seed, fmt::format("corpus/episode/{}/scenario", index)) >> 1;
+  core::RandomStream random(spec.seed, fmt::format("corpus/episode/{}", index));
+
+  const WorldChoice& world = spec.worlds[DrawIndex(random, spec.worlds.size())];
+  plan.world = world.world;
+  plan.family = spec.families[DrawIndex(random, spec.families.size())];
+  plan.speed_mps = Round4(Draw(random, spec.speed_mps));
+  plan.size_m = Round4(Draw(random, spec.size_m));
+  plan.height_m = Round4(Draw(random, spec.height_m));
+  plan.structure_distance_m = Round4(Draw(random, spec.structure_distance_m));
+  plan.tilt_deg = Round4(Draw(random, spec.tilt_deg));
+  plan.gust_std_mps = Round4(Draw(random, spec.gust_std_mps));
+  plan.mean_wind_mps = Round4(Draw(random, spec.mean_wind_mps));
+  const double wind_heading = random.Uniform(0.0, 2.0 * kPi);
+  const double tilt_sign = random.Uniform(0.0, 1.0) < 0.5 ? -1.0 : 1.0;
+
+  // The trajectory: hover, then the family's segment, flown for the whole episode.
+  const double cx = world.center_xy_m.x(), cy = world.center_xy_m.y(), h = plan.height_m;
+  // A circle's centripetal acceleration v^2 / r stays within the limit below.
+  constexpr double kMaxAcceleration = 1.5;
+  std::string segment;
+  Eigen::Vector3d start(cx, cy, h);
+  double yaw_deg = 0.0;
+  if (plan.family == "circle") {
+    plan.speed_mps = Round4(std::min(plan.speed_mps, std::sqrt(0.8 * kMaxAcceleration * plan.size_m)));
+    const double laps = std::ceil(spec.duration_s * plan.speed_mps / (2.0 * kPi * plan.size_m)) + 1.0;
+    segment = fmt::format("    - circle: {{center_m: {}, radius_m: {}, speed_mps: {}, laps: {}}}\n",
+                          Vec({cx, cy, h}), FormatDouble(plan.size_m), FormatDouble(plan.speed_mps),
+                          FormatDouble(laps));
+  } else if (plan.family == "figure_eight") {
+    // A lap of the lemniscate is ~4.6 half-lengths long at half_width = 0.6 half_length.
+    const double laps = std::ceil(spec.duration_s * plan.speed_mps / (4.6 * plan.size_m)) + 1.0;
+    segment = fmt::format(
+        "    - figure_eight: {{center_m: {}, half_length_m: {}, half_width_m: {}, speed_mps: {}, laps: {}}}\n",
+        Vec({cx, cy, h}), FormatDouble(plan.size_m), FormatDouble(Round4(0.6 * plan.size_m)),
+        FormatDouble(plan.speed_mps), FormatDouble(laps));
+  } else {
+    // wall_pass: back and forth along the facade at structure_distance_m from it, facing it.
+    const Eigen::Vector2d n = *world.wall_normal_xy;
+    const Eigen::Vector2d tangent(-n.y(), n.x());
+    const Eigen::Vector2d mid = *world.wall_point_xy_m + plan.structure_distance_m * n;
+    const Eigen::Vector2d a = mid - plan.size_m * tangent, b = mid + plan.size_m * tangent;
+    yaw_deg = Round4(std::atan2(-n.y(), -n.x()) * 180.0 / kPi);
+    start = Eigen::Vector3d(a.x(), a.y(), h);
+    const double pass_s = 2.0 * plan.size_m / plan.speed_mps + 2.0;
+    const int passes = std::max(1, static_cast<int>(std::ceil(spec.duration_s / pass_s)));
+    segment = "    - waypoints:\n";
+    for (int i = 0; i < passes; ++i) {
+      const Eigen::Vector2d p = i % 2 == 0 ? b : a;
+      segment += fmt::format("        - {{position_m: {}, rpy_deg: [{}, 0, {}]}}\n",
+                             Vec(Eigen::Vector3d(p.x(), p.y(), h).unaryExpr(&Round4)),
+                             FormatDouble(tilt_sign * plan.tilt_deg), FormatDouble(yaw_deg));
+    }
+  }
+
+  // Faults: how many, which kinds (by weight), on which sensor, when and how big.
+  const int count = static_cast<int>(std::floor(Draw(random, {spec.fault_count.lo, spec.fault_count.hi + 0.999999})));
+  double total_weight = 0.0;
+  for (const FaultChoice& f : spec.faults) total_weight += f.weight;
+  std::string faults_yaml;
+  for (int k = 0; k < count && !spec.faults.empty(); ++k) {
+    double u = random.Uniform(0.0, total_weight);
+    std::size_t which = 0;
+    while (which + 1 < spec.faults.size() && u >= spec.faults[which].weight) u -= spec.faults[which++].weight;
+    const FaultChoice& choice = spec.faults[which];
+    PlannedFault fault;
+    fault.kind = choice.kind;
+    fault.sensor = choice.sensors[DrawIndex(random, choice.sensors.size())];
+    fault.start_s = Round4(std::min(Draw(random, spec.fault_onset_s), spec.duration_s - 1.0));
+    fault.end_s = Round4(std::min(fault.start_s + Draw(random, spec.fault_duration_s), spec.duration_s));
+    fault.magnitude = Round4(Draw(random, choice.magnitude));
+    faults_yaml += fmt::format("  - {{sensor: {}, kind: {}, start_s: {}, end_s: {}{}}}\n", fault.sensor,
+                               sim::FaultKindName(fault.kind), FormatDouble(fault.start_s),
+                               FormatDouble(fault.end_s), FaultParameters(fault.kind, fault.magnitude, random));
+    plan.faults.push_back(fault);
+  }
+
+  std::string yaml = fmt::format(
+      "# Episode {} of corpus '{}' (seed {}): `tofu run` on this file reproduces it.\n"
+      "name: {}\n"
+      "description: \"{} episode {}: {} in {}\"\n"
+      "world: {}\n"
+      "duration_s: {}\n"
+      "seed: {}\n",
+      index, spec.name, spec.seed, plan.id, spec.name, index, plan.family, plan.world, plan.world,
+      FormatDouble(spec.duration_s), plan.scenario_seed);
+  if (plan.gust_std_mps > 0.0 || plan.mean_wind_mps > 0.0) {
+    const Eigen::Vector3d mean(plan.mean_wind_mps * std::cos(wind_heading), plan.mean_wind_mps * std::sin(wind_heading), 0.0);
+    yaml += fmt::format("wind: {{mean_velocity_mps: {}, gust_std_mps: {}, gust_correlation_time_s: 1.5}}\n",
+                        Vec(mean.unaryExpr(&Round4)), FormatDouble(plan.gust_std_mps));
+  }
+  yaml += fmt::format(
+      "trajectory:\n"
+      "  start: {{position_m: {}, rpy_deg: [{}, 0, {}]}}\n"
+      "  limits: {{max_speed_mps: {}, max_acceleration_mps2: {}}}\n"
+      "  segments:\n"
+      "    - hover: {{duration_s: 2}}\n{}",
+      Vec(start.unaryExpr(&Round4)), FormatDouble(tilt_sign * plan.tilt_deg), FormatDouble(yaw_deg),
+      FormatDouble(Round4(plan.speed_mps * 1.3 + 0.2)), FormatDouble(kMaxAcceleration), segment);
+  yaml += "sensors:\n" + Indent(spec.sensors_yaml, "  ");
+  if (!faults_yaml.empty()) yaml += "faults:\n" + faults_yaml;
+  if (!spec.estimation_yaml.empty()) yaml += "estimation:\n" + Indent(spec.estimation_yaml, "  ");
+  if (!spec.closed_loop_methods.empty()) {
+    std::string methods;
+    for (const std::string& m : spec.closed_loop_methods) methods += (methods.empty() ? "\"" : ", \"") + m + "\"";
+    yaml += fmt::format("control: {{state_source: estimate, methods: [{}]}}\n", methods);
+  }
+  plan.scenario_yaml = yaml;
+  return plan;
+}
+
+}  // namespace tofu::corpus

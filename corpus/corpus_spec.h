@@ -1,0 +1,106 @@
+#pragma once
+// A corpus spec (corpora/*.yaml, docs/CORPUS.md): the distribution that failure episodes
+// are drawn from (worlds, trajectory families with ranges, the sensor set, wind, fault
+// distributions, open or closed loop, duration) and how many, under one corpus seed.
+// Episode i is a scenario drawn from (corpus seed, i) alone: never from how the corpus is
+// sharded, so any shard layout yields the same episodes, and each episode's scenario YAML
+// reproduces it alone with `tofu run`.
+
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "sim/faults.h"
+
+namespace tofu::corpus {
+
+/// A closed interval [lo, hi] sampled uniformly (lo == hi: a constant).
+struct Range {
+  double lo = 0.0;
+  double hi = 0.0;
+};
+
+/// A base world and where in it the episodes fly.
+struct WorldChoice {
+  std::string world;                                  ///< models/worlds/<world>.xml
+  Eigen::Vector2d center_xy_m = Eigen::Vector2d::Zero();  ///< free-space centre of the flights
+  /// The facade the wall_pass family flies along: a point on its face and the face's
+  /// normal into free space (horizontal).
+  std::optional<Eigen::Vector2d> wall_point_xy_m;
+  std::optional<Eigen::Vector2d> wall_normal_xy;
+};
+
+/// One kind of scheduled fault the episodes may carry.
+struct FaultChoice {
+  sim::FaultKind kind = sim::FaultKind::kDropout;
+  std::vector<std::string> sensors;  ///< drawn uniformly; names of the spec's sensors
+  double weight = 1.0;               ///< relative probability among the kinds
+  /// The fault's size, per kind (docs/CORPUS.md): divergence initial velocity [m/s], jump
+  /// translation [m], non-Gaussian white noise std [m], outlier scale [m], delay [s],
+  /// misalignment rotation [deg]; unused by dropout and freeze.
+  Range magnitude{0.0, 0.0};
+};
+
+struct CorpusSpec {
+  std::string file;  ///< where it was read from (messages)
+  std::string text;  ///< the file's text (stored with the corpus)
+  std::string name;  ///< [a-z0-9_]+
+  std::string description;
+  std::uint64_t seed = 0;
+  std::uint64_t episodes = 0;
+  double duration_s = 0.0;
+  std::vector<WorldChoice> worlds;
+  std::vector<std::string> families;  ///< figure_eight, circle, wall_pass
+  Range speed_mps, size_m, height_m, structure_distance_m, tilt_deg;
+  Range gust_std_mps{0.0, 0.0};
+  Range mean_wind_mps{0.0, 0.0};  ///< horizontal, in a direction drawn uniformly
+  /// The episode's `sensors:` and `estimation:` blocks, as YAML text (verbatim copies).
+  std::string sensors_yaml;
+  std::vector<std::string> sensor_names;
+  std::string estimation_yaml;
+  Range fault_count{0.0, 0.0};  ///< whole numbers
+  Range fault_onset_s, fault_duration_s;
+  std::vector<FaultChoice> faults;
+  /// Closed loop: each episode also flies on these estimation methods (`control:`).
+  std::vector<std::string> closed_loop_methods;
+};
+
+/// A fault as planned for one episode (the severity that the fault-event table reports).
+struct PlannedFault {
+  std::string sensor;
+  sim::FaultKind kind = sim::FaultKind::kDropout;
+  double start_s = 0.0;
+  double end_s = 0.0;
+  double magnitude = 0.0;
+};
+
+struct EpisodePlan {
+  std::uint64_t index = 0;
+  std::string id;               ///< "<corpus>_e000042"
+  std::uint64_t scenario_seed = 0;
+  std::string world;
+  std::string family;
+  double speed_mps = 0.0, size_m = 0.0, height_m = 0.0, structure_distance_m = 0.0,
+         tilt_deg = 0.0, gust_std_mps = 0.0, mean_wind_mps = 0.0;
+  std::vector<PlannedFault> faults;
+  std::string scenario_yaml;  ///< `tofu run` on it reproduces the episode
+};
+
+/// Reads and validates a spec (strict: unknown keys, empty or inverted ranges, unknown
+/// fault kinds or sensors, a wall_pass family with a world without a wall are
+/// core::InputError naming file:line, the key and the expected form). Episode 0 is
+/// planned and its scenario validated, so a spec that loads plans valid scenarios.
+CorpusSpec LoadCorpusSpec(const std::filesystem::path& path);
+CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label);
+
+/// Episode `index` of the spec: a function of (spec, index) only.
+EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index);
+
+/// "figure_eight", ...: the trajectory families a spec may name.
+const std::vector<std::string>& TrajectoryFamilies();
+
+}  // namespace tofu::corpus
