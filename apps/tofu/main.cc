@@ -26,6 +26,7 @@
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
 #include "renders/render_command.h"
+#include "report/html_report.h"
 #include "report/mcap_export.h"
 #include "corpus/corpus_command.h"
 
@@ -350,6 +351,9 @@ int main(int argc, char** argv) {
   check->add_option("--out", check_options.out_dir, "Output directory: <out>/<scenario>/seed_<s>")
       ->capture_default_str();
   check->add_flag("--quiet", check_options.quiet, "No progress and no table (failures still)");
+  std::optional<std::string> check_report;
+  check->add_option("--report", check_report,
+                    "After the check, write its HTML report (tofu report) to this directory");
 
   CLI::App* consistency = app.add_subcommand(
       "consistency", "Consistency metric between two velocity CSVs over a sliding window");
@@ -440,6 +444,18 @@ int main(int argc, char** argv) {
   render->add_flag("--quiet", rend.quiet, "No progress and no listing");
   render->footer(tofu::renders::kRenderHelp);
 
+  CLI::App* report = app.add_subcommand(
+      "report", "A self-contained HTML report of a run or a check directory");
+  std::string report_input;
+  std::string report_out;
+  report->add_option("input", report_input,
+                     "A run directory (tofu run --out) or a check directory (tofu check --out)")
+      ->required();
+  report->add_option("--out", report_out,
+                     "Report directory: index.html (+ media/; a check: <scenario>/seed_<s>/ "
+                     "pages); new, empty or an earlier report, which is replaced")
+      ->required();
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -473,6 +489,36 @@ int main(int argc, char** argv) {
       return tofu::core::kExitOk;
     }
     if (*validate) return ValidateCommand(validate_paths);
+    if (*check && check_report) {
+      // A bad --report is bad input found before anything runs, like every other option.
+      tofu::report::CheckReportOutputDirectory(*check_report);
+      const int status = tofu::harness::RunCheckCommand(check_options);
+      // The report covers this check's scenarios only (the directory may hold older ones).
+      std::vector<std::string> names;
+      try {
+        for (const std::string& path : tofu::harness::ExpandScenarioInputs(
+                 check_options.inputs.empty() ? std::vector<std::string>{"scenarios"}
+                                              : check_options.inputs)) {
+          names.push_back(tofu::harness::LoadScenario(path).name);
+        }
+        if (tofu::report::DetectReportInput(check_options.out_dir) !=
+            tofu::report::ReportInputKind::kCheck) {
+          throw tofu::core::InputError({check_options.out_dir}, "--out", "holds no runs");
+        }
+      } catch (const tofu::core::InputError& e) {
+        // The check refused its input (already said why) and ran nothing: no report.
+        fmt::print(stderr, "tofu: no report: the check ran nothing ({})\n", e.what());
+        return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
+      }
+      try {
+        const auto page = tofu::report::WriteCheckReport(check_options.out_dir, *check_report, names);
+        if (!check_options.quiet) fmt::print("HTML report: {}\n", page.string());
+      } catch (const tofu::core::InputError& e) {
+        fmt::print(stderr, "tofu: error: report: {}\n", e.what());
+        return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
+      }
+      return status;
+    }
     if (*check) return tofu::harness::RunCheckCommand(check_options);
     if (*consistency) {
       tofu::harness::RunConsistencyCommand(cons);
@@ -492,6 +538,11 @@ int main(int argc, char** argv) {
         };
       }
       return tofu::harness::RunEstimateCommand(est);
+    }
+    if (*report) {
+      const auto page = tofu::report::WriteReport(report_input, report_out);
+      fmt::print("report: {}\n", page.string());
+      return tofu::core::kExitOk;
     }
     if (*render) {
       std::optional<ProgressBar> bar;
