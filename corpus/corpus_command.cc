@@ -21,7 +21,8 @@
 #include "corpus/episode_writer.h"
 #include "corpus/hdf5_file.h"
 #include "harness/run.h"
-#include "harness/run_directory.h"
+#include "harness/replay.h"
+#include "harness/trajectory_metrics.h"
 #include "harness/scenario.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
@@ -109,20 +110,49 @@ std::vector<std::string> MethodsOf(const std::vector<ManifestRow>& rows) {
   return {methods.begin(), methods.end()};
 }
 
-// Flies one episode; its run directory is written (scores need it) and removed.
+// The manifest's scores, in memory: each in-loop method's ATE after SE(3) alignment
+// against the exact ground truth of the IMU frame (T_WI = T_WB T_BI at the IMU's true
+// mount), by the functions `tofu run` scores with. Writing the run directory to score it
+// would cost more than the flight (docs/BENCHMARKS.md, "Corpora").
+nlohmann::json ScoreMethods(const harness::RunRecord& record) {
+  Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
+  for (const harness::SensorStream& s : record.sensors) {
+    if (s.type != "imu") continue;
+    if (const sim::MountSite* site = record.robot.FindSite(s.site)) {
+      T_BI.linear() = site->q_B_s.toRotationMatrix();
+      T_BI.translation() = site->p_B_s;
+    }
+    break;
+  }
+  std::vector<harness::PoseSample> truth;
+  for (const sim::TruthState& g : record.groundtruth) {
+    Eigen::Isometry3d T_WB = Eigen::Isometry3d::Identity();
+    T_WB.linear() = g.q_WB.toRotationMatrix();
+    T_WB.translation() = g.p_WB;
+    const Eigen::Isometry3d T_WI = T_WB * T_BI;
+    truth.push_back({g.t_ns, T_WI.translation(), Eigen::Quaterniond(T_WI.linear()).normalized()});
+  }
+  nlohmann::json methods = nlohmann::json::object();
+  for (const harness::ReplayResult& r : record.in_loop) {
+    const std::vector<harness::PoseSample> estimate = harness::OutputTrajectory(r);
+    nlohmann::json m = nlohmann::json::object();
+    if (estimate.size() > 10 && truth.size() > 10) {
+      m["ate_m"] = harness::EvaluateTrajectory(estimate, truth).ate_position_rmse_m;
+    }
+    methods[r.method.name] = m;
+  }
+  return {{"methods", methods}};
+}
+
+// Flies one episode and commits it as its own HDF5 file.
 ManifestRow GenerateEpisode(const CorpusSpec& spec, const EpisodePlan& plan, const fs::path& work) {
   const harness::Scenario scenario =
       harness::ParseScenario(plan.scenario_yaml, fmt::format("{} episode {}", spec.file, plan.index));
-  harness::RunRecord record = harness::Simulate(scenario);
+  const harness::RunRecord record = harness::Simulate(scenario);
   if (record.failure) {
     throw core::SimulationError(fmt::format("episode {} ({}): {}", plan.index, plan.id, *record.failure));
   }
-  const fs::path run_dir = work / fmt::format("run_{}", plan.id);
-  fs::remove_all(run_dir);
-  harness::RunOutputOptions output;
-  output.plot = false;
-  const harness::Evaluation evaluation = harness::WriteRun(record, run_dir.string(), output);
-  fs::remove_all(run_dir);
+  const nlohmann::json summary = ScoreMethods(record);
 
   const fs::path partial = work / (plan.id + ".h5.partial");
   const fs::path committed = work / (plan.id + ".h5");
@@ -130,7 +160,7 @@ ManifestRow GenerateEpisode(const CorpusSpec& spec, const EpisodePlan& plan, con
   {
     Hdf5File file = Hdf5File::Create(partial);
     const Hdf5Group episodes = file.root().CreateGroup("episodes");
-    row = WriteEpisode(episodes, plan, record, evaluation.summary);
+    row = WriteEpisode(episodes, plan, record, summary);
     file.Close();
   }
   std::error_code ec;
@@ -254,10 +284,10 @@ int RunCorpusGenerate(const GenerateOptions& options) {
   }
   const fs::path work = options.out_dir / ("." + stem);
   fs::create_directories(work);
-  // Leftovers of a killed run: half-written episodes and run directories.
+  // Leftovers of a killed run: half-written episodes.
   for (const auto& entry : fs::directory_iterator(work)) {
     const std::string name = entry.path().filename().string();
-    if (name.ends_with(".partial") || name.rfind("run_", 0) == 0) fs::remove_all(entry.path());
+    if (name.ends_with(".partial")) fs::remove_all(entry.path());
   }
 
   const std::vector<std::uint64_t> episodes = ShardEpisodes(spec, shard);

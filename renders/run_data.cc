@@ -10,6 +10,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "core/error.h"
+#include "core/file_io.h"
 #include "renders/csv_table.h"
 
 namespace tofu::renders {
@@ -254,33 +255,10 @@ void ReadLabels(RunData& run) {
                    [](const LabelRow& a, const LabelRow& b) { return a.t_ns < b.t_ns; });
 }
 
-nlohmann::json LoadJson(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError({path.string()}, "", "cannot open");
-  try {
-    return nlohmann::json::parse(in);
-  } catch (const nlohmann::json::parse_error& e) {
-    // nlohmann reports a byte offset; find its line and column.
-    std::ifstream again(path, std::ios::binary);
-    std::string text((std::istreambuf_iterator<char>(again)), std::istreambuf_iterator<char>());
-    int line = 1;
-    int column = 1;
-    for (size_t i = 0; i + 1 < e.byte && i < text.size(); ++i) {
-      if (text[i] == '\n') {
-        ++line;
-        column = 1;
-      } else {
-        ++column;
-      }
-    }
-    throw InputError({path.string(), line, column}, "", fmt::format("malformed JSON: {}", e.what()));
-  }
-}
-
 void ReadSummary(RunData& run) {
   const fs::path path = run.directory / "summary.json";
   if (!fs::exists(path)) return;
-  const nlohmann::json j = LoadJson(path);
+  const nlohmann::json j = ReadRunJson(path);
   if (!j.contains("collisions")) return;
   const nlohmann::json& list = j["collisions"];
   if (!list.is_array()) throw InputError({path.string()}, "collisions", "expected an array");
@@ -370,7 +348,7 @@ void ReadEstimates(RunData& run) {
     const fs::path json_path = run.directory / (stem + ".json");
     std::optional<Eigen::Isometry3d> T_WL;
     if (fs::exists(json_path)) {
-      const nlohmann::json j = LoadJson(json_path);
+      const nlohmann::json j = ReadRunJson(json_path);
       if (j.contains("method") && j["method"].is_string()) estimate.method = j["method"];
       T_WL = JsonPose(json_path, j, "T_WL");
     }
@@ -436,15 +414,7 @@ void ReadEstimates(RunData& run) {
 // collisions are the run's events, so a render of the critical moment shows every
 // method's robot where it really was.
 void ReadClosedLoopFlights(RunData& run) {
-  const fs::path folder = run.directory / "closed_loop";
-  if (!fs::is_directory(folder)) return;
-  std::vector<fs::path> flights;
-  for (const auto& entry : fs::directory_iterator(folder)) {
-    if (entry.is_directory() && fs::exists(entry.path() / "groundtruth.csv")) {
-      flights.push_back(entry.path());
-    }
-  }
-  std::sort(flights.begin(), flights.end());
+  const std::vector<fs::path> flights = ClosedLoopFlightDirs(run.directory);
   for (const fs::path& dir : flights) {
     RunData flight;
     flight.directory = dir;
@@ -588,6 +558,37 @@ std::vector<std::string> RunData::ActiveLabels(const std::string& sensor, const 
     if (on) active.push_back(label);
   }
   return active;
+}
+
+nlohmann::json ReadRunJson(const fs::path& path) {
+  const std::string text = core::ReadWholeFile(path, "JSON file of a tofu run directory");
+  try {
+    return nlohmann::json::parse(text);
+  } catch (const nlohmann::json::parse_error& e) {
+    // nlohmann reports a byte offset; name the place as line:column like every reader.
+    int line = 1;
+    int column = 1;
+    for (size_t i = 0; i + 1 < e.byte && i < text.size(); ++i) {
+      if (text[i] == '\n') {
+        ++line;
+        column = 1;
+      } else {
+        ++column;
+      }
+    }
+    throw InputError({path.string(), line, column}, "", fmt::format("malformed JSON: {}", e.what()));
+  }
+}
+
+std::vector<fs::path> ClosedLoopFlightDirs(const fs::path& run_dir) {
+  std::vector<fs::path> flights;
+  const fs::path folder = run_dir / "closed_loop";
+  if (!fs::is_directory(folder)) return flights;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_directory() && fs::exists(entry.path() / "groundtruth.csv")) flights.push_back(entry.path());
+  }
+  std::sort(flights.begin(), flights.end());
+  return flights;
 }
 
 RunData ReadRunData(const fs::path& directory) {

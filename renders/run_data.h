@@ -15,6 +15,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <nlohmann/json_fwd.hpp>
 
 #include "core/time.h"
 
@@ -134,5 +135,13 @@ struct RunData {
 /// estimate_*.csv/.json, decisions.csv, consistency*.csv, errors.csv. Throws
 /// core::InputError for a missing directory or required file and for malformed content.
 RunData ReadRunData(const std::filesystem::path& directory);
+
+/// A JSON file of a run directory (summary.json, estimate_<m>.json, ...); malformed JSON is
+/// a core::InputError naming file:line:column.
+nlohmann::json ReadRunJson(const std::filesystem::path& path);
+
+/// The closed-loop flights of a run: closed_loop/<stem>/ folders that hold a
+/// groundtruth.csv, sorted; empty without closed_loop/.
+std::vector<std::filesystem::path> ClosedLoopFlightDirs(const std::filesystem::path& run_dir);
 
 }  // namespace tofu::renders

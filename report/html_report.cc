@@ -187,26 +187,6 @@ double Rounded(double v, int significant) {
 
 // ---- reading ----
 
-json ReadJsonFile(const fs::path& path) {
-  const std::string text = core::ReadWholeFile(path, "JSON file of a tofu run directory");
-  try {
-    return json::parse(text);
-  } catch (const json::parse_error& e) {
-    // The byte offset as line:column, as every other reader of tofu names a place.
-    int line = 1, column = 1;
-    for (size_t i = 0; i + 1 < e.byte && i < text.size(); ++i) {
-      if (text[i] == '\n') {
-        ++line;
-        column = 1;
-      } else {
-        ++column;
-      }
-    }
-    throw InputError({path.string(), line, column}, "",
-                     fmt::format("malformed JSON: {}", e.what()));
-  }
-}
-
 // The scenario.yaml of a run: the resolved scenario, read tolerantly (the page shows what
 // is there; harness validated it when the run was made).
 struct ScenarioFile {
@@ -336,7 +316,7 @@ RunInputs ReadRunInputs(const fs::path& dir) {
   RunInputs in;
   in.dir = dir;
   in.scenario = ReadScenarioFile(dir / "scenario.yaml");
-  in.summary = ReadJsonFile(dir / "summary.json");
+  in.summary = renders::ReadRunJson(dir / "summary.json");
   if (!in.summary.is_object()) {
     throw InputError({(dir / "summary.json").string(), 1, 1}, "",
                      "expected a JSON object (the run's metrics and expectations)");
@@ -843,7 +823,7 @@ std::string RendersSection(const RunInputs& in, const PageContext& ctx) {
   std::set<fs::path> listed;
   std::string gl;
   if (fs::exists(dir / "render.json")) {
-    const json meta = ReadJsonFile(dir / "render.json");
+    const json meta = renders::ReadRunJson(dir / "render.json");
     gl = StringField(meta, "gl");
     if (const auto events = meta.find("events");
         meta.is_object() && events != meta.end() && events->is_array()) {
@@ -1238,7 +1218,7 @@ CheckScenario ReadCheckScenario(const fs::path& check_dir, const std::string& na
       continue;
     }
     try {
-      r.run.summary = ReadJsonFile(fs::path(r.run.run_dir) / "summary.json");
+      r.run.summary = renders::ReadRunJson(fs::path(r.run.run_dir) / "summary.json");
       if (!r.run.summary.is_object()) {
         throw InputError({(fs::path(r.run.run_dir) / "summary.json").string(), 1, 1}, "",
                          "expected a JSON object");

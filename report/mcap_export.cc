@@ -273,8 +273,7 @@ void ExportEstimates(const RunData& run, Channels& out) {
     std::string method = stem.substr(std::string("estimate_").size());
     const fs::path json_path = run.directory / (stem + ".json");
     if (fs::exists(json_path)) {
-      std::ifstream in(json_path);
-      const nlohmann::json j = nlohmann::json::parse(in, nullptr, false);
+      const nlohmann::json j = renders::ReadRunJson(json_path);
       if (j.is_object() && j.contains("method") && j["method"].is_string()) method = j["method"];
     }
     const CsvTable csv(file, "#timestamp [ns],p_LI_x [m],...,valid,fused");
@@ -396,16 +395,7 @@ void ExportLabelsAndEvents(const RunData& run, Channels& out) {
                        "", 0));
   }
 
-  const fs::path folder = run.directory / "closed_loop";
-  if (!fs::is_directory(folder)) return;
-  std::vector<fs::path> flights;
-  for (const auto& entry : fs::directory_iterator(folder)) {
-    if (entry.is_directory() && fs::exists(entry.path() / "groundtruth.csv")) {
-      flights.push_back(entry.path());
-    }
-  }
-  std::sort(flights.begin(), flights.end());
-  for (const fs::path& dir : flights) {
+  for (const fs::path& dir : renders::ClosedLoopFlightDirs(run.directory)) {
     const std::string stem = dir.filename().string();
     const auto ghost = std::find_if(run.estimates.begin(), run.estimates.end(),
                                     [&](const renders::MethodEstimate& e) {

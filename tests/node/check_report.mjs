@@ -10,7 +10,7 @@
 //     with the time and a value in metres; wheel and drag zoom in time, double-click resets.
 // Exits 1 naming every failure, 2 on bad usage.
 //
-//   node check_report.mjs PAGE.html --screenshot OUT.png [--plot] [--expect TEXT]...
+//   node check_report.mjs PAGE.html --screenshot OUT.png [--plot] [--expect TEXT]... [--also PAGE]...
 
 import fs from 'node:fs';
 import path from 'node:path';
@@ -23,17 +23,18 @@ const kChromium = process.env.TOFU_CHROMIUM || '/usr/bin/chromium';
 
 function usage(message) {
   console.error(`check_report: ${message}`);
-  console.error('usage: node check_report.mjs PAGE.html --screenshot OUT.png [--plot] [--expect TEXT]...');
+  console.error('usage: node check_report.mjs PAGE.html --screenshot OUT.png [--plot] [--expect TEXT]... [--also PAGE]...');
   process.exit(2);
 }
 
 function parseArgs(argv) {
-  const options = { page: null, screenshot: null, plot: false, expect: [] };
+  const options = { page: null, screenshot: null, plot: false, expect: [], also: [] };
   for (let i = 0; i < argv.length; i++) {
     const arg = argv[i];
     if (arg === '--plot') options.plot = true;
     else if (arg === '--screenshot') options.screenshot = argv[++i];
     else if (arg === '--expect') options.expect.push(argv[++i]);
+    else if (arg === '--also') options.also.push(argv[++i]);
     else if (arg.startsWith('--')) usage(`unknown option ${arg}`);
     else if (options.page === null) options.page = arg;
     else usage(`unexpected argument ${arg}`);
@@ -41,7 +42,9 @@ function parseArgs(argv) {
   if (!options.page) usage('no page given');
   if (!options.screenshot) usage('--screenshot OUT.png is required');
   if (options.expect.some((t) => t === undefined)) usage('--expect needs a text');
-  if (!fs.existsSync(options.page)) usage(`no such page: ${options.page}`);
+  for (const page of [options.page, ...options.also]) {
+    if (!page || !fs.existsSync(page)) usage(`no such page: ${page}`);
+  }
   return options;
 }
 
@@ -131,31 +134,30 @@ async function checkPlots(page, problems) {
   await page.mouse.move(0, 0);
 }
 
-async function main() {
-  const options = parseArgs(process.argv.slice(2));
-  const pagePath = path.resolve(options.page);
+// Every check above on one page, in its own browser context; its problems are appended
+// to `problems` with the page's name.
+async function checkPage(browser, pagePath, screenshotPath, options, withPlot, problems) {
   const pageDir = path.dirname(pagePath);
-  const problems = [];
-  const browser = await chromium.launch({ executablePath: kChromium, args: ['--no-sandbox'] });
+  const context = await browser.newContext({ viewport: { width: 1280, height: 900 } });
+  const found = [];
   try {
-    const context = await browser.newContext({ viewport: { width: 1280, height: 900 } });
     const page = await context.newPage();
     page.setDefaultTimeout(15000);
-    page.on('console', (m) => { if (m.type() === 'error') problems.push(`console error: ${m.text()}`); });
-    page.on('pageerror', (e) => problems.push(`page error: ${e.message}`));
+    page.on('console', (m) => { if (m.type() === 'error') found.push(`console error: ${m.text()}`); });
+    page.on('pageerror', (e) => found.push(`page error: ${e.message}`));
     page.on('requestfailed', (r) => {
       // A <video preload="metadata"> aborts its own load once it has the metadata: not a
       // failure (a missing clip is caught below as a link to a missing file).
       if (r.resourceType() === 'media' && r.failure()?.errorText === 'net::ERR_ABORTED') return;
-      problems.push(`failed request: ${r.url().slice(0, 120)} (${r.failure()?.errorText})`);
+      found.push(`failed request: ${r.url().slice(0, 120)} (${r.failure()?.errorText})`);
     });
     page.on('request', (r) => {
       const url = r.url();
       if (url.startsWith('data:') || url.startsWith('blob:')) return;
-      if (!url.startsWith('file:')) problems.push(`request to the network: ${url}`);
+      if (!url.startsWith('file:')) found.push(`request to the network: ${url}`);
       else if (!decodeURIComponent(new URL(url).pathname).startsWith(pageDir + path.sep) &&
                decodeURIComponent(new URL(url).pathname) !== pagePath) {
-        problems.push(`request outside the report's folder: ${url}`);
+        found.push(`request outside the report's folder: ${url}`);
       }
     });
     await page.goto(pathToFileURL(pagePath).href, { waitUntil: 'load' });
@@ -168,37 +170,55 @@ async function main() {
       refs: Array.from(document.querySelectorAll('a[href], img[src], video[src], source[src]'))
         .map((e) => e.getAttribute('href') ?? e.getAttribute('src')),
     }));
-    if (!facts.title) problems.push('the page has no title');
-    if (facts.height < 400) problems.push(`the page is only ${facts.height} px high`);
-    if (facts.text.trim().length < 200) problems.push(`the page has almost no text (${facts.text.trim().length} characters)`);
-    for (const image of facts.images) if (!image.ok) problems.push(`image not decoded: ${image.src}...`);
+    if (!facts.title) found.push('the page has no title');
+    if (facts.height < 400) found.push(`the page is only ${facts.height} px high`);
+    if (facts.text.trim().length < 200) found.push(`the page has almost no text (${facts.text.trim().length} characters)`);
+    for (const image of facts.images) if (!image.ok) found.push(`image not decoded: ${image.src}...`);
     for (const ref of facts.refs) {
       if (ref.startsWith('#') || ref.startsWith('data:')) continue;
       if (/^[a-z][a-z0-9+.-]*:/i.test(ref)) {
-        problems.push(`link leaves the report: ${ref}`);
+        found.push(`link leaves the report: ${ref}`);
         continue;
       }
       const target = path.resolve(pageDir, decodeURIComponent(ref.split('#')[0]));
-      if (!fs.existsSync(target)) problems.push(`link to a missing file: ${ref}`);
+      if (!fs.existsSync(target)) found.push(`link to a missing file: ${ref}`);
     }
-    for (const text of options.expect) {
-      if (!facts.text.includes(text)) problems.push(`the page does not show "${text}"`);
+    for (const text of withPlot ? options.expect : []) {
+      if (!facts.text.includes(text)) found.push(`the page does not show "${text}"`);
     }
 
-    if (options.plot) await checkPlots(page, problems);
+    if (withPlot && options.plot) await checkPlots(page, found);
 
-    const png = await page.screenshot({ path: options.screenshot, fullPage: true });
+    const png = await page.screenshot({ path: screenshotPath, fullPage: true });
     const stats = await screenshotStatistics(browser, png);
-    if (stats.colours < 16) problems.push(`screenshot looks blank: ${stats.colours} distinct colours`);
-    if (stats.inked < 0.02) problems.push(`screenshot looks blank: ${(stats.inked * 100).toFixed(2)}% non-white pixels`);
+    if (stats.colours < 16) found.push(`screenshot looks blank: ${stats.colours} distinct colours`);
+    if (stats.inked < 0.02) found.push(`screenshot looks blank: ${(stats.inked * 100).toFixed(2)}% non-white pixels`);
     console.log(`check_report: ${path.relative(process.cwd(), pagePath)}: ${facts.height} px high, ` +
                 `${facts.images.length} images, screenshot ${stats.width}x${stats.height} with ${stats.colours} colours, ` +
-                `${(stats.inked * 100).toFixed(1)}% inked -> ${options.screenshot}`);
+                `${(stats.inked * 100).toFixed(1)}% inked -> ${screenshotPath}`);
+  } finally {
+    await context.close();
+  }
+  for (const f of found) problems.push(`${path.relative(process.cwd(), pagePath)}: ${f}`);
+}
+
+async function main() {
+  const options = parseArgs(process.argv.slice(2));
+  const problems = [];
+  // One browser for every page (--also: more pages, each with its own screenshot beside
+  // the first, OUT_1.png, OUT_2.png, ...; --plot and --expect apply to the first page).
+  const browser = await chromium.launch({ executablePath: kChromium, args: ['--no-sandbox'] });
+  try {
+    await checkPage(browser, path.resolve(options.page), options.screenshot, options, true, problems);
+    for (let i = 0; i < options.also.length; ++i) {
+      const shot = options.screenshot.replace(/(\.png)?$/, `_${i + 1}.png`);
+      await checkPage(browser, path.resolve(options.also[i]), shot, options, false, problems);
+    }
   } finally {
     await browser.close();
   }
   if (problems.length) {
-    console.error(`check_report: FAIL: ${options.page}`);
+    console.error(`check_report: FAIL: ${options.page}${options.also.length ? ` (+${options.also.length} pages)` : ''}`);
     for (const p of problems) console.error(`  - ${p}`);
     process.exit(1);
   }
