@@ -486,6 +486,14 @@ int RunCorpusVerify(const fs::path& dir, bool quiet) {
       const auto sensor = table.ReadStrings("sensor");
       const auto kind = table.ReadStrings("kind");
       const auto cause = table.ReadStrings("cause");
+      // Every scheduled fault has its row (a dropout leaves no flagged sample to check).
+      const std::size_t scheduled = static_cast<std::size_t>(std::count(cause.begin(), cause.end(), "scheduled"));
+      std::size_t planned = 0;
+      for (const PlannedFault& f : PlanEpisode(spec, row.index).faults) planned += f.start_s < spec.duration_s;
+      if (scheduled != planned) {
+        problems.push_back(fmt::format("{}: episode {}: {} scheduled fault events, the plan has {} faults",
+                                       path.filename().string(), id, scheduled, planned));
+      }
       for (std::size_t e = 0; e < sensor.size(); ++e) ++events[{kind[e], sensor[e], cause[e]}];
       const Hdf5Group sensors = episode.OpenGroup("sensors");
       for (const std::string& s : sensors.Children()) {

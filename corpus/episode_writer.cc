@@ -1,6 +1,7 @@
 #include "corpus/episode_writer.h"
 
 #include <algorithm>
+#include <deque>
 #include <cmath>
 #include <limits>
 #include <tuple>
@@ -151,7 +152,7 @@ struct FaultEvent {
 
 std::vector<FaultEvent> FaultEvents(const harness::RunRecord& record, const EpisodePlan& plan) {
   const core::Time end_ns = record.groundtruth.empty() ? 0 : record.groundtruth.back().t_ns;
-  std::map<std::tuple<std::string, std::string, std::string>, core::Time> started;
+  std::map<std::tuple<std::string, std::string, std::string>, std::deque<core::Time>> started;
   std::vector<FaultEvent> events;
   const auto phase_at = [&](core::Time t) {
     for (const sim::SegmentInfo& s : record.segments) {
@@ -184,16 +185,21 @@ std::vector<FaultEvent> FaultEvents(const harness::RunRecord& record, const Epis
     }
     events.push_back(e);
   };
+  // Two scheduled faults of one kind on one sensor may overlap: their labels then read
+  // start, start, end, end. Each start is its own event, closed by the next end in order
+  // (first in, first out), so every fault keeps its row and its severity.
   for (const harness::LabelEvent& l : record.labels) {
     const auto key = std::make_tuple(l.sensor, l.label, l.source);
     if (l.active) {
-      started.emplace(key, l.t_ns);
-    } else if (const auto it = started.find(key); it != started.end()) {
-      close(l.sensor, l.label, l.source, it->second, l.t_ns, false);
-      started.erase(it);
+      started[key].push_back(l.t_ns);
+    } else if (const auto it = started.find(key); it != started.end() && !it->second.empty()) {
+      close(l.sensor, l.label, l.source, it->second.front(), l.t_ns, false);
+      it->second.pop_front();
     }
   }
-  for (const auto& [key, onset] : started) close(std::get<0>(key), std::get<1>(key), std::get<2>(key), onset, end_ns, true);
+  for (const auto& [key, onsets] : started) {
+    for (const core::Time onset : onsets) close(std::get<0>(key), std::get<1>(key), std::get<2>(key), onset, end_ns, true);
+  }
   std::stable_sort(events.begin(), events.end(), [](const FaultEvent& a, const FaultEvent& b) {
     return std::tie(a.onset_ns, a.sensor, a.label) < std::tie(b.onset_ns, b.sensor, b.label);
   });

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -13,10 +14,12 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "core/error.h"
 #include "corpus/corpus_command.h"
 #include "corpus/corpus_spec.h"
+#include "corpus/episode_writer.h"
 #include "corpus/hdf5_file.h"
 
 extern char** environ;
@@ -101,6 +104,39 @@ TEST(CorpusSpec, ShardComesFromFlagOrArrayEngines) {
   EXPECT_THROW(ResolveShard(std::nullopt, 2), core::InputError);  // 2 >= 2
   ::unsetenv("JOB_COMPLETION_INDEX");
   EXPECT_EQ(ResolveShard(std::nullopt, std::nullopt).count, 1u);
+}
+
+TEST(CorpusEpisode, OverlappingFaultsOfOneKindKeepOneEventEach) {
+  // Two dropouts of the VIO overlap: labels read start, start, end, end.
+  harness::RunRecord record;
+  record.scenario.duration_s = 2.0;
+  for (core::Time t = 0; t <= 2'000'000'000; t += 500'000'000) record.groundtruth.push_back({.t_ns = t});
+  record.labels = {{500'000'000, "vio", "dropout", "fault", true},
+                   {800'000'000, "vio", "dropout", "fault", true},
+                   {1'000'000'000, "vio", "dropout", "fault", false},
+                   {1'500'000'000, "vio", "dropout", "fault", false},
+                   {1'200'000'000, "vio", "jump", "fault", true}};
+  EpisodePlan plan;
+  plan.id = "test_e000000";
+  plan.faults = {{"vio", sim::FaultKind::kDropout, 0.5, 1.0, 0.0},
+                 {"vio", sim::FaultKind::kDropout, 0.8, 1.5, 0.0},
+                 {"vio", sim::FaultKind::kJump, 1.2, 2.0, 0.25}};
+  const fs::path path = TempDir("overlap").string() + ".h5";
+  {
+    Hdf5File file = Hdf5File::Create(path);
+    const ManifestRow row = WriteEpisode(file.root(), plan, record, nlohmann::json::object());
+    EXPECT_EQ(row.scheduled_faults, 3u);
+    file.Close();
+  }
+  const Hdf5File file = Hdf5File::OpenReadOnly(path);
+  const Hdf5Group events = file.root().OpenGroup(plan.id).OpenGroup("events");
+  EXPECT_EQ(events.ReadInt64("onset_ns"), (std::vector<std::int64_t>{500'000'000, 800'000'000, 1'200'000'000}));
+  EXPECT_EQ(events.ReadInt64("offset_ns"), (std::vector<std::int64_t>{1'000'000'000, 1'500'000'000, 2'000'000'000}));
+  EXPECT_EQ(events.ReadUInt8("open"), (std::vector<std::uint8_t>{0, 0, 1}));
+  const std::vector<double> severity = events.ReadDouble("severity");
+  EXPECT_TRUE(std::isnan(severity[0]) && std::isnan(severity[1]));  // a dropout has no size
+  EXPECT_EQ(severity[2], 0.25);
+  fs::remove(path);
 }
 
 // Every dataset of an episode group, by path: shape and values (as the hash sees them).
