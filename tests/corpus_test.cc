@@ -237,6 +237,29 @@ TEST(CorpusGenerate, KilledShardKeepsItsEpisodesAndResumes) {
   fs::remove_all(fresh);
 }
 
+TEST(CorpusGenerate, ClosedLoopEpisodesStoreTheFlightFlownOnTheEstimate) {
+  const fs::path dir = TempDir("closed");
+  const fs::path spec = dir.string() + ".yaml";
+  std::ofstream(spec) << SmokeWith("episodes: 4", "episodes: 1") << "closed_loop: {methods: [consensus]}\n";
+  GenerateOptions options;
+  options.spec = spec;
+  options.out_dir = dir;
+  options.quiet = true;
+  ASSERT_EQ(RunCorpusGenerate(options), 0);
+  ASSERT_EQ(RunCorpusVerify(dir, true), 0);
+  const Hdf5File file = Hdf5File::OpenReadOnly(dir / "shard_0000_of_0001.h5");
+  const Hdf5Group episode = file.root().OpenGroup("episodes").OpenGroup("smoke_e000000");
+  EXPECT_NE(episode.StringAttribute("scenario_yaml").find("control: {state_source: estimate"), std::string::npos);
+  const Hdf5Group flight = episode.OpenGroup("closed_loop").OpenGroup("consensus");
+  EXPECT_EQ(flight.StringAttribute("method"), "consensus");
+  const std::vector<double> flown = flight.OpenGroup("groundtruth").ReadDouble("p_WB_m");
+  const std::vector<double> truth_flight = episode.OpenGroup("groundtruth").ReadDouble("p_WB_m");
+  ASSERT_EQ(flown.size(), truth_flight.size());
+  EXPECT_NE(flown, truth_flight) << "the flight on the estimate cannot be the ground-truth flight";
+  fs::remove_all(dir);
+  fs::remove(spec);
+}
+
 TEST(CorpusGenerate, RefusesAnotherSpecsDirectoryAndVerifyCatchesTampering) {
   const fs::path dir = TempDir("refuse");
   GenerateOptions options;
