@@ -103,6 +103,8 @@ void RecordExit(int status, SeedRun& run) {
       run.error = "bad input (exit 2)";
     } else if (run.exit_code == core::kExitSimulationError) {
       run.error = "simulation failed (exit 3)";
+    } else if (run.exit_code == core::kExitIoError) {
+      run.error = "its output could not be written (exit 4)";
     } else if (run.exit_code != core::kExitOk && run.exit_code != core::kExitExpectationFailed) {
       run.error = fmt::format("exited with unexpected status {}", run.exit_code);
       run.exit_code = core::kExitSimulationError;
@@ -121,6 +123,7 @@ const char* Verdict(const SeedRun& run) {
   if (run.exit_code == core::kExitOk) return "passed";
   if (run.exit_code == core::kExitExpectationFailed) return "expectation failed";
   if (run.exit_code == core::kExitBadInput) return "bad input";
+  if (run.exit_code == core::kExitIoError) return "output not written";
   return "simulation failed";
 }
 
@@ -743,12 +746,13 @@ int RunCheckCommand(const CheckCommandOptions& options) {
     runs[job.scenario_index].push_back(std::move(job.run));
   }
   std::vector<ScenarioCheck> checks;
-  bool bad_input = false, simulation_failed = false, expectation_failed = false;
+  bool bad_input = false, io_failed = false, simulation_failed = false, expectation_failed = false;
   for (size_t i = 0; i < scenarios.size(); ++i) {
     checks.push_back(EvaluateScenarioCheck(scenarios[i], std::move(runs[i])));
     const ScenarioCheck& c = checks.back();
     for (const SeedRun& r : c.runs) {
       bad_input = bad_input || r.exit_code == core::kExitBadInput;
+      io_failed = io_failed || r.exit_code == core::kExitIoError;
       simulation_failed = simulation_failed || !r.error.empty();
     }
     expectation_failed = expectation_failed || !c.passed;
@@ -759,13 +763,16 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   if (options.junit_path) {
     try {
       WriteFileAtomically(*options.junit_path, CheckJUnitXml(checks), "--junit");
-    } catch (const InputError& e) {
+    } catch (const core::IoError& e) {
       fmt::print(stderr, "tofu: error: {}\n", e.what());
-      return core::kExitBadInput;
+      return core::kExitIoError;
     }
     if (!options.quiet) fmt::print("JUnit XML: {}\n", *options.junit_path);
   }
+  // One code per run of the check, the most fundamental cause first: the user's input,
+  // the machine's storage, the simulation, then the expectations.
   if (bad_input) return core::kExitBadInput;
+  if (io_failed) return core::kExitIoError;
   if (simulation_failed) return core::kExitSimulationError;
   return expectation_failed ? core::kExitExpectationFailed : core::kExitOk;
 }

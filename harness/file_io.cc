@@ -15,9 +15,11 @@ namespace tofu::harness {
 namespace fs = std::filesystem;
 
 void WriteFileAtomically(const fs::path& path, std::string_view text, std::string_view key) {
+  // Not the user's input but the machine (permissions, a full disk, a path through a
+  // file): the I/O exit code, naming the file and what it was for.
   const auto fail = [&](int error) {
-    throw core::InputError({path.string()}, std::string(key),
-                           fmt::format("cannot write the file: {}", std::strerror(error)));
+    throw core::IoError(fmt::format("cannot write {}{}: {}", path.string(),
+                                    key.empty() ? "" : fmt::format(" ({})", key), std::strerror(error)));
   };
   std::error_code ec;
   if (path.has_parent_path()) fs::create_directories(path.parent_path(), ec);

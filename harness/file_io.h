@@ -11,8 +11,8 @@ namespace tofu::harness {
 
 /// Writes `text` to `path` whole or not at all: into a temporary sibling
 /// (<name>.tmp-<pid>) renamed into place, so a reader never sees a partial file. Creates
-/// missing parent directories. Throws core::InputError naming the file (and `key`, e.g.
-/// "--out", when given) on failure, leaving neither the temporary nor a partial file.
+/// missing parent directories. Throws core::IoError (exit 4) naming the file (and `key`,
+/// e.g. "--out", when given) on failure, leaving neither the temporary nor a partial file.
 void WriteFileAtomically(const std::filesystem::path& path, std::string_view text,
                          std::string_view key = "");
 

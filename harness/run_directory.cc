@@ -515,6 +515,9 @@ void WriteRunFiles(const RunRecord& record, const Evaluation& evaluation, const 
 }  // namespace
 
 void CheckOutputDirectory(const fs::path& out_dir, bool force) {
+  if (out_dir.empty()) {
+    throw core::InputError({}, "--out", "expected a directory path, got an empty string");
+  }
   std::error_code ec;
   const fs::file_status status = fs::status(out_dir, ec);
   if (ec || !fs::exists(status)) return;

@@ -20,6 +20,8 @@
 #include <fmt/format.h>
 #include <png.h>
 
+#include "core/error.h"
+
 extern char** environ;
 
 namespace tofu::renders {
@@ -55,7 +57,7 @@ void WritePng(const fs::path& path, const Image& image) {
   PngFile out;
   out.file = std::fopen(path.c_str(), "wb");
   if (out.file == nullptr) {
-    throw std::runtime_error(fmt::format("cannot write {}: {}", path.string(), std::strerror(errno)));
+    throw core::IoError(fmt::format("cannot write {}: {}", path.string(), std::strerror(errno)));
   }
   std::string error;
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &error, PngError, PngWarning);
@@ -72,7 +74,7 @@ void WritePng(const fs::path& path, const Image& image) {
     out.file = nullptr;
     std::error_code ignored;
     fs::remove(path, ignored);
-    throw std::runtime_error(fmt::format("cannot write {}: libpng: {}", path.string(), error));
+    throw core::IoError(fmt::format("cannot write {}: libpng: {}", path.string(), error));
   }
   png_init_io(png, out.file);
   png_set_IHDR(png, info, static_cast<png_uint_32>(image.width),
@@ -86,7 +88,7 @@ void WritePng(const fs::path& path, const Image& image) {
     out.file = nullptr;
     std::error_code ignored;
     fs::remove(path, ignored);
-    throw std::runtime_error(fmt::format("cannot write {}: {}", path.string(), std::strerror(errno)));
+    throw core::IoError(fmt::format("cannot write {}: {}", path.string(), std::strerror(errno)));
   }
 }
 
@@ -203,7 +205,7 @@ class GifWriter {
  public:
   GifWriter(const fs::path& path, int width, int height, int delay_cs)
       : out_(path, std::ios::binary), width_(width), height_(height), delay_cs_(delay_cs) {
-    if (!out_) throw std::runtime_error(fmt::format("cannot write {}", path.string()));
+    if (!out_) throw core::IoError(fmt::format("cannot write {}", path.string()));
     Bytes("GIF89a");
     Word(width);
     Word(height);

@@ -21,7 +21,7 @@ void WriteText(const fs::path& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary);
   out.write(text.data(), static_cast<std::streamsize>(text.size()));
   out.close();
-  if (!out) throw std::runtime_error("cannot write " + path.string());
+  if (!out) throw core::IoError("cannot write " + path.string());
 }
 
 // A sibling of `path` for staging, unique to this process.

@@ -210,6 +210,19 @@ TEST_F(CliTest, RunDirectoryHasTheDocumentedFilesAndFormats) {
             1e-12);
 }
 
+// One exit code for outputs the machine will not take (issue 19, finding 9: permission
+// denied was 3, a full disk 2, `--out ""` 3): 4, naming the path; an empty --out is the
+// user's input (2).
+TEST_F(CliTest, OutputsThatCannotBeWrittenExitFourAndAnEmptyOutTwo) {
+  WriteFile(work_ / "s.yaml", ReadFile(SourcePath("tests/data/scenarios/gusty_hover_short.yaml")));
+  const Result proc = Tofu("run s.yaml --out /proc/tofu_cannot_write_here --quiet");
+  EXPECT_EQ(proc.exit_code, 4) << proc.err;
+  EXPECT_CONTAINS(proc.err, "/proc/tofu_cannot_write_here");
+  const Result empty = Tofu("run s.yaml --out \"\" --quiet");
+  EXPECT_EQ(empty.exit_code, 2) << empty.err;
+  EXPECT_CONTAINS(empty.err, "--out");
+}
+
 // --out never destroys what is not a tofu run (issue 19, finding 1: a directory holding
 // the user's notes and the scenario itself was emptied with exit 0), and replaces an
 // earlier run only with --force, atomically.

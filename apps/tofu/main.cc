@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <limits>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <optional>
 #include <string>
@@ -569,6 +570,10 @@ int main(int argc, char** argv) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return tofu::core::kExitBadInput;
   } catch (const tofu::core::IoError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return tofu::core::kExitIoError;
+  } catch (const std::filesystem::filesystem_error& e) {
+    // A directory or file the machine would not let tofu make, move or list: I/O.
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return tofu::core::kExitIoError;
   } catch (const std::exception& e) {
