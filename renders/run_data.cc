@@ -191,14 +191,7 @@ std::map<std::string, SensorCalibration> ReadCalibration(RunData& run) {
 }
 
 void ReadSensors(RunData& run, const std::map<std::string, SensorCalibration>& calibration) {
-  const fs::path folder = run.directory / "sensors";
-  if (!fs::is_directory(folder)) return;
-  std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(folder)) {
-    if (entry.is_regular_file() && entry.path().extension() == ".csv") files.push_back(entry.path());
-  }
-  std::sort(files.begin(), files.end());
-  for (const fs::path& file : files) {
+  for (const fs::path& file : SensorCsvFiles(run.directory)) {
     const std::string name = file.stem().string();
     const auto cal = calibration.find(name);
     if (cal == calibration.end()) {
@@ -578,6 +571,17 @@ nlohmann::json ReadRunJson(const fs::path& path) {
     }
     throw InputError({path.string(), line, column}, "", fmt::format("malformed JSON: {}", e.what()));
   }
+}
+
+std::vector<fs::path> SensorCsvFiles(const fs::path& run_dir) {
+  std::vector<fs::path> files;
+  const fs::path folder = run_dir / "sensors";
+  if (!fs::is_directory(folder)) return files;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_regular_file() && entry.path().extension() == ".csv") files.push_back(entry.path());
+  }
+  std::sort(files.begin(), files.end());
+  return files;
 }
 
 std::vector<fs::path> ClosedLoopFlightDirs(const fs::path& run_dir) {

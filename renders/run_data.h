@@ -140,6 +140,10 @@ RunData ReadRunData(const std::filesystem::path& directory);
 /// a core::InputError naming file:line:column.
 nlohmann::json ReadRunJson(const std::filesystem::path& path);
 
+/// The sensor streams of a run: sensors/*.csv (not sensors/clean/), sorted; empty without
+/// sensors/.
+std::vector<std::filesystem::path> SensorCsvFiles(const std::filesystem::path& run_dir);
+
 /// The closed-loop flights of a run: closed_loop/<stem>/ folders that hold a
 /// groundtruth.csv, sorted; empty without closed_loop/.
 std::vector<std::filesystem::path> ClosedLoopFlightDirs(const std::filesystem::path& run_dir);

@@ -157,14 +157,7 @@ std::vector<double> FullCovariance(const CsvTable& csv, std::size_t row, const s
 }
 
 void ExportSensors(const RunData& run, Channels& out) {
-  const fs::path folder = run.directory / "sensors";
-  if (!fs::is_directory(folder)) return;
-  std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(folder)) {
-    if (entry.is_regular_file() && entry.path().extension() == ".csv") files.push_back(entry.path());
-  }
-  std::sort(files.begin(), files.end());
-  for (const fs::path& file : files) {
+  for (const fs::path& file : renders::SensorCsvFiles(run.directory)) {
     const std::string name = file.stem().string();
     const std::string topic = "/sensors/" + name;
     const CsvTable csv(file, "#timestamp [ns],... (a sensor stream of README 'Run directory')");
