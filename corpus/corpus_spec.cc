@@ -9,6 +9,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "core/error.h"
+#include "core/file_io.h"
 #include "core/random.h"
 #include "harness/scenario.h"
 #include "harness/yaml_reader.h"
@@ -256,11 +257,8 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
 }
 
 CorpusSpec LoadCorpusSpec(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw core::InputError({path.string()}, "", "cannot read the corpus spec (missing or unreadable)");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return ParseCorpusSpec(text.str(), path.string());
+  return ParseCorpusSpec(core::ReadWholeFile(path, "corpus spec", core::kMaxConfigFileBytes),
+                         path.string());
 }
 
 EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {

@@ -1,13 +1,13 @@
 #include "corpus/episode_writer.h"
 
 #include <algorithm>
-#include <deque>
 #include <cmath>
 #include <limits>
 #include <tuple>
 
 #include <fmt/format.h>
 
+#include "harness/evaluation.h"
 #include "harness/scenario.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
@@ -152,7 +152,6 @@ struct FaultEvent {
 
 std::vector<FaultEvent> FaultEvents(const harness::RunRecord& record, const EpisodePlan& plan) {
   const core::Time end_ns = record.groundtruth.empty() ? 0 : record.groundtruth.back().t_ns;
-  std::map<std::tuple<std::string, std::string, std::string>, std::deque<core::Time>> started;
   std::vector<FaultEvent> events;
   const auto phase_at = [&](core::Time t) {
     for (const sim::SegmentInfo& s : record.segments) {
@@ -187,18 +186,10 @@ std::vector<FaultEvent> FaultEvents(const harness::RunRecord& record, const Epis
   };
   // Two scheduled faults of one kind on one sensor may overlap: their labels then read
   // start, start, end, end. Each start is its own event, closed by the next end in order
-  // (first in, first out), so every fault keeps its row and its severity.
-  for (const harness::LabelEvent& l : record.labels) {
-    const auto key = std::make_tuple(l.sensor, l.label, l.source);
-    if (l.active) {
-      started[key].push_back(l.t_ns);
-    } else if (const auto it = started.find(key); it != started.end() && !it->second.empty()) {
-      close(l.sensor, l.label, l.source, it->second.front(), l.t_ns, false);
-      it->second.pop_front();
-    }
-  }
-  for (const auto& [key, onsets] : started) {
-    for (const core::Time onset : onsets) close(std::get<0>(key), std::get<1>(key), std::get<2>(key), onset, end_ns, true);
+  // (first in, first out), so every fault keeps its row and its severity. The pairing is
+  // the evaluation's (harness/evaluation.h), which scores the merged intervals.
+  for (const harness::LabelInterval& i : harness::PairedLabelIntervals(record.labels, end_ns)) {
+    close(i.sensor, i.label, i.source, i.start_ns, i.end_ns, i.open);
   }
   std::stable_sort(events.begin(), events.end(), [](const FaultEvent& a, const FaultEvent& b) {
     return std::tie(a.onset_ns, a.sensor, a.label) < std::tie(b.onset_ns, b.sensor, b.label);

@@ -9,6 +9,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -21,6 +22,7 @@
 
 #include "core/error.h"
 #include "harness/file_io.h"
+#include "harness/interrupt.h"
 #include "harness/yaml_reader.h"
 
 extern char** environ;
@@ -85,8 +87,17 @@ pid_t SpawnRun(const std::string& binary, Job& job) {
   posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, job.run.log_path.c_str(),
                                    O_WRONLY | O_CREAT | O_TRUNC, 0644);
   posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+  // Each run in a process group of its own: a Ctrl-C at the terminal reaches the check
+  // alone, which forwards it once to every run (a run given the signal twice would stop
+  // at once, without its cleanup), and a forwarded signal reaches the run's own children
+  // (its plots) too.
+  posix_spawnattr_t attributes;
+  posix_spawnattr_init(&attributes);
+  posix_spawnattr_setflags(&attributes, POSIX_SPAWN_SETPGROUP);
+  posix_spawnattr_setpgroup(&attributes, 0);
   pid_t pid = -1;
-  const int rc = posix_spawn(&pid, binary.c_str(), &actions, nullptr, argv.data(), environ);
+  const int rc = posix_spawn(&pid, binary.c_str(), &actions, &attributes, argv.data(), environ);
+  posix_spawnattr_destroy(&attributes);
   posix_spawn_file_actions_destroy(&actions);
   if (rc != 0) {
     job.run.error = fmt::format("cannot start {}: {}", binary, std::strerror(rc));
@@ -105,6 +116,11 @@ void RecordExit(int status, SeedRun& run) {
       run.error = "simulation failed (exit 3)";
     } else if (run.exit_code == core::kExitIoError) {
       run.error = "its output could not be written (exit 4)";
+    } else if (run.exit_code > 128 && run.exit_code < 128 + NSIG) {
+      // A run stopped by a signal sent to it alone (interrupt.h): cleaned up, not run.
+      run.error = fmt::format("interrupted by signal {} ({}; exit {})", run.exit_code - 128,
+                              strsignal(run.exit_code - 128), run.exit_code);
+      run.exit_code = core::kExitSimulationError;
     } else if (run.exit_code != core::kExitOk && run.exit_code != core::kExitExpectationFailed) {
       run.error = fmt::format("exited with unexpected status {}", run.exit_code);
       run.exit_code = core::kExitSimulationError;
@@ -129,6 +145,9 @@ const char* Verdict(const SeedRun& run) {
 
 // Runs every job, at most `jobs` at a time. The check owns this process's children: it
 // reaps with waitpid(-1), so it must not share the process with other child-spawning code.
+// Interrupted (interrupt.h): starts nothing more, forwards the signal to every running
+// run (each removes its staging directory and exits 128 + signal), waits for them all,
+// then throws Interrupted: no run is left writing when the check exits.
 void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool quiet) {
   using Clock = std::chrono::steady_clock;
   std::map<pid_t, std::pair<size_t, Clock::time_point>> running;
@@ -141,7 +160,19 @@ void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool 
                fs::path(job.run.run_dir).parent_path().filename().string(), job.run.seed,
                Verdict(job.run), job.run.wall_time_s);
   };
+  int forwarded = 0;  // the signal forwarded to the runs, 0 before an interruption
   while (next < queue.size() || !running.empty()) {
+    if (const int signal = InterruptSignal(); signal != 0 && forwarded == 0) {
+      forwarded = signal;
+      next = queue.size();
+      for (const auto& [child, job] : running) {
+        if (::kill(-child, signal) != 0) ::kill(child, signal);  // its group, else itself
+      }
+      if (!quiet) {
+        fmt::print(stderr, "tofu check: {}: waiting for {} running runs to stop\n",
+                   InterruptSignalName(signal), running.size());
+      }
+    }
     while (next < queue.size() && running.size() < static_cast<size_t>(jobs)) {
       Job& job = queue[next];
       const pid_t pid = SpawnRun(binary, job);
@@ -155,7 +186,17 @@ void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool 
     }
     if (running.empty()) continue;
     int status = 0;
-    const pid_t pid = ::waitpid(-1, &status, 0);
+    // Polled in slices: a blocking waitpid would sleep through a signal (SA_RESTART).
+    const pid_t pid = ::waitpid(-1, &status, WNOHANG);
+    if (pid == 0) {
+      // Before an interruption, wake up at once for it; after, only the runs matter.
+      if (forwarded == 0) {
+        WaitForInterrupt(50);
+      } else {
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+      continue;
+    }
     if (pid < 0) {
       if (errno == EINTR) continue;
       throw std::runtime_error(fmt::format("waitpid: {}", std::strerror(errno)));
@@ -169,6 +210,7 @@ void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool 
     running.erase(it);
     report(job);
   }
+  ThrowIfInterrupted();
 }
 
 // Reads a finished run's summary.json and completes its error message.
@@ -205,13 +247,20 @@ void ReadSummary(SeedRun& run) {
 }
 
 // Removes what an earlier check left of a scenario's runs (seed_<n> and seed_<n>.log),
-// so that stale seeds beyond --seeds are not taken for this check's. Touches nothing else.
+// so that stale seeds beyond --seeds are not taken for this check's, and the staging
+// directories of killed runs (seed_<n>.tmp-<pid> of a process that is gone). Touches
+// nothing else.
 void RemoveStaleRuns(const fs::path& scenario_dir) {
   std::error_code ec;
   if (!fs::is_directory(scenario_dir, ec)) return;
   std::vector<fs::path> stale;  // collected first: no removal while the directory is read
+  std::set<fs::path> staged;
   for (const auto& entry : fs::directory_iterator(scenario_dir)) {
     std::string name = entry.path().filename().string();
+    if (const size_t tmp = name.find(".tmp-"); name.starts_with("seed_") && tmp != std::string::npos) {
+      staged.insert(scenario_dir / name.substr(0, tmp));
+      continue;
+    }
     if (name.ends_with(".log")) name.resize(name.size() - 4);
     if (name.starts_with("seed_") && name.size() > 5 &&
         std::all_of(name.begin() + 5, name.end(), [](char c) { return c >= '0' && c <= '9'; })) {
@@ -219,6 +268,7 @@ void RemoveStaleRuns(const fs::path& scenario_dir) {
     }
   }
   for (const fs::path& path : stale) fs::remove_all(path);
+  for (const fs::path& run : staged) SweepStaleStaging(run);
 }
 
 // ---- reporting ----
@@ -378,6 +428,8 @@ bool LoadAll(const std::vector<std::string>& paths, std::vector<Scenario>& scena
   for (const std::string& path : paths) {
     try {
       Scenario scenario = LoadScenario(path);
+      // What `tofu validate` checks: the models too, so a run never fails on them.
+      CheckScenarioModels(scenario);
       // Run directories are named after scenarios: two files may not share a name.
       const auto [it, inserted] = file_of_name.emplace(scenario.name, path);
       if (!inserted) {

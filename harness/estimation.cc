@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/evaluation.h"
 #include "harness/file_io.h"
 #include "harness/recorded_log.h"
 #include "harness/replay.h"
@@ -21,42 +22,6 @@ namespace {
 namespace fs = std::filesystem;
 
 
-
-// A label's active windows [start, end) per (sensor, label) of one source.
-struct LabelWindow {
-  std::string sensor;
-  std::string label;
-  core::Time start_ns = 0;
-  core::Time end_ns = 0;
-};
-
-std::vector<LabelWindow> Windows(const std::vector<LabelEvent>& labels, const std::string& source,
-                                 core::Time run_end_ns) {
-  std::vector<LabelWindow> windows;
-  std::map<std::pair<std::string, std::string>, core::Time> open;
-  for (const LabelEvent& e : labels) {
-    if (e.source != source) continue;
-    const auto key = std::make_pair(e.sensor, e.label);
-    if (e.active) {
-      open.emplace(key, e.t_ns);
-    } else if (const auto it = open.find(key); it != open.end()) {
-      windows.push_back({e.sensor, e.label, it->second, e.t_ns});
-      open.erase(it);
-    }
-  }
-  for (const auto& [key, start] : open) windows.push_back({key.first, key.second, start, run_end_ns});
-  std::sort(windows.begin(), windows.end(), [](const LabelWindow& a, const LabelWindow& b) {
-    return std::tie(a.start_ns, a.sensor, a.label) < std::tie(b.start_ns, b.sensor, b.label);
-  });
-  return windows;
-}
-
-bool ActiveAt(const std::vector<LabelWindow>& windows, const std::string& sensor, core::Time t) {
-  for (const LabelWindow& w : windows) {
-    if (w.sensor == sensor && w.start_ns <= t && t < w.end_ns) return true;
-  }
-  return false;
-}
 
 // Ground-truth position of I at t, linearly interpolated; nullopt outside or across a gap.
 std::optional<Eigen::Vector3d> TruthPositionAt(const std::vector<GroundTruthPose>& truth, core::Time t) {
@@ -140,8 +105,8 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
   const RecordedLog log = ReadRecordedLog(run_dir, read);
   const std::vector<estimator::SensorSpec> specs = SensorSpecsOf(log);
   const core::Time run_end_ns = core::SecondsToTime(run_duration_s);
-  const std::vector<LabelWindow> faults = Windows(labels, "fault", run_end_ns);
-  const std::vector<LabelWindow> conditions = Windows(labels, "condition", run_end_ns);
+  std::vector<std::string> sensor_names;
+  for (const estimator::SensorSpec& s : specs) sensor_names.push_back(s.name);
 
   std::string errors_csv =
       "#timestamp [ns],method,position_error [m],rotation_error [deg],valid,nees\n";
@@ -207,42 +172,14 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
       e.consensus = true;
       e.threshold = config.consensus.threshold;
       decisions_csv += DecisionRows(result);
-      std::optional<std::vector<std::string>> previous_fused;
-      bool fused_once = false;
-      for (std::size_t r = 0; r < result.consensus.size(); ++r) {
-        const estimator::ConsensusRecord& rec = result.consensus[r];
-        const estimator::ConsensusDecision& d = rec.decision;
-        // Switches: changes of the fused set once something was fused.
-        if (fused_once && previous_fused && *previous_fused != d.fused) ++e.switches;
-        if (!d.fused.empty()) fused_once = true;
-        previous_fused = d.fused;
-        // False exclusions: excluded while no fault and no condition was active.
-        const core::Time next = r + 1 < result.consensus.size() ? result.consensus[r + 1].t_ns
-                                                                 : std::max(rec.t_ns, run_end_ns);
-        for (const std::string& s : d.excluded) {
-          if (ActiveAt(faults, s, rec.t_ns) || ActiveAt(conditions, s, rec.t_ns)) continue;
-          e.false_exclusion_s[s] += core::TimeToSeconds(next - rec.t_ns);
-        }
-      }
+      // Faults as intervals per (sensor, kind), overlapping ones merged (evaluation.h).
+      ConsensusScores scores =
+          ScoreConsensusDecisions(result.consensus, labels, run_end_ns, sensor_names);
+      e.switches = scores.switches;
+      e.detections = std::move(scores.detections);
+      e.false_exclusion_s = std::move(scores.false_exclusion_s);
       WriteFileAtomically(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
                           ConsistencyMatrixCsv(result));
-      // Detection: the first decision excluding the sensor, from the onset until 1 s after
-      // the fault ended (a decision lags its window by the evaluation delay).
-      for (const LabelWindow& f : faults) {
-        if (f.label == "dropout") continue;
-        FaultDetection det{f.sensor, f.label, f.start_ns, f.end_ns, std::nullopt};
-        for (const estimator::ConsensusRecord& rec : result.consensus) {
-          if (rec.t_ns < f.start_ns) continue;
-          if (rec.t_ns > f.end_ns + 1'000'000'000) break;
-          const auto& ex = rec.decision.excluded;
-          if (std::find(ex.begin(), ex.end(), f.sensor) != ex.end()) {
-            det.detected_ns = rec.t_ns;
-            break;
-          }
-        }
-        e.detections.push_back(det);
-      }
-      for (const estimator::SensorSpec& s : specs) e.false_exclusion_s.emplace(s.name, 0.0);
     }
     evaluations.push_back(std::move(e));
   }

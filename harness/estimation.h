@@ -7,9 +7,10 @@
 //    truth (evo `-a`, Umeyama), rotation RMSE under the same alignment, RPE over 1 s;
 //  - NEES of the reported position covariance: e_Lᵀ P_pp⁻¹ e_L with e_L the aligned
 //    position error rotated into L (3 on average for a consistent 3-D estimate);
-//  - fault detection (consensus methods): per scheduled fault except dropouts (a dropout
-//    is no data, not wrong data), the delay from its onset to the first decision that
-//    excludes the sensor, or missed when none did before the fault ended;
+//  - fault detection (consensus methods): per fault interval of a sensor and kind
+//    (overlapping scheduled faults of one kind merged: evaluation.h MergedLabelIntervals)
+//    except dropouts (a dropout is no data, not wrong data), the delay from its onset to
+//    the first decision that excludes the sensor, or missed when none did before it ended;
 //  - false exclusions: time a sensor was excluded while none of its faults was active;
 //  - switches: changes of the fused set.
 // Files written into the run directory: estimate_<method>.csv/.tum/.json,
@@ -56,7 +57,8 @@ struct EstimationConfig {
   double huber_delta = 0.0;
 };
 
-/// One scheduled fault and whether (and when) a method noticed it.
+/// One fault interval of a sensor and kind (overlapping faults merged) and whether (and
+/// when) a method noticed it.
 struct FaultDetection {
   std::string sensor;
   std::string fault;  ///< fault kind name, e.g. "divergence"

@@ -2,8 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
+#include <map>
 #include <numbers>
 #include <stdexcept>
+#include <tuple>
 
 #include "harness/metrics.h"
 
@@ -324,6 +327,110 @@ std::optional<double> MetricValue(const RunRecord& record, const std::string& me
     return MethodMetricValue(record, match->first->name, match->second);
   }
   throw std::invalid_argument("unknown metric '" + metric + "'");
+}
+
+std::vector<LabelInterval> PairedLabelIntervals(const std::vector<LabelEvent>& labels,
+                                                core::Time end_ns) {
+  std::map<std::tuple<std::string, std::string, std::string>, std::deque<core::Time>> started;
+  std::vector<LabelInterval> intervals;
+  for (const LabelEvent& l : labels) {
+    const auto key = std::make_tuple(l.sensor, l.label, l.source);
+    if (l.active) {
+      started[key].push_back(l.t_ns);
+    } else if (const auto it = started.find(key); it != started.end() && !it->second.empty()) {
+      intervals.push_back({l.sensor, l.label, l.source, it->second.front(), l.t_ns, false});
+      it->second.pop_front();
+    }
+  }
+  for (const auto& [key, onsets] : started) {
+    for (const core::Time onset : onsets) {
+      intervals.push_back({std::get<0>(key), std::get<1>(key), std::get<2>(key), onset, end_ns, true});
+    }
+  }
+  return intervals;
+}
+
+std::vector<LabelInterval> MergedLabelIntervals(const std::vector<LabelEvent>& labels,
+                                                core::Time end_ns) {
+  std::vector<LabelInterval> paired = PairedLabelIntervals(labels, end_ns);
+  const auto key = [](const LabelInterval& i) {
+    return std::tie(i.sensor, i.label, i.source, i.start_ns, i.end_ns);
+  };
+  std::sort(paired.begin(), paired.end(),
+            [&](const LabelInterval& a, const LabelInterval& b) { return key(a) < key(b); });
+  std::vector<LabelInterval> merged;
+  for (const LabelInterval& i : paired) {
+    LabelInterval* last = merged.empty() ? nullptr : &merged.back();
+    if (last != nullptr && last->sensor == i.sensor && last->label == i.label &&
+        last->source == i.source && i.start_ns <= last->end_ns) {
+      if (i.end_ns > last->end_ns) {
+        last->end_ns = i.end_ns;
+        last->open = i.open;
+      } else if (i.end_ns == last->end_ns) {
+        last->open = last->open || i.open;
+      }
+      continue;
+    }
+    merged.push_back(i);
+  }
+  std::sort(merged.begin(), merged.end(), [](const LabelInterval& a, const LabelInterval& b) {
+    return std::tie(a.start_ns, a.sensor, a.label, a.source) <
+           std::tie(b.start_ns, b.sensor, b.label, b.source);
+  });
+  return merged;
+}
+
+ConsensusScores ScoreConsensusDecisions(const std::vector<estimator::ConsensusRecord>& decisions,
+                                        const std::vector<LabelEvent>& labels,
+                                        core::Time run_end_ns,
+                                        const std::vector<std::string>& sensors) {
+  const std::vector<LabelInterval> intervals = MergedLabelIntervals(labels, run_end_ns);
+  std::vector<LabelInterval> faults, conditions;
+  for (const LabelInterval& i : intervals) (i.source == "fault" ? faults : conditions).push_back(i);
+  const auto active_at = [](const std::vector<LabelInterval>& windows, const std::string& sensor,
+                            core::Time t) {
+    return std::any_of(windows.begin(), windows.end(), [&](const LabelInterval& w) {
+      return w.sensor == sensor && w.start_ns <= t && t < w.end_ns;
+    });
+  };
+
+  ConsensusScores scores;
+  std::optional<std::vector<std::string>> previous_fused;
+  bool fused_once = false;
+  for (std::size_t r = 0; r < decisions.size(); ++r) {
+    const estimator::ConsensusRecord& rec = decisions[r];
+    const estimator::ConsensusDecision& d = rec.decision;
+    // Switches: changes of the fused set once something was fused.
+    if (fused_once && previous_fused && *previous_fused != d.fused) ++scores.switches;
+    if (!d.fused.empty()) fused_once = true;
+    previous_fused = d.fused;
+    // False exclusions: excluded while no fault and no condition was active.
+    const core::Time next = r + 1 < decisions.size() ? decisions[r + 1].t_ns
+                                                     : std::max(rec.t_ns, run_end_ns);
+    for (const std::string& s : d.excluded) {
+      if (active_at(faults, s, rec.t_ns) || active_at(conditions, s, rec.t_ns)) continue;
+      scores.false_exclusion_s[s] += core::TimeToSeconds(next - rec.t_ns);
+    }
+  }
+  // Detection: the first decision excluding the sensor, from the onset until 1 s after
+  // the fault ended (a decision lags its window by the evaluation delay). A dropout is no
+  // data, not wrong data: nothing to detect.
+  for (const LabelInterval& f : faults) {
+    if (f.label == "dropout") continue;
+    FaultDetection det{f.sensor, f.label, f.start_ns, f.end_ns, std::nullopt};
+    for (const estimator::ConsensusRecord& rec : decisions) {
+      if (rec.t_ns < f.start_ns) continue;
+      if (rec.t_ns > f.end_ns + 1'000'000'000) break;
+      const auto& ex = rec.decision.excluded;
+      if (std::find(ex.begin(), ex.end(), f.sensor) != ex.end()) {
+        det.detected_ns = rec.t_ns;
+        break;
+      }
+    }
+    scores.detections.push_back(det);
+  }
+  for (const std::string& s : sensors) scores.false_exclusion_s.emplace(s, 0.0);
+  return scores;
 }
 
 Evaluation Evaluate(const RunRecord& record) {

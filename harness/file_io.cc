@@ -1,18 +1,88 @@
 #include "harness/file_io.h"
 
+#include <signal.h>
 #include <unistd.h>
 
 #include <cerrno>
+#include <charconv>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <string>
 
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/interrupt.h"
 
 namespace tofu::harness {
 
 namespace fs = std::filesystem;
+
+namespace {
+
+constexpr std::string_view kStagingInfix = ".tmp-";
+
+// Whether `pid` is a running tofu process: then its staging is in use. A pid that is gone,
+// a zombie (it writes nothing any more) or a reused pid of another program is not. When
+// /proc cannot tell, the process is assumed to be tofu: never remove what may be in use.
+bool IsLiveTofuProcess(pid_t pid) {
+  if (pid <= 0) return false;
+  if (pid == ::getpid()) return true;
+  if (::kill(pid, 0) != 0 && errno == ESRCH) return false;
+  const fs::path proc = fs::path("/proc") / std::to_string(pid);
+  std::ifstream stat(proc / "stat");
+  std::string stat_line;
+  // Unreadable: gone since kill() (when /proc is there at all), else cannot tell.
+  if (!std::getline(stat, stat_line)) return fs::exists(proc) || !fs::exists("/proc/self");
+  // "pid (comm) S ...": the state follows the last ')', comm may hold anything.
+  if (const auto close = stat_line.rfind(')');
+      close != std::string::npos && close + 2 < stat_line.size() && stat_line[close + 2] == 'Z') {
+    return false;
+  }
+  std::ifstream comm_file(proc / "comm");
+  std::string comm;
+  if (!std::getline(comm_file, comm)) return true;
+  if (comm == "tofu") return true;
+  // The tofu executable under another name is still tofu.
+  std::error_code ec_self, ec_other;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec_self);
+  const fs::path other = fs::read_symlink(proc / "exe", ec_other);
+  if (ec_other) return ec_other != std::errc::no_such_file_or_directory;  // EPERM: cannot tell
+  return !ec_self && self == other;
+}
+
+}  // namespace
+
+fs::path StagingPath(const fs::path& path) {
+  return path.string() + fmt::format("{}{}", kStagingInfix, ::getpid());
+}
+
+std::vector<fs::path> SweepStaleStaging(const fs::path& path) {
+  std::vector<fs::path> removed;
+  const fs::path target = fs::absolute(path).lexically_normal();
+  const fs::path name = target.filename().empty() ? target.parent_path().filename() : target.filename();
+  const fs::path parent = target.filename().empty() ? target.parent_path().parent_path()
+                                                    : target.parent_path();
+  const std::string prefix = name.string() + std::string(kStagingInfix);
+  std::error_code ec;
+  std::vector<std::pair<fs::path, pid_t>> candidates;
+  for (fs::directory_iterator it(parent, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string entry = it->path().filename().string();
+    if (!entry.starts_with(prefix)) continue;
+    const std::string_view digits = std::string_view(entry).substr(prefix.size());
+    pid_t pid = 0;
+    const auto [last, error] = std::from_chars(digits.data(), digits.data() + digits.size(), pid);
+    if (error != std::errc() || last != digits.data() + digits.size() || digits.empty()) continue;
+    candidates.emplace_back(it->path(), pid);
+  }
+  for (const auto& [staging, pid] : candidates) {
+    if (IsLiveTofuProcess(pid)) continue;
+    std::error_code ignored;
+    if (fs::remove_all(staging, ignored) > 0 && !ignored) removed.push_back(staging);
+  }
+  return removed;
+}
 
 void WriteFileAtomically(const fs::path& path, std::string_view text, std::string_view key) {
   // Not the user's input but the machine (permissions, a full disk, a path through a
@@ -21,9 +91,12 @@ void WriteFileAtomically(const fs::path& path, std::string_view text, std::strin
     throw core::IoError(fmt::format("cannot write {}{}: {}", path.string(),
                                     key.empty() ? "" : fmt::format(" ({})", key), std::strerror(error)));
   };
+  // A check point of interruption (harness/interrupt.h): every writer of the harness
+  // passes here, so an interrupted command stops before its next file.
+  ThrowIfInterrupted();
   std::error_code ec;
   if (path.has_parent_path()) fs::create_directories(path.parent_path(), ec);
-  const fs::path staging = path.string() + fmt::format(".tmp-{}", ::getpid());
+  const fs::path staging = StagingPath(path);
   std::FILE* file = std::fopen(staging.c_str(), "wb");
   if (file == nullptr) fail(errno);
   const bool written = std::fwrite(text.data(), 1, text.size(), file) == text.size();
@@ -32,6 +105,12 @@ void WriteFileAtomically(const fs::path& path, std::string_view text, std::strin
   if (!written || !closed) {
     std::remove(staging.c_str());
     fail(write_errno != 0 ? write_errno : EIO);
+  }
+  if (InterruptSignal() != 0) {
+    // Interrupted while writing: the command will not finish, so its temporary goes
+    // rather than into an output that is about to be abandoned.
+    std::remove(staging.c_str());
+    ThrowIfInterrupted();
   }
   if (std::rename(staging.c_str(), path.c_str()) != 0) {
     const int rename_errno = errno;

@@ -5,8 +5,10 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -21,6 +23,7 @@
 #include "core/lie.h"
 #include "harness/estimation.h"
 #include "harness/file_io.h"
+#include "harness/interrupt.h"
 #include "harness/replay.h"
 #include "harness/sensor_config.h"
 #include "sim/faults.h"
@@ -423,8 +426,20 @@ int RunQuietly(const std::vector<std::string>& argv) {
   const int spawned = posix_spawn(&pid, args[0], &actions, nullptr, args.data(), environ);
   posix_spawn_file_actions_destroy(&actions);
   if (spawned != 0) return -1;
+  // Waited for in slices, so that an interruption neither waits for the program nor
+  // leaves it drawing into a staging directory that is about to be removed.
   int status = 0;
-  if (waitpid(pid, &status, 0) != pid) return -1;
+  for (;;) {
+    const pid_t done = waitpid(pid, &status, WNOHANG);
+    if (done == pid) break;
+    if (done < 0 && errno != EINTR) return -1;
+    if (WaitForInterrupt(50)) {
+      ::kill(pid, SIGTERM);
+      while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+      }
+      ThrowIfInterrupted();
+    }
+  }
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
@@ -544,18 +559,23 @@ void CheckOutputDirectory(const fs::path& out_dir, bool force) {
 void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
                        const std::string& out_dir,
                        const std::function<void(const std::filesystem::path& staging)>& finish) {
-  const fs::path out = fs::absolute(out_dir).lexically_normal();
+  fs::path out = fs::absolute(out_dir).lexically_normal();
+  // "run/" names the directory run: its siblings, not its children, are the staging.
+  if (out.filename().empty()) out = out.parent_path();
   const fs::path parent = out.parent_path();
   fs::create_directories(parent);
-  const std::string suffix = fmt::format(".tmp-{}", ::getpid());
-  const fs::path staging = parent / (out.filename().string() + suffix);
+  const fs::path staging = StagingPath(out);
   fs::remove_all(staging);
   try {
     fs::create_directories(staging);
-    WriteFileAtomically(staging / kRunMarkerFile,
-                        "a tofu run directory: `tofu run --out` replaces it only with --force\n");
     WriteRunFiles(record, evaluation, staging);
     if (finish) finish(staging);
+    // The marker last: only a complete directory holds it, never one that an interruption
+    // or a SIGKILL cut short.
+    WriteFileAtomically(staging / kRunMarkerFile,
+                        "a tofu run directory: `tofu run --out` replaces it only with --force\n");
+    // The last check point: after it the run is complete and goes into place.
+    ThrowIfInterrupted();
     // Replace atomically from a reader's point of view: old aside, new in, old gone.
     const fs::path old = parent / (out.filename().string() + fmt::format(".old-{}", ::getpid()));
     if (fs::exists(out)) fs::rename(out, old);

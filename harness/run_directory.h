@@ -12,8 +12,9 @@
 
 namespace tofu::harness {
 
-/// The file every run directory holds (written with the run): `--out` replaces only a
-/// directory that has it, and only with --force.
+/// The file every run directory holds, written last (after every other file, before the
+/// rename into place): `--out` replaces only a directory that has it, and only with
+/// --force; a directory without it is not a complete run.
 inline constexpr const char* kRunMarkerFile = ".tofu-run";
 
 /// Whether `tofu run --out out_dir` may write there, checked before the flight: a missing
@@ -26,7 +27,9 @@ void CheckOutputDirectory(const std::filesystem::path& out_dir, bool force);
 /// summary.json and timing.json into `out_dir`, replacing an existing directory.
 /// Throws std::runtime_error on I/O failure (nothing is left behind). `finish` (may be
 /// empty) runs on the complete staging directory before it is renamed into place: what
-/// it adds or rewrites appears atomically with the rest.
+/// it adds or rewrites appears atomically with the rest. Interruption (interrupt.h):
+/// throws Interrupted at the next file or before the rename, the staging directory
+/// (<out>.tmp-<pid>) removed and `out_dir` untouched.
 void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
                        const std::string& out_dir,
                        const std::function<void(const std::filesystem::path& staging)>& finish = {});

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
+#include <mujoco/mujoco.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cassert>
@@ -11,11 +12,13 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <fstream>
 #include <numbers>
 #include <sstream>
 #include <type_traits>
 
+#include "core/file_io.h"
 #include "core/lie.h"
 #include "harness/metrics.h"
 #include "harness/config_io.h"
@@ -23,6 +26,7 @@
 #include "harness/replay.h"
 #include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
+#include "sim/world.h"
 
 namespace tofu::harness {
 namespace {
@@ -107,8 +111,21 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   YamlMap map = value.Map({"methods", "consensus", "huber_delta"});
   ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
   std::vector<std::string> sensor_names;
+  bool has_imu = false;
   for (const SensorConfig& s : sensors) {
-    if (!std::holds_alternative<sim::ImuOptions>(s.options)) sensor_names.push_back(s.name);
+    if (std::holds_alternative<sim::ImuOptions>(s.options)) {
+      has_imu = true;
+    } else {
+      sensor_names.push_back(s.name);
+    }
+  }
+  // Found here rather than after the flight, when the estimators would have been set up
+  // on a run without an IMU stream.
+  if (!has_imu) {
+    value.FailAtKey(fmt::format(
+        "estimation needs an IMU among sensors: (every method propagates on it); the "
+        "scenario's sensors: {}",
+        sensor_names.empty() ? std::string("none") : fmt::format("{}", fmt::join(sensor_names, ", "))));
   }
   for (const YamlValue& item : map.Required("methods").List(/*non_empty=*/true)) {
     const std::string name = item.String();
@@ -655,8 +672,13 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   if (const auto description = map.Optional("description")) {
     scenario.description = description->String();
   }
-  scenario.world = map.Required("world").Identifier();
-  if (const auto robot = map.Optional("robot")) scenario.robot = robot->Identifier();
+  const YamlValue world = map.Required("world");
+  scenario.world = world.Identifier();
+  scenario.key_locations["world"] = world.location();
+  if (const auto robot = map.Optional("robot")) {
+    scenario.robot = robot->Identifier();
+    scenario.key_locations["robot"] = robot->location();
+  }
   scenario.duration_s = map.Required("duration_s").Number(NumberRule::PositiveAtMost(86400.0, "s"));
   if (const auto seed = map.Optional("seed")) scenario.seed = seed->UnsignedInteger();
 
@@ -683,11 +705,18 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
     }
   }
 
-  scenario.trajectory = ReadTrajectory(map.Required("trajectory"));
+  const YamlValue trajectory = map.Required("trajectory");
+  scenario.trajectory = ReadTrajectory(trajectory);
+  scenario.key_locations["trajectory"] = trajectory.key_location();
   if (const auto offset = map.Optional("initial_offset")) {
     scenario.initial_offset = ReadInitialOffset(*offset);
   }
-  if (const auto sensors = map.Optional("sensors")) scenario.sensors = ReadSensors(*sensors);
+  if (const auto sensors = map.Optional("sensors")) {
+    scenario.sensors = ReadSensors(*sensors);
+    for (const auto& [name, entry] : sensors->Entries()) {
+      scenario.key_locations["sensors." + name] = entry.key_location();
+    }
+  }
   if (const auto faults = map.Optional("faults")) {
     std::map<std::string, sim::SensorType> sensor_types;
     for (const SensorConfig& sensor : scenario.sensors) {
@@ -704,7 +733,12 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   if (const auto control = map.Optional("control")) {
     scenario.control = ReadControl(*control, scenario);
   }
-  if (const auto render = map.Optional("render")) scenario.render = ReadRender(*render);
+  if (const auto render = map.Optional("render")) {
+    scenario.render = ReadRender(*render);
+    if (const auto camera = render->Peek("camera")) {
+      scenario.key_locations["render.camera"] = camera->location();
+    }
+  }
   if (const auto expect = map.Optional("expect")) {
     for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
       scenario.expect.push_back(ReadExpectation(item, scenario.sensors));
@@ -715,6 +749,74 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   }
   map.Finish();
   return scenario;
+}
+
+void CheckScenarioModels(const Scenario& scenario, const std::string& models_dir) {
+  const auto where = [&](const std::string& key) {
+    const auto it = scenario.key_locations.find(key);
+    return it != scenario.key_locations.end() ? it->second
+                                              : core::SourceLocation{scenario.source_file, 0, 0};
+  };
+
+  sim::WorldOptions options;
+  if (!models_dir.empty()) options.models_dir = models_dir;
+  options.world = scenario.world;
+  options.robot = scenario.robot;
+  options.physics_rate_hz = scenario.physics.rate_hz;
+  std::unique_ptr<sim::World> world;
+  try {
+    world = std::make_unique<sim::World>(options);
+  } catch (const core::InputError& e) {
+    // The model's own error names the model file; the scenario's key says who asked.
+    const std::string key = e.key_path() == "robot" ? "robot" : "world";
+    throw core::InputError(where(key), key, fmt::format("{}: {}", e.location().file, e.message()));
+  }
+
+  const sim::MountSite* tool = world->robot().FindSite("tool_tip");
+  if (tool == nullptr) {
+    throw core::InputError(where("robot"), "robot",
+                           fmt::format("the robot model '{}' has no site 'tool_tip' (the point "
+                                       "approach segments and standoffs refer to)",
+                                       scenario.robot));
+  }
+  sim::TrajectoryContext context;
+  context.p_B_tool = tool->p_B_s;
+  context.surface_distance = [&world](const Eigen::Vector3d& origin_W,
+                                      const Eigen::Vector3d& direction_W) {
+    return world->RayDistance(origin_W, direction_W);
+  };
+  try {
+    sim::BuildTrajectory(scenario.trajectory, context);
+  } catch (const std::invalid_argument& e) {
+    throw core::InputError(where("trajectory"), "trajectory", e.what());
+  } catch (const core::InputError&) {
+    throw;
+  } catch (const std::runtime_error& e) {  // a minimum-snap system without a solution
+    throw core::InputError(where("trajectory"), "trajectory", e.what());
+  }
+
+  for (const SensorConfig& config : scenario.sensors) {
+    try {
+      MakeSensorModel(config, *world, scenario.seed);
+    } catch (const std::invalid_argument& e) {
+      throw core::InputError(where("sensors." + config.name), "sensors." + config.name, e.what());
+    }
+  }
+
+  if (scenario.render) {
+    const std::string& camera = scenario.render->camera;
+    std::vector<std::string> cameras = {"chase", "overview"};
+    const mjModel* model = world->model();
+    for (int i = 0; i < model->ncam; ++i) {
+      const char* name = mj_id2name(model, mjOBJ_CAMERA, i);
+      if (name != nullptr && std::strcmp(name, "overview") != 0) cameras.emplace_back(name);
+    }
+    if (std::find(cameras.begin(), cameras.end(), camera) == cameras.end()) {
+      throw core::InputError(where("render.camera"), "render.camera",
+                             fmt::format("unknown camera '{}' in world '{}'; expected one of: {}",
+                                         camera, scenario.world, fmt::join(cameras, ", ")));
+    }
+  }
 }
 
 Scenario LoadScenario(const std::string& path) {
@@ -729,18 +831,7 @@ Scenario LoadScenario(const std::string& path) {
     throw core::InputError({path, 0, 0}, "",
                            "cannot read scenario file: it is a directory, expected a YAML file");
   }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    throw core::InputError({path, 0, 0}, "",
-                           std::string("cannot open scenario file: ") + std::strerror(errno));
-  }
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) {
-    throw core::InputError({path, 0, 0}, "",
-                           std::string("cannot read scenario file: ") + std::strerror(errno));
-  }
-  return ParseScenario(text.str(), path);
+  return ParseScenario(core::ReadWholeFile(path, "scenario file", core::kMaxConfigFileBytes), path);
 }
 
 std::string ResolvedScenarioYaml(const Scenario& scenario) {

@@ -10,12 +10,16 @@
 #include <pugixml.hpp>
 
 #include <algorithm>
+#include <chrono>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <optional>
 #include <set>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
@@ -252,6 +256,84 @@ TEST_F(CheckCommandTest, DuplicateScenarioNamesAreBadInput) {
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_CONTAINS(r.err, "scenario name 'same'");
   EXPECT_FALSE(fs::exists(out_));
+}
+
+// A scenario whose world model is missing passed `tofu check`'s validation and failed in
+// every run (issue 19, finding 8): now it is bad input before anything runs.
+TEST_F(CheckCommandTest, AMissingWorldModelIsBadInputBeforeAnythingRuns) {
+  std::string text = HoverScenario("lost", {"{metric: collisions.count, max: 0}"});
+  text.replace(text.find("indoor_arena"), std::string("indoor_arena").size(), "lost_world");
+  const fs::path file = scenarios_ / "lost.yaml";
+  WriteFile(file, text);
+  const Result r = Check(Quote(file.string()));
+  EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+  EXPECT_CONTAINS(r.err, file.string() + ":2:");
+  EXPECT_CONTAINS(r.err, "key 'world'");
+  EXPECT_CONTAINS(r.err, "lost_world.xml");
+  EXPECT_FALSE(fs::exists(out_)) << "nothing may run on bad input";
+}
+
+// SIGTERM to `tofu check` while one run writes its staging directory and another flies
+// (issue 19, finding 7): before, the check died and its runs went on writing in the
+// background. Now it forwards the signal, waits for every run to remove its staging
+// directory and stop, writes no JUnit and exits 143.
+TEST_F(CheckCommandTest, SigtermStopsEveryRunWaitsForThemAndLeavesNoStaging) {
+  // Hovers with sensors: a minute (~2 s of flight, then ~0.5 s writing its staging
+  // directory, when the signal comes) and an hour (still flying then).
+  for (const auto& [name, duration] : {std::pair<std::string, std::string>{"minute", "60"},
+                                       std::pair<std::string, std::string>{"hour", "3600"}}) {
+    std::string text = HoverScenario(name, {"{metric: collisions.count, max: 0}"});
+    text.replace(text.find("duration_s: 3\n"), std::string("duration_s: 3\n").size(),
+                 "duration_s: " + duration + "\nsensors:\n  imu: {}\n  vio: {}\n  lio: {type: lidar_odometry}\n");
+    WriteFile(scenarios_ / (name + ".yaml"), text);
+  }
+  test::ChildProcess check({TOFU_BINARY, "check", scenarios_.string(), "--jobs", "2", "--out",
+                            out_.string(), "--junit", junit_.string()},
+                           root_, root_ / "check.log");
+  std::vector<pid_t> runs;
+  ASSERT_TRUE(test::WaitUntil(
+      [&] {
+        runs = test::ChildrenOf(check.pid());
+        return runs.size() == 2 || check.Exited();
+      },
+      std::chrono::minutes(2)))
+      << ReadFile(root_ / "check.log");
+  const auto staging_of_the_minute = [&] {
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(out_ / "minute", ec)) {
+      if (entry.path().filename().string().starts_with("seed_1.tmp-")) return true;
+    }
+    return false;
+  };
+  ASSERT_TRUE(test::WaitUntil([&] { return staging_of_the_minute() || check.Exited(); },
+                              std::chrono::minutes(5)));
+  ASSERT_FALSE(check.Exited()) << ReadFile(root_ / "check.log");
+  ASSERT_EQ(::kill(check.pid(), SIGTERM), 0);
+  const std::optional<int> status = check.Wait(std::chrono::minutes(2));
+  std::vector<pid_t> outlived;
+  for (const pid_t run : runs) {
+    if (test::ProcessExists(run)) outlived.push_back(run);
+  }
+  // Whatever happened, no run of this test outlives it.
+  for (const pid_t run : outlived) ::kill(run, SIGKILL);
+  ASSERT_TRUE(status.has_value()) << "check still running 2 min after SIGTERM";
+  EXPECT_TRUE(WIFEXITED(*status)) << "ended by signal " << WTERMSIG(*status)
+                                  << " instead of exiting after stopping its runs";
+  if (WIFEXITED(*status)) {
+    EXPECT_EQ(WEXITSTATUS(*status), 128 + SIGTERM);
+  }
+  EXPECT_TRUE(outlived.empty()) << outlived.size() << " runs outlived the check";
+  // Nothing staged is left, nothing looks like a complete run, no JUnit of a partial check.
+  for (const auto& entry : fs::recursive_directory_iterator(root_)) {
+    EXPECT_EQ(entry.path().filename().string().find(".tmp-"), std::string::npos) << entry.path();
+    EXPECT_NE(entry.path().filename().string(), ".tofu-run") << entry.path();
+  }
+  EXPECT_FALSE(fs::exists(junit_));
+  EXPECT_CONTAINS(ReadFile(root_ / "check.log"), "interrupted by SIGTERM");
+  // Each run was given the signal and cleaned up (rather than being killed).
+  for (const char* name : {"minute", "hour"}) {
+    EXPECT_CONTAINS(ReadFile(out_ / name / "seed_1.log"), "interrupted by SIGTERM");
+  }
 }
 
 // A stand-in for `tofu run` (RunCheckCommand's tofu_binary): a shell script given

@@ -8,6 +8,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -15,6 +18,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -411,6 +415,155 @@ TEST_F(CliTest, OutOfRangeNumericOptionsExitTwoNamingTheOptionAndItsRange) {
   const Result ok = Tofu("estimate log --window 0.5 --huber 0 --keyframe-rate 30");
   EXPECT_EQ(ok.exit_code, 2);
   EXPECT_EQ(ok.err.find("expected a number"), std::string::npos) << ok.err;
+}
+
+// ---- everything `tofu validate` can know without simulating (issue 19, finding 8) ----
+
+// Each passed validate before, and failed only in `tofu run` (the estimation without an
+// IMU only after the whole flight, naming the temporary directory).
+TEST_F(CliTest, ValidateRunsEveryCheckThatNeedsNoSimulation) {
+  const std::string head =
+      "duration_s: 2\n"
+      "trajectory:\n"
+      "  start: {position_m: [0, 0, 1.5]}\n"
+      "  segments:\n"
+      "    - hover: {duration_s: 2}\n";
+  const struct {
+    std::string file;
+    std::string text;
+    std::string where;  // file:line: of the key
+    std::string key;
+    std::string message;
+  } cases[] = {
+      {"no_world.yaml", "name: a\nworld: nowhere\n" + head, "no_world.yaml:2:", "key 'world'",
+       "model file not found"},
+      {"no_robot.yaml", "name: b\nworld: indoor_arena\nrobot: nobody\n" + head,
+       "no_robot.yaml:3:", "key 'robot'", "model file not found"},
+      {"no_imu.yaml",
+       "name: c\nworld: indoor_arena\n" + head +
+           "sensors:\n  vio: {}\n  lio: {type: lidar_odometry}\nestimation:\n  methods: [consensus]\n",
+       "no_imu.yaml:11:", "key 'estimation'", "needs an IMU"},
+      {"no_site.yaml", "name: d\nworld: indoor_arena\n" + head + "sensors:\n  vio: {site: nowhere}\n",
+       "no_site.yaml:9:", "key 'sensors.vio'", "no site 'nowhere'"},
+      {"no_camera.yaml", "name: e\nworld: indoor_arena\n" + head + "render: {camera: nocam}\n",
+       "no_camera.yaml:8:", "key 'render.camera'", "unknown camera 'nocam'"},
+  };
+  for (const auto& c : cases) {
+    WriteFile(root_ / c.file, c.text);
+    const std::string path = (root_ / c.file).string();
+    const Result v = Tofu("validate " + Quote(path));
+    EXPECT_EQ(v.exit_code, 2) << c.file << ": " << v.out << v.err;
+    EXPECT_CONTAINS(v.err, path + c.where.substr(c.file.size()));
+    EXPECT_CONTAINS(v.err, c.key);
+    EXPECT_CONTAINS(v.err, c.message);
+    // `tofu run` refuses it the same way, before flying: nothing written, no temporary.
+    const Result r = Tofu("run " + Quote(path) + " --out run --quiet");
+    EXPECT_EQ(r.exit_code, 2) << c.file << ": " << r.err;
+    EXPECT_CONTAINS(r.err, path + c.where.substr(c.file.size()));
+    EXPECT_EQ(r.err.find(".tmp-"), std::string::npos) << r.err;
+    EXPECT_TRUE(WorkEntries().empty()) << c.file;
+  }
+}
+
+// ---- interruption (issue 19, finding 7) ----
+
+// A 60 s hover with three sensors: ~4 s of flight, then ~0.7 s writing ~35 MB into the
+// staging directory <out>.tmp-<pid> (on an idle machine), the window a signal is sent in.
+std::string LongHover(double duration_s) {
+  return "name: long_hover\n"
+         "world: indoor_arena\n"
+         "duration_s: " + std::to_string(duration_s) + "\n"
+         "trajectory:\n"
+         "  start: {position_m: [0, 0, 1.5]}\n"
+         "  segments:\n"
+         "    - hover: {duration_s: 1}\n"
+         "sensors:\n"
+         "  imu: {}\n"
+         "  vio: {}\n"
+         "  lio: {type: lidar_odometry}\n";
+}
+
+// SIGINT, SIGTERM and SIGHUP while a run writes its staging directory (and once while it
+// flies): before, the process died and left the 35 MB staging directory; now it removes
+// it, writes no run directory and exits 128 + signal.
+TEST_F(CliTest, InterruptedRunRemovesItsStagingDirectoryAndExits128PlusTheSignal) {
+  WriteFile(work_ / "long.yaml", LongHover(60));
+  const struct {
+    int signal;
+    bool while_writing;  // else while flying, before the staging directory exists
+  } cases[] = {{SIGINT, true}, {SIGTERM, true}, {SIGHUP, true}, {SIGTERM, false}};
+  for (const auto& c : cases) {
+    SCOPED_TRACE(strsignal(c.signal));
+    fs::remove(logs_ / "run.log");
+    test::ChildProcess run({TOFU_BINARY, "run", "long.yaml", "--out", "run", "--quiet"}, work_,
+                           logs_ / "run.log");
+    const fs::path staging = work_ / ("run.tmp-" + std::to_string(run.pid()));
+    if (c.while_writing) {
+      ASSERT_TRUE(test::WaitUntil([&] { return fs::exists(staging) || run.Exited(); },
+                                  std::chrono::minutes(5)));
+      ASSERT_FALSE(run.Exited()) << "ended before its staging directory was seen: "
+                                 << ReadFile(logs_ / "run.log");
+    } else {
+      // Once it handles the signal (a slow start, e.g. under ASan, must not meet the
+      // default action), and a little into the flight.
+      ASSERT_TRUE(test::WaitUntil(
+          [&] { return test::CatchesSignal(run.pid(), c.signal) || run.Exited(); },
+          std::chrono::minutes(1)));
+      std::this_thread::sleep_for(std::chrono::milliseconds(300));
+      ASSERT_FALSE(run.Exited()) << ReadFile(logs_ / "run.log");
+      ASSERT_FALSE(fs::exists(staging)) << "already writing: the flight was too short";
+    }
+    ASSERT_EQ(::kill(run.pid(), c.signal), 0);
+    const std::optional<int> status = run.Wait(std::chrono::minutes(2));
+    ASSERT_TRUE(status.has_value()) << "still running 2 min after the signal";
+    ASSERT_TRUE(WIFEXITED(*status)) << "ended by signal " << WTERMSIG(*status)
+                                    << " instead of exiting after its cleanup";
+    EXPECT_EQ(WEXITSTATUS(*status), 128 + c.signal);
+    // Neither the staging directory nor anything that looks like a run.
+    EXPECT_EQ(WorkEntries(), std::set<std::string>{"long.yaml"});
+    EXPECT_CONTAINS(ReadFile(logs_ / "run.log"), "interrupted by");
+  }
+}
+
+// A staging directory that a killed run left (SIGKILL, a power cut) is removed by the next
+// run to the same --out when its process is gone or its pid now belongs to another
+// program; never while a tofu process that may still write it is alive.
+TEST_F(CliTest, StaleStagingDirectoriesAreSweptByTheNextRunButNeverALiveOne) {
+  WriteFile(work_ / "s.yaml", ReadFile(SourcePath("tests/data/scenarios/gusty_hover_short.yaml")));
+  WriteFile(work_ / "endless.yaml", LongHover(3600));
+  pid_t gone = 999999;
+  while (test::ProcessExists(gone)) --gone;
+  const std::string dead_staging = "run.tmp-" + std::to_string(gone);
+  fs::create_directories(work_ / dead_staging / "sensors");
+  WriteFile(work_ / dead_staging / "sensors" / "imu.csv", "half a file");
+  // This test is alive but not tofu: a reused pid.
+  const std::string reused_staging = "run.tmp-" + std::to_string(::getpid());
+  fs::create_directories(work_ / reused_staging);
+  // Another output's staging is not this run's to judge.
+  const std::string other_output = "run2.tmp-" + std::to_string(gone);
+  fs::create_directories(work_ / other_output);
+  // A live tofu process (flying an hour-long scenario into another directory).
+  test::ChildProcess live({TOFU_BINARY, "run", "endless.yaml", "--out", "elsewhere", "--quiet"},
+                          work_, logs_ / "live.log");
+  const std::string live_staging = "run.tmp-" + std::to_string(live.pid());
+  fs::create_directories(work_ / live_staging);
+  // Until the child has become tofu (between fork and exec it is a copy of this test).
+  const fs::path live_comm = fs::path("/proc") / std::to_string(live.pid()) / "comm";
+  ASSERT_TRUE(test::WaitUntil([&] { return ReadFile(live_comm) == "tofu\n"; },
+                              std::chrono::seconds(30)));
+
+  // (A trailing slash names the same directory: its staging siblings are the same.)
+  const Result r = Tofu("run s.yaml --out run/ --quiet");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ASSERT_FALSE(live.Exited()) << ReadFile(logs_ / "live.log");
+  EXPECT_CONTAINS(r.err, dead_staging);
+  EXPECT_CONTAINS(r.err, reused_staging);
+  EXPECT_EQ(r.err.find(live_staging), std::string::npos) << r.err;
+  EXPECT_EQ(WorkEntries(), (std::set<std::string>{"s.yaml", "endless.yaml", "run", other_output,
+                                                  live_staging}));
+  EXPECT_TRUE(fs::exists(work_ / "run" / ".tofu-run"));
+  ::kill(live.pid(), SIGTERM);
+  EXPECT_TRUE(live.Wait(std::chrono::minutes(2)).has_value());
 }
 
 TEST_F(CliTest, MetricsListsTheCatalogue) {

@@ -10,10 +10,14 @@
 #include <numbers>
 #include <string>
 #include <type_traits>
+#include <utility>
 #include <variant>
+#include <vector>
 
 #include "core/error.h"
 #include "core/lie.h"
+#include "harness/evaluation.h"
+#include "sim/faults.h"
 #include "tests/test_support.h"
 
 namespace tofu::harness {
@@ -361,6 +365,18 @@ TEST(ScenarioLoad, RejectsEmptyDocumentAndNonMapRoot) {
   EXPECT_CONTAINS(two_documents.message(), "single YAML document");
 }
 
+// Issue 19, finding 10: a scenario "file" that never ends (/dev/zero) or is far larger than
+// any configuration is refused at the size limit instead of read until memory runs out.
+TEST(ScenarioLoad, RefusesAFileOverTheSizeLimitWithoutReadingItAll) {
+  try {
+    LoadScenario("/dev/zero");
+    FAIL() << "expected an InputError";
+  } catch (const core::InputError& e) {
+    EXPECT_EQ(e.location().file, "/dev/zero");
+    EXPECT_CONTAINS(e.message(), "larger than the limit of 16777216 bytes");
+  }
+}
+
 TEST(ScenarioLoad, RejectsMissingFile) {
   const std::string path = DataPath("does_not_exist.yaml");
   try {
@@ -655,6 +671,106 @@ TEST(ScenarioRender, RenderKeyIsReadValidatedAndResolved) {
   ExpectLocated(ParseError(std::string(kMinimal) + "render: {when: sometimes}\n"), 8, "render.when");
   ExpectLocated(ParseError(std::string(kMinimal) + "render: {size: [320.5, 240]}\n"), 8, "render.size");
   ExpectLocated(ParseError(std::string(kMinimal) + "render: {fps: 0}\n"), 8, "render.fps");
+}
+
+// ---- what needs the models but not the simulation (issue 19, finding 8) ----
+
+TEST(ScenarioModels, AValidScenarioPassesAndMissingModelsAreNamedAtTheirKey) {
+  EXPECT_NO_THROW(CheckScenarioModels(ParseScenario(kMinimal, kLabel)));
+  const auto error = [](const std::string& yaml) {
+    try {
+      CheckScenarioModels(ParseScenario(yaml, kLabel));
+    } catch (const core::InputError& e) {
+      return e;
+    }
+    ADD_FAILURE() << "expected an InputError for:\n" << yaml;
+    return core::InputError({}, "", "");
+  };
+  std::string no_world = kMinimal;
+  no_world.replace(no_world.find("indoor_arena"), 12, "atlantis");
+  core::InputError e = error(no_world);
+  ExpectLocated(e, 2, "world");
+  EXPECT_CONTAINS(e.what(), "atlantis.xml");
+  EXPECT_CONTAINS(e.what(), "available: bridge");
+  ExpectLocated(error(std::string(kMinimal) + "robot: nobody\n"), 8, "robot");
+  ExpectLocated(error(std::string(kMinimal) + "sensors:\n  leica: {type: total_station, site: nowhere}\n"),
+                9, "sensors.leica");
+  ExpectLocated(error(std::string(kMinimal) + "render: {camera: nocam}\n"), 8, "render.camera");
+}
+
+TEST(ScenarioModels, AnEstimationBlockWithoutAnImuIsRejectedAtParse) {
+  const core::InputError e = ParseError(std::string(kMinimal) +
+                                        "sensors:\n  vio: {}\n  lio: {type: lidar_odometry}\n"
+                                        "estimation:\n  methods: [consensus, naive]\n");
+  ExpectLocated(e, 11, "estimation");
+  EXPECT_CONTAINS(e.what(), "needs an IMU");
+  EXPECT_CONTAINS(e.what(), "vio, lio");
+}
+
+// ---- faults scored as intervals per sensor and kind (issue 19, finding 4) ----
+
+// Two overlapping divergence faults on the VIO, 8-14 s and 10-16 s. Before, the scoring
+// paired the first start with the first end and dropped the second fault: one fault 8-14
+// s, and the exclusion 14-16 s, while the VIO was still diverging (its samples labelled
+// so), counted as a false exclusion.
+TEST(FaultScoring, OverlappingFaultsOfOneKindOnOneSensorAreScoredAsOneInterval) {
+  std::string twenty_seconds = kMinimal;
+  twenty_seconds.replace(twenty_seconds.find("duration_s: 10"), 14, "duration_s: 20");
+  const Scenario scenario = ParseScenario(twenty_seconds + R"yaml(sensors:
+  imu: {}
+  vio: {}
+  lio: {type: lidar_odometry}
+faults:
+  - {sensor: vio, kind: divergence, start_s: 8, end_s: 14, axis: [0, 1, 0]}
+  - {sensor: vio, kind: divergence, start_s: 10, end_s: 16, axis: [1, 0, 0]}
+estimation:
+  methods: [consensus]
+)yaml", kLabel);
+  const core::Time end_ns = core::SecondsToTime(scenario.duration_s);
+  // The labels a run records (Simulate: sim::FaultLabels).
+  std::vector<LabelEvent> labels;
+  for (const sim::FaultLabel& l : sim::FaultLabels(scenario.faults, end_ns)) {
+    labels.push_back({l.t_ns, l.sensor, l.fault, "fault", l.active});
+  }
+  const core::Time s = core::kNanosecondsPerSecond;
+
+  const std::vector<LabelInterval> merged = MergedLabelIntervals(labels, end_ns);
+  ASSERT_EQ(merged.size(), 1u);
+  EXPECT_EQ(merged[0].sensor, "vio");
+  EXPECT_EQ(merged[0].label, "divergence");
+  EXPECT_EQ(merged[0].start_ns, 8 * s);
+  EXPECT_EQ(merged[0].end_ns, 16 * s);
+  EXPECT_FALSE(merged[0].open);
+  // The corpus's event table keeps one row per fault: the same transitions paired.
+  const std::vector<LabelInterval> paired = PairedLabelIntervals(labels, end_ns);
+  ASSERT_EQ(paired.size(), 2u);
+  EXPECT_EQ(std::make_pair(paired[0].start_ns, paired[0].end_ns), std::make_pair(8 * s, 14 * s));
+  EXPECT_EQ(std::make_pair(paired[1].start_ns, paired[1].end_ns), std::make_pair(10 * s, 16 * s));
+
+  // Consensus decisions at 10 Hz that exclude the VIO from 8.4 s until the fault ends.
+  std::vector<estimator::ConsensusRecord> decisions;
+  for (core::Time t = 0; t < end_ns; t += s / 10) {
+    estimator::ConsensusRecord rec;
+    rec.t_ns = t;
+    rec.decision.t_ns = t;
+    const bool excluded = t >= 8 * s + 4 * s / 10 && t < 16 * s;
+    rec.decision.fused = excluded ? std::vector<std::string>{"lio"}
+                                  : std::vector<std::string>{"vio", "lio"};
+    if (excluded) rec.decision.excluded = {"vio"};
+    decisions.push_back(rec);
+  }
+  const ConsensusScores scores = ScoreConsensusDecisions(decisions, labels, end_ns, {"vio", "lio"});
+  ASSERT_EQ(scores.detections.size(), 1u);
+  const FaultDetection& d = scores.detections[0];
+  EXPECT_EQ(d.sensor, "vio");
+  EXPECT_EQ(d.fault, "divergence");
+  EXPECT_EQ(d.onset_ns, 8 * s);
+  EXPECT_EQ(d.end_ns, 16 * s);
+  ASSERT_TRUE(d.delay_s().has_value());
+  EXPECT_NEAR(*d.delay_s(), 0.4, 1e-9);
+  EXPECT_EQ(scores.false_exclusion_s.at("vio"), 0.0) << "the exclusion 14-16 s is not false";
+  EXPECT_EQ(scores.false_exclusion_s.at("lio"), 0.0);
+  EXPECT_EQ(scores.switches, 2);
 }
 
 }  // namespace

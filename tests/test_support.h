@@ -1,15 +1,25 @@
 #pragma once
 // Small helpers shared by the test files (one place, not a copy per file): substring
-// expectations without gmock, whole-file read/write, and shell quoting for the tests
-// that drive the tofu binary through std::system.
+// expectations without gmock, whole-file read/write, shell quoting for the tests that
+// drive the tofu binary through std::system, and child processes for the tests that
+// signal it while it works.
 
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
+#include <chrono>
+#include <cerrno>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <optional>
 #include <set>
 #include <string>
+#include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -64,5 +74,115 @@ inline std::set<std::string> FilesIn(const std::filesystem::path& dir) {
   }
   return names;
 }
+
+/// Polls `condition` every 5 ms until it holds (true) or `timeout` passed (false).
+template <typename Condition>
+bool WaitUntil(Condition condition, std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!condition()) {
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  return true;
+}
+
+/// A program started by a test without waiting for it (the interruption tests signal it
+/// while it works). Killed with SIGKILL and reaped when destroyed still running, so a
+/// failing test leaves no process behind.
+class ChildProcess {
+ public:
+  /// Starts argv[0] with `argv` in `dir`, stdout and stderr appended to `log`. SIGINT,
+  /// SIGTERM and SIGHUP at their default action and unblocked in the child, as from a
+  /// terminal (a test runner may ignore or block them).
+  ChildProcess(const std::vector<std::string>& argv, const std::filesystem::path& dir,
+               const std::filesystem::path& log) {
+    std::vector<char*> args;
+    for (const std::string& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    const std::string dir_text = dir.string();
+    const std::string log_text = log.string();
+    pid_ = ::fork();
+    if (pid_ == 0) {  // only async-signal-safe calls until exec
+      if (::chdir(dir_text.c_str()) != 0) ::_exit(126);
+      const int fd = ::open(log_text.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+      if (fd < 0) ::_exit(126);
+      ::dup2(fd, STDOUT_FILENO);
+      ::dup2(fd, STDERR_FILENO);
+      const int null = ::open("/dev/null", O_RDONLY);
+      if (null >= 0) ::dup2(null, STDIN_FILENO);
+      for (const int signal : {SIGINT, SIGTERM, SIGHUP}) ::signal(signal, SIG_DFL);
+      sigset_t none;
+      sigemptyset(&none);
+      ::sigprocmask(SIG_SETMASK, &none, nullptr);
+      ::execv(args[0], args.data());
+      ::_exit(127);
+    }
+    EXPECT_GT(pid_, 0) << "fork failed";
+  }
+  ChildProcess(const ChildProcess&) = delete;
+  ChildProcess& operator=(const ChildProcess&) = delete;
+  ~ChildProcess() {
+    if (pid_ > 0 && !Exited()) {
+      ::kill(pid_, SIGKILL);
+      Wait(std::chrono::seconds(30));
+    }
+  }
+
+  pid_t pid() const { return pid_; }
+
+  /// Whether it has ended (reaping it); never blocks.
+  bool Exited() {
+    int status = 0;
+    if (!status_ && pid_ > 0 && ::waitpid(pid_, &status, WNOHANG) == pid_) status_ = status;
+    return status_.has_value();
+  }
+
+  /// The wait status once it ended, nullopt if it did not within `timeout`.
+  std::optional<int> Wait(std::chrono::milliseconds timeout) {
+    WaitUntil([this] { return Exited(); }, timeout);
+    return status_;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  std::optional<int> status_;
+};
+
+/// The pids of the running processes whose parent is `parent` (from /proc/<pid>/stat).
+inline std::vector<pid_t> ChildrenOf(pid_t parent) {
+  std::vector<pid_t> children;
+  std::error_code ec;
+  for (std::filesystem::directory_iterator it("/proc", ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.find_first_not_of("0123456789") != std::string::npos) continue;
+    std::ifstream stat(it->path() / "stat");
+    std::string line;
+    if (!std::getline(stat, line)) continue;
+    // "pid (comm) state ppid ...": comm may hold spaces and parentheses.
+    const size_t close = line.rfind(')');
+    if (close == std::string::npos) continue;
+    char state = 0;
+    long ppid = 0;
+    if (std::sscanf(line.c_str() + close + 1, " %c %ld", &state, &ppid) != 2) continue;
+    if (ppid == parent && state != 'Z') children.push_back(static_cast<pid_t>(std::stol(name)));
+  }
+  return children;
+}
+
+/// Whether process `pid` has a handler for `signal` installed (/proc/<pid>/status
+/// SigCgt): a signal sent before that would meet the default action.
+inline bool CatchesSignal(pid_t pid, int signal) {
+  std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind("SigCgt:", 0) != 0) continue;
+    const unsigned long long mask = std::stoull(line.substr(7), nullptr, 16);
+    return (mask >> (signal - 1)) & 1u;
+  }
+  return false;
+}
+
+/// Whether `pid` names a process (running or not yet reaped).
+inline bool ProcessExists(pid_t pid) { return ::kill(pid, 0) == 0 || errno == EPERM; }
 
 }  // namespace tofu::test

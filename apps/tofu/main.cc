@@ -21,6 +21,8 @@
 #include "harness/check_command.h"
 #include "harness/consistency_command.h"
 #include "harness/evaluation.h"
+#include "harness/file_io.h"
+#include "harness/interrupt.h"
 #include "harness/metrics.h"
 #include "harness/replay.h"
 #include "harness/run.h"
@@ -196,28 +198,42 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   tofu::harness::Scenario scenario = tofu::harness::LoadScenario(scenario_path);
   if (seed) scenario.seed = *seed;
   const std::string out = out_dir.value_or("runs/" + scenario.name);
-  // Before the flight: a run never ends by refusing its directory.
+  // Before the flight: a run never ends by refusing its directory, or its models.
   tofu::harness::CheckOutputDirectory(out, force);
+  tofu::harness::CheckScenarioModels(scenario);
+  // What killed runs to the same directory left (interrupt.h: a live run's is kept).
+  for (const std::filesystem::path& stale : tofu::harness::SweepStaleStaging(out)) {
+    fmt::print(stderr, "tofu: removed {}, left by an earlier run that was killed\n",
+               stale.string());
+  }
 
   tofu::harness::SimulateOptions options;
   std::optional<ProgressBar> bar;
   std::optional<ProgressBar> flight_bar;
   std::string bar_method;
-  if (!quiet && ::isatty(STDERR_FILENO)) {
-    bar.emplace(scenario.name);
-    options.progress = [&bar](double f) { (*bar)(f); };
-    options.closed_loop_progress = [&](const std::string& method, double f) {
-      if (method != bar_method) {
-        flight_bar.emplace("  closed loop: " + method);
-        bar_method = method;
-      }
-      (*flight_bar)(f);
-    };
-  }
+  const bool draw = !quiet && ::isatty(STDERR_FILENO);
+  if (draw) bar.emplace(scenario.name);
+  // Set even when nothing is drawn: the progress callbacks are the simulation's check
+  // points of interruption (interrupt.h).
+  options.progress = [&bar](double f) {
+    tofu::harness::ThrowIfInterrupted();
+    if (bar) (*bar)(f);
+  };
+  options.closed_loop_progress = [&](const std::string& method, double f) {
+    tofu::harness::ThrowIfInterrupted();
+    if (!draw) return;
+    if (method != bar_method) {
+      flight_bar.emplace("  closed loop: " + method);
+      bar_method = method;
+    }
+    (*flight_bar)(f);
+  };
   tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
+  tofu::harness::ThrowIfInterrupted();
   tofu::harness::RunOutputOptions output;
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
+  tofu::harness::ThrowIfInterrupted();
   if (mcap_file) ExportMcap(out, *mcap_file, true, quiet);
   const int status = record.failure    ? tofu::core::kExitSimulationError
                      : evaluation.passed ? tofu::core::kExitOk
@@ -234,10 +250,13 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
     render.clip_half_s = request.clip_half_s;
     render.events.error_bound_m = request.error_bound_m;
     std::optional<ProgressBar> render_bar;
-    if (!quiet && ::isatty(STDERR_FILENO)) {
-      render_bar.emplace("  render");
-      render.progress = [&render_bar](double f) { (*render_bar)(f); };
-    }
+    if (!quiet && ::isatty(STDERR_FILENO)) render_bar.emplace("  render");
+    // A check point of interruption too: renders/ removes its staging when it unwinds.
+    render.progress = [&render_bar](double f) {
+      tofu::harness::ThrowIfInterrupted();
+      if (render_bar) (*render_bar)(f);
+    };
+    tofu::harness::ThrowIfInterrupted();
     try {
       const tofu::renders::RenderEventsResult rendered = tofu::renders::RenderRunEvents(out, render);
       if (!quiet) {
@@ -257,7 +276,9 @@ int ValidateCommand(const std::vector<std::string>& paths) {
   int status = tofu::core::kExitOk;
   for (const std::string& path : paths) {
     try {
+      // Every check that does not need the simulation: the file, then its models.
       const tofu::harness::Scenario scenario = tofu::harness::LoadScenario(path);
+      tofu::harness::CheckScenarioModels(scenario);
       fmt::print("{}: ok ({}, {} segments, {} expectations)\n", path, scenario.name,
                  scenario.trajectory.segments.size(), scenario.expect.size());
     } catch (const tofu::core::InputError& e) {
@@ -466,6 +487,11 @@ int main(int argc, char** argv) {
     return tofu::core::kExitBadInput;
   }
 
+  // The commands that write outputs stop cleanly on SIGINT, SIGTERM and SIGHUP: staging
+  // removed, children stopped, exit 128 + signal (harness/interrupt.h). The others keep
+  // the default action (`tofu corpus generate` resumes a killed shard by design).
+  if (*run || *check || *estimate || *report) tofu::harness::InstallInterruptHandlers();
+
   try {
     if (*run) return RunCommand(scenario_path, out_dir, seed, quiet, force, run_mcap);
     if (*corpus_plan) return tofu::corpus::RunCorpusPlan(corpus_spec, corpus_out, corpus_quiet);
@@ -512,6 +538,7 @@ int main(int argc, char** argv) {
         return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
       }
       try {
+        tofu::harness::SweepStaleStaging(*check_report);
         const auto page = tofu::report::WriteCheckReport(check_options.out_dir, *check_report, names);
         if (!check_options.quiet) fmt::print("HTML report: {}\n", page.string());
       } catch (const tofu::core::InputError& e) {
@@ -529,18 +556,22 @@ int main(int argc, char** argv) {
       if (est_out) est.out_dir = *est_out;
       std::optional<ProgressBar> bar;
       std::string bar_method;
-      if (!est.quiet && isatty(STDERR_FILENO)) {
-        est.progress = [&](const std::string& method, double f) {
-          if (method != bar_method) {
-            bar.emplace("estimate " + method);
-            bar_method = method;
-          }
-          (*bar)(f);
-        };
-      }
+      const bool draw = !est.quiet && isatty(STDERR_FILENO);
+      // Set even when nothing is drawn: the check point of interruption of the replay.
+      est.progress = [&](const std::string& method, double f) {
+        tofu::harness::ThrowIfInterrupted();
+        if (!draw) return;
+        if (method != bar_method) {
+          bar.emplace("estimate " + method);
+          bar_method = method;
+        }
+        (*bar)(f);
+      };
       return tofu::harness::RunEstimateCommand(est);
     }
     if (*report) {
+      // The report directory is staged as <out>.tmp-<pid> too: sweep what killed reports left.
+      if (!report_out.empty()) tofu::harness::SweepStaleStaging(report_out);
       const auto page = tofu::report::WriteReport(report_input, report_out);
       fmt::print("report: {}\n", page.string());
       return tofu::core::kExitOk;
@@ -566,6 +597,11 @@ int main(int argc, char** argv) {
       }
       return tofu::core::kExitOk;
     }
+  } catch (const tofu::harness::Interrupted& e) {
+    // Unwinding removed the staging directories and waited for the children.
+    fmt::print(stderr, "tofu: interrupted by {}: stopped, temporary files removed\n",
+               tofu::harness::InterruptSignalName(e.signal));
+    return tofu::harness::InterruptExitCode(e.signal);
   } catch (const tofu::core::InputError& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return tofu::core::kExitBadInput;
