@@ -11,6 +11,12 @@ using Time = int64_t;
 
 inline constexpr Time kNanosecondsPerSecond = 1'000'000'000;
 
+/// Stamps beyond ±2^62 ns (±146 years, i.e. past 2116 for Unix time) are rejected as
+/// data: differences and sums of two valid stamps then never overflow.
+inline constexpr Time kMaxValidTimeNs = Time{1} << 62;
+
+constexpr bool IsValidTime(Time t_ns) { return t_ns >= -kMaxValidTimeNs && t_ns <= kMaxValidTimeNs; }
+
 /// Seconds to nanoseconds, rounded to the nearest nanosecond.
 constexpr Time SecondsToTime(double t_s) {
   return static_cast<Time>(t_s * 1e9 + (t_s >= 0.0 ? 0.5 : -0.5));

@@ -381,10 +381,19 @@ ConsensusEstimator::~ConsensusEstimator() = default;
 
 void ConsensusEstimator::Add(const core::StampedMeasurement& measurement) {
   Impl& impl = *impl_;
+  const auto accepted_so_far = [&]() -> std::int64_t {
+    const auto& streams = impl.estimator.counters().streams;
+    const auto it = streams.find(measurement.sensor);
+    return it == streams.end() ? 0 : it->second.accepted;
+  };
+  const std::int64_t accepted_before = accepted_so_far();
   impl.estimator.Add(measurement);
   impl.CollectOutputs();
   if (Impl::Sensor* s = impl.Find(measurement.sensor)) {
-    impl.Buffer(*s, measurement);
+    // Only what the estimator's gate accepted takes part in consensus: a sensor whose
+    // samples are all rejected (NaN covariances, stamps out of order) is unavailable,
+    // never selected for a fusion that would then have nothing to fuse.
+    if (accepted_so_far() > accepted_before) impl.Buffer(*s, measurement);
     return;
   }
   if (measurement.sensor != impl.imu_name) return;

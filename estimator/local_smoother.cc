@@ -164,7 +164,8 @@ struct LocalSmoother::Impl {
     if (imu.empty()) return;
     const core::Time keep_from =
         keyframes.empty() ? newest_imu_ns() - options.pre_init_imu_buffer_ns
-                          : keyframes.front()->t_ns - options.window_ns / 4;
+                          : std::min(keyframes.front()->t_ns - options.window_ns / 4,
+                                     newest_imu_ns() - options.min_imu_history_ns);
     while (imu.size() > 1 && imu.front().t_end_ns < keep_from) imu.pop_front();
   }
 
@@ -482,6 +483,10 @@ bool LocalSmoother::initialized() const { return !impl_->keyframes.empty(); }
 
 core::Time LocalSmoother::newest_imu_ns() const { return impl_->newest_imu_ns(); }
 
+core::Time LocalSmoother::oldest_imu_ns() const {
+  return impl_->imu.empty() ? INT64_MAX : impl_->imu.front().t_begin_ns;
+}
+
 void LocalSmoother::Reset() {
   Impl& m = *impl_;
   m.factors.clear();
@@ -491,6 +496,13 @@ void LocalSmoother::Reset() {
   m.pending.clear();
   m.propagation.reset();
   m.dirty = false;
+}
+
+void LocalSmoother::ResetAfterImuGap() {
+  Reset();
+  Impl& m = *impl_;
+  m.imu.clear();
+  m.has_last_raw = false;
 }
 
 void LocalSmoother::Initialize(core::Time t_ns, const NavState& state, const ImuBias& bias,
@@ -508,7 +520,11 @@ void LocalSmoother::Initialize(core::Time t_ns, const NavState& state, const Imu
   speed_bias_std << Eigen::Vector3d::Constant(prior.velocity_std_mps),
       Eigen::Vector3d::Constant(prior.accel_bias_std_mps2),
       Eigen::Vector3d::Constant(prior.gyro_bias_std_radps);
-  const Eigen::Matrix<double, 6, 6> pose_sqrt_info = pose_std.cwiseInverse().asDiagonal();
+  Eigen::Matrix<double, 6, 6> pose_sqrt_info = pose_std.cwiseInverse().asDiagonal();
+  if (prior.rotation_std_in_L) {
+    pose_sqrt_info.bottomRightCorner<3, 3>() = prior.rotation_std_rad.cwiseInverse().asDiagonal() *
+                                               state.q_LI.normalized().toRotationMatrix();
+  }
   const Eigen::Matrix<double, 9, 9> speed_bias_sqrt_info =
       speed_bias_std.cwiseInverse().asDiagonal();
   Eigen::Matrix<double, 7, 1> pose0;
@@ -690,12 +706,20 @@ bool LocalSmoother::Update() {
 std::optional<NavState> LocalSmoother::PredictWithImu(core::Time t_from, const NavState& state,
                                                       const ImuBias& bias,
                                                       core::Time t_to) const {
+  const std::optional<ImuPreintegration> pre = PreintegrateImu(t_from, t_to, bias);
+  if (!pre) return std::nullopt;
+  return pre->Predict(state, bias, impl_->gravity_L);
+}
+
+std::optional<ImuPreintegration> LocalSmoother::PreintegrateImu(core::Time t_from,
+                                                                core::Time t_to,
+                                                                const ImuBias& bias) const {
   const Impl& m = *impl_;
   if (m.imu.empty() || t_from < m.imu.front().t_begin_ns || t_to > m.newest_imu_ns() ||
       t_to < t_from) {
     return std::nullopt;
   }
-  return m.Preintegrate(t_from, t_to, bias).Predict(state, bias, m.gravity_L);
+  return m.Preintegrate(t_from, t_to, bias);
 }
 
 std::optional<KeyframeState> LocalSmoother::NewestKeyframe() const {

@@ -48,6 +48,9 @@ struct LocalSmootherOptions {
   core::Time keyframe_merge_tolerance_ns = 200'000;
   /// IMU history kept before the graph exists (for initialisation from a rest state).
   core::Time pre_init_imu_buffer_ns = 6'000'000'000;
+  /// IMU history kept at least this long while the graph runs (0: only what the window
+  /// needs). A caller measuring a stream against the IMU over a window needs it.
+  core::Time min_imu_history_ns = 0;
 
   // ---- solver budget ----
   int max_iterations = 6;
@@ -88,6 +91,11 @@ struct InitialStatePrior {
   double velocity_std_mps = 0.1;
   double accel_bias_std_mps2 = 0.1;
   double gyro_bias_std_radps = 0.005;
+  /// true: rotation_std_rad is about L's axes (x, y: tilt; z: yaw about gravity), i.e.
+  /// the prior's information on the right perturbation is diag(1/σ) R_LI. For an IMU
+  /// whose z axis is not vertical (EuRoC's ADIS16448 has x up) a tight "yaw" std on I's
+  /// own z axis would pin a tilt.
+  bool rotation_std_in_L = false;
 };
 
 struct LocalSmootherStats {
@@ -130,6 +138,9 @@ class LocalSmoother {
                   const InitialStatePrior& prior);
   /// Forgets the graph (IMU buffer kept).
   void Reset();
+  /// Forgets the graph and the IMU buffer: after a gap in the IMU stream no interval may
+  /// span the gap, so the next sample starts a new buffer.
+  void ResetAfterImuGap();
 
   /// IMU sample; t_ns strictly increasing and values finite (the caller gates them).
   void AddImu(core::Time t_ns, const Eigen::Vector3d& accel_I_mps2,
@@ -179,8 +190,15 @@ class LocalSmoother {
   std::optional<NavState> PredictWithImu(core::Time t_from, const NavState& state,
                                          const ImuBias& bias, core::Time t_to) const;
 
+  /// Preintegration of the buffered IMU over [t_from, t_to] at `bias` (nullopt if the
+  /// buffer does not cover the interval): the same intervals the graph's IMU factors use.
+  std::optional<ImuPreintegration> PreintegrateImu(core::Time t_from, core::Time t_to,
+                                                   const ImuBias& bias) const;
+
   const LocalSmootherStats& stats() const { return stats_; }
   core::Time newest_imu_ns() const;
+  /// Start of the IMU buffer (INT64_MAX when empty).
+  core::Time oldest_imu_ns() const;
 
  private:
   struct Impl;

@@ -20,6 +20,9 @@ struct SensorState {
   bool fused = false;
   bool has_last = false;
   core::Time last_t_ns = 0;
+  // between_noise_from_data: the window the stream's noise is measured over.
+  std::vector<ImuPoseInA> noise_window;
+  std::optional<core::Time> noise_measured_at_ns;
 };
 
 struct ImuSample {
@@ -60,11 +63,24 @@ bool Finite(const core::Measurement& value) {
       value);
 }
 
+// A stream whose noise is measured against the IMU needs the IMU of its window kept.
+LocalSmootherOptions LocalOptionsFor(const MultiGraphEstimatorOptions& options,
+                                     const std::vector<SensorSpec>& specs) {
+  LocalSmootherOptions local = options.local;
+  for (const SensorSpec& spec : specs) {
+    if (spec.between_noise_from_data) {
+      local.min_imu_history_ns = std::max(local.min_imu_history_ns,
+                                          options.max_alignment_window_ns + 500'000'000);
+    }
+  }
+  return local;
+}
+
 }  // namespace
 
 struct MultiGraphEstimator::Impl {
   Impl(std::string imu, std::vector<SensorSpec> specs, const MultiGraphEstimatorOptions& opts)
-      : options(opts), imu_name(std::move(imu)), smoother(opts.local) {
+      : options(opts), imu_name(std::move(imu)), smoother(LocalOptionsFor(opts, specs)) {
     int id = 0;
     for (SensorSpec& spec : specs) {
       auto s = std::make_unique<SensorState>();
@@ -98,6 +114,17 @@ struct MultiGraphEstimator::Impl {
   std::optional<core::Time> last_covariance_ns;
   std::int64_t bad_solves_seen = 0;
   std::int64_t solves_seen = 0;
+  std::vector<InitialisationRecord> initialisations;
+  // Visual-inertial initialisation: the window of the pose sensor that started it.
+  SensorState* init_sensor = nullptr;
+  std::vector<ImuPoseInA> init_poses;
+  core::Time init_wait_start_ns = 0;
+  // IMU gaps: the usual sample period (running mean) and the state before the last gap.
+  bool has_prev_imu = false;
+  core::Time prev_imu_ns = 0;
+  double imu_period_s = 0.0;
+  bool reinit_after_gap = false;
+  std::optional<NavState> state_before_gap;
 
   SensorState* Find(const std::string& name) {
     for (auto& s : sensors) {
@@ -110,6 +137,10 @@ struct MultiGraphEstimator::Impl {
   bool Gate(const std::string& name, core::Time t_ns, bool finite, bool* has_last,
             core::Time* last_t_ns) {
     StreamGateCounters& c = counters.streams[name];
+    if (!core::IsValidTime(t_ns)) {
+      ++c.rejected_time_out_of_range;
+      return false;
+    }
     if (!finite) {
       ++c.rejected_non_finite;
       return false;
@@ -184,6 +215,7 @@ struct MultiGraphEstimator::Impl {
       state = *from_rest;
       bias = rest->bias;
       prior = options.prior_from_rest;
+      prior.rotation_std_in_L = true;
       // The unknown accelerometer bias has been integrated since the rest state.
       const double age_s = core::TimeToSeconds(t - rest->t_ns);
       prior.velocity_std_mps += prior.accel_bias_std_mps2 * age_s;
@@ -226,9 +258,233 @@ struct MultiGraphEstimator::Impl {
       Eigen::Isometry3d T_AL = Eigen::Isometry3d::Identity();
       sensor.frozen_T_AL = T_AL;
     }
+    if (reinit_after_gap && state_before_gap &&
+        std::holds_alternative<core::PositionMeasurement>(m.value)) {
+      // After an IMU gap, L is the sensor's frame as before; the heading before the gap is
+      // the best guess there is, and it is a guess: loose.
+      const Eigen::Matrix3d R_before = state_before_gap->q_LI.toRotationMatrix();
+      const Eigen::Matrix3d R_yaw =
+          Eigen::AngleAxisd(Yaw(R_before) - Yaw(R_LI), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      state.q_LI = Eigen::Quaterniond(R_yaw * R_LI);
+      state.p_LI = std::get<core::PositionMeasurement>(m.value).p_Ss -
+                   state.q_LI * T_Is.translation();
+      prior.rotation_std_rad = Eigen::Vector3d(0.1, 0.1, 0.5);
+      prior.rotation_std_in_L = true;
+    }
     sensor.graph->SetFrozen(true);
     smoother.Initialize(t, state, bias, prior);
     last_fused_ns = t;
+    InitialisationRecord record;
+    record.t_ns = t;
+    record.method = from_rest ? InitialisationRecord::Method::kRest
+                              : InitialisationRecord::Method::kMeanSpecificForce;
+    record.sensor = sensor.spec.name;
+    record.after_imu_gap = reinit_after_gap;
+    record.state = state;
+    record.bias = bias;
+    FinishInitialisation(std::move(record));
+  }
+
+  // The stream noise a visual-inertial alignment measured, for a sensor that states none.
+  void FillFromAlignment(SensorState& sensor, const VisualInertialAlignment& a,
+                         InitialisationRecord* record) {
+    record->window_s = a.window_s;
+    record->gravity_direction_std_rad = a.gravity_direction_std_rad;
+    record->relative_position_std_m = a.relative_position_std_m;
+    record->relative_rotation_std_rad = a.relative_rotation_std_rad;
+    record->noise_from_data = sensor.spec.between_noise_from_data;
+    if (sensor.spec.between_noise_from_data) UseMeasuredNoise(sensor, a, init_poses.back().t_ns);
+  }
+
+  void UseMeasuredNoise(SensorState& sensor, const VisualInertialAlignment& a, core::Time t_ns) {
+    sensor.spec.between_position_std_m =
+        std::max(a.relative_position_std_m, sensor.spec.min_between_position_std_m);
+    sensor.spec.between_rotation_std_rad =
+        std::max(a.relative_rotation_std_rad, sensor.spec.min_between_rotation_std_rad);
+    sensor.spec.between_noise_from_data = false;  // measured once, kept
+    sensor.noise_measured_at_ns = t_ns;
+    sensor.noise_window.clear();
+    sensor.noise_window.shrink_to_fit();
+  }
+
+  // A pose stream that states no noise, once the graph runs (it started from rest, or
+  // from another sensor): its scatter against the IMU over a window of its own samples,
+  // the alignment's residuals (visual_inertial_alignment.h), at the graph's gyro bias (a
+  // stream whose rotation drifts against the IMU, a VIO converging after take-off, shows
+  // as scatter instead of as a bias). Until then it is fused with the default weights.
+  void MeasureStreamNoise(SensorState& sensor, const core::StampedMeasurement& m) {
+    const auto* pose = std::get_if<core::PoseMeasurement>(&m.value);
+    if (pose == nullptr || !sensor.spec.between_noise_from_data) return;
+    if (!AppendSpaced(sensor.spec.T_I_s, *pose, m.t_ns, &sensor.noise_window)) return;
+    std::optional<Eigen::Vector3d> b_g;
+    if (const std::optional<KeyframeState> newest = smoother.NewestKeyframe()) {
+      b_g = newest->bias.gyro_radps;
+    }
+    const std::optional<VisualInertialAlignment> a = Align(sensor.noise_window, b_g);
+    if (!a) return;
+    if (a->window_s < core::TimeToSeconds(options.min_noise_window_ns)) return;
+    if (a->drop_leading_samples > 0) {
+      DropLeading(a->drop_leading_samples, &sensor.noise_window);
+      return;
+    }
+    UseMeasuredNoise(sensor, *a, m.t_ns);
+  }
+
+  // Appends a pose (moved to I) to an alignment window if it is a keyframe spacing after the
+  // window's newest (the stream's scatter is measured over the interval its between
+  // factors will span), and trims the window to max_alignment_window_ns and the buffered
+  // IMU. Returns whether it was appended.
+  bool AppendSpaced(const Eigen::Isometry3d& T_Is, const core::PoseMeasurement& pose,
+                    core::Time t_ns, std::vector<ImuPoseInA>* window) const {
+    const core::Time spacing = core::PeriodFromRate(options.local.keyframe_rate_hz) -
+                               options.local.keyframe_merge_tolerance_ns;
+    if (!window->empty() && t_ns - window->back().t_ns < spacing) return false;
+    ImuPoseInA sample;
+    sample.t_ns = t_ns;
+    sample.R_AI = pose.q_Ss.normalized().toRotationMatrix() * T_Is.linear().transpose();
+    sample.p_AI = pose.p_Ss - sample.R_AI * T_Is.translation();
+    window->push_back(sample);
+    while (window->size() > 2 &&
+           (window->back().t_ns - window->front().t_ns > options.max_alignment_window_ns ||
+            window->front().t_ns < smoother.oldest_imu_ns())) {
+      window->erase(window->begin());
+    }
+    return true;
+  }
+
+  // Aligns the part of a window the IMU already covers: a pose stamped between two IMU
+  // samples arrives before the second (the stream is arrival-ordered), and is aligned with
+  // the next one.
+  std::optional<VisualInertialAlignment> Align(
+      const std::vector<ImuPoseInA>& window,
+      const std::optional<Eigen::Vector3d>& known_gyro_bias_radps = std::nullopt) const {
+    VisualInertialAlignmentOptions vi = options.visual_inertial;
+    vi.gravity_mps2 = options.local.gravity_mps2;
+    vi.known_gyro_bias_radps = known_gyro_bias_radps;
+    const core::Time newest_imu_ns = smoother.newest_imu_ns();
+    const auto covered = std::find_if(window.begin(), window.end(), [&](const ImuPoseInA& p) {
+      return p.t_ns > newest_imu_ns;
+    });
+    return AlignVisualInertial(
+        std::vector<ImuPoseInA>(window.begin(), covered),
+        [this](core::Time a, core::Time b, const ImuBias& bias) {
+          return smoother.PreintegrateImu(a, b, bias);
+        },
+        vi);
+  }
+
+  static void DropLeading(int count, std::vector<ImuPoseInA>* window) {
+    window->erase(window->begin(),
+                  window->begin() + std::min<std::ptrdiff_t>(count, window->size() - 1));
+  }
+
+  void FinishInitialisation(InitialisationRecord record) {
+    if (record.after_imu_gap) ++counters.restarts_after_gap;
+    initialisations.push_back(std::move(record));
+    init_sensor = nullptr;
+    init_poses.clear();
+    reinit_after_gap = false;
+    state_before_gap.reset();
+    solves_seen = smoother.stats().solves;
+    bad_solves_seen = smoother.stats().bad_solves;
+  }
+
+  // Before the local graph exists: start it now from a fresh rest state (the robot was
+  // still), or collect the first fused pose stream's window until a visual-inertial
+  // alignment makes gravity observable. Returns whether the graph exists now.
+  bool TryInitialize(SensorState& sensor, const core::StampedMeasurement& m) {
+    const auto* pose = std::get_if<core::PoseMeasurement>(&m.value);
+    const bool fresh_rest =
+        rest && m.t_ns >= rest->t_ns && m.t_ns - rest->t_ns <= options.max_rest_age_ns;
+    if (pose == nullptr || (fresh_rest && !reinit_after_gap)) {
+      Initialize(sensor, m);
+      return true;
+    }
+    if (init_sensor == nullptr || !init_sensor->fused) {
+      init_sensor = &sensor;
+      init_poses.clear();
+      init_wait_start_ns = m.t_ns;
+    }
+    if (&sensor != init_sensor) return false;
+    if (!AppendSpaced(sensor.spec.T_I_s, *pose, m.t_ns, &init_poses)) return false;
+    const std::optional<VisualInertialAlignment> alignment = Align(init_poses);
+    if (alignment && alignment->observable) {
+      InitializeAligned(sensor, *alignment);
+      return true;
+    }
+    if (alignment && alignment->drop_leading_samples > 0) {
+      // The stream's own start-up transient or a jump: what came before it leaves.
+      DropLeading(alignment->drop_leading_samples, &init_poses);
+    }
+    if (m.t_ns - init_wait_start_ns > options.max_initialisation_wait_ns) {
+      Initialize(sensor, m);
+      return true;
+    }
+    return false;
+  }
+
+  // The local graph from a visual-inertial alignment (visual_inertial_alignment.h), at the
+  // window's newest sample. L: z against the aligned gravity, yaw and origin those of A
+  // (T_LA a pure tilt), or, after an IMU gap, the L of before (the frozen T_AL).
+  void InitializeAligned(SensorState& sensor, const VisualInertialAlignment& a) {
+    const ImuPoseInA& newest = init_poses.back();
+    Eigen::Isometry3d T_LA = Eigen::Isometry3d::Identity();
+    if (sensor.frozen_T_AL) {
+      T_LA = sensor.frozen_T_AL->inverse();
+    } else {
+      T_LA.linear() =
+          Eigen::Quaterniond::FromTwoVectors(a.g_A, -Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    }
+    NavState state;
+    state.q_LI = Eigen::Quaterniond(T_LA.linear() * newest.R_AI).normalized();
+    state.p_LI = T_LA * newest.p_AI;
+    state.v_L_mps = T_LA.linear() * a.v_A_mps.back();
+    sensor.frozen_T_AL = T_LA.inverse();
+    sensor.graph->SetFrozen(true);
+    InitialStatePrior prior;
+    // Tilt as well known as the window made gravity (never tighter than 0.2°); yaw and
+    // origin are the gauge of L.
+    const double tilt_std_rad = std::max(a.gravity_direction_std_rad, 0.2 * M_PI / 180.0);
+    prior.rotation_std_rad = Eigen::Vector3d(tilt_std_rad, tilt_std_rad, 1e-3);
+    prior.rotation_std_in_L = true;
+    prior.position_std_m = Eigen::Vector3d::Constant(1e-3);
+    prior.velocity_std_mps = 0.1;
+    prior.accel_bias_std_mps2 = options.visual_inertial.accel_bias_prior_std_mps2;
+    prior.gyro_bias_std_radps = options.prior_from_rest.gyro_bias_std_radps;
+    InitialisationRecord record;
+    FillFromAlignment(sensor, a, &record);
+    smoother.Initialize(newest.t_ns, state, a.bias, prior);
+    last_fused_ns = newest.t_ns;
+    record.t_ns = newest.t_ns;
+    record.method = InitialisationRecord::Method::kVisualInertial;
+    record.sensor = sensor.spec.name;
+    record.after_imu_gap = reinit_after_gap;
+    record.state = state;
+    record.bias = a.bias;
+    FinishInitialisation(std::move(record));
+  }
+
+  // A gap in the IMU stream: nothing propagates across it. The graph, its IMU buffer and
+  // the rest state go; the fused sensors keep their frozen T_AL, so that the graph
+  // re-initialised from them after the gap estimates in the same L.
+  void OnImuGap(core::Time gap_ns) {
+    ++counters.imu_gaps;
+    counters.imu_gap_total_s += core::TimeToSeconds(gap_ns);
+    if (smoother.initialized()) {
+      if (const std::optional<KeyframeState> p = smoother.Propagated()) state_before_gap = p->state;
+      reinit_after_gap = true;
+    }
+    smoother.ResetAfterImuGap();
+    history.clear();
+    pending_pairs.clear();
+    pending_init.reset();
+    init_sensor = nullptr;
+    init_poses.clear();
+    for (auto& s : sensors) s->noise_window.clear();
+    rest.reset();
+    recent_imu.clear();
+    last_fused_ns.reset();
+    last_covariance_ns.reset();
   }
 
   // ---- fusion of one measurement of a fused sensor ----
@@ -238,7 +494,7 @@ struct MultiGraphEstimator::Impl {
         pending_init = m;  // wait for the IMU to reach it
         return;
       }
-      Initialize(sensor, m);
+      if (!TryInitialize(sensor, m)) return;
     } else if (last_fused_ns && m.t_ns - *last_fused_ns > options.max_unfused_ns) {
       RestartAfterGap(m.t_ns);
     }
@@ -345,6 +601,18 @@ struct MultiGraphEstimator::Impl {
 
   // ---- IMU: propagation, solves, outputs ----
   void HandleImu(core::Time t, const core::ImuMeasurement& imu) {
+    if (has_prev_imu) {
+      const double dt_s = core::TimeToSeconds(t - prev_imu_ns);
+      const double gap_s = std::max(core::TimeToSeconds(options.min_imu_gap_ns),
+                                    options.imu_gap_periods * imu_period_s);
+      if (imu_period_s > 0.0 && dt_s > gap_s) {
+        OnImuGap(t - prev_imu_ns);
+      } else {
+        imu_period_s = imu_period_s > 0.0 ? 0.99 * imu_period_s + 0.01 * dt_s : dt_s;
+      }
+    }
+    has_prev_imu = true;
+    prev_imu_ns = t;
     smoother.AddImu(t, imu.acc_I_mps2, imu.gyro_I_radps);
     last_gyro = imu.gyro_I_radps;
     UpdateRest(ImuSample{t, imu.acc_I_mps2, imu.gyro_I_radps});
@@ -500,6 +768,7 @@ void MultiGraphEstimator::Add(const core::StampedMeasurement& m) {
     impl.pending_pairs.push_back(pair);
     impl.AddPairs();
   }
+  if (impl.smoother.initialized()) impl.MeasureStreamNoise(*sensor, m);
   if (sensor->fused) impl.Fuse(*sensor, m);
 }
 
@@ -575,6 +844,30 @@ const AlignmentGraph* MultiGraphEstimator::AlignmentGraphOf(const std::string& s
 }
 
 const LocalSmoother& MultiGraphEstimator::local() const { return impl_->smoother; }
+
+const std::vector<InitialisationRecord>& MultiGraphEstimator::initialisations() const {
+  return impl_->initialisations;
+}
+
+std::optional<MultiGraphEstimator::BetweenNoise> MultiGraphEstimator::BetweenNoiseOf(
+    const std::string& sensor) const {
+  for (const auto& s : impl_->sensors) {
+    if (s->spec.name == sensor && s->spec.kind == SensorKind::kPose) {
+      return BetweenNoise{s->spec.between_position_std_m, s->spec.between_rotation_std_rad,
+                          s->noise_measured_at_ns};
+    }
+  }
+  return std::nullopt;
+}
+
+const char* InitialisationMethodName(InitialisationRecord::Method method) {
+  switch (method) {
+    case InitialisationRecord::Method::kRest: return "rest";
+    case InitialisationRecord::Method::kVisualInertial: return "visual_inertial";
+    case InitialisationRecord::Method::kMeanSpecificForce: return "mean_specific_force";
+  }
+  return "?";
+}
 
 const EstimatorCounters& MultiGraphEstimator::counters() const { return impl_->counters; }
 

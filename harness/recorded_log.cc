@@ -291,11 +291,18 @@ constexpr std::string_view kSensorHeader =
     "#timestamp [ns],w_RS_S_x [rad s^-1],... (IMU) or #timestamp [ns],arrival [ns],"
     "p_Ss_x [m],... (pose, position)";
 
+// What ReadSensorCsv found.
+struct SensorCsvContents {
+  StreamKind kind = StreamKind::kImu;
+  size_t rows = 0;
+  bool covariance_stated = true;  ///< false: no covariance columns, the default used
+};
+
 // One sensors/<name>.csv (or EuRoC imu0/data.csv): its kind from the header, every row
 // into `sink`. Returns the kind and the row count; notes what it ignored.
-std::pair<StreamKind, size_t> ReadSensorCsv(const fs::path& path, const std::string& name,
-                                            const RecordedLogOptions& options, Sink sink,
-                                            std::vector<std::string>& notes) {
+SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
+                                const RecordedLogOptions& options, Sink sink,
+                                std::vector<std::string>& notes) {
   CsvFile csv(path, std::string(kSensorHeader));
   StreamKind kind;
   if (csv.Find("w_RS_S_x") >= 0) {
@@ -433,7 +440,7 @@ std::pair<StreamKind, size_t> ReadSensorCsv(const fs::path& path, const std::str
   if (!unknown.empty()) {
     notes.push_back(fmt::format("{}: unknown columns ignored: {}", name, fmt::join(unknown, ", ")));
   }
-  return {kind, rows};
+  return {kind, rows, !defaulted_covariance};
 }
 
 // Ground truth CSV: T_WX from the columns <p>_x.. and <q>_w.., composed with T_XI.
@@ -449,11 +456,24 @@ std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::strin
   const auto q = RequireAll<4>(csv, q_prefix, "wxyz", "ground-truth attitude, Hamilton");
   const Eigen::Quaterniond q_X_I(T_X_I.linear());
   const bool identity = T_X_I.isApprox(Eigen::Isometry3d::Identity(), 0.0);
+  // Bias columns (EuRoC's estimate of the IMU biases) when all three of a kind are there.
+  const auto optional_triple = [&](std::string_view prefix) -> std::optional<std::array<int, 3>> {
+    std::array<int, 3> cols{};
+    for (int i = 0; i < 3; ++i) {
+      cols[i] = csv.Find(fmt::format("{}{}", prefix, "xyz"[i]));
+      if (cols[i] < 0) return std::nullopt;
+    }
+    return cols;
+  };
+  const std::optional<std::array<int, 3>> b_g = optional_triple("b_w_RS_S_");
+  const std::optional<std::array<int, 3>> b_a = optional_triple("b_a_RS_S_");
   std::vector<GroundTruthPose> out;
   out.reserve(csv.RowsUpperBound());
   while (csv.Next()) {
     GroundTruthPose g;
     g.t_ns = csv.Integer(t_col);
+    if (b_g) g.b_g_radps = Eigen::Vector3d(csv.Number((*b_g)[0]), csv.Number((*b_g)[1]), csv.Number((*b_g)[2]));
+    if (b_a) g.b_a_mps2 = Eigen::Vector3d(csv.Number((*b_a)[0]), csv.Number((*b_a)[1]), csv.Number((*b_a)[2]));
     const Eigen::Vector3d p_WX(csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2]));
     const Eigen::Quaterniond q_WX =
         NormalisedIfFinite(csv.Number(q[0]), csv.Number(q[1]), csv.Number(q[2]), csv.Number(q[3]));
@@ -562,7 +582,8 @@ Calibration ParseCalibration(const std::string& text, const std::string& file) {
 Calibration ReadCalibration(const fs::path& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return Calibration{};
-  return ParseCalibration(core::ReadWholeFile(path), path.string());
+  return ParseCalibration(core::ReadWholeFile(path, "calibration file", core::kMaxConfigFileBytes),
+                          path.string());
 }
 
 // The four IMU noise densities from sensors.<imu>.options; nullopt (and a note) if absent.
@@ -599,6 +620,67 @@ std::optional<RecordedImuNoise> ReadImuNoise(const Calibration& cal, const std::
   }
   notes.push_back(fmt::format("IMU noise densities from calibration.yaml sensors.{}.options", imu));
   return noise;
+}
+
+// EuRoC's own calibration of its IMU (the ASL dataset format, mav0/imu0/sensor.yaml, as
+// Kalibr writes it): the four noise densities and the IMU's mount T_BS in the body frame
+// (a 4x4 row-major matrix under T_BS.data). nullopt when the file does not exist.
+struct EurocImuCalibration {
+  RecordedImuNoise noise;
+  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
+};
+
+std::optional<EurocImuCalibration> ReadEurocImuSensorYaml(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return std::nullopt;
+  const std::string file = path.string();
+  YAML::Node root;
+  try {
+    root = YAML::Load(core::ReadWholeFile(path, "EuRoC sensor.yaml", core::kMaxConfigFileBytes));
+  } catch (const YAML::Exception& e) {
+    throw YamlError(file, e.mark, "", fmt::format("not valid YAML: {}", e.msg));
+  }
+  if (!root.IsMap()) throw YamlError(file, root.Mark(), "", "expected a map (EuRoC sensor.yaml)");
+  EurocImuCalibration out;
+  const std::array<std::pair<const char*, double*>, 4> keys = {
+      {{"gyroscope_noise_density", &out.noise.gyro_noise_density_radps_per_sqrthz},
+       {"accelerometer_noise_density", &out.noise.accel_noise_density_mps2_per_sqrthz},
+       {"gyroscope_random_walk", &out.noise.gyro_random_walk_radps2_per_sqrthz},
+       {"accelerometer_random_walk", &out.noise.accel_random_walk_mps3_per_sqrthz}}};
+  for (const auto& [key, value] : keys) {
+    const YAML::Node v = root[key];
+    if (!v) {
+      throw YamlError(file, root.Mark(), key,
+                      "missing: an EuRoC IMU sensor.yaml states gyroscope_noise_density, "
+                      "gyroscope_random_walk, accelerometer_noise_density and "
+                      "accelerometer_random_walk (SI units per sqrt(Hz))");
+    }
+    *value = YamlNumber(v, file, key);
+    if (!(std::isfinite(*value) && *value > 0.0)) {
+      throw YamlError(file, v.Mark(), key, fmt::format("expected a positive number, got {}", *value));
+    }
+  }
+  if (const YAML::Node T = root["T_BS"]) {
+    const YAML::Node data = T.IsMap() ? T["data"] : YAML::Node();
+    if (!data || !data.IsSequence() || data.size() != 16) {
+      throw YamlError(file, T.Mark(), "T_BS.data", "expected 16 numbers (a 4x4 row-major matrix)");
+    }
+    Eigen::Matrix4d M;
+    for (int i = 0; i < 16; ++i) {
+      M(i / 4, i % 4) = YamlNumber(data[i], file, fmt::format("T_BS.data[{}]", i));
+    }
+    const Eigen::Matrix3d R = M.topLeftCorner<3, 3>();
+    // Kalibr prints 8-10 digits: orthonormal to that, not to machine precision.
+    if (!M.allFinite() || (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-5 ||
+        R.determinant() < 0.0 || M.row(3) != Eigen::RowVector4d(0, 0, 0, 1)) {
+      throw YamlError(file, data.Mark(), "T_BS.data",
+                      "expected a rigid transform: an orthonormal rotation with determinant "
+                      "+1 and a last row 0 0 0 1");
+    }
+    out.T_B_I.linear() = Eigen::Quaterniond(R).normalized().toRotationMatrix();
+    out.T_B_I.translation() = M.topRightCorner<3, 1>();
+  }
+  return out;
 }
 
 // Mounts (T_I_s = T_B_I^-1 T_B_s, nominal), odometry noise, true reference frames and
@@ -839,12 +921,14 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
       }
       stream.kind = StreamKind::kPose;
       stream.rows = poses.size();
+      stream.covariance_stated = false;
       log.notes.push_back(fmt::format("{}: TUM pose stream, arrival = t, default covariance",
                                       source.name));
     } else {
-      const auto [kind, rows] = ReadSensorCsv(source.file, source.name, options, sink, log.notes);
-      stream.kind = kind;
-      stream.rows = rows;
+      const SensorCsvContents contents = ReadSensorCsv(source.file, source.name, options, sink, log.notes);
+      stream.kind = contents.kind;
+      stream.rows = contents.rows;
+      stream.covariance_stated = contents.covariance_stated;
     }
     log.notes.push_back(fmt::format("{}: {} stream, {} rows from {}", stream.name,
                                     StreamKindName(stream.kind), stream.rows,
@@ -865,7 +949,27 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
 
   // Mounts: T_I_s = T_B_I^-1 T_B_s (nominal mounts).
   const fs::path cal_path = directory / "calibration.yaml";
-  const Eigen::Isometry3d T_B_I_true = ApplyCalibration(ReadCalibration(cal_path), cal_path, log);
+  const Calibration calibration = ReadCalibration(cal_path);
+  Eigen::Isometry3d T_B_I_true = ApplyCalibration(calibration, cal_path, log);
+  if (!run_directory && !log.imu_stream.empty()) {
+    // EuRoC's own IMU calibration: its noise densities unless calibration.yaml (the user's)
+    // states them; its mount when there is no calibration.yaml. EuRoC's body frame is the
+    // one its ground truth and (taken here) the pose streams are of.
+    const fs::path sensor_yaml = directory / "mav0" / "imu0" / "sensor.yaml";
+    if (const std::optional<EurocImuCalibration> euroc = ReadEurocImuSensorYaml(sensor_yaml)) {
+      if (!log.imu_noise) {
+        log.imu_noise = euroc->noise;
+        log.notes.push_back("IMU noise densities from mav0/imu0/sensor.yaml");
+      }
+      if (!calibration.present) {
+        T_B_I_true = euroc->T_B_I;
+        for (RecordedStream& stream : log.streams) {
+          if (stream.name != log.imu_stream) stream.T_I_s = euroc->T_B_I.inverse();
+        }
+        log.notes.push_back("mounts: T_B_I from mav0/imu0/sensor.yaml T_BS, other streams of the body");
+      }
+    }
+  }
 
   // Ground truth of the IMU frame.
   if (fs::is_regular_file(ground_truth_file, ec)) {
@@ -873,9 +977,8 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
       log.ground_truth = ReadGroundTruthCsv(ground_truth_file, "p_WB_", "q_WB_", T_B_I_true);
       log.notes.push_back("ground truth: groundtruth.csv (T_WB) x T_B_I (true IMU mount)");
     } else {
-      log.ground_truth = ReadGroundTruthCsv(ground_truth_file, "p_RS_R_", "q_RS_",
-                                            Eigen::Isometry3d::Identity());
-      log.notes.push_back("ground truth: mav0/state_groundtruth_estimate0/data.csv (T_WI)");
+      log.ground_truth = ReadGroundTruthCsv(ground_truth_file, "p_RS_R_", "q_RS_", T_B_I_true);
+      log.notes.push_back("ground truth: mav0/state_groundtruth_estimate0/data.csv (T_WB) x T_B_I");
     }
   } else {
     log.notes.push_back(fmt::format("no ground truth ({} not found)",

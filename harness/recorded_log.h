@@ -14,7 +14,12 @@
 //     *.tum file directly in the directory is a pose stream named after its stem (except
 //     groundtruth.tum and estimate_*.tum, which tofu writes itself); ground truth from
 //     mav0/state_groundtruth_estimate0/data.csv (the IMU frame S in the Vicon world R,
-//     i.e. T_WI). A calibration.yaml there supplies mounts as in (a).
+//     i.e. T_WI; its bias columns b_w_RS_S_*, b_a_RS_S_* when present). A calibration.yaml
+//     there supplies mounts and IMU noise as in (a); EuRoC's own mav0/imu0/sensor.yaml
+//     supplies the IMU noise densities (gyroscope_noise_density, gyroscope_random_walk,
+//     accelerometer_noise_density, accelerometer_random_walk) when calibration.yaml does
+//     not state them, and, without a calibration.yaml, the IMU mount T_BS (the other
+//     streams and the ground truth then being of the body frame B).
 //
 // CSV columns are found by name (the header's text before " [unit]", without '#'), so
 // extra columns are ignored. Reading is strict about form and lenient about values: a
@@ -53,6 +58,9 @@ struct RecordedStream {
   /// ones); T_B_I = identity without an IMU mount, T_B_s = identity without the sensor's.
   Eigen::Isometry3d T_I_s = Eigen::Isometry3d::Identity();
   std::size_t rows = 0;  ///< data rows read (= measurements of this stream)
+  /// Whether the samples carry their own covariance (a tofu sensor CSV's cov_* columns);
+  /// false for a TUM file or a CSV without them, whose samples hold the default.
+  bool covariance_stated = true;
   /// Odometry noise from calibration.yaml (sensors.<name>.options) when stated: white
   /// noise per sample (position_noise_m, rotation_noise_deg) and drift
   /// (position_random_walk_m_per_sqrtm). They set the weights of the between factors.
@@ -77,6 +85,9 @@ struct GroundTruthPose {
   core::Time t_ns = 0;
   Eigen::Vector3d p_WI = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_WI = Eigen::Quaterniond::Identity();
+  /// The IMU biases, when the ground truth carries them (EuRoC: b_w_RS_S_*, b_a_RS_S_*).
+  std::optional<Eigen::Vector3d> b_g_radps;
+  std::optional<Eigen::Vector3d> b_a_mps2;
 };
 
 struct RecordedLogOptions {

@@ -252,6 +252,12 @@ std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
           std::sqrt(2.0 * *s.position_noise_m * *s.position_noise_m + drift * drift);
     }
     if (s.rotation_noise_rad) spec.between_rotation_std_rad = std::sqrt(2.0) * *s.rotation_noise_rad;
+    // A pose stream that states no noise, neither per sample nor in calibration.yaml (a
+    // TUM file, a CSV without covariance columns), is weighted with its own scatter
+    // against the IMU, measured from the data (multi_graph_estimator.h). A tofu run's
+    // streams all carry covariances: they keep the stated or default weights.
+    spec.between_noise_from_data = s.kind == StreamKind::kPose && !s.covariance_stated &&
+                                   !s.position_noise_m && !s.rotation_noise_rad;
     specs.push_back(spec);
   }
   return specs;
@@ -293,6 +299,7 @@ struct MethodRunner::Impl {
   ReplayResult result;
   std::optional<core::Time> first_t_ns;
   core::Time last_t_ns = 0;
+  std::vector<estimator::SensorSpec> specs;  // as given (what was stated)
   std::chrono::steady_clock::duration busy{};
 
   const estimator::MultiGraphEstimator& estimator() const {
@@ -307,6 +314,7 @@ MethodRunner::MethodRunner(const RecordedLog& log, const ReplayMethod& method,
     : impl_(std::make_unique<Impl>()) {
   impl_->method = method;
   impl_->streams = log.streams;
+  impl_->specs = sensors;
   impl_->result.method = method;
   impl_->result.keyframe_period_ns = core::PeriodFromRate(options.local.keyframe_rate_hz);
   if (method.kind == ReplayMethod::Kind::kConsensus) {
@@ -363,7 +371,16 @@ ReplayResult MethodRunner::Finish() && {
   ReplayResult result = std::move(m.result);
   result.wall_time_s = std::chrono::duration<double>(m.busy).count();
   if (m.first_t_ns) result.log_duration_s = core::TimeToSeconds(m.last_t_ns - *m.first_t_ns);
+  result.first_measurement_ns = m.first_t_ns;
   const estimator::MultiGraphEstimator& estimator = m.estimator();
+  result.initialisations = estimator.initialisations();
+  for (const estimator::SensorSpec& spec : m.specs) {
+    const auto used = estimator.BetweenNoiseOf(spec.name);
+    if (!used) continue;
+    result.stream_noise[spec.name] = {
+        used->position_std_m, used->rotation_std_rad,
+        used->measured_at_ns ? "measured" : spec.between_noise_from_data ? "default" : "stated"};
+  }
   result.counters = estimator.counters();
   result.solver = estimator.local().stats();
   for (const RecordedStream& s : m.streams) {
@@ -497,6 +514,140 @@ std::vector<LocalConsistencySeries> LocalConsistency(
   return out;
 }
 
+namespace {
+
+// The angle between the estimated and the true gravity direction seen from the IMU frame.
+double TiltErrorDeg(const Eigen::Quaterniond& q_LI, const Eigen::Quaterniond& q_WI) {
+  const Eigen::Vector3d down_I_est = q_LI.conjugate() * -Eigen::Vector3d::UnitZ();
+  const Eigen::Vector3d down_I_true = q_WI.conjugate() * -Eigen::Vector3d::UnitZ();
+  return std::atan2(down_I_est.cross(down_I_true).norm(), down_I_est.dot(down_I_true)) * 180.0 / M_PI;
+}
+
+// The ground truth nearest in time (200 Hz and more: within half a period).
+const GroundTruthPose* TruthAt(const std::vector<GroundTruthPose>& truth, core::Time t_ns) {
+  if (truth.empty()) return nullptr;
+  auto it = std::lower_bound(truth.begin(), truth.end(), t_ns,
+                             [](const GroundTruthPose& g, core::Time t) { return g.t_ns < t; });
+  if (it == truth.end()) return &truth.back();
+  if (it != truth.begin() && t_ns - std::prev(it)->t_ns < it->t_ns - t_ns) --it;
+  return &*it;
+}
+
+// How and when the local graph started, and, with ground truth, how wrong its gravity
+// direction was: the angle between the estimated and the true down direction in I.
+nlohmann::ordered_json InitialisationJson(const RecordedLog& log, const ReplayResult& result) {
+  nlohmann::ordered_json list = nlohmann::ordered_json::array();
+  for (const estimator::InitialisationRecord& r : result.initialisations) {
+    nlohmann::ordered_json e;
+    e["t_ns"] = r.t_ns;
+    if (result.first_measurement_ns) {
+      e["after_first_sample_s"] = core::TimeToSeconds(r.t_ns - *result.first_measurement_ns);
+    }
+    e["method"] = estimator::InitialisationMethodName(r.method);
+    e["sensor"] = r.sensor;
+    e["after_imu_gap"] = r.after_imu_gap;
+    if (r.method == estimator::InitialisationRecord::Method::kVisualInertial) {
+      e["window_s"] = r.window_s;
+      e["gravity_direction_std_deg"] = r.gravity_direction_std_rad * 180.0 / M_PI;
+      e["relative_position_std_m"] = r.relative_position_std_m;
+      e["relative_rotation_std_deg"] = r.relative_rotation_std_rad * 180.0 / M_PI;
+    }
+    if (const GroundTruthPose* g = TruthAt(log.ground_truth, r.t_ns)) {
+      e["gravity_direction_error_deg"] = TiltErrorDeg(r.state.q_LI, g->q_WI);
+    }
+    list.push_back(e);
+  }
+  return list;
+}
+
+// The estimated IMU biases against the ground truth's (EuRoC carries them): RMS over the
+// valid outputs and at the last one.
+// The estimated gravity direction against the true one, over the valid outputs: roll and
+// pitch error, free of the yaw and origin that an SE(3) alignment hides (L and W are both
+// gravity-aligned, so no alignment is needed). What an IMU-aided estimate must get right.
+std::optional<nlohmann::ordered_json> TiltErrorJson(const RecordedLog& log, const ReplayResult& result) {
+  if (log.ground_truth.empty()) return std::nullopt;
+  double sum_sq = 0.0, max_deg = 0.0, final_deg = 0.0;
+  std::size_t n = 0;
+  for (const estimator::EstimatorOutput& o : result.outputs) {
+    if (!o.valid) continue;
+    const GroundTruthPose* g = TruthAt(log.ground_truth, o.t_ns);
+    if (g == nullptr) continue;
+    final_deg = TiltErrorDeg(o.state.q_LI, g->q_WI);
+    sum_sq += final_deg * final_deg;
+    max_deg = std::max(max_deg, final_deg);
+    ++n;
+  }
+  if (n == 0) return std::nullopt;
+  return nlohmann::ordered_json{
+      {"rms_deg", std::sqrt(sum_sq / n)}, {"max_deg", max_deg}, {"final_deg", final_deg}};
+}
+
+std::optional<nlohmann::ordered_json> BiasErrorJson(const RecordedLog& log, const ReplayResult& result) {
+  if (log.ground_truth.empty() || !log.ground_truth.front().b_g_radps ||
+      !log.ground_truth.front().b_a_mps2) {
+    return std::nullopt;
+  }
+  double gyro_sum_sq = 0.0, accel_sum_sq = 0.0;
+  std::size_t n = 0;
+  const estimator::EstimatorOutput* last = nullptr;
+  const GroundTruthPose* last_truth = nullptr;
+  for (const estimator::EstimatorOutput& o : result.outputs) {
+    if (!o.valid) continue;
+    const GroundTruthPose* g = TruthAt(log.ground_truth, o.t_ns);
+    if (g == nullptr || !g->b_g_radps || !g->b_a_mps2) continue;
+    gyro_sum_sq += (o.bias.gyro_radps - *g->b_g_radps).squaredNorm();
+    accel_sum_sq += (o.bias.accel_mps2 - *g->b_a_mps2).squaredNorm();
+    ++n;
+    last = &o;
+    last_truth = g;
+  }
+  if (n == 0) return std::nullopt;
+  const auto vec = [](const Eigen::Vector3d& v) { return std::vector<double>{v.x(), v.y(), v.z()}; };
+  return nlohmann::ordered_json{
+      {"gyro_rms_radps", std::sqrt(gyro_sum_sq / n)},
+      {"accel_rms_mps2", std::sqrt(accel_sum_sq / n)},
+      {"gyro_final_radps", vec(last->bias.gyro_radps)},
+      {"gyro_true_final_radps", vec(*last_truth->b_g_radps)},
+      {"accel_final_mps2", vec(last->bias.accel_mps2)},
+      {"accel_true_final_mps2", vec(*last_truth->b_a_mps2)}};
+}
+
+}  // namespace
+
+std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const ReplayResult& result,
+                                             const std::vector<PoseSample>& trajectory,
+                                             const TrajectoryErrors& errors) {
+  if (log.ground_truth.empty() || trajectory.empty()) return std::nullopt;
+  std::vector<PoseSample> truth;
+  for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+  std::optional<InputCheck> best;
+  for (const RecordedStream& stream : log.streams) {
+    if (stream.kind != StreamKind::kPose) continue;
+    const bool fused_by_method =
+        result.method.kind == ReplayMethod::Kind::kConsensus ||
+        std::find(result.method.fused.begin(), result.method.fused.end(), stream.name) !=
+            result.method.fused.end();
+    if (!fused_by_method) continue;
+    const std::vector<PoseSample> raw =
+        RawPoseTrajectory(log, stream, trajectory.front().t_ns, trajectory.back().t_ns);
+    if (raw.size() <= 10) continue;
+    const TrajectoryErrors raw_errors = EvaluateTrajectory(raw, truth);
+    if (best && best->input_ate_m <= raw_errors.ate_position_rmse_m) continue;
+    InputCheck check;
+    check.input = "raw:" + stream.name;
+    check.input_ate_m = raw_errors.ate_position_rmse_m;
+    check.input_rotation_deg = raw_errors.rotation_rmse_deg;
+    best = check;
+  }
+  if (!best) return std::nullopt;
+  best->worse_in_position = errors.ate_position_rmse_m > best->input_ate_m;
+  best->worse_in_rotation = errors.rotation_rmse_deg > best->input_rotation_deg;
+  best->ate_m = errors.ate_position_rmse_m;
+  best->rotation_deg = errors.rotation_rmse_deg;
+  return best;
+}
+
 MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
                               const std::filesystem::path& out_dir) {
   const std::string stem = "estimate_" + SafeFileName(result.method.name);
@@ -538,6 +689,7 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
                      {"rejected_non_finite", c.rejected_non_finite},
                      {"rejected_out_of_order", c.rejected_out_of_order},
                      {"rejected_duplicate", c.rejected_duplicate},
+                     {"rejected_time_out_of_range", c.rejected_time_out_of_range},
                      {"not_fused_unaligned", c.not_fused_unaligned}};
   }
   j["streams"] = streams;
@@ -574,6 +726,30 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
                   {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}}};
   }
   j["T_AL_used"] = used;
+  j["initialisation"] = InitialisationJson(log, result);
+  nlohmann::ordered_json noise = nlohmann::ordered_json::object();
+  for (const auto& [name, n] : result.stream_noise) {
+    noise[name] = {{"between_position_std_m", n.between_position_std_m},
+                   {"between_rotation_std_deg", n.between_rotation_std_rad * 180.0 / M_PI},
+                   {"source", n.source}};
+  }
+  j["stream_noise"] = noise;
+  j["imu_gaps"] = {{"count", result.counters.imu_gaps},
+                   {"total_s", result.counters.imu_gap_total_s},
+                   {"restarts_after_gap", result.counters.restarts_after_gap}};
+  if (std::optional<nlohmann::ordered_json> tilt = TiltErrorJson(log, result)) j["tilt_error"] = *tilt;
+  if (std::optional<nlohmann::ordered_json> bias = BiasErrorJson(log, result)) j["bias_error"] = *bias;
+  if (errors) {
+    files.input_check = CheckAgainstInputs(log, result, trajectory, *errors);
+    if (const std::optional<InputCheck>& c = files.input_check) {
+      j["input_check"] = {{"input", c->input},
+                          {"input_ate_m", c->input_ate_m},
+                          {"input_rotation_rmse_deg", c->input_rotation_deg},
+                          {"ate_m", c->ate_m},
+                          {"rotation_rmse_deg", c->rotation_deg},
+                          {"worse_than_input", c->worse_in_position || c->worse_in_rotation}};
+    }
+  }
   WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
 
   double& mean_ms = files.solve_mean_ms;
@@ -657,6 +833,9 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   for (estimator::SensorSpec& spec : specs) {
     if (options.between_position_std_m) spec.between_position_std_m = *options.between_position_std_m;
     if (options.between_rotation_std_rad) spec.between_rotation_std_rad = *options.between_rotation_std_rad;
+    if (options.between_position_std_m || options.between_rotation_std_rad) {
+      spec.between_noise_from_data = false;
+    }
     if (options.between_position_in_reference) {
       spec.between_position_in_reference = *options.between_position_in_reference;
     }
@@ -671,6 +850,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   if (options.consensus_threshold) consensus_options.selection.threshold = *options.consensus_threshold;
   core::Time first_output_ns = std::numeric_limits<core::Time>::max();
   core::Time last_output_ns = std::numeric_limits<core::Time>::min();
+  bool failed = false;
   for (const ReplayMethod& method : methods) {
     std::function<void(double)> progress;
     if (options.progress) progress = [&](double f) { options.progress(method.name, f); };
@@ -689,6 +869,18 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     if (!trajectory.empty()) {
       first_output_ns = std::min(first_output_ns, trajectory.front().t_ns);
       last_output_ns = std::max(last_output_ns, trajectory.back().t_ns);
+    }
+    if (const std::optional<InputCheck>& c = files.input_check;
+        c && (c->worse_in_position || c->worse_in_rotation)) {
+      fmt::print(stderr,
+                 "warning: {} is worse than its input {} on the same span (ATE {:.4f} m vs "
+                 "{:.4f} m, rotation {:.3f} deg vs {:.3f} deg)\n",
+                 method.name, c->input, c->ate_m, c->input_ate_m, c->rotation_deg,
+                 c->input_rotation_deg);
+    }
+    if (const std::optional<std::string> starved = NothingToFuse(result, log_for(method).imu_stream)) {
+      fmt::print(stderr, "error: {}\n", *starved);
+      failed = true;
     }
     if (!options.quiet) {
       fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8.0f} {:>10.3f} {:>10.3f}\n", method.name,
@@ -732,7 +924,33 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
       }
     }
   }
-  return 0;
+  return failed ? 1 : 0;
+}
+
+std::optional<std::string> NothingToFuse(const ReplayResult& result,
+                                         const std::string& imu_stream) {
+  // The sensors the method would fuse: its list, or for consensus every non-IMU stream.
+  std::vector<std::string> candidates = result.method.fused;
+  if (result.method.kind == ReplayMethod::Kind::kConsensus) {
+    candidates.clear();
+    for (const auto& [name, c] : result.counters.streams) {
+      if (name != imu_stream) candidates.push_back(name);
+    }
+  }
+  if (candidates.empty()) return std::nullopt;  // imu_only fuses nothing by design
+  std::string rejected;
+  for (const std::string& name : candidates) {
+    const auto it = result.counters.streams.find(name);
+    if (it == result.counters.streams.end()) continue;
+    const estimator::StreamGateCounters& c = it->second;
+    if (c.accepted > 0) return std::nullopt;
+    rejected += fmt::format("{}{}: {} non-finite, {} out of order, {} duplicate, {} out of range",
+                            rejected.empty() ? "" : "; ", name, c.rejected_non_finite,
+                            c.rejected_out_of_order, c.rejected_duplicate,
+                            c.rejected_time_out_of_range);
+  }
+  return fmt::format("method {}: no sample of any sensor it would fuse was accepted ({})",
+                     result.method.name, rejected);
 }
 
 std::vector<PoseSample> RawPoseTrajectory(const RecordedLog& log, const RecordedStream& stream,

@@ -70,6 +70,17 @@ struct ReplayResult {
   double log_duration_s = 0.0;
   /// One local update per keyframe: the time an update may take on the robot.
   core::Time keyframe_period_ns = 0;
+  /// The first measurement the method saw (any stream).
+  std::optional<core::Time> first_measurement_ns;
+  /// Every (re-)initialisation of the local graph (estimator::InitialisationRecord).
+  std::vector<estimator::InitialisationRecord> initialisations;
+  /// Pose sensors: the between-factor stds in use at the end, and where they came from.
+  struct StreamNoise {
+    double between_position_std_m = 0.0;
+    double between_rotation_std_rad = 0.0;
+    std::string source;  ///< "stated" (calibration/options) or "measured" (from the data)
+  };
+  std::map<std::string, StreamNoise> stream_noise;
 };
 
 /// One method, fed one measurement at a time in arrival order: the same code replays a
@@ -131,6 +142,26 @@ std::vector<LocalConsistencySeries> LocalConsistency(
 std::vector<PoseSample> RawPoseTrajectory(const RecordedLog& log, const RecordedStream& stream,
                                           core::Time from_ns, core::Time to_ns);
 
+/// The fused estimate against the best pose stream it fused, on the same span (the
+/// estimate's valid outputs), with ground truth: fusion must not make its input worse.
+struct InputCheck {
+  std::string input;  ///< "raw:<stream>"
+  double input_ate_m = 0.0;
+  double input_rotation_deg = 0.0;
+  bool worse_in_position = false;
+  bool worse_in_rotation = false;
+  double ate_m = 0.0;
+  double rotation_deg = 0.0;
+};
+std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const ReplayResult& result,
+                                             const std::vector<PoseSample>& trajectory,
+                                             const TrajectoryErrors& errors);
+
+/// A method none of whose sensors had a single sample accepted by the estimator (all
+/// non-finite, out of order, ...): what was rejected, per sensor. nullopt otherwise and
+/// for imu_only. `tofu estimate` exits 1 with it; a scenario fails its run.
+std::optional<std::string> NothingToFuse(const ReplayResult& result, const std::string& imu_stream);
+
 /// What WriteMethodResult wrote and measured.
 struct MethodFiles {
   std::vector<PoseSample> trajectory;     ///< the valid outputs (T_LI)
@@ -138,6 +169,7 @@ struct MethodFiles {
   double solve_mean_ms = 0.0;
   double solve_p99_ms = 0.0;
   double update_budget_ms = 0.0;  ///< the keyframe period
+  std::optional<InputCheck> input_check;  ///< with ground truth and a fused pose stream
 };
 /// Writes one method's estimate_<method>.csv/.tum/.json (with T_WL, the alignment of L
 /// to W, when scored), estimate_<method>_errors.csv and timing_estimate_<method>.json

@@ -10,8 +10,10 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <string>
+#include <variant>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -152,6 +154,28 @@ TEST_F(ConsensusEstimatorTest, ExcludesTheDivergingFusedSensorWithinOneSecondAnd
   EXPECT_EQ(values[2].first, "vio-local");
   EXPECT_GT(values[0].second.value_or(0.0), 0.3) << "diverged VIO inconsistent with LIO";
   EXPECT_LT(values[1].second.value_or(1e9), 0.3) << "fused LIO consistent with the local estimate";
+}
+
+// Issue 19, finding 3: a sensor whose every sample the estimator's gate rejects (here LIO
+// with NaN covariances) is unavailable to consensus, never selected, so that consensus
+// never fuses a stream it then has nothing of (0 outputs, exit 0 before).
+TEST_F(ConsensusEstimatorTest, ASensorWhoseEverySampleIsRejectedIsNeverSelected) {
+  harness::RecordedLog log = *log_;
+  int poisoned = 0;
+  for (core::StampedMeasurement& m : log.measurements) {
+    if (m.sensor != "lio") continue;
+    if (auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
+      pose->covariance(0, 0) = std::numeric_limits<double>::quiet_NaN();
+      ++poisoned;
+    }
+  }
+  ASSERT_GT(poisoned, 100);
+  const Run run = RunConsensus(log);
+  ASSERT_GT(run.records.size(), 250u);
+  for (const auto& r : run.records) {
+    EXPECT_FALSE(Contains(r.decision.fused, "lio")) << r.t_ns << ": " << r.decision.reason;
+    EXPECT_TRUE(Contains(r.decision.unavailable, "lio")) << r.t_ns << ": " << r.decision.reason;
+  }
 }
 
 TEST_F(ConsensusEstimatorTest, PoseStreamsWithoutTwistAreDifferentiated) {

@@ -2,8 +2,12 @@
 """Ground-truth runs unchanged by the run-loop redesign: every file of every scenario's run
 directory (timing files and figures aside) has the SHA-256 recorded in
 tests/data/golden_runs.json, which was made with the code before the estimators moved into
-the run loop (the post-pass over the written CSVs); re-recorded once since, when every run
-directory gained its marker file .tofu-run (nothing else differed).
+the run loop (the post-pass over the written CSVs); re-recorded since when every run
+directory gained its marker file .tofu-run (nothing else differed), and when the estimator
+learnt to start in flight from a visual-inertial alignment and to report its start, the
+stream weights, IMU gaps and tilt error (issue 21: only the estimates and what is derived
+from them differed, estimate_*, decisions.csv, consistency_consensus.csv, errors.csv,
+summary.json; every sensor stream, the ground truth and the tracking are unchanged).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)

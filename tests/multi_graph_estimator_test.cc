@@ -1,13 +1,19 @@
 // The multi-graph estimator as a whole (estimator/multi_graph_estimator.h) on a simulated
 // no-fault flight: initialisation in motion, switching the fused sensor at run time, the
-// alignment graph of a sensor that is not fused, and the gate for streams it does not know.
+// alignment graph of a sensor that is not fused, the gate for streams it does not know and
+// for stamps out of range, and a method left with nothing to fuse.
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
+#include <limits>
 #include <string>
+#include <variant>
 #include <vector>
+
+#include <fmt/format.h>
 
 #include <gtest/gtest.h>
 
@@ -69,8 +75,14 @@ TEST_F(MultiGraphEstimatorTest, InitialisesInMotionWhenTheLogStartsMidFlight) {
       harness::Replay(cut, harness::ParseReplayMethod("single:vio", cut),
                       harness::DefaultEstimatorOptions(cut), harness::SensorSpecsOf(cut));
   ASSERT_FALSE(result.outputs.empty());
-  EXPECT_LT(result.outputs.front().t_ns, start_ns + 200'000'000)
-      << "the first output comes right after the first VIO sample";
+  // Nothing is output until a visual-inertial alignment of the VIO's first second with the
+  // IMU makes gravity observable (issue 21); then at once.
+  ASSERT_EQ(result.initialisations.size(), 1u);
+  EXPECT_EQ(result.initialisations.front().method,
+            estimator::InitialisationRecord::Method::kVisualInertial);
+  EXPECT_LT(result.outputs.front().t_ns, start_ns + 1'500'000'000)
+      << "the first output comes once the VIO's first second is aligned";
+  EXPECT_GE(result.outputs.front().t_ns, start_ns + 1'000'000'000);
   // Converged after 5 s: the loose in-motion prior (velocity 2 m/s) was corrected.
   harness::TrajectoryErrorOptions options;
   options.align_from_ns = start_ns + 5'000'000'000;
@@ -158,6 +170,72 @@ TEST_F(MultiGraphEstimatorTest, CountsStreamsItDoesNotKnowAndWrongKinds) {
   estimator.Add({log_->imu_stream, 3000, core::PoseMeasurement{}});
   EXPECT_EQ(estimator.counters().unknown_stream, 3);
   EXPECT_EQ(estimator.counters().streams.at("vio").accepted, 0);
+}
+
+// Stamps no clock can produce (INT64_MAX, INT64_MIN: a corrupted log's) are rejected per
+// stream and counted, before they can poison the order gate (one INT64_MAX accepted would
+// make every later sample "out of order") or overflow a time difference.
+TEST_F(MultiGraphEstimatorTest, StampsOutsideTheValidRangeAreRejectedAndCounted) {
+  estimator::MultiGraphEstimator estimator(log_->imu_stream, harness::SensorSpecsOf(*log_),
+                                           harness::DefaultEstimatorOptions(*log_));
+  estimator.SetFusedSensors({"vio"});
+  std::size_t outputs_after_bad = 0;
+  bool injected = false;
+  for (const core::StampedMeasurement& m : log_->measurements) {
+    if (m.t_ns > 20'000'000'000) break;
+    if (!injected && m.t_ns > 10'000'000'000 && m.sensor == "vio") {
+      core::StampedMeasurement bad = m;
+      bad.t_ns = std::numeric_limits<core::Time>::max();
+      estimator.Add(bad);
+      bad.t_ns = std::numeric_limits<core::Time>::min();
+      estimator.Add(bad);
+      core::StampedMeasurement bad_imu{log_->imu_stream, std::numeric_limits<core::Time>::max(),
+                                       core::ImuMeasurement{}};
+      estimator.Add(bad_imu);
+      injected = true;
+    }
+    estimator.Add(m);
+    const std::size_t n = estimator.TakeOutputs().size();
+    if (injected) outputs_after_bad += n;
+  }
+  ASSERT_TRUE(injected);
+  EXPECT_EQ(estimator.counters().streams.at("vio").rejected_time_out_of_range, 2);
+  EXPECT_EQ(estimator.counters().streams.at(log_->imu_stream).rejected_time_out_of_range, 1);
+  EXPECT_EQ(estimator.counters().streams.at("vio").rejected_out_of_order, 0);
+  EXPECT_EQ(estimator.counters().streams.at(log_->imu_stream).rejected_out_of_order, 0);
+  // The 200 Hz output went on over the 10 s after the bad stamps.
+  EXPECT_GT(outputs_after_bad, 1900u);
+}
+
+// A method none of whose samples the estimator accepted has nothing to fuse: `tofu
+// estimate` exits 1 with the reason per sensor instead of reporting an IMU-only dead
+// reckoning as the sensor's result.
+TEST_F(MultiGraphEstimatorTest, AMethodWhoseEverySampleWasRejectedHasNothingToFuse) {
+  harness::RecordedLog log = *log_;
+  for (core::StampedMeasurement& m : log.measurements) {
+    if (m.sensor != "vio") continue;
+    auto& pose = std::get<core::PoseMeasurement>(m.value);
+    pose.p_Ss.x() = std::numeric_limits<double>::quiet_NaN();
+  }
+  const harness::ReplayResult all_nan =
+      harness::Replay(log, harness::ParseReplayMethod("single:vio", log),
+                      harness::DefaultEstimatorOptions(log), harness::SensorSpecsOf(log));
+  const std::optional<std::string> why = harness::NothingToFuse(all_nan, log.imu_stream);
+  ASSERT_TRUE(why.has_value());
+  EXPECT_NE(why->find("single:vio"), std::string::npos) << *why;
+  const std::size_t vio_rows = std::count_if(
+      log.measurements.begin(), log.measurements.end(),
+      [](const core::StampedMeasurement& m) { return m.sensor == "vio"; });
+  EXPECT_NE(why->find(fmt::format("vio: {} non-finite", vio_rows)), std::string::npos) << *why;
+  // The same log with its total station fused has something to fuse; imu_only never needs any.
+  const harness::ReplayResult leica =
+      harness::Replay(log, harness::ParseReplayMethod("fuse:vio+leica", log),
+                      harness::DefaultEstimatorOptions(log), harness::SensorSpecsOf(log));
+  EXPECT_FALSE(harness::NothingToFuse(leica, log.imu_stream).has_value());
+  const harness::ReplayResult imu_only =
+      harness::Replay(log, harness::ParseReplayMethod("imu_only", log),
+                      harness::DefaultEstimatorOptions(log), harness::SensorSpecsOf(log));
+  EXPECT_FALSE(harness::NothingToFuse(imu_only, log.imu_stream).has_value());
 }
 
 }  // namespace

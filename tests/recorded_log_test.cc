@@ -411,6 +411,101 @@ TEST(RecordedLogEuroc, ReadsImuTumPosesAndGroundTruthWithExactStamps) {
   }
 }
 
+// EuRoC's own IMU calibration (mav0/imu0/sensor.yaml, as the ASL datasets ship it): its
+// noise densities are the log's, its T_BS the IMU's mount in the body frame of the other
+// streams; calibration.yaml, the user's, wins over it.
+class RecordedLogEurocSensorYaml : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::path(::testing::TempDir()) /
+           (std::string("tofu_euroc_sensor_yaml_") + info->name() + "_" + std::to_string(::getpid()));
+    fs::remove_all(dir_);
+    WriteFile(dir_ / "mav0" / "imu0" / "data.csv",
+              "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+              "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n"
+              "1000000000,0,0,0,0,0,9.81\n1005000000,0,0,0,0,0,9.81\n");
+    WriteFile(dir_ / "vio.tum", "1.0 0 0 0 0 0 0 1\n1.1 0 0 0 0 0 0 1\n");
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  void WriteSensorYaml(const std::string& noise_lines) {
+    // A 90° yaw and a 5 cm offset: the mount is visibly applied.
+    WriteFile(dir_ / "mav0" / "imu0" / "sensor.yaml",
+              "# General sensor definitions.\nsensor_type: imu\ncomment: VI-Sensor IMU (ADIS16448)\n"
+              "T_BS:\n  cols: 4\n  rows: 4\n  data: [0.0, -1.0, 0.0, 0.05,\n"
+              "         1.0, 0.0, 0.0, 0.0,\n         0.0, 0.0, 1.0, 0.0,\n"
+              "         0.0, 0.0, 0.0, 1.0]\nrate_hz: 200\n" + noise_lines);
+  }
+  fs::path dir_;
+};
+
+constexpr const char* kEurocNoise =
+    "gyroscope_noise_density: 1.6968e-04     # [ rad / s / sqrt(Hz) ]\n"
+    "gyroscope_random_walk: 1.9393e-05       # [ rad / s^2 / sqrt(Hz) ]\n"
+    "accelerometer_noise_density: 2.0000e-3  # [ m / s^2 / sqrt(Hz) ]\n"
+    "accelerometer_random_walk: 3.0000e-3    # [ m / s^3 / sqrt(Hz) ]\n";
+
+TEST_F(RecordedLogEurocSensorYaml, NoiseDensitiesAndMountComeFromTheImusSensorYaml) {
+  WriteSensorYaml(kEurocNoise);
+  const RecordedLog log = ReadRecordedLog(dir_);
+  ASSERT_TRUE(log.imu_noise.has_value());
+  EXPECT_EQ(log.imu_noise->gyro_noise_density_radps_per_sqrthz, 1.6968e-04);
+  EXPECT_EQ(log.imu_noise->gyro_random_walk_radps2_per_sqrthz, 1.9393e-05);
+  EXPECT_EQ(log.imu_noise->accel_noise_density_mps2_per_sqrthz, 2.0e-3);
+  EXPECT_EQ(log.imu_noise->accel_random_walk_mps3_per_sqrthz, 3.0e-3);
+  const auto vio = std::find_if(log.streams.begin(), log.streams.end(),
+                                [](const RecordedStream& s) { return s.name == "vio"; });
+  ASSERT_NE(vio, log.streams.end());
+  // T_I_s = T_B_I⁻¹ (the stream is of the body frame): the body origin seen from the IMU.
+  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
+  T_B_I.linear() << 0, -1, 0, 1, 0, 0, 0, 0, 1;
+  T_B_I.translation() = Eigen::Vector3d(0.05, 0, 0);
+  EXPECT_TRUE(vio->T_I_s.isApprox(T_B_I.inverse(), 1e-12));
+  EXPECT_NE(std::find(log.notes.begin(), log.notes.end(),
+                      "IMU noise densities from mav0/imu0/sensor.yaml"),
+            log.notes.end());
+}
+
+TEST_F(RecordedLogEurocSensorYaml, CalibrationYamlWinsOverIt) {
+  WriteSensorYaml(kEurocNoise);
+  WriteFile(dir_ / "calibration.yaml",
+            "sensors:\n  imu:\n    options:\n      gyro_noise_density_radps_per_sqrthz: 1e-3\n"
+            "      accel_noise_density_mps2_per_sqrthz: 1e-2\n"
+            "      gyro_random_walk_radps2_per_sqrthz: 1e-4\n"
+            "      accel_random_walk_mps3_per_sqrthz: 1e-3\n");
+  const RecordedLog log = ReadRecordedLog(dir_);
+  ASSERT_TRUE(log.imu_noise.has_value());
+  EXPECT_EQ(log.imu_noise->gyro_noise_density_radps_per_sqrthz, 1e-3);
+  for (const RecordedStream& s : log.streams) {
+    EXPECT_TRUE(s.T_I_s.isApprox(Eigen::Isometry3d::Identity())) << s.name;
+  }
+}
+
+TEST_F(RecordedLogEurocSensorYaml, AMissingDensityOrABadTransformNamesFileAndKey) {
+  WriteSensorYaml("gyroscope_noise_density: 1.6968e-04\ngyroscope_random_walk: 1.9393e-05\n"
+                  "accelerometer_noise_density: 2.0000e-3\n");
+  try {
+    ReadRecordedLog(dir_);
+    ADD_FAILURE() << "no InputError";
+  } catch (const core::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("sensor.yaml"), std::string::npos) << what;
+    EXPECT_NE(what.find("accelerometer_random_walk"), std::string::npos) << what;
+  }
+  WriteFile(dir_ / "mav0" / "imu0" / "sensor.yaml",
+            std::string("T_BS:\n  data: [2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]\n") +
+                kEurocNoise);
+  try {
+    ReadRecordedLog(dir_);
+    ADD_FAILURE() << "no InputError";
+  } catch (const core::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("sensor.yaml:2"), std::string::npos) << what;
+    EXPECT_NE(what.find("T_BS.data"), std::string::npos) << what;
+    EXPECT_NE(what.find("rigid transform"), std::string::npos) << what;
+  }
+}
+
 // ---- bad input ----
 
 class RecordedLogInputTest : public ::testing::Test {
