@@ -565,7 +565,11 @@ Calibration ParseCalibration(const std::string& text, const std::string& file) {
     throw YamlError(file, sensors.Mark(), "sensors", "expected a map of sensor name to calibration");
   }
   for (const auto& entry : sensors) {
-    const std::string name = entry.first.as<std::string>();
+    if (!entry.first.IsScalar()) {
+      throw YamlError(file, entry.first.Mark(), "sensors",
+                      "expected a sensor name (a string) as each key of sensors");
+    }
+    const std::string name = entry.first.Scalar();
     const YAML::Node& node = entry.second;
     const std::string key = "sensors." + name;
     if (!node.IsMap()) throw YamlError(file, node.Mark(), key, "expected a map");
@@ -573,7 +577,9 @@ Calibration ParseCalibration(const std::string& text, const std::string& file) {
     if (node["T_B_s"]) s.T_B_s = YamlPose(node["T_B_s"], file, key + ".T_B_s");
     if (node["true_T_B_s"]) s.true_T_B_s = YamlPose(node["true_T_B_s"], file, key + ".true_T_B_s");
     if (node["true_T_WS"]) s.true_T_WS = YamlPose(node["true_T_WS"], file, key + ".true_T_WS");
-    s.options = node["options"];
+    // Only when present: assigning yaml-cpp's node for a missing key makes s.options an
+    // invalid node that throws at its first use (a sensor with a mount and no options).
+    if (const YAML::Node options = node["options"]) s.options = options;
     cal.sensors[name] = s;
   }
   return cal;
