@@ -97,7 +97,12 @@ double RoundSignificant(double value, int digits) {
 void EmitRpyDeg(YAML::Emitter& out, std::string_view key, const Eigen::Quaterniond& q) {
   const Eigen::Vector3d rpy = RpyDegFromQuat(q);
   Eigen::Vector3d rounded;
-  for (int k = 0; k < 3; ++k) rounded(k) = RoundSignificant(rpy(k), 12);
+  // An angle within 1e-9 deg of zero is zero: the quaternion round trip of an exact 0
+  // returns ±1e-15 deg, which 12 significant digits would keep, so that the resolved YAML
+  // would not load back to itself (fuzz finding 4).
+  for (int k = 0; k < 3; ++k) {
+    rounded(k) = std::abs(rpy(k)) < 1e-9 ? 0.0 : RoundSignificant(rpy(k), 12);
+  }
   // Near gimbal lock roll and yaw are ill-conditioned: keep the rounding only where it
   // reproduces the attitude to rounding error.
   const bool faithful =

@@ -7,7 +7,9 @@ directory gained its marker file .tofu-run (nothing else differed), and when the
 learnt to start in flight from a visual-inertial alignment and to report its start, the
 stream weights, IMU gaps and tilt error (issue 21: only the estimates and what is derived
 from them differed, estimate_*, decisions.csv, consistency_consensus.csv, errors.csv,
-summary.json; every sensor stream, the ground truth and the tracking are unchanged).
+summary.json; every sensor stream, the ground truth and the tracking are unchanged), and
+for the scenario.yaml of estimator_arena and paper_consensus_indoor when a zero attitude
+angle stopped being written as ±1e-15 deg (fuzz finding 4).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)
