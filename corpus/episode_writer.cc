@@ -235,8 +235,8 @@ void WriteMethod(const Hdf5Group& group, const harness::ReplayResult& result,
     Append(v, o.state.v_L_mps);
     Append(ba, o.bias.accel_mps2);
     Append(bg, o.bias.gyro_radps);
-    if (o.covariance) {
-      Append(std_p, Eigen::Vector3d((*o.covariance)(0, 0), (*o.covariance)(1, 1), (*o.covariance)(2, 2)).cwiseSqrt());
+    if (o.position_covariance_m2) {
+      Append(std_p, o.position_covariance_m2->diagonal().cwiseSqrt());
     } else {
       Append(std_p, Eigen::Vector3d::Constant(kNaN));
     }

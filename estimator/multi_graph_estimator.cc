@@ -657,7 +657,9 @@ struct MultiGraphEstimator::Impl {
       out.fused = fused_names;
       if (options.covariance_period_ns > 0 &&
           (!last_covariance_ns || t - *last_covariance_ns >= options.covariance_period_ns)) {
-        out.covariance = smoother.NewestCovariance();
+        if (const std::optional<Eigen::Matrix<double, 15, 15>> P = smoother.NewestCovariance()) {
+          out.position_covariance_m2 = P->topLeftCorner<3, 3>();
+        }
         last_covariance_ns = t;
       }
       outputs.push_back(std::move(out));

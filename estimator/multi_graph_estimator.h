@@ -125,8 +125,11 @@ struct EstimatorOutput {
   bool initialized = false;        ///< the local graph exists
   bool valid = false;              ///< initialised and fused within max_unfused_ns
   std::vector<std::string> fused;  ///< sensors constraining the local graph
-  /// [δp, δθ, δv, δb_a, δb_g] of the newest keyframe, when computed for this output.
-  std::optional<Eigen::Matrix<double, 15, 15>> covariance;
+  /// Covariance of p_LI [m²]: the position block of the newest keyframe's marginal
+  /// covariance of [δp, δθ, δv, δb_a, δb_g], when computed for this output. Only this
+  /// block is kept: every output of a flight is held until its end (200 Hz per method),
+  /// and the whole 15x15 made an output 2 kB (issue 19: memory grows with flight time).
+  std::optional<Eigen::Matrix3d> position_covariance_m2;
 };
 
 /// How and when the local graph was (re-)initialised.

@@ -74,8 +74,8 @@ sim::RobotState ClosedLoopPilot::StateOf(core::Time t_ns,
 ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
                                               const estimator::EstimatorOutput& newest,
                                               const sim::Reference& mission) {
-  if (newest.covariance) {
-    const Eigen::Vector3d var = newest.covariance->topLeftCorner<3, 3>().diagonal();
+  if (newest.position_covariance_m2) {
+    const Eigen::Vector3d var = newest.position_covariance_m2->diagonal();
     position_std_m_ = std::sqrt(std::max(0.0, var.maxCoeff()));
   }
   Command command;

@@ -145,10 +145,10 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
         if (k == t.t_ns.size()) break;
         if (t.t_ns[k] != o.t_ns) continue;  // no ground truth there
         std::optional<double> nees;
-        if (o.covariance) {
+        if (o.position_covariance_m2) {
           if (const auto p_WI = TruthPositionAt(log.ground_truth, o.t_ns)) {
             const Eigen::Vector3d e_L = R_LW * (t.T_W_L * o.state.p_LI - *p_WI);
-            const Eigen::Matrix3d P = o.covariance->topLeftCorner<3, 3>();
+            const Eigen::Matrix3d& P = *o.position_covariance_m2;
             const Eigen::LDLT<Eigen::Matrix3d> ldlt(P);
             if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
               nees = e_L.dot(ldlt.solve(e_L));

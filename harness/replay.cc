@@ -42,9 +42,10 @@ std::string EstimateCsv(const ReplayResult& result) {
     std::string fused;
     for (const std::string& f : o.fused) fused += (fused.empty() ? "" : "+") + f;
     std::string std_p = ",,";
-    if (o.covariance) {
-      std_p = fmt::format("{:.6f},{:.6f},{:.6f}", std::sqrt((*o.covariance)(0, 0)),
-                          std::sqrt((*o.covariance)(1, 1)), std::sqrt((*o.covariance)(2, 2)));
+    if (o.position_covariance_m2) {
+      const Eigen::Matrix3d& P = *o.position_covariance_m2;
+      std_p = fmt::format("{:.6f},{:.6f},{:.6f}", std::sqrt(P(0, 0)), std::sqrt(P(1, 1)),
+                          std::sqrt(P(2, 2)));
     }
     csv += fmt::format(
         "{},{:.6f},{:.6f},{:.6f},{:.9f},{:.9f},{:.9f},{:.9f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f},"

@@ -275,9 +275,9 @@ TEST(ClosedLoopPilot, APositionCovarianceAboveTheBoundTriggersTheFailsafe) {
   ClosedLoopPilot pilot(failsafe, Eigen::Isometry3d::Identity());
   estimator::EstimatorOutput o = Output(0, Eigen::Vector3d::Zero(), 0.0, true);
   ASSERT_TRUE(pilot.TryHandover(0, &o, Eigen::Isometry3d::Identity()));
-  o.covariance = Eigen::Matrix<double, 15, 15>::Identity() * 0.01;  // 0.1 m std
+  o.position_covariance_m2 = Eigen::Matrix3d::Identity() * 0.01;  // 0.1 m std
   EXPECT_EQ(pilot.Fly(1, o, sim::Reference{}).mode, FlightMode::kEstimate);
-  o.covariance->topLeftCorner<3, 3>().diagonal() << 0.01, 0.09, 0.01;  // 0.3 m in y
+  o.position_covariance_m2->diagonal() << 0.01, 0.09, 0.01;  // 0.3 m in y
   EXPECT_EQ(pilot.Fly(2, o, sim::Reference{}).mode, FlightMode::kFailsafeHold);
   EXPECT_NE(pilot.events().back().detail.find("position std"), std::string::npos);
 }
