@@ -2,7 +2,9 @@
 # (alias `tofu::<name>`) built from <name>/*.cc, warnings per target, never global flags.
 
 function(tofu_set_warnings target)
-  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow=local)
+  # -Wshadow=local is GCC's; clang (the TOFU_FUZZ build) has no such option.
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic
+                         $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>)
   if(TOFU_SANITIZE)
     # Eigen turns EIGEN_MALLOC_ALREADY_ALIGNED off under ASan, which makes our objects free
     # with its hand-made aligned allocator what the prebuilt libceres allocated with plain
@@ -10,6 +12,15 @@ function(tofu_set_warnings target)
     # and ASan's malloc both align to 16 bytes on x86-64, so keep Eigen's default.
     target_compile_definitions(${target} PRIVATE EIGEN_MALLOC_ALREADY_ALIGNED=1)
     target_compile_options(${target} PRIVATE -fsanitize=address,undefined -fno-omit-frame-pointer)
+    target_link_options(${target} PRIVATE -fsanitize=address,undefined)
+  endif()
+  if(TOFU_FUZZ)
+    # libFuzzer build (fuzz/, docs/FUZZING.md): coverage instrumentation without
+    # libFuzzer's main, plus ASan + UBSan; the fuzz targets link -fsanitize=fuzzer. Same
+    # Eigen allocator caveat as TOFU_SANITIZE above.
+    target_compile_definitions(${target} PRIVATE EIGEN_MALLOC_ALREADY_ALIGNED=1)
+    target_compile_options(${target} PRIVATE -fsanitize=fuzzer-no-link,address,undefined
+                           -fno-omit-frame-pointer)
     target_link_options(${target} PRIVATE -fsanitize=address,undefined)
   endif()
 endfunction()
@@ -23,7 +34,7 @@ function(tofu_add_library name)
   target_include_directories(tofu_${name} PUBLIC ${PROJECT_SOURCE_DIR})
   target_link_libraries(tofu_${name} PUBLIC ${ARG_DEPS})
   tofu_set_warnings(tofu_${name})
-  if(TOFU_SANITIZE)
+  if(TOFU_SANITIZE OR TOFU_FUZZ)
     target_link_options(tofu_${name} INTERFACE -fsanitize=address,undefined)
   endif()
 endfunction()

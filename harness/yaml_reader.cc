@@ -2,12 +2,15 @@
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
+#include <yaml-cpp/eventhandler.h>
+#include <yaml-cpp/parser.h>
 
 #include <algorithm>
 #include <cassert>
 #include <charconv>
 #include <cmath>
 #include <limits>
+#include <sstream>
 #include <system_error>
 #include <utility>
 
@@ -63,6 +66,40 @@ size_t EditDistance(std::string_view a, std::string_view b) {
   }
   return row[b.size()];
 }
+
+// The marks of one document as yaml-cpp's parser reports them: where it starts and
+// where its root node was written. Every other event is ignored.
+class DocumentMarks : public YAML::EventHandler {
+ public:
+  YAML::Mark start = YAML::Mark::null_mark();
+  YAML::Mark root = YAML::Mark::null_mark();
+
+  void OnDocumentStart(const YAML::Mark& mark) override { start = mark; }
+  void OnDocumentEnd() override {}
+  void OnNull(const YAML::Mark& mark, YAML::anchor_t) override { Node(mark); }
+  void OnAlias(const YAML::Mark& mark, YAML::anchor_t) override { Node(mark); }
+  void OnScalar(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                const std::string&) override {
+    Node(mark);
+  }
+  void OnSequenceStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                       YAML::EmitterStyle::value) override {
+    Node(mark);
+  }
+  void OnSequenceEnd() override {}
+  void OnMapStart(const YAML::Mark& mark, const std::string&, YAML::anchor_t,
+                  YAML::EmitterStyle::value) override {
+    Node(mark);
+  }
+  void OnMapEnd() override {}
+
+ private:
+  void Node(const YAML::Mark& mark) {
+    if (!seen_root_) root = mark;
+    seen_root_ = true;
+  }
+  bool seen_root_ = false;
+};
 
 std::string ChildPath(const std::string& parent, std::string_view key) {
   return parent.empty() ? std::string(key) : parent + "." + std::string(key);
@@ -449,30 +486,56 @@ void YamlMap::Finish() const {
 
 YamlValue ParseDocument(const std::string& text, const std::string& file_label) {
   auto file = std::make_shared<const std::string>(file_label);
-  std::vector<YAML::Node> documents;
-  try {
-    documents = YAML::LoadAll(text);
-  } catch (const YAML::Exception& e) {
+  const auto location_of = [&](const YAML::Mark& mark) {
     core::SourceLocation location{file_label, 0, 0};
-    if (!e.mark.is_null() && e.mark.line >= 0) {
-      location.line = e.mark.line + 1;
-      location.column = e.mark.column + 1;
+    if (!mark.is_null() && mark.line >= 0) {
+      location.line = mark.line + 1;
+      location.column = mark.column + 1;
     }
-    throw core::InputError(location, "", "YAML syntax error: " + e.msg);
+    return location;
+  };
+  // Count the documents first, with yaml-cpp's parser directly rather than
+  // YAML::LoadAll: on a stray flow indicator at the top level (a line that is just ','),
+  // yaml-cpp 0.7 hands out an empty document without consuming the token, again and again,
+  // so LoadAll never returns and its memory grows without bound (fuzz finding,
+  // docs/FUZZING.md). A document that starts where the previous one did is that case.
+  std::vector<DocumentMarks> documents;
+  YAML::Node root;
+  try {
+    std::istringstream in(text);
+    YAML::Parser parser(in);
+    DocumentMarks marks;
+    while (parser.HandleNextDocument(marks)) {
+      if (!documents.empty() && marks.start.pos == documents.back().start.pos) {
+        const size_t pos = static_cast<size_t>(std::max(marks.start.pos, 0));
+        throw core::InputError(
+            location_of(marks.start), "",
+            fmt::format("YAML syntax error: unexpected {} outside a flow collection ('[...]' or "
+                        "'{{...}}')",
+                        pos < text.size() ? Quote(text.substr(pos, 1)) : "end of input"));
+      }
+      documents.push_back(marks);
+      marks = DocumentMarks();
+    }
+    if (documents.size() == 1) root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw core::InputError(location_of(e.mark), "", "YAML syntax error: " + e.msg);
   }
-  if (documents.empty() || (documents.size() == 1 && documents[0].IsNull())) {
+  if (documents.empty() || (documents.size() == 1 && root.IsNull())) {
     throw core::InputError({file_label, 0, 0}, "",
                            "the file is empty: expected a YAML map of scenario keys");
   }
   if (documents.size() > 1) {
-    throw core::InputError(YamlValue(documents[1], "", file, documents[1].Mark()).location(), "",
+    // Where the second document's root was written (the key position of YamlValue for an
+    // empty one, which is the same mark).
+    throw core::InputError(location_of(documents[1].root), "",
                            fmt::format("expected a single YAML document, found {} (remove the "
                                        "'---' separators)",
                                        documents.size()));
   }
-  YamlValue root(documents[0], "", file, documents[0].Mark());
-  if (!root.node().IsMap()) root.FailExpected("a map of scenario keys at the top level");
-  return root;
+  YamlValue value(root, "", file, root.Mark());
+  if (!value.node().IsMap()) value.FailExpected("a map of scenario keys at the top level");
+  return value;
 }
 
 }  // namespace tofu::harness::internal

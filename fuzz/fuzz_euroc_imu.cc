@@ -1,0 +1,17 @@
+// libFuzzer target: the EuRoC reader, harness::ReadRecordedLog on layout (b)
+// (recorded_log.h): the input is mav0/imu0/data.csv of a log whose other files (a .tum
+// pose stream, the ground truth, calibration.yaml) are valid.
+#include "fuzz/fuzz_support.h"
+#include "fuzz/recorded_log_layouts.h"
+#include "harness/recorded_log.h"
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  static const std::filesystem::path dir = [] {
+    const std::filesystem::path d = tofu::fuzz::ScratchDir::Path() / "euroc";
+    tofu::fuzz::WriteEurocDirectory(d, tofu::fuzz::kEurocImu);
+    return d;
+  }();
+  tofu::fuzz::WriteFile(dir / tofu::fuzz::kEurocImu, tofu::fuzz::InputText(data, size));
+  tofu::fuzz::ParsesOrInputError([&] { (void)tofu::harness::ReadRecordedLog(dir); });
+  return 0;
+}
