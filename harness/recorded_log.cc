@@ -510,6 +510,15 @@ InputError YamlError(const std::string& file, const YAML::Mark& mark, const std:
                     key, message);
 }
 
+// A YAML text's root; a syntax error is an InputError at its line and column.
+YAML::Node LoadYaml(const std::string& text, const std::string& file) {
+  try {
+    return YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw YamlError(file, e.mark, "", fmt::format("not valid YAML: {}", e.msg));
+  }
+}
+
 double YamlNumber(const YAML::Node& node, const std::string& file, const std::string& key) {
   if (!node.IsScalar()) throw YamlError(file, node.Mark(), key, "expected a number");
   try {
@@ -553,12 +562,7 @@ Eigen::Isometry3d YamlPose(const YAML::Node& node, const std::string& file, cons
 Calibration ParseCalibration(const std::string& text, const std::string& file) {
   Calibration cal;
   cal.present = true;
-  YAML::Node root;
-  try {
-    root = YAML::Load(text);
-  } catch (const YAML::Exception& e) {
-    throw YamlError(file, e.mark, "", fmt::format("not valid YAML: {}", e.msg));
-  }
+  const YAML::Node root = LoadYaml(text, file);
   const YAML::Node sensors = root.IsMap() ? root["sensors"] : YAML::Node();
   if (!sensors) return cal;
   if (!sensors.IsMap()) {
@@ -640,12 +644,8 @@ std::optional<EurocImuCalibration> ReadEurocImuSensorYaml(const fs::path& path) 
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return std::nullopt;
   const std::string file = path.string();
-  YAML::Node root;
-  try {
-    root = YAML::Load(core::ReadWholeFile(path, "EuRoC sensor.yaml", core::kMaxConfigFileBytes));
-  } catch (const YAML::Exception& e) {
-    throw YamlError(file, e.mark, "", fmt::format("not valid YAML: {}", e.msg));
-  }
+  const YAML::Node root =
+      LoadYaml(core::ReadWholeFile(path, "EuRoC sensor.yaml", core::kMaxConfigFileBytes), file);
   if (!root.IsMap()) throw YamlError(file, root.Mark(), "", "expected a map (EuRoC sensor.yaml)");
   EurocImuCalibration out;
   const std::array<std::pair<const char*, double*>, 4> keys = {
