@@ -96,17 +96,21 @@ double RoundSignificant(double value, int digits) {
 
 void EmitRpyDeg(YAML::Emitter& out, std::string_view key, const Eigen::Quaterniond& q) {
   const Eigen::Vector3d rpy = RpyDegFromQuat(q);
+  // Each angle is rounded to whole nano-degrees (1e-9 deg = 1.7e-11 rad), not to
+  // significant digits: near gimbal lock a significant-digit rounding often fails to
+  // reproduce the attitude, the unrounded angles were then written, and atan2 put a roll
+  // of ±180 on either side of the branch cut on every resolve (fuzz finding 5). A fixed
+  // decimal grid is a fixed point of the round trip; -180 is written as 180, and an
+  // angle within 1e-9 deg of zero as 0 (the `+ 0.0` drops a -0; fuzz finding 4).
   Eigen::Vector3d rounded;
-  // An angle within 1e-9 deg of zero is zero: the quaternion round trip of an exact 0
-  // returns ±1e-15 deg, which 12 significant digits would keep, so that the resolved YAML
-  // would not load back to itself (fuzz finding 4).
   for (int k = 0; k < 3; ++k) {
-    rounded(k) = std::abs(rpy(k)) < 1e-9 ? 0.0 : RoundSignificant(rpy(k), 12);
+    rounded(k) = std::round(rpy(k) * 1e9) / 1e9 + 0.0;
+    if (rounded(k) == -180.0) rounded(k) = 180.0;
   }
-  // Near gimbal lock roll and yaw are ill-conditioned: keep the rounding only where it
-  // reproduces the attitude to rounding error.
+  // Keep the rounding where it reproduces the attitude to 1e-10 rad (a few nano-degrees
+  // of roll and yaw trade against each other near gimbal lock).
   const bool faithful =
-      QuatFromRpyDeg(rounded).angularDistance(q.normalized()) < 1e-14;
+      QuatFromRpyDeg(rounded).angularDistance(q.normalized()) < 1e-10;
   EmitVector(out, key, faithful ? rounded : rpy);
 }
 

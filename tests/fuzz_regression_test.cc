@@ -280,12 +280,12 @@ TEST(FuzzRegressions, ResolvedScenarioYamlIsAFixedPoint) {
   EXPECT_EQ(again, resolved);
 }
 
-// Finding 5 (harness/config_io.cc, EmitRpyDeg; not fixed yet): near gimbal lock a roll
-// of -180 deg resolves to 180 and back to -180: the resolved YAML alternates between two
-// texts. 12 significant digits do not reproduce such an attitude to the 1e-14 rad that
-// EmitRpyDeg asks of its rounding, so it writes the unrounded angles, and atan2 puts the
-// roll on either side of the branch cut.
-TEST(FuzzRegressions, DISABLED_ResolvedScenarioYamlIsAFixedPointAtRoll180) {
+// Finding 5 (harness/config_io.cc, EmitRpyDeg): near gimbal lock a roll of -180 deg
+// resolved to 180 and back to -180: the resolved YAML alternated between two texts.
+// 12 significant digits did not reproduce such an attitude to the 1e-14 rad that
+// EmitRpyDeg asked of its rounding, so it wrote the unrounded angles, and atan2 put the
+// roll on either side of the branch cut. Angles are now rounded to nano-degrees.
+TEST(FuzzRegressions, ResolvedScenarioYamlIsAFixedPointAtRoll180) {
   const auto [resolved, again] = ResolveTwice("roll_180_near_gimbal_lock.yaml");
   EXPECT_EQ(again, resolved);
 }
