@@ -76,6 +76,10 @@ struct ConsensusEstimator::Impl {
     std::optional<GridResampler> grid;
     bool reports_twist = false;  // every sample so far carried a twist
     bool seen = false;
+    // Position sensors: R_AL of the newest usable alignment. Its velocity stays comparable
+    // while its alignment is re-estimated after an exclusion (R_AL changes only with the
+    // slow drift of L), so a recovered sensor shows that it is consistent again.
+    std::optional<Eigen::Matrix3d> last_R_AL;
   };
 
   Impl(std::string imu, std::vector<SensorSpec> specs, MultiGraphEstimatorOptions estimator_options,
@@ -232,7 +236,8 @@ struct ConsensusEstimator::Impl {
       const VelocitySeries v_A = DifferentiatePositions(t, p, diff);
       std::optional<Eigen::Matrix3d> R_AL;
       if (s.spec.kind == SensorKind::kPosition) {
-        if (const auto T_AL = estimator.AlignmentOf(s.spec.name)) R_AL = T_AL->linear();
+        if (const auto T_AL = estimator.AlignmentOf(s.spec.name)) s.last_R_AL = T_AL->linear();
+        R_AL = s.last_R_AL;
       }
       for (std::size_t k = 0; k < v_A.t_ns.size(); ++k) {
         const core::Time tk = v_A.t_ns[k];
@@ -249,7 +254,7 @@ struct ConsensusEstimator::Impl {
                  R_Is.transpose();
         } else {
           // A position sensor's attitude comes from the local estimate and its T_AL:
-          // without both (nothing fused yet, alignment not usable) it is unavailable.
+          // without both (nothing fused yet, never aligned) it is unavailable.
           const LocalSample* l = LocalAt(tk);
           if (l == nullptr || !R_AL) continue;
           R_AI = *R_AL * l->R_LI;
@@ -303,7 +308,13 @@ struct ConsensusEstimator::Impl {
     const int n = static_cast<int>(sensors.size());
     ConsensusInput input;
     input.t_ns = t_now;
-    for (int i = 0; i < n; ++i) input.available.push_back(CoversWindow(i, t_eval));
+    for (int i = 0; i < n; ++i) {
+      input.available.push_back(CoversWindow(i, t_eval));
+      // A position sensor constrains the local graph only through a usable T_AL.
+      const Sensor& sensor = sensors[static_cast<std::size_t>(i)];
+      input.fusable.push_back(sensor.spec.kind == SensorKind::kPose ||
+                              estimator.AlignmentOf(sensor.spec.name).has_value());
+    }
     const bool local_covers = CoversWindow(local_stream, t_eval);
     ConsensusRecord record;
     record.t_ns = t_now;
@@ -336,6 +347,13 @@ struct ConsensusEstimator::Impl {
     }
     if (record.decision.fused != estimator.fused_sensors()) {
       estimator.SetFusedSensors(record.decision.fused);
+    }
+    // The pairs an inconsistent sensor's alignment graph collected may hold the fault (a
+    // jump, a drift): its T_AL is re-estimated from what comes after. Kept, they would
+    // make the alignment unusable for a whole alignment window (20 s) after the fault
+    // ended, and the recovered sensor unavailable that long.
+    for (const std::string& name : record.decision.inconsistent) {
+      estimator.RestartAlignment(name);
     }
     records.push_back(std::move(record));
   }

@@ -147,7 +147,7 @@ class Chooser {
         hold_(hold),
         dwell_note_(std::move(dwell_note)) {}
 
-  Selection Paper() const {
+  Selection PairMember() const {
     // The most consistent eligible pair; ties by the better priority of its sensors.
     int bi = -1;
     int bj = -1;
@@ -169,6 +169,23 @@ class Chooser {
     Selection out = Empty();
     out.notes.push_back("most consistent pair " + Name(bi) + "-" + Name(bj) + " (" + Num(best) +
                         ")");
+    // Return to the preferred sensor (beyond the paper): once a sensor earlier in the
+    // priority list than the fused one is eligible again and confirmed by a consistent
+    // partner, it replaces the fused one (outside the dwell). Without it, a sensor fused
+    // while the preferred one was excluded or unaligned is kept for the rest of the flight
+    // as long as it stays consistent, however much more accurate the preferred one is.
+    if (options_.return_to_priority && !hold_ && CountOf(current_) > 0) {
+      const std::vector<int> fused = ByRank(current_);
+      for (const int p : ByRank(eligible_)) {
+        if (Rank(p) >= Rank(fused.front())) break;
+        const int partner = BestPartner(p);
+        if (partner < 0) continue;
+        Fuse(out, p);
+        out.notes.push_back("returning to " + Name(p) + " (preferred; consistent with " +
+                            Name(partner) + " " + Num(*s_.Value(p, partner)) + ")");
+        return out;
+      }
+    }
     // Keep the fused sensor while it is in a consistent eligible pair (no needless switch).
     for (const int f : ByRank(current_)) {
       if (!At(eligible_, f)) continue;
@@ -193,7 +210,7 @@ class Chooser {
     return out;
   }
 
-  Selection LargestSet() const {
+  Selection ConsistentSet() const {
     // Within the dwell: keep what is still eligible and still agrees.
     if (hold_) {
       std::vector<int> keep;
@@ -537,17 +554,17 @@ std::string Sanitize(std::string text) {
 
 std::string_view ConsensusPolicyName(ConsensusPolicy policy) {
   switch (policy) {
-    case ConsensusPolicy::kPaper:
-      return "paper";
-    case ConsensusPolicy::kLargestConsistentSet:
-      return "largest_set";
+    case ConsensusPolicy::kPairMember:
+      return "pair_member";
+    case ConsensusPolicy::kConsistentSet:
+      return "consistent_set";
   }
   return "unknown";
 }
 
 std::optional<ConsensusPolicy> ConsensusPolicyFromName(std::string_view name) {
   for (const ConsensusPolicy policy :
-       {ConsensusPolicy::kPaper, ConsensusPolicy::kLargestConsistentSet}) {
+       {ConsensusPolicy::kPairMember, ConsensusPolicy::kConsistentSet}) {
     if (name == ConsensusPolicyName(policy)) return policy;
   }
   return std::nullopt;
@@ -565,7 +582,7 @@ bool ConsensusOptions::IsValid(std::string* why) const {
     return fail("leave_threshold must be finite and >= threshold");
   }
   if (min_dwell_ns < 0) return fail("min_dwell_ns must be >= 0");
-  if (policy != ConsensusPolicy::kPaper && policy != ConsensusPolicy::kLargestConsistentSet) {
+  if (policy != ConsensusPolicy::kPairMember && policy != ConsensusPolicy::kConsistentSet) {
     return fail("policy is not a known ConsensusPolicy");
   }
   for (std::size_t k = 0; k < priority.size(); ++k) {
@@ -591,9 +608,9 @@ ConsensusSelector::ConsensusSelector(std::vector<std::string> sensors, Consensus
       }
     }
   }
-  if (options_.policy == ConsensusPolicy::kLargestConsistentSet &&
+  if (options_.policy == ConsensusPolicy::kConsistentSet &&
       n > static_cast<std::size_t>(kMaxSensorsLargestSet)) {
-    throw std::invalid_argument("ConsensusSelector: the largest_set policy takes at most " +
+    throw std::invalid_argument("ConsensusSelector: the consistent_set policy takes at most " +
                                 std::to_string(kMaxSensorsLargestSet) + " sensors");
   }
   // Priority ranks: listed names first, the rest in constructor order.
@@ -619,6 +636,7 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
   const int n = static_cast<int>(sensors_.size());
   const auto un = static_cast<std::size_t>(n);
   if (input.available.size() != un || input.vs_local.size() != un ||
+      (!input.fusable.empty() && input.fusable.size() != un) ||
       input.pair.size() != un * (un - (n > 0 ? 1 : 0)) / 2) {
     throw std::invalid_argument("ConsensusSelector::Decide: " + std::to_string(n) +
                                 " sensors need available[" + std::to_string(n) + "] pair[" +
@@ -735,7 +753,7 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
   std::vector<bool> evidence(un, false);
   for (std::size_t i = 0; i < un; ++i) {
     evidence[i] = s.available[i] && !cross[i];
-    eligible[i] = evidence[i] && !waiting[i];
+    eligible[i] = evidence[i] && !waiting[i] && (input.fusable.empty() || input.fusable[i]);
   }
   const bool any_fused = std::count(fused_mask_.begin(), fused_mask_.end(), true) > 0;
   const bool hold = dwell && any_fused && last_change_ns_ &&
@@ -752,8 +770,8 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
     selection.excluded.assign(un, false);
     notes.assign({"all sensors unavailable"});
   } else {
-    selection = options_.policy == ConsensusPolicy::kPaper ? chooser.Paper()
-                                                           : chooser.LargestSet();
+    selection = options_.policy == ConsensusPolicy::kPairMember ? chooser.PairMember()
+                                                           : chooser.ConsistentSet();
     for (std::string& note : selection.notes) notes.push_back(std::move(note));
   }
 
@@ -762,10 +780,12 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
   for (int i = 0; i < n; ++i) {
     const auto ui = static_cast<std::size_t>(i);
     if (selection.fused[ui]) fused_ids.push_back(i);
+    if (eligible[ui] && !selection.excluded[ui]) decision.eligible.push_back(sensors_[ui]);
     if (!s.available[ui]) {
       decision.unavailable.push_back(sensors_[ui]);
     } else if (cross[ui] || waiting[ui] || selection.excluded[ui]) {
       decision.excluded.push_back(sensors_[ui]);
+      if (cross[ui] || selection.excluded[ui]) decision.inconsistent.push_back(sensors_[ui]);
       if (dwell && (cross[ui] || selection.excluded[ui])) {
         quarantined_[ui] = true;
         clean_since_ns_[ui].reset();

@@ -6,6 +6,10 @@
 //
 // Pure decision logic: no metric computation (estimator/consistency_matrix.h), no I/O.
 //
+// Eligible for fusion: available, not excluded, not awaiting re-admission, and fusable
+// (ConsensusInput::fusable: e.g. a position sensor whose frame alignment is being
+// re-estimated still gives evidence through its velocity, but cannot be fused yet).
+//
 // Rules, in the order they are applied at each Decide():
 //  1. Pair judgement. A pair is consistent when its value < the applicable threshold
 //     (leave_threshold if either sensor is fused now and hysteresis is on, else threshold),
@@ -23,10 +27,13 @@
 //     sensor, or consistency with the local estimate) for min_dwell_ns without interruption.
 //     It still serves as evidence (pairs) for the others.
 //  4. Selection among the eligible sensors (available, not excluded):
-//     - kPaper: if some eligible pair is consistent, the currently fused sensor is kept
-//       when it is in such a pair (no needless switching); otherwise one sensor of the
-//       most consistent pair (smallest value) is fused, chosen by priority.
-//     - kLargestConsistentSet: the largest eligible subset whose known pairs are all
+//     - kPairMember (the paper): if some eligible pair is consistent, the currently fused
+//       sensor is kept when it is in such a pair (no needless switching); otherwise one
+//       sensor of the most consistent pair (smallest value) is fused, chosen by priority.
+//       With return_to_priority (beyond the paper), a fused sensor gives way, outside the
+//       dwell, to a sensor earlier in the priority list that has a consistent eligible
+//       partner: the preferred sensor is fused again once it has recovered.
+//     - kConsistentSet: the largest eligible subset whose known pairs are all
 //       consistent and in which every member has at least one known consistent pair
 //       (unknown alone is not agreement); ties: smaller sum of known values, then priority.
 //       A sensor joins the fused set only with values < threshold (leave_threshold applies
@@ -57,11 +64,11 @@
 namespace tofu::estimator {
 
 enum class ConsensusPolicy {
-  kPaper,                 ///< fuse ONE sensor of the most consistent pair (paper)
-  kLargestConsistentSet,  ///< fuse every sensor of the largest mutually consistent set
+  kPairMember,     ///< fuse ONE sensor of the most consistent pair (the paper)
+  kConsistentSet,  ///< fuse every sensor of the largest mutually consistent set
 };
 
-/// "paper", "largest_set".
+/// "pair_member", "consistent_set" (the scenario key `consensus: {fuse: ...}`).
 std::string_view ConsensusPolicyName(ConsensusPolicy policy);
 /// Inverse of ConsensusPolicyName; nullopt for an unknown name.
 std::optional<ConsensusPolicy> ConsensusPolicyFromName(std::string_view name);
@@ -78,7 +85,11 @@ struct ConsensusOptions {
   /// it was consistent for min_dwell_ns without interruption. A fused sensor that becomes
   /// unavailable or is detected faulty is still dropped at once (safety beats dwell).
   core::Time min_dwell_ns = 0;
-  ConsensusPolicy policy = ConsensusPolicy::kPaper;
+  ConsensusPolicy policy = ConsensusPolicy::kPairMember;
+  /// kPairMember: a fused sensor gives way (outside the dwell) to a sensor earlier in the
+  /// priority list that is eligible and in a consistent pair; false = the paper, which
+  /// keeps the fused sensor while it stays consistent.
+  bool return_to_priority = true;
   /// Which sensor of the chosen pair to fuse (paper policy), and tie-breaks elsewhere:
   /// earlier = preferred; sensors not listed come after, in the order given to the
   /// constructor.
@@ -99,12 +110,21 @@ struct ConsensusInput {
   /// ConsistencyMatrix::PairIndex.
   std::vector<std::optional<double>> pair;
   std::vector<std::optional<double>> vs_local;  ///< size N (m/s)
+  /// Size N, or empty (= every sensor fusable): whether the sensor could constrain the
+  /// estimate now. A sensor that is available but not fusable counts as evidence only.
+  std::vector<bool> fusable;
 };
 
 struct ConsensusDecision {
   core::Time t_ns = 0;
   std::vector<std::string> fused;        ///< sensors to fuse now, by priority (empty: IMU-only)
-  std::vector<std::string> excluded;     ///< available but judged inconsistent (faulty)
+  std::vector<std::string> excluded;     ///< available but not trusted (faulty or waiting)
+  /// The part of `excluded` judged inconsistent by this decision's values (cross pattern,
+  /// inconsistent with the fused sensor), not merely awaiting re-admission.
+  std::vector<std::string> inconsistent;
+  /// Sensors that could be fused now: available, trusted (not excluded, not waiting) and
+  /// fusable. A recovered sensor is re-admitted once it is here again.
+  std::vector<std::string> eligible;
   std::vector<std::string> unavailable;  ///< available[i] == false
   std::string reason;                    ///< one line, human readable, no commas (CSV)
   bool changed = false;                  ///< fused set differs from the previous decision

@@ -820,6 +820,13 @@ bool MultiGraphEstimator::DiscardSensor(const std::string& name, core::Time afte
   return true;
 }
 
+bool MultiGraphEstimator::RestartAlignment(const std::string& name) {
+  SensorState* s = impl_->Find(name);
+  if (s == nullptr) return false;
+  if (!s->fused && !s->known_T_AL) s->graph->Reset();
+  return true;
+}
+
 void MultiGraphEstimator::SetKnownAlignment(const std::string& sensor,
                                             const Eigen::Isometry3d& T_AL) {
   if (SensorState* s = impl_->Find(sensor)) s->known_T_AL = T_AL;

@@ -201,6 +201,12 @@ class MultiGraphEstimator {
   /// the fault went unnoticed stops pulling the estimate. Unknown names: false.
   bool DiscardSensor(const std::string& name, core::Time after_ns);
 
+  /// A sensor judged inconsistent (by consensus) while not fused: the pairs its alignment
+  /// graph holds are dropped and T_AL is estimated afresh from the pairs that follow
+  /// (AlignmentGraph::Reset). Nothing happens to a fused sensor (its T_AL is frozen) or to
+  /// one with a known T_AL. Unknown names: false.
+  bool RestartAlignment(const std::string& name);
+
   /// A known T_AL (e.g. the ground truth handed to the naive baseline), used instead of
   /// the sensor's alignment graph.
   void SetKnownAlignment(const std::string& sensor, const Eigen::Isometry3d& T_AL);

@@ -47,6 +47,20 @@ std::optional<double> FaultDetection::delay_s() const {
   return core::TimeToSeconds(*detected_ns - onset_ns);
 }
 
+std::optional<double> FaultDetection::readmission_delay_s() const {
+  if (!detected_ns || !ends_in_run) return std::nullopt;
+  if (!readmitted_ns) return std::numeric_limits<double>::infinity();
+  return core::TimeToSeconds(*readmitted_ns - end_ns);
+}
+
+std::optional<double> MethodEvaluation::max_readmission_delay_s() const {
+  std::optional<double> worst;
+  for (const FaultDetection& d : detections) {
+    if (const auto delay = d.readmission_delay_s()) worst = std::max(worst.value_or(*delay), *delay);
+  }
+  return worst;
+}
+
 int MethodEvaluation::missed_faults() const {
   int missed = 0;
   for (const FaultDetection& d : detections) missed += d.detected_ns ? 0 : 1;
@@ -75,6 +89,7 @@ estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config) {
   options.leave_threshold = config.leave_threshold;
   options.min_dwell_ns = core::SecondsToTime(config.min_dwell_s);
   options.policy = config.policy;
+  options.return_to_priority = config.return_to_priority;
   options.priority = config.priority;
   return options;
 }

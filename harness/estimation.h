@@ -39,7 +39,11 @@ struct ConsensusConfig {
   double threshold = 0.1;                 ///< CM distance (m/s), paper: 0.1
   std::optional<double> leave_threshold;  ///< hysteresis; unset = paper
   double min_dwell_s = 0.0;               ///< 0 = paper
-  estimator::ConsensusPolicy policy = estimator::ConsensusPolicy::kPaper;
+  /// `fuse`: pair_member (one sensor of the most consistent pair, the paper) or
+  /// consistent_set (every sensor of the largest mutually consistent set).
+  estimator::ConsensusPolicy policy = estimator::ConsensusPolicy::kPairMember;
+  /// pair_member: give way to a preferred sensor that has recovered (false: the paper).
+  bool return_to_priority = true;
   std::vector<std::string> priority;      ///< sensors, most preferred first
   double window_s = 1.0;                  ///< CM window
   double rate_hz = 10.0;                  ///< evaluations per second
@@ -47,8 +51,9 @@ struct ConsensusConfig {
 
 /// `estimation:` in a scenario.
 struct EstimationConfig {
-  /// Method names (harness/replay.h ParseReplayMethod): consensus, naive,
-  /// single:<sensor>, fuse:<a>+<b>, imu_only, each optionally with @clean.
+  /// Method names (harness/replay.h ParseReplayMethod): consensus,
+  /// consensus:pair_member, consensus:consistent_set, oracle, naive, single:<sensor>,
+  /// fuse:<a>+<b>, imu_only, each optionally with @clean.
   std::vector<std::string> methods;
   ConsensusConfig consensus;
   /// Huber loss on the between factors, in standard deviations (0: off, as the paper).
@@ -65,7 +70,16 @@ struct FaultDetection {
   core::Time onset_ns = 0;
   core::Time end_ns = 0;
   std::optional<core::Time> detected_ns;  ///< first exclusion in [onset, end]
+  bool ends_in_run = false;  ///< the fault ended before the run did
+  /// Detected faults that ended: from the end on, the first decision from which the
+  /// sensor stays eligible (available, trusted, fusable: ConsensusDecision::eligible) for
+  /// at least 1 s (a blip of trust before the fault's trailing edge is seen does not
+  /// count), or to the end of the run.
+  std::optional<core::Time> readmitted_ns;
   std::optional<double> delay_s() const;
+  /// Seconds from the fault's end to readmitted_ns; +inf when never re-admitted; nullopt
+  /// for a fault that was not detected or did not end.
+  std::optional<double> readmission_delay_s() const;
 };
 
 struct MethodEvaluation {
@@ -95,6 +109,8 @@ struct MethodEvaluation {
   /// The largest detection delay over the faults of `kind` ("" = every detectable fault);
   /// nullopt when there is none; +inf when one was missed.
   std::optional<double> max_detection_delay_s(const std::string& kind = "") const;
+  /// The largest re-admission delay (nullopt when no detected fault ended).
+  std::optional<double> max_readmission_delay_s() const;
   /// The largest false-exclusion time of any sensor as a fraction of the run.
   double false_exclusion_fraction() const;
 };

@@ -141,6 +141,7 @@ std::optional<double> MethodMetricValue(const RunRecord& record, const std::stri
     return m->max_detection_delay_s(args.fault);
   }
   if (pattern == "methods.<method>.false_exclusion_fraction") return m->false_exclusion_fraction();
+  if (pattern == "methods.<method>.max_readmission_delay_s") return m->max_readmission_delay_s();
   return std::nullopt;
 }
 
@@ -163,6 +164,7 @@ nlohmann::json MethodsJson(const RunRecord& record) {
       j["faults"] = m.detections.size();
       j["faults_detected"] = m.detections.size() - static_cast<std::size_t>(m.missed_faults());
       j["max_detection_delay_s"] = OptionalNumber(m.max_detection_delay_s());
+      j["max_readmission_delay_s"] = OptionalNumber(m.max_readmission_delay_s());
       j["false_exclusion_fraction"] = m.false_exclusion_fraction();
       nlohmann::json false_exclusions = nlohmann::json::object();
       for (const auto& [sensor, seconds] : m.false_exclusion_s) false_exclusions[sensor] = seconds;
@@ -174,7 +176,8 @@ nlohmann::json MethodsJson(const RunRecord& record) {
                               {"onset_s", core::TimeToSeconds(d.onset_ns)},
                               {"end_s", core::TimeToSeconds(d.end_ns)},
                               {"detected", d.detected_ns.has_value()},
-                              {"delay_s", OptionalNumber(d.delay_s())}});
+                              {"delay_s", OptionalNumber(d.delay_s())},
+                              {"readmission_delay_s", OptionalNumber(d.readmission_delay_s())}});
       }
       j["detections"] = detections;
     }
@@ -417,15 +420,37 @@ ConsensusScores ScoreConsensusDecisions(const std::vector<estimator::ConsensusRe
   // data, not wrong data: nothing to detect.
   for (const LabelInterval& f : faults) {
     if (f.label == "dropout") continue;
-    FaultDetection det{f.sensor, f.label, f.start_ns, f.end_ns, std::nullopt};
+    FaultDetection det;
+    det.sensor = f.sensor;
+    det.fault = f.label;
+    det.onset_ns = f.start_ns;
+    det.end_ns = f.end_ns;
+    det.ends_in_run = !f.open;
+    const auto listed = [&](const std::vector<std::string>& names) {
+      return std::find(names.begin(), names.end(), f.sensor) != names.end();
+    };
     for (const estimator::ConsensusRecord& rec : decisions) {
       if (rec.t_ns < f.start_ns) continue;
       if (rec.t_ns > f.end_ns + 1'000'000'000) break;
-      const auto& ex = rec.decision.excluded;
-      if (std::find(ex.begin(), ex.end(), f.sensor) != ex.end()) {
+      if (listed(rec.decision.excluded)) {
         det.detected_ns = rec.t_ns;
         break;
       }
+    }
+    // Re-admission: eligible again, for good, once the fault is over (issue 16: within
+    // the alignment window, and a few seconds at the median).
+    if (det.detected_ns && det.ends_in_run) {
+      std::optional<core::Time> since;
+      for (const estimator::ConsensusRecord& rec : decisions) {
+        if (rec.t_ns < f.end_ns) continue;
+        if (!listed(rec.decision.eligible)) {
+          since.reset();
+          continue;
+        }
+        if (!since) since = rec.t_ns;
+        if (rec.t_ns - *since >= 1'000'000'000) break;
+      }
+      det.readmitted_ns = since;
     }
     scores.detections.push_back(det);
   }

@@ -48,6 +48,10 @@ const std::vector<MetricInfo>& MetricCatalog() {
        false},
       {"methods.<method>.detection_delay_s.<fault>", "s",
        "largest detection delay over the faults of one kind; inf when one was missed", false},
+      {"methods.<method>.max_readmission_delay_s", "s",
+       "largest delay from the end of a detected fault until the sensor is trusted again "
+       "(available, not excluded); inf when it never is",
+       false},
       {"methods.<method>.false_exclusion_fraction", "fraction",
        "largest time a sensor was excluded with no fault or condition active, over the run",
        false},

@@ -490,6 +490,43 @@ std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::strin
   return out;
 }
 
+// labels.csv of a run directory (run_directory.cc LabelsCsv).
+std::vector<LabelEvent> ReadLabelsCsv(const fs::path& path) {
+  CsvFile csv(path, "#timestamp [ns],sensor,label,source,active");
+  const int t_col = csv.Require("timestamp", "time in ns");
+  const int sensor_col = csv.Require("sensor", "the sensor's name");
+  const int label_col = csv.Require("label", "a condition or fault kind");
+  const int source_col = csv.Require("source", "condition or fault");
+  const int active_col = csv.Require("active", "1 (starts) or 0 (ends)");
+  std::vector<LabelEvent> out;
+  out.reserve(csv.RowsUpperBound());
+  while (csv.Next()) {
+    LabelEvent e;
+    e.t_ns = csv.Integer(t_col);
+    e.sensor = std::string(csv.Text(sensor_col));
+    e.label = std::string(csv.Text(label_col));
+    e.source = std::string(csv.Text(source_col));
+    if (e.sensor.empty() || e.label.empty()) {
+      throw csv.Error(e.sensor.empty() ? sensor_col : label_col, "expected a name, got nothing");
+    }
+    if (e.source != "condition" && e.source != "fault") {
+      throw csv.Error(source_col, fmt::format("expected condition or fault, got {}",
+                                              Quoted(e.source)));
+    }
+    const std::string_view active = csv.Text(active_col);
+    if (active != "0" && active != "1") {
+      throw csv.Error(active_col, fmt::format("expected 1 or 0, got {}", Quoted(active)));
+    }
+    e.active = active == "1";
+    if (!out.empty() && e.t_ns < out.back().t_ns) {
+      throw csv.Error(t_col, fmt::format("timestamps must not decrease ({} after {})", e.t_ns,
+                                         out.back().t_ns));
+    }
+    out.push_back(std::move(e));
+  }
+  return out;
+}
+
 // ---- calibration.yaml ----
 
 struct SensorCalibration {
@@ -989,6 +1026,14 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
   } else {
     log.notes.push_back(fmt::format("no ground truth ({} not found)",
                                     fs::relative(ground_truth_file, directory).string()));
+  }
+
+  if (run_directory) {
+    const fs::path labels_file = directory / "labels.csv";
+    if (fs::is_regular_file(labels_file, ec)) {
+      log.labels = ReadLabelsCsv(labels_file);
+      log.notes.push_back(fmt::format("labels: labels.csv ({} transitions)", log.labels.size()));
+    }
   }
 
   SortByArrival(log, stream_end);

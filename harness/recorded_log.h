@@ -39,6 +39,7 @@
 
 #include "core/measurement.h"
 #include "core/time.h"
+#include "harness/labels.h"
 
 namespace tofu::harness {
 
@@ -126,6 +127,8 @@ struct RecordedLog {
   /// Pose of the IMU frame I in W, in file order; empty without ground truth. Layout (a):
   /// T_WI = T_WB T_B_I with the IMU's true mount (true_T_B_s when calibration.yaml has one).
   std::vector<GroundTruthPose> ground_truth;
+  /// Layout (a): labels.csv (conditions and scheduled faults), by time; empty otherwise.
+  std::vector<LabelEvent> labels;
   std::vector<std::string> notes;       ///< what was read and what was assumed
 };
 

@@ -135,7 +135,8 @@ std::string ConsistencyMatrixCsv(const ReplayResult& result) {
 namespace {
 
 constexpr const char* kMethodForms =
-    "single:<sensor>, fuse:<a>+<b>, imu_only, naive or consensus, optionally with @clean";
+    "single:<sensor>, fuse:<a>+<b>, imu_only, naive, oracle, consensus, "
+    "consensus:pair_member or consensus:consistent_set, optionally with @clean";
 
 // The grammar of method names, against a list of sensor names; the parsed method or an
 // error message.
@@ -168,8 +169,21 @@ std::variant<ReplayMethod, std::string> ParseMethod(const std::string& name,
     if (sensors.empty()) return fmt::format("method '{}': no sensor to fuse", name);
     return method;
   }
-  if (body == "consensus") {
+  if (body == "oracle") {
+    method.kind = ReplayMethod::Kind::kOracle;
+    method.fused = sensors;
+    if (sensors.empty()) return fmt::format("method '{}': no sensor to fuse", name);
+    return method;
+  }
+  if (body == "consensus" || body.starts_with("consensus:")) {
     method.kind = ReplayMethod::Kind::kConsensus;
+    if (body != "consensus") {
+      method.policy = estimator::ConsensusPolicyFromName(body.substr(10));
+      if (!method.policy) {
+        return fmt::format("method '{}': unknown consensus fusion '{}'; expected {}", name,
+                           body.substr(10), kMethodForms);
+      }
+    }
     if (sensors.empty()) return fmt::format("method '{}': no sensor to choose from", name);
     return method;
   }
@@ -302,6 +316,39 @@ struct MethodRunner::Impl {
   core::Time last_t_ns = 0;
   std::vector<estimator::SensorSpec> specs;  // as given (what was stated)
   std::chrono::steady_clock::duration busy{};
+  // kOracle: the labels, and the sensors they call unhealthy now (by their last sample).
+  SensorHealth health;
+  std::vector<std::string> unhealthy;
+
+  // The oracle's choice for one sample: a sensor whose labels say faulty or degraded
+  // leaves the fused set before its sample is added, and comes back with its first
+  // healthy sample. While it is unhealthy its alignment pairs are dropped, as consensus
+  // drops an inconsistent sensor's, so that a recovered sensor is re-aligned from
+  // healthy data only.
+  void OracleSelect(const core::StampedMeasurement& m) {
+    if (std::find(method.fused.begin(), method.fused.end(), m.sensor) == method.fused.end()) {
+      return;  // the IMU, or a stream the method does not fuse
+    }
+    const bool healthy = health.Healthy(m.sensor, m.t_ns);
+    const auto at = std::find(unhealthy.begin(), unhealthy.end(), m.sensor);
+    if (healthy == (at == unhealthy.end())) {
+      if (!healthy) fixed->RestartAlignment(m.sensor);
+      return;
+    }
+    if (healthy) {
+      unhealthy.erase(at);
+    } else {
+      unhealthy.push_back(m.sensor);
+    }
+    std::vector<std::string> fused;
+    for (const std::string& name : method.fused) {
+      if (std::find(unhealthy.begin(), unhealthy.end(), name) == unhealthy.end()) {
+        fused.push_back(name);
+      }
+    }
+    fixed->SetFusedSensors(fused);
+    if (!healthy) fixed->RestartAlignment(m.sensor);
+  }
 
   const estimator::MultiGraphEstimator& estimator() const {
     return fixed ? *fixed : consensus->estimator();
@@ -319,11 +366,14 @@ MethodRunner::MethodRunner(const RecordedLog& log, const ReplayMethod& method,
   impl_->result.method = method;
   impl_->result.keyframe_period_ns = core::PeriodFromRate(options.local.keyframe_rate_hz);
   if (method.kind == ReplayMethod::Kind::kConsensus) {
-    impl_->consensus.emplace(log.imu_stream, sensors, options, consensus_options);
+    estimator::ConsensusEstimatorOptions chosen = consensus_options;
+    if (method.policy) chosen.selection.policy = *method.policy;
+    impl_->consensus.emplace(log.imu_stream, sensors, options, chosen);
   } else {
     impl_->fixed.emplace(log.imu_stream, sensors, options);
     impl_->fixed->SetFusedSensors(method.fused);
   }
+  for (const LabelEvent& label : log.labels) AddLabel(label);
 }
 
 MethodRunner::~MethodRunner() = default;
@@ -337,6 +387,7 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement) {
   if (!m.first_t_ns || measurement.t_ns < *m.first_t_ns) m.first_t_ns = measurement.t_ns;
   m.last_t_ns = std::max(m.last_t_ns, measurement.t_ns);
   if (m.fixed) {
+    if (m.method.kind == ReplayMethod::Kind::kOracle) m.OracleSelect(measurement);
     m.fixed->Add(measurement);
     if (m.method.kind == ReplayMethod::Kind::kNaive && !m.true_alignments_given &&
         m.fixed->local().initialized()) {
@@ -357,6 +408,12 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement) {
   }
   m.busy += std::chrono::steady_clock::now() - start;
   return m.result.outputs.size() - before;
+}
+
+void MethodRunner::AddLabel(const LabelEvent& label) {
+  // The un-faulted streams (@clean) have no scheduled fault; their conditions still hold.
+  if (impl_->method.clean_streams && label.source == "fault") return;
+  impl_->health.Add(label);
 }
 
 const std::vector<estimator::EstimatorOutput>& MethodRunner::outputs() const {

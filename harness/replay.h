@@ -18,6 +18,7 @@
 #include "estimator/consistency.h"
 #include "estimator/local_smoother.h"
 #include "estimator/multi_graph_estimator.h"
+#include "harness/labels.h"
 #include "harness/recorded_log.h"
 #include "harness/trajectory_metrics.h"
 
@@ -29,15 +30,23 @@ namespace tofu::harness {
 ///  - "naive": every sensor all the time, with the true frame transforms T_AL (the seed
 ///    paper's naive baseline, given "the ground truth transform between the Leica and
 ///    local frame");
-///  - "consensus": the sensors chosen online by consensus (estimator/consensus_estimator.h).
+///  - "consensus": the sensors chosen online by consensus (estimator/consensus_estimator.h),
+///    fusing as the scenario's `consensus: {fuse: ...}` says; "consensus:pair_member" and
+///    "consensus:consistent_set" choose that explicitly (both can run in one flight);
+///  - "oracle": at every sample, exactly the sensors the ground-truth labels call healthy
+///    (no fault, no condition active: harness/labels.h), with the estimated alignments as
+///    consensus has them: the upper bound of any selection. A log without labels.csv (a
+///    real log) has no label, so the oracle fuses everything there.
 /// A suffix "@clean" runs the method on the un-faulted streams (sensors/clean/): the
 /// paper's reference is "single:vio@clean".
 struct ReplayMethod {
-  enum class Kind { kFixed, kNaive, kConsensus };
+  enum class Kind { kFixed, kNaive, kConsensus, kOracle };
   std::string name;
   Kind kind = Kind::kFixed;
-  std::vector<std::string> fused;  ///< kFixed and kNaive: the sensors fused all the time
+  std::vector<std::string> fused;  ///< kFixed, kNaive and kOracle: the sensors it may fuse
   bool clean_streams = false;      ///< "@clean"
+  /// kConsensus: the fusion rule when the name states one (else the scenario's).
+  std::optional<estimator::ConsensusPolicy> policy;
 };
 
 /// Parses a method name against the log's streams; throws core::InputError naming the
@@ -100,6 +109,10 @@ class MethodRunner {
 
   /// The next measurement in arrival order; returns how many outputs it produced.
   std::size_t Add(const core::StampedMeasurement& measurement);
+  /// A label the oracle learns while the run goes on (the run loop's condition
+  /// transitions); the log's own labels (labels.csv) are known from the start. Other
+  /// methods ignore labels.
+  void AddLabel(const LabelEvent& label);
   /// Every output so far (the newest last).
   const std::vector<estimator::EstimatorOutput>& outputs() const;
   const estimator::MultiGraphEstimator& estimator() const;

@@ -93,6 +93,17 @@ class InLoopMethods {
       clean_.push_back(method.clean_streams);
       runners_.emplace_back(log, method, setup.estimator, setup.sensors, setup.consensus);
     }
+    // The labels known so far: the fault schedule, and the conditions of the first step.
+    for (const LabelEvent& label : schedule_) AddLabel(label);
+    for (const LabelEvent& label : record.labels) AddLabel(label);
+  }
+
+  /// The scheduled faults as labels, known before the flight (the oracle's); given to
+  /// the methods when they start.
+  void SetFaultSchedule(std::vector<LabelEvent> schedule) { schedule_ = std::move(schedule); }
+  /// A condition transition the run just recorded.
+  void AddLabel(const LabelEvent& label) {
+    for (MethodRunner& runner : runners_) runner.AddLabel(label);
   }
 
   void Feed(bool clean_stream, const std::vector<SensorStream>& streams, const ArrivedSample& a) {
@@ -118,6 +129,7 @@ class InLoopMethods {
   bool any_clean_ = false;
   std::vector<bool> clean_;
   std::vector<MethodRunner> runners_;
+  std::vector<LabelEvent> schedule_;
 };
 
 Eigen::Isometry3d PoseOf(const Eigen::Vector3d& p, const Eigen::Quaterniond& q) {
@@ -284,6 +296,13 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   const int64_t total_steps =
       std::llround(scenario.duration_s * scenario.physics.rate_hz);
   const int64_t progress_every = std::max<int64_t>(1, total_steps / 200);
+  {
+    std::vector<LabelEvent> schedule;
+    for (const sim::FaultLabel& label : sim::FaultLabels(scenario.faults, total_steps * dt_ns)) {
+      schedule.push_back({label.t_ns, label.sensor, label.fault, "fault", label.active});
+    }
+    in_loop.SetFaultSchedule(std::move(schedule));
+  }
   core::Time next_controller_ns = 0;
   core::Time next_output_ns = 0;
   size_t next_approach = 0;
@@ -387,6 +406,7 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
               record.labels.push_back({truth.t_ns, stream.name,
                                        std::string(sim::ConditionName(bit)), "condition",
                                        (now_conditions & bit) != 0});
+              if (in_loop.started()) in_loop.AddLabel(record.labels.back());
             }
             conditions[i] = now_conditions;
           }

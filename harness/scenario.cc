@@ -137,8 +137,8 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   }
   if (const auto consensus = map.Optional("consensus")) {
     ConsensusConfig& c = config.consensus;
-    YamlMap cmap = consensus->Map({"threshold", "leave_threshold", "min_dwell_s", "policy",
-                                   "priority", "window_s", "rate_hz"});
+    YamlMap cmap = consensus->Map({"threshold", "leave_threshold", "min_dwell_s", "fuse",
+                                   "return_to_priority", "priority", "window_s", "rate_hz"});
     ReadNumber(cmap, "threshold", NumberRule::Between(1e-6, 100.0, "m/s"), &c.threshold);
     if (const auto leave = cmap.Optional("leave_threshold")) {
       c.leave_threshold = leave->Number(NumberRule::Between(1e-6, 100.0, "m/s"));
@@ -148,11 +148,12 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
       }
     }
     ReadNumber(cmap, "min_dwell_s", NumberRule::Between(0.0, 3600.0, "s"), &c.min_dwell_s);
-    if (const auto policy = cmap.Optional("policy")) {
-      const auto parsed = estimator::ConsensusPolicyFromName(policy->String());
-      if (!parsed) policy->FailExpected("paper or largest_set");
+    if (const auto fuse = cmap.Optional("fuse")) {
+      const auto parsed = estimator::ConsensusPolicyFromName(fuse->String());
+      if (!parsed) fuse->FailExpected("pair_member or consistent_set");
       c.policy = *parsed;
     }
+    ReadBool(cmap, "return_to_priority", &c.return_to_priority);
     if (const auto priority = cmap.Optional("priority")) {
       for (const YamlValue& item : priority->List(/*non_empty=*/false)) {
         const std::string name = item.Identifier();
@@ -950,7 +951,8 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     EmitNumber(out, "threshold", cons.threshold);
     if (cons.leave_threshold) EmitNumber(out, "leave_threshold", *cons.leave_threshold);
     EmitNumber(out, "min_dwell_s", cons.min_dwell_s);
-    out << YAML::Key << "policy" << YAML::Value << std::string(estimator::ConsensusPolicyName(cons.policy));
+    out << YAML::Key << "fuse" << YAML::Value << std::string(estimator::ConsensusPolicyName(cons.policy));
+    out << YAML::Key << "return_to_priority" << YAML::Value << cons.return_to_priority;
     out << YAML::Key << "priority" << YAML::Value << YAML::Flow << YAML::BeginSeq;
     for (const std::string& p : cons.priority) out << p;
     out << YAML::EndSeq;

@@ -16,6 +16,7 @@
 #include <Eigen/Geometry>
 
 #include "core/time.h"
+#include "harness/labels.h"
 #include "sim/faults.h"
 #include "sim/gnss.h"
 #include "sim/imu.h"
@@ -55,15 +56,6 @@ double SensorRate_hz(const SensorOptions& options);
 /// so adding or removing another sensor never changes this one's samples.
 std::unique_ptr<sim::SensorModel> MakeSensorModel(const SensorConfig& config,
                                                   const sim::World& world, uint64_t seed);
-
-/// A label transition: a condition or a scheduled fault of a sensor starts or ends.
-struct LabelEvent {
-  core::Time t_ns = 0;
-  std::string sensor;
-  std::string label;   ///< condition name ("occluded") or fault kind ("divergence")
-  std::string source;  ///< "condition" or "fault"
-  bool active = false;
-};
 
 /// Everything a run recorded of one sensor.
 struct SensorStream {

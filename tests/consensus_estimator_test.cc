@@ -282,8 +282,8 @@ TEST(EstimationScenario, PriorityMustNameSensorsAndThresholdsMustBeOrdered) {
   EXPECT_NE(error.find("gnss"), std::string::npos) << error;
   error = ErrorOf(With("threshold: 0.3,", "threshold: 0.3, leave_threshold: 0.2,"));
   EXPECT_NE(error.find("leave_threshold >= threshold"), std::string::npos) << error;
-  error = ErrorOf(With("threshold: 0.3,", "threshold: 0.3, policy: vote,"));
-  EXPECT_NE(error.find("paper or largest_set"), std::string::npos) << error;
+  error = ErrorOf(With("threshold: 0.3,", "threshold: 0.3, fuse: vote,"));
+  EXPECT_NE(error.find("pair_member or consistent_set"), std::string::npos) << error;
 }
 
 TEST(EstimationScenario, ExpectationsMustNameListedMethodsAndKnownRelativeMetrics) {

@@ -532,7 +532,7 @@ TEST(ConsensusSelectorLargestSet, PicksTheThreeSetOverTheMostConsistentPair) {
   EXPECT_TRUE(p.excluded.empty()) << p.reason;
 
   ConsensusOptions options = WithPriority({"S3", "S5", "S4"});
-  options.policy = ConsensusPolicy::kLargestConsistentSet;
+  options.policy = ConsensusPolicy::kConsistentSet;
   ConsensusSelector largest(Sensors(5), options);
   const ConsensusDecision d = Decide(largest, m.At(0));
   EXPECT_EQ(d.fused, (Names{"S3", "S1", "S2"})) << d.reason;  // by priority
@@ -542,17 +542,86 @@ TEST(ConsensusSelectorLargestSet, PicksTheThreeSetOverTheMostConsistentPair) {
 }
 
 TEST(ConsensusSelectorLargestSet, ExcludesTheCrossAndFusesTheRest) {
+  // Issue 16 (consistent_set): three healthy sensors are fused, the fourth, inconsistent
+  // with all of them, is not.
   ConsensusOptions options;
-  options.policy = ConsensusPolicy::kLargestConsistentSet;
+  options.policy = ConsensusPolicy::kConsistentSet;
   ConsensusSelector selector(Sensors(4), options);
   const ConsensusDecision d = Decide(selector, Matrix(4).Row(4, 0.5).At(0));
   EXPECT_EQ(d.fused, (Names{"S1", "S2", "S3"})) << d.reason;
   EXPECT_EQ(d.excluded, Names{"S4"}) << d.reason;
+  EXPECT_EQ(d.inconsistent, Names{"S4"}) << d.reason;
+}
+
+// ---- return to recovered sensors (issue 16) ----
+
+// S1 is preferred but unavailable at first (e.g. its alignment not yet known): S2 of the
+// pair S2-S3 is fused. When S1 comes back consistent, pair_member returns to it; the
+// paper's rule (return_to_priority off) keeps S2 for as long as S2 stays consistent.
+TEST(ConsensusSelectorReturn, ThePreferredSensorIsFusedAgainOnceItHasRecovered) {
+  for (const bool return_to_priority : {true, false}) {
+    SCOPED_TRACE(return_to_priority);
+    ConsensusOptions options = WithPriority({"S1", "S2", "S3"});
+    options.return_to_priority = return_to_priority;
+    ConsensusSelector selector(Sensors(3), options);
+    const ConsensusDecision first = Decide(selector, Matrix(3).Unavailable(1).At(0));
+    EXPECT_EQ(first.fused, Names{"S2"}) << first.reason;
+    const ConsensusDecision back = Decide(selector, Matrix(3).At(100));
+    if (return_to_priority) {
+      EXPECT_EQ(back.fused, Names{"S1"}) << back.reason;
+      EXPECT_TRUE(Contains(back.reason, "returning to S1")) << back.reason;
+    } else {
+      EXPECT_EQ(back.fused, Names{"S2"}) << back.reason;
+    }
+  }
+}
+
+// The return waits for the dwell after the last change and needs a consistent partner.
+TEST(ConsensusSelectorReturn, TheReturnRespectsTheDwellAndNeedsAConsistentPartner) {
+  ConsensusOptions options = WithPriority({"S1", "S2", "S3"});
+  options.min_dwell_ns = 1'000;
+  ConsensusSelector selector(Sensors(3), options);
+  EXPECT_EQ(Decide(selector, Matrix(3).Unavailable(1).At(0)).fused, Names{"S2"});
+  // Back, but within the dwell of the first choice: S2 is held.
+  EXPECT_EQ(Decide(selector, Matrix(3).At(500)).fused, Names{"S2"});
+  // After the dwell, but S1 agrees with nobody (no cross: S2-S3 agree, and S1 has only
+  // unknown values): no return.
+  EXPECT_EQ(Decide(selector, Matrix(3).Pair(1, 2, std::nullopt).Pair(1, 3, std::nullopt).At(1'500))
+                .fused,
+            Names{"S2"});
+  EXPECT_EQ(Decide(selector, Matrix(3).At(2'000)).fused, Names{"S1"});
+}
+
+// A sensor that is available but not fusable (its alignment is being re-estimated) is
+// evidence, not a candidate: it still isolates a faulty sensor by the cross pattern.
+TEST(ConsensusSelectorReturn, AnUnfusableSensorIsEvidenceButNotFused) {
+  ConsensusInput input = Matrix(3).Row(3, 0.5).At(0);
+  input.fusable = {false, true, true};
+  ConsensusSelector selector(Sensors(3), WithPriority({"S1", "S2", "S3"}));
+  const ConsensusDecision d = Decide(selector, input);
+  EXPECT_EQ(d.fused, Names{"S2"}) << d.reason;
+  EXPECT_EQ(d.inconsistent, Names{"S3"}) << d.reason;
+  EXPECT_EQ(d.eligible, Names{"S2"}) << d.reason;
+  input.fusable = {true, true};  // wrong size
+  EXPECT_THROW(selector.Decide(input), std::invalid_argument);
+}
+
+// `inconsistent` lists what this decision found inconsistent, not a sensor that merely
+// waits out its re-admission dwell.
+TEST(ConsensusSelectorReturn, AWaitingSensorIsExcludedButNotInconsistent) {
+  ConsensusOptions options = WithPriority({"S1", "S2", "S3"});
+  options.min_dwell_ns = 1'000;
+  ConsensusSelector selector(Sensors(3), options);
+  const ConsensusDecision bad = Decide(selector, Matrix(3).Row(3, 0.5).At(0));
+  EXPECT_EQ(bad.inconsistent, Names{"S3"}) << bad.reason;
+  const ConsensusDecision waiting = Decide(selector, Matrix(3).At(100));
+  EXPECT_EQ(waiting.excluded, Names{"S3"}) << waiting.reason;
+  EXPECT_TRUE(waiting.inconsistent.empty()) << waiting.reason;
 }
 
 TEST(ConsensusSelectorLargestSet, TwoInconsistentSensorsUseTheLocalTieBreak) {
   ConsensusOptions options;
-  options.policy = ConsensusPolicy::kLargestConsistentSet;
+  options.policy = ConsensusPolicy::kConsistentSet;
   ConsensusSelector selector(Sensors(2), options);
   const ConsensusDecision d = Decide(selector, Matrix(2, 0.4).Local(1, 0.3).Local(2, 0.04).At(0));
   EXPECT_EQ(d.fused, Names{"S2"}) << d.reason;
@@ -562,10 +631,10 @@ TEST(ConsensusSelectorLargestSet, TwoInconsistentSensorsUseTheLocalTieBreak) {
 // ---- options and input checks ----
 
 TEST(ConsensusSelector, PolicyNamesRoundTrip) {
-  EXPECT_EQ(ConsensusPolicyName(ConsensusPolicy::kPaper), "paper");
-  EXPECT_EQ(ConsensusPolicyName(ConsensusPolicy::kLargestConsistentSet), "largest_set");
-  EXPECT_EQ(ConsensusPolicyFromName("paper"), ConsensusPolicy::kPaper);
-  EXPECT_EQ(ConsensusPolicyFromName("largest_set"), ConsensusPolicy::kLargestConsistentSet);
+  EXPECT_EQ(ConsensusPolicyName(ConsensusPolicy::kPairMember), "pair_member");
+  EXPECT_EQ(ConsensusPolicyName(ConsensusPolicy::kConsistentSet), "consistent_set");
+  EXPECT_EQ(ConsensusPolicyFromName("pair_member"), ConsensusPolicy::kPairMember);
+  EXPECT_EQ(ConsensusPolicyFromName("consistent_set"), ConsensusPolicy::kConsistentSet);
   EXPECT_EQ(ConsensusPolicyFromName("Paper"), std::nullopt);
   EXPECT_EQ(ConsensusPolicyFromName(""), std::nullopt);
 }
@@ -602,7 +671,7 @@ TEST(ConsensusSelector, InvalidOptionsAreRejectedWithTheBrokenConstraint) {
   EXPECT_THROW(ConsensusSelector(Names{"S1", ""}), std::invalid_argument);
   EXPECT_THROW(ConsensusSelector(Names{"S1", "S2", "S1"}), std::invalid_argument);
   ConsensusOptions largest;
-  largest.policy = ConsensusPolicy::kLargestConsistentSet;
+  largest.policy = ConsensusPolicy::kConsistentSet;
   EXPECT_THROW(ConsensusSelector(Sensors(ConsensusSelector::kMaxSensorsLargestSet + 1), largest),
                std::invalid_argument);
   EXPECT_NO_THROW(ConsensusSelector(Sensors(ConsensusSelector::kMaxSensorsLargestSet), largest));

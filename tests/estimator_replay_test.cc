@@ -275,6 +275,52 @@ TEST_F(ArenaReplayTest, TotalStationFusedMeetsTheIssueAccuracyOnceAligned) {
   EXPECT_LT(e.ate_position_rmse_m, 0.02);  // issue: ATE < 2 cm once the alignment converged
 }
 
+// Issue 16, the oracle: the labels alone decide what is fused. The arena log is clean;
+// labels say VIO is faulty over 10-20 s and the total station occluded over 30-36 s (and
+// a fault of the IMU, which fuses nothing, is ignored). Every output then fuses exactly
+// the sensors the labels call healthy, up to one sample period of each stream at the
+// transitions (a sensor leaves or rejoins with its first sample after the transition).
+TEST_F(ArenaReplayTest, TheOracleFusesExactlyTheSensorsTheLabelsCallHealthy) {
+  RecordedLog labelled = *log_;
+  const Time t0 = T0();
+  labelled.labels = {{t0 + 10 * kSecond, "vio", "divergence", "fault", true},
+                     {t0 + 20 * kSecond, "vio", "divergence", "fault", false},
+                     {t0 + 25 * kSecond, "imu", "dropout", "fault", true},
+                     {t0 + 30 * kSecond, "leica", "occluded", "condition", true},
+                     {t0 + 36 * kSecond, "leica", "occluded", "condition", false}};
+  const ReplayResult oracle = Replay(labelled, "oracle");
+  ASSERT_FALSE(oracle.outputs.empty());
+  std::size_t checked = 0;
+  for (const estimator::EstimatorOutput& o : oracle.outputs) {
+    const double t_s = core::TimeToSeconds(o.t_ns - t0);
+    const auto near = [&](double edge_s) { return std::abs(t_s - edge_s) < 0.1; };
+    if (t_s < 3.0 || near(10) || near(20) || near(30) || near(36)) continue;
+    const bool vio_healthy = t_s < 10 || t_s >= 20;
+    const bool leica_healthy = t_s < 30 || t_s >= 36;
+    std::vector<std::string> expected;
+    if (vio_healthy) expected.push_back("vio");
+    if (leica_healthy) expected.push_back("leica");
+    std::vector<std::string> fused = o.fused;
+    std::sort(fused.begin(), fused.end());
+    std::sort(expected.begin(), expected.end());
+    ASSERT_EQ(fused, expected) << "at " << t_s << " s";
+    ++checked;
+  }
+  EXPECT_GT(checked, 10'000u);
+  // The same labels on the un-faulted streams: faults do not apply there, conditions do.
+  const ReplayResult clean = harness::Replay(
+      labelled, harness::ParseReplayMethod("oracle@clean", labelled), *options_, *specs_);
+  for (const estimator::EstimatorOutput& o : clean.outputs) {
+    const double t_s = core::TimeToSeconds(o.t_ns - t0);
+    if (t_s > 12 && t_s < 18) {
+      ASSERT_NE(std::find(o.fused.begin(), o.fused.end(), "vio"), o.fused.end()) << t_s;
+    }
+    if (t_s > 31 && t_s < 35) {
+      ASSERT_EQ(std::find(o.fused.begin(), o.fused.end(), "leica"), o.fused.end()) << t_s;
+    }
+  }
+}
+
 TEST_F(ArenaReplayTest, CleanLogGivesValidOutputsAndNoRejections) {
   ExpectCleanRun(*vio_, *log_);
   ExpectCleanRun(*leica_, *log_);

@@ -9,7 +9,11 @@ stream weights, IMU gaps and tilt error (issue 21: only the estimates and what i
 from them differed, estimate_*, decisions.csv, consistency_consensus.csv, errors.csv,
 summary.json; every sensor stream, the ground truth and the tracking are unchanged), and
 for the scenario.yaml of estimator_arena and paper_consensus_indoor when a zero attitude
-angle stopped being written as ±1e-15 deg (fuzz finding 4).
+angle stopped being written as ±1e-15 deg (fuzz finding 4), and for the consensus runs
+(bridge_inspection, indoor_outdoor_window, paper_consensus_indoor, wall_contact_inspection)
+when consensus learnt to restart an inconsistent sensor's alignment and to return to the
+preferred sensor (issue 16: only the consensus estimate and what derives from it, and the
+resolved scenario.yaml's `fuse`/`return_to_priority` keys, differed).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)
