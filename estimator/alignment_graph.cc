@@ -294,6 +294,18 @@ void AlignmentGraph::Reset() {
   has_solved_ = false;
 }
 
+std::optional<double> AlignmentGraph::MedianResidualOf(const Eigen::Isometry3d& T_AL) const {
+  if (static_cast<int>(pairs_.size()) < options_.min_pairs) return std::nullopt;
+  std::vector<double> residual_m;
+  residual_m.reserve(pairs_.size());
+  for (const StoredPair& pair : pairs_) {
+    residual_m.push_back((pair.p_A_measured - T_AL * pair.p_Ls).norm());
+  }
+  const auto middle = residual_m.begin() + static_cast<std::ptrdiff_t>(residual_m.size() / 2);
+  std::nth_element(residual_m.begin(), middle, residual_m.end());
+  return *middle;
+}
+
 double AlignmentGraph::RobustCost(const Eigen::Isometry3d& T_AL, double* rms_residual_m) const {
   double cost = 0.0;
   double sum_squares_m2 = 0.0;

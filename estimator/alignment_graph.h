@@ -14,6 +14,7 @@
 // Library code: Eigen, Ceres, core/ and std only.
 
 #include <deque>
+#include <optional>
 #include <string>
 
 #include <ceres/manifold.h>
@@ -155,6 +156,9 @@ class AlignmentGraph {
   bool frozen() const { return frozen_; }
 
   const AlignmentEstimate& estimate() const { return estimate_; }
+  /// The median of |p̄_A − T_AL p_Ls| (m) over the stored pairs at a given T_AL (e.g. an
+  /// earlier one); nullopt with fewer than min_pairs pairs.
+  std::optional<double> MedianResidualOf(const Eigen::Isometry3d& T_AL) const;
   int rejected_pairs() const { return rejected_pairs_; }
   int decimated_pairs() const { return decimated_pairs_; }           ///< valid, not stored
   int dropped_while_frozen_pairs() const { return dropped_frozen_pairs_; }  ///< valid, not stored

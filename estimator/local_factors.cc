@@ -369,6 +369,28 @@ bool PositionBetweenFactor::Evaluate(double const* const* parameters, double* re
   return OutputsFinite(*this, residuals, jacobians);
 }
 
+// ---- position in L (through the frozen T_AL) ----
+
+PositionInLocalFactor::PositionInLocalFactor(const Eigen::Vector3d& p_Is,
+                                             const Eigen::Vector3d& p_L_measured,
+                                             const Eigen::Matrix3d& sqrt_information)
+    : p_Is_(p_Is), p_L_measured_(p_L_measured), sqrt_information_(sqrt_information) {}
+
+bool PositionInLocalFactor::Evaluate(double const* const* parameters, double* residuals,
+                                     double** jacobians) const {
+  PoseBlock pose;
+  if (!ReadPose(parameters[0], &pose)) return false;
+  const Eigen::Vector3d r = pose.p_LI + pose.R_LI * p_Is_ - p_L_measured_;
+  Eigen::Map<Eigen::Vector3d>{residuals} = sqrt_information_ * r;
+  if (jacobians != nullptr && jacobians[0] != nullptr) {
+    // R Exp(δθ) p_Is ≈ R p_Is − R [p_Is]x δθ.
+    Eigen::Matrix<double, 3, 6> J;
+    J << Eigen::Matrix3d::Identity(), -pose.R_LI * core::Hat(p_Is_);
+    SetPoseJacobian<3>(sqrt_information_.lazyProduct(J), parameters[0], jacobians[0]);
+  }
+  return OutputsFinite(*this, residuals, jacobians);
+}
+
 // ---- priors ----
 
 PosePriorFactor::PosePriorFactor(const double* pose_prior,

@@ -148,6 +148,26 @@ class PositionBetweenFactor : public ceres::SizedCostFunction<3, 7, 7> {
   Eigen::Matrix3d sqrt_information_;
 };
 
+/// Position of a sensor's mount point in L (beyond the paper, which fuses positions only
+/// as displacements, eq. 3): a unary factor on one pose through the sensor's frozen
+/// alignment, p̄_L = T_LA p̄_A. Residual S r, in L:
+///   r = (p + R p_Is) − p̄_L.
+/// A displacement chain throws away what makes an absolute sensor absolute: fused with a
+/// drifting odometry's displacements it drifts with it (docs/RESULTS.md, issue 16).
+class PositionInLocalFactor : public ceres::SizedCostFunction<3, 7> {
+ public:
+  PositionInLocalFactor(const Eigen::Vector3d& p_Is, const Eigen::Vector3d& p_L_measured,
+                        const Eigen::Matrix3d& sqrt_information);
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override;
+
+ private:
+  Eigen::Vector3d p_Is_;
+  Eigen::Vector3d p_L_measured_;
+  Eigen::Matrix3d sqrt_information_;
+};
+
 /// Prior on a pose: r = S (x ⊟ x0) = S [p − p0; Log(q0^{-1} q)] (PoseManifold::Minus).
 class PosePriorFactor : public ceres::SizedCostFunction<6, 7> {
  public:

@@ -81,6 +81,7 @@ struct PendingMeasurement {
   Eigen::Vector3d p_Is = Eigen::Vector3d::Zero();
   Eigen::Matrix3d R_LA = Eigen::Matrix3d::Identity();
   bool position_in_reference = false;  ///< pose: displacement in A through R_LA
+  std::optional<Eigen::Vector3d> p_LA;  ///< position: absolute in L through T_LA
   double min_std_m = 0.0;
 };
 
@@ -320,6 +321,8 @@ struct LocalSmoother::Impl {
   void AddBetweenFrom(Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
     if (m.is_pose) {
       AddPoseBetween(chain, kf, m);
+    } else if (m.p_LA) {
+      AddPositionInLocal(kf, m);
     } else {
       AddPositionBetween(chain, kf, m);
     }
@@ -357,6 +360,23 @@ struct LocalSmoother::Impl {
                chain.keyframe, kf);
   }
 
+  // Position in L through the frozen T_AL: one measurement's noise, plus the floor. A
+  // factor of the sensor's like a between factor (discarded with it at an exclusion).
+  void AddPositionInLocal(Keyframe* kf, const PendingMeasurement& m) {
+    Eigen::Matrix3d covariance = m.R_LA * m.covariance_A * m.R_LA.transpose();
+    covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
+    const Eigen::Matrix3d sqrt_information =
+        Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
+    std::unique_ptr<ceres::LossFunction> loss;
+    if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+    Factor* factor = AddFactor(
+        FactorKind::kBetween,
+        std::make_unique<PositionInLocalFactor>(m.p_Is, m.R_LA * m.p_As + *m.p_LA, sqrt_information),
+        std::move(loss), {kf}, {PoseBlock(kf)});
+    factor->sensor = m.sensor;
+    unconfirmed_between.push_back(factor);
+  }
+
   // Position: r^p (eq. 3); both ends' noise enters the displacement (white position noise).
   void AddPositionBetween(const Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
     Eigen::Matrix3d covariance = chain.covariance_A + m.covariance_A;
@@ -382,7 +402,11 @@ struct LocalSmoother::Impl {
     }
     Chain& chain = chains[m.sensor];
     MeasurementUse use = MeasurementUse::kAnchor;
-    if (chain.keyframe != nullptr && chain.keyframe != kf) {
+    if (!m.is_pose && m.p_LA && chain.keyframe != kf) {
+      // Absolute: every due measurement constrains its keyframe, the first one too.
+      AddBetweenFrom(chain, kf, m);
+      use = MeasurementUse::kFactor;
+    } else if (chain.keyframe != nullptr && chain.keyframe != kf) {
       AddBetweenFrom(chain, kf, m);
       use = MeasurementUse::kFactor;
     } else {
@@ -602,7 +626,8 @@ MeasurementUse LocalSmoother::AddPose(int sensor, core::Time t_ns, const Eigen::
 MeasurementUse LocalSmoother::AddPosition(int sensor, core::Time t_ns, const Eigen::Vector3d& p_As,
                                           const Eigen::Matrix3d& covariance_A,
                                           const Eigen::Vector3d& p_Is, const Eigen::Matrix3d& R_LA,
-                                          double min_std_m) {
+                                          double min_std_m,
+                                          const std::optional<Eigen::Vector3d>& p_LA) {
   if (!p_As.allFinite() || !covariance_A.allFinite() || !R_LA.allFinite()) {
     return MeasurementUse::kRejected;
   }
@@ -615,6 +640,10 @@ MeasurementUse LocalSmoother::AddPosition(int sensor, core::Time t_ns, const Eig
   p.p_Is = p_Is;
   p.R_LA = R_LA;
   p.min_std_m = min_std_m;
+  if (p_LA) {
+    if (!p_LA->allFinite()) return MeasurementUse::kRejected;
+    p.p_LA = p_LA;
+  }
   return impl_->Submit(std::move(p));
 }
 

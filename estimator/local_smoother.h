@@ -160,9 +160,13 @@ class LocalSmoother {
   /// Position of mount point s in A; R_LA from the sensor's alignment graph (frozen while
   /// the sensor is fused); covariance of the single measurement (the between factor's is
   /// the sum of both ends').
+  /// With p_LA (the translation of the frozen T_LA) each position constrains its keyframe
+  /// directly in L (PositionInLocalFactor) instead of a displacement; min_std_m is then
+  /// added to the single measurement's std.
   MeasurementUse AddPosition(int sensor, core::Time t_ns, const Eigen::Vector3d& p_As,
                              const Eigen::Matrix3d& covariance_A, const Eigen::Vector3d& p_Is,
-                             const Eigen::Matrix3d& R_LA, double min_std_m);
+                             const Eigen::Matrix3d& R_LA, double min_std_m,
+                             const std::optional<Eigen::Vector3d>& p_LA = std::nullopt);
   /// Ends a sensor's chain of between factors (the sensor is no longer fused, or its
   /// frame jumped): its next measurement starts a new chain.
   void EndChain(int sensor);

@@ -17,6 +17,12 @@ struct SensorState {
   std::unique_ptr<AlignmentGraph> graph;
   std::optional<Eigen::Isometry3d> known_T_AL;   ///< given by the caller
   std::optional<Eigen::Isometry3d> frozen_T_AL;  ///< held while fused (co-dependence rule)
+  /// The T_ALs held the last times the sensor was fused (newest first, a few): one is
+  /// reused when the sensor is fused again and the pairs since still fit it (a frame that
+  /// did not move). More than one: a sensor re-admitted during a fault its velocities do
+  /// not show (a jump) was fused in the fault's frame, and the frame before it is the
+  /// right one again once the fault is over.
+  std::vector<Eigen::Isometry3d> previous_T_AL;
   bool fused = false;
   bool has_last = false;
   core::Time last_t_ns = 0;
@@ -517,9 +523,8 @@ struct MultiGraphEstimator::Impl {
       // A position sensor fused before its T_AL was known: its graph kept collecting pairs
       // (it constrained nothing yet); freeze it the moment T_AL is fully observable.
       if (!sensor.graph->frozen() && !sensor.frozen_T_AL && !sensor.known_T_AL) {
-        const AlignmentEstimate& e = sensor.graph->estimate();
-        if (Usable(e)) {
-          sensor.frozen_T_AL = e.T_AL;
+        if (const auto T_AL = AlignmentOf(sensor)) {
+          sensor.frozen_T_AL = T_AL;
           sensor.graph->SetFrozen(true);
         }
       }
@@ -528,9 +533,11 @@ struct MultiGraphEstimator::Impl {
         ++counters.streams[sensor.spec.name].not_fused_unaligned;
         return;
       }
+      std::optional<Eigen::Vector3d> p_LA;
+      if (sensor.spec.absolute_position) p_LA = T_AL->inverse().translation();
       use = smoother.AddPosition(sensor.id, m.t_ns, position->p_Ss, position->covariance,
                                  sensor.spec.T_I_s.translation(), T_AL->linear().transpose(),
-                                 sensor.spec.min_position_std_m);
+                                 sensor.spec.min_position_std_m, p_LA);
     }
     if (use == MeasurementUse::kFactor || use == MeasurementUse::kAnchor ||
         use == MeasurementUse::kPending || use == MeasurementUse::kSkipped) {
@@ -552,6 +559,17 @@ struct MultiGraphEstimator::Impl {
   std::optional<Eigen::Isometry3d> AlignmentOf(const SensorState& sensor) const {
     if (sensor.known_T_AL) return sensor.known_T_AL;
     if (sensor.frozen_T_AL) return sensor.frozen_T_AL;
+    // Fused again after an exclusion or a gap: the frame it held before, while the pairs
+    // collected since (min_pairs of them) still fit it. A re-estimated T_AL would absorb
+    // the drift L made without the sensor, and keep it for the rest of the flight; the old
+    // one brings L back to the sensor's frame (issue 16: the oracle's and consensus's ATE
+    // were dominated by that offset).
+    for (const Eigen::Isometry3d& T_AL : sensor.previous_T_AL) {
+      // The median: a few pairs from the fault's trailing edge (collected before the
+      // exclusion was decided) must not veto a frame that fits all the others.
+      const std::optional<double> median_m = sensor.graph->MedianResidualOf(T_AL);
+      if (median_m && *median_m <= options.max_alignment_rms_m) return T_AL;
+    }
     const AlignmentEstimate& e = sensor.graph->estimate();
     if (Usable(e)) return e.T_AL;
     return std::nullopt;
@@ -791,13 +809,22 @@ bool MultiGraphEstimator::SetFusedSensors(const std::vector<std::string>& names)
       // Co-dependence rule: T_AL is held at its current estimate while the sensor's
       // positions constrain the local graph. A position sensor without a usable T_AL yet
       // constrains nothing: its graph keeps estimating until it has one (see Fuse).
-      const AlignmentEstimate& e = s->graph->estimate();
-      if (!s->known_T_AL && impl.Usable(e)) s->frozen_T_AL = e.T_AL;
+      if (!s->known_T_AL) s->frozen_T_AL = impl.AlignmentOf(*s);
       const bool aligned = s->known_T_AL || s->frozen_T_AL;
       s->graph->SetFrozen(aligned || s->spec.kind == SensorKind::kPose);
     } else if (!want && s->fused) {
       impl.smoother.EndChain(s->id);
       s->graph->SetFrozen(false);
+      if (s->frozen_T_AL) {
+        constexpr std::size_t kRememberedFrames = 4;
+        auto& previous = s->previous_T_AL;
+        const auto same = std::find_if(previous.begin(), previous.end(), [&](const auto& T) {
+          return T.isApprox(*s->frozen_T_AL, 1e-12);
+        });
+        if (same != previous.end()) previous.erase(same);
+        previous.insert(previous.begin(), *s->frozen_T_AL);
+        if (previous.size() > kRememberedFrames) previous.resize(kRememberedFrames);
+      }
       s->frozen_T_AL.reset();
     }
     s->fused = want;

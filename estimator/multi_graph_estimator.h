@@ -59,6 +59,12 @@ struct SensorSpec {
   /// Position sensors: floor on the std of one between factor (m), added to the stated
   /// covariances of its two ends.
   double min_position_std_m = 0.002;
+  /// Position sensors: each position constrains the local graph in L through the frozen
+  /// T_AL (a unary factor, beyond the paper) instead of as a displacement from the
+  /// previous one (the paper's between factor, eq. 3). Displacements keep the local graph
+  /// free to switch sensors without a jump but make an absolute sensor relative: fused
+  /// with a drifting odometry, the estimate drifts too.
+  bool absolute_position = false;
   /// Position sensors: the reference frame A is levelled (a total station, GNSS ENU). When
   /// such a sensor is the first one fused, L is chosen with R_AL = I.
   bool reference_is_gravity_aligned = true;

@@ -21,6 +21,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "harness/check_methods.h"
 #include "harness/file_io.h"
 #include "harness/interrupt.h"
 #include "harness/yaml_reader.h"
@@ -820,6 +821,13 @@ int RunCheckCommand(const CheckCommandOptions& options) {
       return core::kExitIoError;
     }
     if (!options.quiet) fmt::print("JUnit XML: {}\n", *options.junit_path);
+  }
+  try {  // <out>/methods.csv, .md, .png: the estimation methods over the seeds
+    const auto table = WriteCheckMethods(out, scenarios, checks);
+    if (table && !options.quiet) fmt::print("method table: {}\n", table->string());
+  } catch (const core::IoError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return core::kExitIoError;
   }
   // One code per run of the check, the most fundamental cause first: the user's input,
   // the machine's storage, the simulation, then the expectations.

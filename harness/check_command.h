@@ -2,8 +2,9 @@
 // `tofu check`: scenario-driven CI. Loads and validates every scenario first (any bad
 // input: exit 2 before anything runs), flies every (scenario, seed) as a `tofu run`
 // subprocess in a pool of jobs, reads each run's summary.json, aggregates each
-// expectation over the seeds (`pass_fraction`), prints a table and optionally writes
-// JUnit XML. The CLI only parses arguments into CheckCommandOptions.
+// expectation over the seeds (`pass_fraction`), prints a table, optionally writes
+// JUnit XML, and tabulates the estimation methods over the seeds (check_methods.h). The
+// CLI only parses arguments into CheckCommandOptions.
 
 #include <cstdint>
 #include <optional>

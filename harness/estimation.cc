@@ -99,6 +99,9 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
   setup.estimator = DefaultEstimatorOptions(log);
   setup.estimator.local.huber_delta = config.huber_delta;
   setup.sensors = SensorSpecsOf(log);
+  for (estimator::SensorSpec& spec : setup.sensors) {
+    spec.absolute_position = config.absolute_positions;
+  }
   setup.consensus.selection = SelectionOptions(config.consensus);
   setup.consensus.consistency.consistency.window_ns =
       core::SecondsToTime(config.consensus.window_s);

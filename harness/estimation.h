@@ -60,6 +60,10 @@ struct EstimationConfig {
   /// A faulty sensor is fused until consensus notices it (a few evaluations): without a
   /// robust loss, metre-level outliers in that time can wreck the local graph.
   double huber_delta = 0.0;
+  /// How position sensors (total station, GNSS) constrain the local graph: "between"
+  /// (displacements, the paper's eq. 3) or "absolute" (each position in L through the
+  /// frozen T_AL; estimator::SensorSpec::absolute_position).
+  bool absolute_positions = false;
 };
 
 /// One fault interval of a sensor and kind (overlapping faults merged) and whether (and

@@ -325,16 +325,15 @@ struct MethodRunner::Impl {
   // healthy sample. While it is unhealthy its alignment pairs are dropped, as consensus
   // drops an inconsistent sensor's, so that a recovered sensor is re-aligned from
   // healthy data only.
-  void OracleSelect(const core::StampedMeasurement& m) {
+  // Returns true for a sample of an unhealthy sensor: its pair, added with the sample,
+  // is dropped after it too (RestartAlignment).
+  bool OracleSelect(const core::StampedMeasurement& m) {
     if (std::find(method.fused.begin(), method.fused.end(), m.sensor) == method.fused.end()) {
-      return;  // the IMU, or a stream the method does not fuse
+      return false;  // the IMU, or a stream the method does not fuse
     }
     const bool healthy = health.Healthy(m.sensor, m.t_ns);
     const auto at = std::find(unhealthy.begin(), unhealthy.end(), m.sensor);
-    if (healthy == (at == unhealthy.end())) {
-      if (!healthy) fixed->RestartAlignment(m.sensor);
-      return;
-    }
+    if (healthy == (at == unhealthy.end())) return !healthy;
     if (healthy) {
       unhealthy.erase(at);
     } else {
@@ -347,7 +346,7 @@ struct MethodRunner::Impl {
       }
     }
     fixed->SetFusedSensors(fused);
-    if (!healthy) fixed->RestartAlignment(m.sensor);
+    return !healthy;
   }
 
   const estimator::MultiGraphEstimator& estimator() const {
@@ -387,8 +386,10 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement) {
   if (!m.first_t_ns || measurement.t_ns < *m.first_t_ns) m.first_t_ns = measurement.t_ns;
   m.last_t_ns = std::max(m.last_t_ns, measurement.t_ns);
   if (m.fixed) {
-    if (m.method.kind == ReplayMethod::Kind::kOracle) m.OracleSelect(measurement);
+    const bool unhealthy =
+        m.method.kind == ReplayMethod::Kind::kOracle && m.OracleSelect(measurement);
     m.fixed->Add(measurement);
+    if (unhealthy) m.fixed->RestartAlignment(measurement.sensor);
     if (m.method.kind == ReplayMethod::Kind::kNaive && !m.true_alignments_given &&
         m.fixed->local().initialized()) {
       GiveTrueAlignments(m.streams, *m.fixed);

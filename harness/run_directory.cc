@@ -413,7 +413,9 @@ std::string TimingJson(const RunRecord& record) {
   return j.dump(2) + "\n";
 }
 
-// Runs a program with its output discarded; its exit status, or -1 when it could not start.
+}  // namespace
+
+// Declared in run_directory.h.
 int RunQuietly(const std::vector<std::string>& argv) {
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);
@@ -442,6 +444,8 @@ int RunQuietly(const std::vector<std::string>& argv) {
   }
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
+
+namespace {
 
 // control.csv of a closed-loop flight: at the ground-truth rate, what the controller flew
 // on (mode, its estimate of B in W) beside the truth and the mission reference.

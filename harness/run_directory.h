@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "harness/evaluation.h"
 #include "harness/run.h"
@@ -59,5 +60,11 @@ core::Measurement RecordedMeasurement(const std::string& stream_type,
 
 Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
                     const RunOutputOptions& options = {});
+
+/// Runs a program (argv[0]: its path) with stdin inherited and stdout and stderr
+/// discarded, and returns its exit status, or -1 when it could not start or did not exit
+/// normally. A check point of interruption (interrupt.h): on a signal the program is sent
+/// SIGTERM, waited for, and Interrupted thrown. The figures of scripts/ are drawn so.
+int RunQuietly(const std::vector<std::string>& argv);
 
 }  // namespace tofu::harness

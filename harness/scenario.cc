@@ -108,8 +108,13 @@ ConsistencyConfig ReadConsistency(const YamlValue& value) {
 
 EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<SensorConfig>& sensors) {
   EstimationConfig config;
-  YamlMap map = value.Map({"methods", "consensus", "huber_delta"});
+  YamlMap map = value.Map({"methods", "consensus", "huber_delta", "position_factors"});
   ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
+  if (const auto factors = map.Optional("position_factors")) {
+    const std::string kind = factors->String();
+    if (kind != "between" && kind != "absolute") factors->FailExpected("between or absolute");
+    config.absolute_positions = kind == "absolute";
+  }
   std::vector<std::string> sensor_names;
   bool has_imu = false;
   for (const SensorConfig& s : sensors) {
@@ -960,6 +965,8 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
     EmitNumber(out, "rate_hz", cons.rate_hz);
     out << YAML::EndMap;
     EmitNumber(out, "huber_delta", ec.huber_delta);
+    out << YAML::Key << "position_factors" << YAML::Value
+        << (ec.absolute_positions ? "absolute" : "between");
     out << YAML::EndMap;
   }
 

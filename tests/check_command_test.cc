@@ -28,6 +28,7 @@
 #include "core/error.h"
 #include "harness/check_command.h"
 #include "harness/scenario.h"
+#include "harness/yaml_reader.h"
 #include "tests/test_support.h"
 
 namespace tofu {
@@ -148,6 +149,46 @@ TEST_F(CheckCommandTest, PassingScenariosExitZeroWithCleanJUnit) {
   EXPECT_TRUE(fs::is_regular_file(out_ / "b_hover" / "seed_1.log"));
   EXPECT_CONTAINS(r.out, "a_hover");
   EXPECT_CONTAINS(r.out, "pass");
+  // No estimation block, no method table.
+  EXPECT_FALSE(fs::exists(out_ / "methods.md"));
+  EXPECT_FALSE(fs::exists(out_ / "methods.csv"));
+  EXPECT_EQ(r.out.find("method table"), std::string::npos) << r.out;
+}
+
+TEST_F(CheckCommandTest, EstimationMethodsAreTabulatedOverTheSeeds) {
+  // Methods listed out of name order: the table keeps the scenario's order.
+  std::string yaml = HoverScenario("est_hover", {"{metric: collisions.count, max: 0}"});
+  yaml += "sensors:\n  imu: {}\n  vio: {}\n"
+          "estimation:\n  methods: [oracle, naive, \"single:vio\"]\n";
+  WriteFile(scenarios_ / "b_est_hover.yaml", yaml);
+  WriteFile(scenarios_ / "a_plain.yaml",
+            HoverScenario("a_plain", {"{metric: collisions.count, max: 0}"}));
+  const Result r = Check(Quote(scenarios_.string()) + " --seeds 2 --jobs 2");
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  EXPECT_CONTAINS(r.out, "method table: " + (out_ / "methods.md").string() + "\n");
+
+  const std::string md = ReadFile(out_ / "methods.md");
+  EXPECT_CONTAINS(md, "## est_hover (2 seeds)");
+  EXPECT_EQ(md.find("a_plain"), std::string::npos) << "a scenario without methods: " << md;
+  const size_t oracle = md.find("\n| oracle | ");
+  const size_t naive = md.find("\n| naive | ");
+  const size_t single = md.find("\n| single:vio | ");
+  ASSERT_NE(oracle, std::string::npos) << md;
+  EXPECT_LT(oracle, naive) << md;
+  EXPECT_LT(naive, single) << md;
+  // Each seed's ATE from its summary.json: the CSV's median and worst are theirs.
+  std::vector<double> ates;
+  for (const uint64_t seed : {1, 2}) {
+    const auto summary = nlohmann::json::parse(
+        ReadFile(out_ / "est_hover" / fmt::format("seed_{}", seed) / "summary.json"));
+    ates.push_back(summary["methods"]["naive"]["ate_m"].get<double>());
+  }
+  const std::string csv = ReadFile(out_ / "methods.csv");
+  EXPECT_EQ(csv.rfind("#scenario,method,metric,seeds,median,worst\n", 0), 0u) << csv;
+  EXPECT_CONTAINS(csv, fmt::format("est_hover,naive,ate_m,2,{},{}\n",
+                                   harness::internal::FormatDouble(0.5 * (ates[0] + ates[1])),
+                                   harness::internal::FormatDouble(std::max(ates[0], ates[1]))));
+  EXPECT_CONTAINS(csv, "est_hover,oracle,ate_over_oracle,2,1,1\n");
 }
 
 TEST_F(CheckCommandTest, ImpossibleExpectationExitsOneWithFailureNamingTheMetric) {

@@ -13,7 +13,10 @@ angle stopped being written as ±1e-15 deg (fuzz finding 4), and for the consens
 (bridge_inspection, indoor_outdoor_window, paper_consensus_indoor, wall_contact_inspection)
 when consensus learnt to restart an inconsistent sensor's alignment and to return to the
 preferred sensor (issue 16: only the consensus estimate and what derives from it, and the
-resolved scenario.yaml's `fuse`/`return_to_priority` keys, differed).
+resolved scenario.yaml's `fuse`/`return_to_priority` keys, differed), and again when a
+sensor fused again took back its earlier frame alignment and `position_factors` joined the
+resolved scenario (bridge_inspection's consensus estimate, paper_consensus_indoor's
+estimate_consensus.json, every estimation scenario's scenario.yaml).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)

@@ -546,6 +546,35 @@ TEST(PositionBetweenFactor, ZeroAtTheMeasuredDisplacementAndJacobiansMatch) {
   }
 }
 
+// ---- position in L through the frozen T_AL (beyond the paper) ----
+
+TEST(PositionInLocalFactor, ZeroAtTheMeasuredPositionAndJacobiansMatch) {
+  Sampler sample("position_in_local");
+  const PoseManifold pose_manifold;
+  const std::vector<const ceres::Manifold*> manifolds = {&pose_manifold};
+  for (int trial = 0; trial < 6; ++trial) {
+    const Eigen::Vector3d p_Is = sample.Vector(0.3);
+    const Eigen::Quaterniond q = sample.Rotation(2.0, 3.0);
+    const Eigen::Vector3d p = sample.Vector(5.0);
+    const Eigen::Matrix3d S = sample.SqrtInformation<3>(50.0);
+    const Pose pose = MakePose(p, q);
+    const PositionInLocalFactor exact(p_Is, p + q * p_Is, S);
+    Eigen::VectorXd residual;
+    ASSERT_TRUE(EvaluateTangent(exact, {pose.data()}, manifolds, &residual, nullptr));
+    EXPECT_LT(residual.norm(), 1e-10);
+    // The residual is S times the position error of the mount point in L.
+    const Eigen::Vector3d offset = sample.Vector(0.5);
+    const PositionInLocalFactor off(p_Is, p + q * p_Is - offset, S);
+    ASSERT_TRUE(EvaluateTangent(off, {pose.data()}, manifolds, &residual, nullptr));
+    EXPECT_LT((residual - S * offset).norm(), 1e-9);
+
+    const PositionInLocalFactor factor(p_Is, sample.Vector(5.0), S);
+    const std::string what = "PositionInLocal trial " + std::to_string(trial);
+    ExpectTangentJacobiansMatch(factor, {pose.data()}, manifolds, what);
+    if (trial < 2) ExpectGradientCheckerPasses(factor, {pose.data()}, manifolds, what);
+  }
+}
+
 // ---- priors ----
 
 TEST(PosePriorFactor, IsTheManifoldMinusAndJacobiansMatch) {
