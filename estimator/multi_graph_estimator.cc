@@ -520,15 +520,13 @@ struct MultiGraphEstimator::Impl {
       }
       use = smoother.AddPose(sensor.id, m.t_ns, T_As, sensor.spec.T_I_s, sqrt_information, R_LA);
     } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
+      const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
       // A position sensor fused before its T_AL was known: its graph kept collecting pairs
       // (it constrained nothing yet); freeze it the moment T_AL is fully observable.
-      if (!sensor.graph->frozen() && !sensor.frozen_T_AL && !sensor.known_T_AL) {
-        if (const auto T_AL = AlignmentOf(sensor)) {
-          sensor.frozen_T_AL = T_AL;
-          sensor.graph->SetFrozen(true);
-        }
+      if (T_AL && !sensor.graph->frozen() && !sensor.frozen_T_AL && !sensor.known_T_AL) {
+        sensor.frozen_T_AL = T_AL;
+        sensor.graph->SetFrozen(true);
       }
-      const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
       if (!T_AL) {
         ++counters.streams[sensor.spec.name].not_fused_unaligned;
         return;

@@ -5,8 +5,8 @@
 // crash, a hang) is acceptable. Each input runs in a child process with a time and memory
 // limit, so that a reader that hangs or crashes fails its test instead of the suite.
 // Seeds are valid inputs and must parse; each finding has its own test asserting the
-// documented error. Findings in files whose owners have not fixed them yet are DISABLED_
-// tests (they fail on the current code): enable each with its fix.
+// documented error. Every finding so far is fixed and its test enabled; a future finding
+// whose fix must wait may be committed as a DISABLED_ test that fails until the fix.
 
 #include <signal.h>
 #include <sys/resource.h>
