@@ -5,6 +5,7 @@
 #include <deque>
 #include <map>
 #include <numbers>
+#include <set>
 #include <stdexcept>
 #include <tuple>
 
@@ -53,25 +54,37 @@ nlohmann::json OptionalNumber(const std::optional<double>& v) {
   return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
 }
 
-// Time the labels of `sensor` say `label` (source "condition") was active inside the
-// window [from, to] (the whole run without a window).
+// Time the labels of `sensor` say any of `labels` ("a+b": condition names joined by '+';
+// source "condition") was active inside the window [from, to].
 double ConditionActiveSeconds(const RunRecord& record, const std::string& sensor,
-                              const std::string& label, double from_s, double to_s) {
+                              const std::string& labels, double from_s, double to_s) {
+  std::set<std::string> wanted;
+  for (size_t begin = 0;;) {
+    const size_t plus = labels.find('+', begin);
+    wanted.insert(labels.substr(begin, plus == std::string::npos ? plus : plus - begin));
+    if (plus == std::string::npos) break;
+    begin = plus + 1;
+  }
+  // Labels are recorded in time order; the union is active while any wanted label is.
+  std::set<std::string> active;
   double active_s = 0.0;
-  bool active = false;
   double since_s = 0.0;
   for (const LabelEvent& l : record.labels) {
-    if (l.sensor != sensor || l.label != label || l.source != "condition") continue;
+    if (l.sensor != sensor || l.source != "condition" || wanted.count(l.label) == 0) continue;
     const double t_s = core::TimeToSeconds(l.t_ns);
-    if (l.active && !active) {
-      active = true;
+    const bool was_active = !active.empty();
+    if (l.active) {
+      active.insert(l.label);
+    } else {
+      active.erase(l.label);
+    }
+    if (!was_active && !active.empty()) {
       since_s = t_s;
-    } else if (!l.active && active) {
+    } else if (was_active && active.empty()) {
       active_s += std::max(0.0, std::min(t_s, to_s) - std::max(since_s, from_s));
-      active = false;
     }
   }
-  if (active) active_s += std::max(0.0, to_s - std::max(since_s, from_s));
+  if (!active.empty()) active_s += std::max(0.0, to_s - std::max(since_s, from_s));
   return active_s;
 }
 

@@ -24,7 +24,8 @@ const std::vector<MetricInfo>& MetricCatalog() {
       {"sensors.<sensor>.delivered_samples", "count",
        "samples the stream delivered (after scheduled faults)", true},
       {"sensors.<sensor>.condition.<condition>", "fraction",
-       "fraction of the time the condition (e.g. occluded, no_fix, degenerate) was active",
+       "fraction of the time the condition (e.g. occluded, no_fix, degenerate) was active; "
+       "a+b: any of them (e.g. single_fix+no_fix: GNSS without RTK)",
        true},
       {"sensors.<sensor>.position_error_rms_m", "m",
        "RMS of the true position error of the delivered samples (pose and position sensors)",
@@ -110,6 +111,19 @@ bool IsConditionName(std::string_view s) {
   return false;
 }
 
+// "a+b+c": a union of condition names, each known.
+bool IsConditionUnion(std::string_view s) {
+  size_t begin = 0;
+  while (true) {
+    const size_t plus = s.find('+', begin);
+    if (!IsConditionName(s.substr(begin, plus == std::string_view::npos ? plus : plus - begin))) {
+      return false;
+    }
+    if (plus == std::string_view::npos) return true;
+    begin = plus + 1;
+  }
+}
+
 std::vector<std::string_view> SplitDots(std::string_view s) {
   std::vector<std::string_view> parts;
   size_t begin = 0;
@@ -141,7 +155,7 @@ std::optional<std::pair<const MetricInfo*, MetricArguments>> MatchMetric(std::st
         match = IsFaultName(parts[i]);
         args.fault = parts[i];
       } else if (pattern[i] == "<condition>") {
-        match = IsConditionName(parts[i]);
+        match = IsConditionUnion(parts[i]);
         args.condition = parts[i];
       } else {
         match = pattern[i] == parts[i];

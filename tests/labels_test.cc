@@ -1,6 +1,10 @@
 // SensorHealth (harness/labels.h): which sensors the ground-truth labels call healthy, the
-// timeline the `oracle` method fuses by.
+// timeline the `oracle` method fuses by; and the condition-fraction metric over labels.
 #include "harness/labels.h"
+
+#include "harness/evaluation.h"
+#include "harness/metrics.h"
+#include "harness/run.h"
 
 #include <gtest/gtest.h>
 
@@ -56,6 +60,36 @@ TEST(SensorHealth, OverlappingFaultsOfOneKindLastUntilTheLastEnds) {
   health.Add(Label(22, "lio", "jump", "fault", true));
   EXPECT_TRUE(health.Healthy("lio", 21));
   EXPECT_FALSE(health.Healthy("lio", 22));
+}
+
+TEST(ConditionFraction, AUnionCountsTimeWhenAnyOfItsConditionsIsActiveOnce) {
+  // 10 s at 100 Hz; GNSS: single fix 2-5 s, no fix 4-7 s (overlapping 4-5 s), float 8-9 s.
+  RunRecord record;
+  record.scenario.physics.rate_hz = 100.0;
+  record.physics_steps = 1000;
+  record.sensors.emplace_back();
+  record.sensors.back().name = "gnss";
+  const core::Time s = 1'000'000'000;
+  record.labels = {Label(2 * s, "gnss", "single_fix", "condition", true),
+                   Label(4 * s, "gnss", "no_fix", "condition", true),
+                   Label(5 * s, "gnss", "single_fix", "condition", false),
+                   Label(6 * s, "vio", "no_fix", "condition", true),  // another sensor
+                   Label(7 * s, "gnss", "no_fix", "condition", false),
+                   Label(8 * s, "gnss", "float_fix", "condition", true),
+                   Label(8 * s, "gnss", "no_fix", "fault", true)};  // a fault, not a condition
+  const auto fraction = [&](const std::string& metric) {
+    return MetricValue(record, metric, std::nullopt).value();
+  };
+  EXPECT_NEAR(fraction("sensors.gnss.condition.single_fix"), 0.3, 1e-12);
+  EXPECT_NEAR(fraction("sensors.gnss.condition.no_fix"), 0.3, 1e-12);
+  EXPECT_NEAR(fraction("sensors.gnss.condition.single_fix+no_fix"), 0.5, 1e-12);
+  // float_fix stays active to the end of the run: 8-10 s.
+  EXPECT_NEAR(fraction("sensors.gnss.condition.single_fix+no_fix+float_fix"), 0.7, 1e-12);
+  EXPECT_NEAR(MetricValue(record, "sensors.gnss.condition.no_fix+single_fix",
+                          std::make_pair(4.5, 6.5)).value(),
+              1.0, 1e-12);
+  EXPECT_FALSE(FindMetric("sensors.gnss.condition.no_fix+sunshine"));
+  EXPECT_FALSE(FindMetric("sensors.gnss.condition.no_fix+"));
 }
 
 }  // namespace
