@@ -1,11 +1,14 @@
 #include "harness/run.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
-#include <limits>
-#include <variant>
 #include <cmath>
+#include <fstream>
+#include <limits>
 #include <stdexcept>
+#include <variant>
 
 #include "core/error.h"
 #include "core/lie.h"
@@ -19,6 +22,16 @@
 
 namespace tofu::harness {
 namespace {
+
+// The process's resident set [MB] from /proc/self/statm (Linux); 0 where unreadable.
+double ResidentMegabytes() {
+  std::ifstream statm("/proc/self/statm");
+  long total_pages = 0;
+  long resident_pages = 0;
+  if (!(statm >> total_pages >> resident_pages)) return 0.0;
+  return static_cast<double>(resident_pages) * static_cast<double>(::sysconf(_SC_PAGESIZE)) /
+         (1024.0 * 1024.0);
+}
 
 sim::RobotState ToRobotState(const sim::TruthState& truth) {
   return sim::RobotState{truth.t_ns, truth.p_WB, truth.q_WB, truth.v_WB_W, truth.omega_WB_B};
@@ -316,6 +329,7 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   CollisionTracker collisions;
 
   const auto wall_start = std::chrono::steady_clock::now();
+  const int64_t steps_per_minute = std::max<int64_t>(1, std::llround(60.0 * scenario.physics.rate_hz));
   try {
     for (int64_t step = 0; step < total_steps; ++step) {
       const core::Time t_ns = world.time_ns();
@@ -353,6 +367,11 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
 
       const sim::TruthState& truth = world.Step();
       ++record.physics_steps;
+      if (record.physics_steps % steps_per_minute == 0) {
+        record.minutes.push_back(
+            {std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count(),
+             ResidentMegabytes()});
+      }
 
       if (truth.t_ns >= next_output_ns) {
         const sim::Reference reference = trajectory->Sample(truth.t_ns);

@@ -107,6 +107,13 @@ struct RunRecord {
   std::vector<RunRecord> closed_loop_flights;
   int64_t physics_steps = 0;
   double wall_time_s = 0.0;  ///< the only wall-clock figure; goes to timing.json
+  /// At the end of each simulated minute: wall time since the flight began and the
+  /// process's resident set (timing.json: per-minute real-time factor, memory growth).
+  struct MinuteMark {
+    double wall_time_s = 0.0;
+    double resident_mb = 0.0;
+  };
+  std::vector<MinuteMark> minutes;
   /// Set when the simulation stopped early (MuJoCo bad state): what happened.
   std::optional<std::string> failure;
 };

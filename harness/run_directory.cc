@@ -410,6 +410,19 @@ std::string TimingJson(const RunRecord& record) {
        record.wall_time_s > 0.0 ? static_cast<double>(record.physics_steps) / record.wall_time_s
                                 : 0.0},
       {"note", "wall-clock figures: the only file of the run that differs between two runs"}};
+  // One entry per simulated minute: its real-time factor and the resident set at its end
+  // (a long run's memory must stay flat; scripts/soak.py reads these).
+  nlohmann::json minutes = nlohmann::json::array();
+  double previous_wall_s = 0.0;
+  for (size_t i = 0; i < record.minutes.size(); ++i) {
+    const RunRecord::MinuteMark& m = record.minutes[i];
+    const double wall_s = m.wall_time_s - previous_wall_s;
+    minutes.push_back({{"minute", i + 1},
+                       {"real_time_factor", wall_s > 0.0 ? 60.0 / wall_s : 0.0},
+                       {"resident_mb", m.resident_mb}});
+    previous_wall_s = m.wall_time_s;
+  }
+  j["minutes"] = std::move(minutes);
   return j.dump(2) + "\n";
 }
 
