@@ -190,6 +190,10 @@ TEST_F(CliTest, RunDirectoryHasTheDocumentedFilesAndFormats) {
   }
   const nlohmann::json timing = nlohmann::json::parse(ReadFile(run / "timing.json"));
   EXPECT_TRUE(timing.contains("wall_time_s"));
+  // One entry per whole simulated minute (scripts/soak.py): none in a 10 s flight.
+  ASSERT_TRUE(timing["minutes"].is_array());
+  EXPECT_EQ(timing["minutes"].size(),
+            static_cast<size_t>(timing["simulated_s"].get<double>() / 60.0));
 
   // The resolved scenario loads again, equals the input, and spells out the defaults.
   const std::string resolved = ReadFile(run / "scenario.yaml");

@@ -77,6 +77,20 @@ TEST(FlightHover, LevelHoverHoldsPositionAndAttitude) {
   ExpectHoverHolds(scenario, record);
 }
 
+TEST(FlightHover, EachSimulatedMinuteRecordsItsWallTimeAndResidentSet) {
+  // timing.json's per-minute figures (the soak benchmark reads them): one mark at the end
+  // of each whole simulated minute, wall times increasing, a resident set read.
+  Scenario scenario = Load("scenarios/hover_arena.yaml");
+  scenario.duration_s = 150.0;  // the trajectory holds its last hover to the end
+  const RunRecord record = Simulate(scenario);
+  ASSERT_FALSE(record.failure.has_value()) << *record.failure;
+  ASSERT_EQ(record.minutes.size(), 2u);
+  EXPECT_GT(record.minutes[0].wall_time_s, 0.0);
+  EXPECT_GT(record.minutes[1].wall_time_s, record.minutes[0].wall_time_s);
+  EXPECT_LE(record.minutes[1].wall_time_s, record.wall_time_s);
+  EXPECT_GT(record.minutes[0].resident_mb, 1.0);
+}
+
 TEST(FlightHover, TiltedHoverHoldsThirtyDegreesOfRoll) {
   const Scenario scenario = Load("scenarios/hover_tilted_arena.yaml");
   const RunRecord record = Simulate(scenario);
