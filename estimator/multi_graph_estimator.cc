@@ -31,6 +31,17 @@ struct SensorState {
   std::optional<core::Time> noise_measured_at_ns;
 };
 
+// Keeps T_AL among the frames the sensor held last (newest first, no duplicates).
+void RememberFrame(const Eigen::Isometry3d& T_AL, SensorState* sensor) {
+  constexpr std::size_t kRememberedFrames = 4;
+  auto& previous = sensor->previous_T_AL;
+  const auto same = std::find_if(previous.begin(), previous.end(),
+                                 [&](const auto& T) { return T.isApprox(T_AL, 1e-12); });
+  if (same != previous.end()) previous.erase(same);
+  previous.insert(previous.begin(), T_AL);
+  if (previous.size() > kRememberedFrames) previous.resize(kRememberedFrames);
+}
+
 struct ImuSample {
   core::Time t_ns;
   Eigen::Vector3d accel_I_mps2;
@@ -813,16 +824,7 @@ bool MultiGraphEstimator::SetFusedSensors(const std::vector<std::string>& names)
     } else if (!want && s->fused) {
       impl.smoother.EndChain(s->id);
       s->graph->SetFrozen(false);
-      if (s->frozen_T_AL) {
-        constexpr std::size_t kRememberedFrames = 4;
-        auto& previous = s->previous_T_AL;
-        const auto same = std::find_if(previous.begin(), previous.end(), [&](const auto& T) {
-          return T.isApprox(*s->frozen_T_AL, 1e-12);
-        });
-        if (same != previous.end()) previous.erase(same);
-        previous.insert(previous.begin(), *s->frozen_T_AL);
-        if (previous.size() > kRememberedFrames) previous.resize(kRememberedFrames);
-      }
+      if (s->frozen_T_AL) RememberFrame(*s->frozen_T_AL, s.get());
       s->frozen_T_AL.reset();
     }
     s->fused = want;
@@ -848,7 +850,16 @@ bool MultiGraphEstimator::DiscardSensor(const std::string& name, core::Time afte
 bool MultiGraphEstimator::RestartAlignment(const std::string& name) {
   SensorState* s = impl_->Find(name);
   if (s == nullptr) return false;
-  if (!s->fused && !s->known_T_AL) s->graph->Reset();
+  if (s->fused || s->known_T_AL) return true;
+  // The frame it had before the restart stays a candidate (AlignmentOf tries it against
+  // the pairs that come after): a sensor found inconsistent for a moment without a fault
+  // (e.g. at its first evaluation after an occlusion) is fusable again as soon as the new
+  // pairs fit its old frame, not only after a whole new alignment window, which the local
+  // frame may not hold still for (wall_contact_inspection, seed 5: 44 s). Pairs taken
+  // during a fault (a jump) do not fit the frame of before it, and a frame estimated from
+  // them fits only such pairs: neither is taken back wrongly once the fault is over.
+  if (impl_->Usable(s->graph->estimate())) RememberFrame(s->graph->estimate().T_AL, s);
+  s->graph->Reset();
   return true;
 }
 

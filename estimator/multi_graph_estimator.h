@@ -209,8 +209,9 @@ class MultiGraphEstimator {
 
   /// A sensor judged inconsistent (by consensus) while not fused: the pairs its alignment
   /// graph holds are dropped and T_AL is estimated afresh from the pairs that follow
-  /// (AlignmentGraph::Reset). Nothing happens to a fused sensor (its T_AL is frozen) or to
-  /// one with a known T_AL. Unknown names: false.
+  /// (AlignmentGraph::Reset); a usable T_AL it had stays a candidate that is taken back
+  /// when the new pairs fit it (as after an exclusion). Nothing happens to a fused sensor
+  /// (its T_AL is frozen) or to one with a known T_AL. Unknown names: false.
   bool RestartAlignment(const std::string& name);
 
   /// A known T_AL (e.g. the ground truth handed to the naive baseline), used instead of

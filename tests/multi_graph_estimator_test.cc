@@ -160,6 +160,36 @@ TEST_F(MultiGraphEstimatorTest, AlignmentGraphOfAnUnfusedSensorExplainsItsPositi
   EXPECT_GT(z_A_of_L.z(), std::cos(1.0 * M_PI / 180.0));
 }
 
+TEST_F(MultiGraphEstimatorTest, ARestartedAlignmentTakesBackItsFrameWhenTheNewPairsFitIt) {
+  // VIO fused; the total station's alignment is usable by 30 s. Consensus finds it
+  // inconsistent for a moment (no fault) and restarts its alignment: its old frame is
+  // taken back once a second of new pairs fits it, not after a new 20 s alignment window
+  // (wall_contact_inspection, seed 5: 44 s unfusable, the degenerate LIO fused instead).
+  const harness::RecordedLog& log = *log_;
+  estimator::MultiGraphEstimator estimator(log.imu_stream, harness::SensorSpecsOf(log),
+                                           harness::DefaultEstimatorOptions(log));
+  ASSERT_TRUE(estimator.SetFusedSensors({"vio"}));
+  constexpr core::Time kRestartNs = 30'000'000'000;
+  std::optional<Eigen::Isometry3d> before;
+  std::optional<core::Time> usable_again_ns;
+  for (const core::StampedMeasurement& m : log.measurements) {
+    if (m.t_ns >= kRestartNs && !before) {
+      before = estimator.AlignmentOf("leica");
+      ASSERT_TRUE(before.has_value()) << "no usable alignment to restart from";
+      ASSERT_TRUE(estimator.RestartAlignment("leica"));
+      EXPECT_FALSE(estimator.AlignmentOf("leica").has_value()) << "no new pair yet";
+    }
+    estimator.Add(m);
+    estimator.TakeOutputs();
+    if (before && !usable_again_ns && estimator.AlignmentOf("leica")) usable_again_ns = m.t_ns;
+  }
+  ASSERT_TRUE(usable_again_ns.has_value());
+  EXPECT_LT(1e-9 * static_cast<double>(*usable_again_ns - kRestartNs), 2.0);
+  EXPECT_TRUE(estimator.AlignmentOf("leica")->isApprox(*before, 1e-12))
+      << "the old frame, not one re-estimated from the new pairs";
+  EXPECT_FALSE(estimator.RestartAlignment("no_such_sensor"));
+}
+
 TEST_F(MultiGraphEstimatorTest, CountsStreamsItDoesNotKnowAndWrongKinds) {
   estimator::MultiGraphEstimator estimator(log_->imu_stream, harness::SensorSpecsOf(*log_),
                                            harness::DefaultEstimatorOptions(*log_));
