@@ -16,7 +16,10 @@ preferred sensor (issue 16: only the consensus estimate and what derives from it
 resolved scenario.yaml's `fuse`/`return_to_priority` keys, differed), and again when a
 sensor fused again took back its earlier frame alignment and `position_factors` joined the
 resolved scenario (bridge_inspection's consensus estimate, paper_consensus_indoor's
-estimate_consensus.json, every estimation scenario's scenario.yaml).
+estimate_consensus.json, every estimation scenario's scenario.yaml), and when a restarted
+alignment kept its frame as a candidate (wall_contact_inspection's summary.json: its
+consensus values) and bridge_sensors asserted the time without RTK (its scenario.yaml and
+summary.json: the expectation, nothing flown differed).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)
