@@ -38,11 +38,11 @@
 #include "estimator/alignment_graph.h"
 #include "estimator/multi_graph_estimator.h"
 #include "harness/evaluation.h"
-#include "harness/recorded_log.h"
-#include "harness/replay.h"
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
 
 namespace {
 
@@ -78,9 +78,9 @@ class TempRuns {
 };
 
 // The recorded log of a scenario, flown once per process.
-const tofu::harness::RecordedLog& LogOf(const std::string& scenario_relative_path) {
+const tofu::replay::RecordedLog& LogOf(const std::string& scenario_relative_path) {
   static TempRuns runs;
-  static std::map<std::string, std::unique_ptr<tofu::harness::RecordedLog>> cache;
+  static std::map<std::string, std::unique_ptr<tofu::replay::RecordedLog>> cache;
   auto& slot = cache[scenario_relative_path];
   if (!slot) {
     const fs::path file = SourceDir() / scenario_relative_path;
@@ -90,7 +90,7 @@ const tofu::harness::RecordedLog& LogOf(const std::string& scenario_relative_pat
     const fs::path dir = runs.Dir(scenario.name);
     fs::create_directories(dir.parent_path());
     tofu::harness::WriteRunDirectory(record, tofu::harness::Evaluate(record), dir.string());
-    slot = std::make_unique<tofu::harness::RecordedLog>(tofu::harness::ReadRecordedLog(dir));
+    slot = std::make_unique<tofu::replay::RecordedLog>(tofu::replay::ReadRecordedLog(dir));
   }
   return *slot;
 }
@@ -120,7 +120,7 @@ double ThreadCpuSeconds() {
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
 
-// One method over a whole recorded log, as harness::Replay does (Add in arrival order,
+// One method over a whole recorded log, as replay::Replay does (Add in arrival order,
 // TakeOutputs after each). Per iteration: the whole replay. An untimed warm-up replay
 // finds the Add calls that solve (the replay is deterministic), and only those are timed,
 // so that timing every Add does not cost the replay itself. Counters, latencies over the
@@ -134,8 +134,8 @@ double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).coun
 //   x_realtime / x_realtime_cpu — log duration / wall (thread CPU) time of the replay loop.
 void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
                      const std::string& method_name, const std::string& late_sensor = "") {
-  const tofu::harness::RecordedLog& log = LogOf(scenario);
-  const tofu::harness::ReplayMethod method = tofu::harness::ParseReplayMethod(method_name, log);
+  const tofu::replay::RecordedLog& log = LogOf(scenario);
+  const tofu::replay::ReplayMethod method = tofu::replay::ParseReplayMethod(method_name, log);
   // A position sensor fused from the start never gets a T_AL (its alignment graph is
   // frozen while it is fused, so it collects no pairs): late_sensor joins the fused set
   // once its alignment graph has a solution over half a window of pairs (10 s at 20 Hz)
@@ -154,8 +154,8 @@ void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
     }
   };
   const tofu::estimator::MultiGraphEstimatorOptions options =
-      tofu::harness::DefaultEstimatorOptions(log);
-  const std::vector<tofu::estimator::SensorSpec> specs = tofu::harness::SensorSpecsOf(log);
+      tofu::replay::DefaultEstimatorOptions(log);
+  const std::vector<tofu::estimator::SensorSpec> specs = tofu::replay::SensorSpecsOf(log);
   const auto [lo, hi] = std::minmax_element(
       log.measurements.begin(), log.measurements.end(),
       [](const auto& a, const auto& b) { return a.t_ns < b.t_ns; });

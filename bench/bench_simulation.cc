@@ -130,7 +130,7 @@ BENCHMARK(BM_BareMjStep200s)->Apply([](benchmark::internal::Benchmark* b) {
 // factor: they say whether the estimator would keep up on the robot.
 void BM_ClosedLoopFlight200s(benchmark::State& state) {
   Scenario scenario = BenchScenario(true);
-  tofu::harness::EstimationConfig estimation;
+  tofu::replay::EstimationConfig estimation;
   estimation.methods = {"consensus", "naive"};
   estimation.consensus.threshold = 0.3;
   estimation.huber_delta = 3.0;

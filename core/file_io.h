@@ -1,6 +1,6 @@
 #pragma once
 // Whole-file reads for every module that loads text (sim's robot MJCF, harness's logs and
-// CSVs): one reader with one error message. Writers live in harness/file_io.h.
+// CSVs): one reader with one error message. Writers live in replay/file_io.h.
 
 #include <cstddef>
 #include <filesystem>

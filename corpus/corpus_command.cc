@@ -21,9 +21,9 @@
 #include "corpus/episode_writer.h"
 #include "corpus/hdf5_file.h"
 #include "harness/run.h"
-#include "harness/replay.h"
-#include "harness/trajectory_metrics.h"
 #include "harness/scenario.h"
+#include "replay/replay.h"
+#include "replay/trajectory_metrics.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
 
@@ -124,7 +124,7 @@ nlohmann::json ScoreMethods(const harness::RunRecord& record) {
     }
     break;
   }
-  std::vector<harness::PoseSample> truth;
+  std::vector<replay::PoseSample> truth;
   for (const sim::TruthState& g : record.groundtruth) {
     Eigen::Isometry3d T_WB = Eigen::Isometry3d::Identity();
     T_WB.linear() = g.q_WB.toRotationMatrix();
@@ -133,11 +133,11 @@ nlohmann::json ScoreMethods(const harness::RunRecord& record) {
     truth.push_back({g.t_ns, T_WI.translation(), Eigen::Quaterniond(T_WI.linear()).normalized()});
   }
   nlohmann::json methods = nlohmann::json::object();
-  for (const harness::ReplayResult& r : record.in_loop) {
-    const std::vector<harness::PoseSample> estimate = harness::OutputTrajectory(r);
+  for (const replay::ReplayResult& r : record.in_loop) {
+    const std::vector<replay::PoseSample> estimate = replay::OutputTrajectory(r);
     nlohmann::json m = nlohmann::json::object();
     if (estimate.size() > 10 && truth.size() > 10) {
-      m["ate_m"] = harness::EvaluateTrajectory(estimate, truth).ate_position_rmse_m;
+      m["ate_m"] = replay::EvaluateTrajectory(estimate, truth).ate_position_rmse_m;
     }
     methods[r.method.name] = m;
   }

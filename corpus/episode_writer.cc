@@ -222,7 +222,7 @@ void WriteEvents(const Hdf5Group& group, const std::vector<FaultEvent>& events) 
   group.WriteDouble("severity", severity);
 }
 
-void WriteMethod(const Hdf5Group& group, const harness::ReplayResult& result,
+void WriteMethod(const Hdf5Group& group, const replay::ReplayResult& result,
                  const std::vector<std::string>& sensors) {
   std::vector<std::int64_t> t;
   std::vector<double> p, q, v, ba, bg, std_p;
@@ -306,7 +306,7 @@ ManifestRow WriteEpisode(const Hdf5Group& parent, const EpisodePlan& plan,
   const std::vector<FaultEvent> events = FaultEvents(record, plan);
   WriteEvents(episode.CreateGroup("events"), events);
   const Hdf5Group methods = episode.CreateGroup("methods");
-  for (const harness::ReplayResult& r : record.in_loop) {
+  for (const replay::ReplayResult& r : record.in_loop) {
     // A method's name may hold ':' and '@' ("single:vio@clean"); the group is its file-safe
     // form, the attribute `method` the name.
     std::string safe = r.method.name;

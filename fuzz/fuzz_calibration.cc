@@ -1,5 +1,5 @@
 // libFuzzer target: the calibration reader (calibration.yaml of run directories and real
-// logs), through its string-level entry point harness::DescribeRunStreams, which parses
+// logs), through its string-level entry point replay::DescribeRunStreams, which parses
 // the text with the very parser ReadRecordedLog uses and applies it to four streams
 // (an IMU, two pose streams, a position stream: the names tofu's runs use).
 #include <string>
@@ -7,16 +7,16 @@
 #include <vector>
 
 #include "fuzz/fuzz_support.h"
-#include "harness/recorded_log.h"
+#include "replay/recorded_log.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  using tofu::harness::StreamKind;
+  using tofu::replay::StreamKind;
   const std::string text = tofu::fuzz::InputText(data, size);
   std::vector<std::pair<std::string, StreamKind>> streams = {{"imu", StreamKind::kImu},
                                                              {"vio", StreamKind::kPose},
                                                              {"lio", StreamKind::kPose},
                                                              {"leica", StreamKind::kPosition}};
   tofu::fuzz::ParsesOrInputError(
-      [&] { (void)tofu::harness::DescribeRunStreams(streams, text, "fuzz_run"); });
+      [&] { (void)tofu::replay::DescribeRunStreams(streams, text, "fuzz_run"); });
   return 0;
 }

@@ -1,9 +1,9 @@
-// libFuzzer target: the EuRoC reader, harness::ReadRecordedLog on layout (b)
+// libFuzzer target: the EuRoC reader, replay::ReadRecordedLog on layout (b)
 // (recorded_log.h): the input is mav0/imu0/data.csv of a log whose other files (a .tum
 // pose stream, the ground truth, calibration.yaml) are valid.
 #include "fuzz/fuzz_support.h"
 #include "fuzz/recorded_log_layouts.h"
-#include "harness/recorded_log.h"
+#include "replay/recorded_log.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   static const std::filesystem::path dir = [] {
@@ -12,6 +12,6 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     return d;
   }();
   tofu::fuzz::WriteFile(dir / tofu::fuzz::kEurocImu, tofu::fuzz::InputText(data, size));
-  tofu::fuzz::ParsesOrInputError([&] { (void)tofu::harness::ReadRecordedLog(dir); });
+  tofu::fuzz::ParsesOrInputError([&] { (void)tofu::replay::ReadRecordedLog(dir); });
   return 0;
 }

@@ -1,17 +1,17 @@
 // libFuzzer target: the velocity CSV reader of `tofu consistency`,
-// harness::ParseVelocityCsv. A series it returns is never empty and strictly increasing
+// replay::ParseVelocityCsv. A series it returns is never empty and strictly increasing
 // in time with finite velocities (velocity_csv.h): checked too.
 #include <cmath>
 #include <string>
 
 #include "fuzz/fuzz_support.h"
-#include "harness/velocity_csv.h"
+#include "replay/velocity_csv.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string text = tofu::fuzz::InputText(data, size);
   tofu::estimator::VelocitySeries series;
   if (!tofu::fuzz::ParsesOrInputError(
-          [&] { series = tofu::harness::ParseVelocityCsv(text, "fuzz_velocity.csv"); })) {
+          [&] { series = tofu::replay::ParseVelocityCsv(text, "fuzz_velocity.csv"); })) {
     return 0;
   }
   if (series.t_ns.empty() || series.t_ns.size() != series.v_mps.size()) {

@@ -1,7 +1,7 @@
 #pragma once
 // The fixed files around the fuzz input of the recorded-log targets (fuzz_run_directory,
 // fuzz_euroc_imu, fuzz_euroc_groundtruth): small valid files of both layouts that
-// harness::ReadRecordedLog reads (recorded_log.h), so that a rejection comes from the
+// replay::ReadRecordedLog reads (recorded_log.h), so that a rejection comes from the
 // input. The targets write them once per process into their scratch directory;
 // tests/fuzz_regression_test.cc replays the seeds and findings in the same layouts.
 

@@ -22,13 +22,21 @@
 
 #include "core/error.h"
 #include "harness/check_methods.h"
-#include "harness/file_io.h"
-#include "harness/interrupt.h"
 #include "harness/yaml_reader.h"
+#include "replay/file_io.h"
+#include "replay/interrupt.h"
 
 extern char** environ;
 
 namespace tofu::harness {
+
+using replay::InterruptSignal;
+using replay::InterruptSignalName;
+using replay::SweepStaleStaging;
+using replay::ThrowIfInterrupted;
+using replay::WaitForInterrupt;
+using replay::WriteFileAtomically;
+
 namespace {
 
 namespace fs = std::filesystem;

@@ -9,11 +9,14 @@
 
 #include <fmt/format.h>
 
-#include "harness/file_io.h"
 #include "harness/run_directory.h"
 #include "harness/yaml_reader.h"
+#include "replay/file_io.h"
 
 namespace tofu::harness {
+
+using replay::StagingPath;
+using replay::WriteFileAtomically;
 
 const std::vector<std::string> kMethodTableMetrics = {
     "ate_m",

@@ -10,13 +10,31 @@
 
 #include "core/error.h"
 #include "harness/evaluation.h"
-#include "harness/file_io.h"
-#include "harness/recorded_log.h"
-#include "harness/replay.h"
 #include "harness/sensor_suite.h"
-#include "harness/trajectory_metrics.h"
+#include "replay/file_io.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
+#include "replay/trajectory_metrics.h"
 
 namespace tofu::harness {
+
+using replay::ConsistencyMatrixCsv;
+using replay::DecisionRows;
+using replay::GroundTruthPose;
+using replay::kDecisionsCsvHeader;
+using replay::LabelEvent;
+using replay::MethodFiles;
+using replay::MethodFileStem;
+using replay::ReadRecordedLog;
+using replay::RecordedLog;
+using replay::RecordedLogOptions;
+using replay::ReplayMethod;
+using replay::ReplayResult;
+using replay::SensorSpecsOf;
+using replay::TrajectoryErrors;
+using replay::WriteFileAtomically;
+using replay::WriteMethodResult;
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -83,36 +101,8 @@ double MethodEvaluation::false_exclusion_fraction() const {
   return run_duration_s > 0.0 ? worst / run_duration_s : 0.0;
 }
 
-estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config) {
-  estimator::ConsensusOptions options;
-  options.threshold = config.threshold;
-  options.leave_threshold = config.leave_threshold;
-  options.min_dwell_ns = core::SecondsToTime(config.min_dwell_s);
-  options.policy = config.policy;
-  options.return_to_priority = config.return_to_priority;
-  options.priority = config.priority;
-  return options;
-}
-
-EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config) {
-  EstimationSetup setup;
-  setup.estimator = DefaultEstimatorOptions(log);
-  setup.estimator.local.huber_delta = config.huber_delta;
-  setup.sensors = SensorSpecsOf(log);
-  for (estimator::SensorSpec& spec : setup.sensors) {
-    spec.absolute_position = config.absolute_positions;
-  }
-  setup.consensus.selection = SelectionOptions(config.consensus);
-  setup.consensus.consistency.consistency.window_ns =
-      core::SecondsToTime(config.consensus.window_s);
-  setup.consensus.consistency.history_ns =
-      setup.consensus.consistency.consistency.window_ns + 2'000'000'000;
-  setup.consensus.evaluation_period_ns = core::PeriodFromRate(config.consensus.rate_hz);
-  return setup;
-}
-
 std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
-                                                 const EstimationConfig& config,
+                                                 const replay::EstimationConfig& config,
                                                  const std::vector<LabelEvent>& labels,
                                                  double run_duration_s,
                                                  const std::vector<ReplayResult>& results) {

@@ -24,47 +24,14 @@
 #include <vector>
 
 #include "core/time.h"
-#include "estimator/consensus_estimator.h"
-#include "estimator/consensus_selector.h"
-#include "estimator/multi_graph_estimator.h"
-#include "harness/recorded_log.h"
+#include "replay/estimation_config.h"
 
-namespace tofu::harness {
-
+namespace tofu::replay {
 struct LabelEvent;
 struct ReplayResult;
+}  // namespace tofu::replay
 
-/// `estimation.consensus` in a scenario (and the options of `consensus` methods).
-struct ConsensusConfig {
-  double threshold = 0.1;                 ///< CM distance (m/s), paper: 0.1
-  std::optional<double> leave_threshold;  ///< hysteresis; unset = paper
-  double min_dwell_s = 0.0;               ///< 0 = paper
-  /// `fuse`: pair_member (one sensor of the most consistent pair, the paper) or
-  /// consistent_set (every sensor of the largest mutually consistent set).
-  estimator::ConsensusPolicy policy = estimator::ConsensusPolicy::kPairMember;
-  /// pair_member: give way to a preferred sensor that has recovered (false: the paper).
-  bool return_to_priority = true;
-  std::vector<std::string> priority;      ///< sensors, most preferred first
-  double window_s = 1.0;                  ///< CM window
-  double rate_hz = 10.0;                  ///< evaluations per second
-};
-
-/// `estimation:` in a scenario.
-struct EstimationConfig {
-  /// Method names (harness/replay.h ParseReplayMethod): consensus,
-  /// consensus:pair_member, consensus:consistent_set, oracle, naive, single:<sensor>,
-  /// fuse:<a>+<b>, imu_only, each optionally with @clean.
-  std::vector<std::string> methods;
-  ConsensusConfig consensus;
-  /// Huber loss on the between factors, in standard deviations (0: off, as the paper).
-  /// A faulty sensor is fused until consensus notices it (a few evaluations): without a
-  /// robust loss, metre-level outliers in that time can wreck the local graph.
-  double huber_delta = 0.0;
-  /// How position sensors (total station, GNSS) constrain the local graph: "between"
-  /// (displacements, the paper's eq. 3) or "absolute" (each position in L through the
-  /// frozen T_AL; estimator::SensorSpec::absolute_position).
-  bool absolute_positions = false;
-};
+namespace tofu::harness {
 
 /// One fault interval of a sensor and kind (overlapping faults merged) and whether (and
 /// when) a method noticed it.
@@ -119,27 +86,14 @@ struct MethodEvaluation {
   double false_exclusion_fraction() const;
 };
 
-/// What every method of a run is configured with, from the streams' description (the
-/// run directory's calibration, ReadRecordedLog or DescribeRunStreams) and the scenario's
-/// `estimation:` block: in the loop and in `tofu estimate` alike.
-struct EstimationSetup {
-  estimator::MultiGraphEstimatorOptions estimator;
-  std::vector<estimator::SensorSpec> sensors;
-  estimator::ConsensusEstimatorOptions consensus;
-};
-EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config);
-
 /// Scores the methods that ran in the loop (`results`, in the order of config.methods)
 /// against the run directory `run_dir` (its ground truth and stream descriptions), writes
 /// the files listed above into it and returns the evaluations. `labels` are the run's
 /// fault labels.
 std::vector<MethodEvaluation> EvaluateEstimation(const std::filesystem::path& run_dir,
-                                                 const EstimationConfig& config,
-                                                 const std::vector<LabelEvent>& labels,
+                                                 const replay::EstimationConfig& config,
+                                                 const std::vector<replay::LabelEvent>& labels,
                                                  double run_duration_s,
-                                                 const std::vector<ReplayResult>& results);
-
-/// The options of the consensus estimator from a scenario's configuration.
-estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config);
+                                                 const std::vector<replay::ReplayResult>& results);
 
 }  // namespace tofu::harness

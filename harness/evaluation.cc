@@ -12,6 +12,9 @@
 #include "harness/metrics.h"
 
 namespace tofu::harness {
+
+using replay::LabelEvent;
+
 namespace {
 
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;

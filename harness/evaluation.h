@@ -51,7 +51,7 @@ struct LabelInterval {
 /// fault keeps its own interval (the corpus's event table: one row per fault). Starts
 /// never ended close at `end_ns`, marked open. Order: closed intervals by their end
 /// transition, then the open ones by (sensor, label, source) and start.
-std::vector<LabelInterval> PairedLabelIntervals(const std::vector<LabelEvent>& labels,
+std::vector<LabelInterval> PairedLabelIntervals(const std::vector<replay::LabelEvent>& labels,
                                                 core::Time end_ns);
 
 /// The time each (sensor, label, source) was active, as disjoint intervals: overlapping
@@ -59,7 +59,7 @@ std::vector<LabelInterval> PairedLabelIntervals(const std::vector<LabelEvent>& l
 /// what the sensor's samples were labelled with and what a fault detector had to notice.
 /// Faults are scored on these (EvaluateEstimation): one detection per interval, and no
 /// exclusion inside one is a false exclusion. Sorted by (start, sensor, label).
-std::vector<LabelInterval> MergedLabelIntervals(const std::vector<LabelEvent>& labels,
+std::vector<LabelInterval> MergedLabelIntervals(const std::vector<replay::LabelEvent>& labels,
                                                 core::Time end_ns);
 
 /// What a consensus method's decisions score against the run's labels.
@@ -72,7 +72,7 @@ struct ConsensusScores {
   std::map<std::string, double> false_exclusion_s;
 };
 ConsensusScores ScoreConsensusDecisions(const std::vector<estimator::ConsensusRecord>& decisions,
-                                        const std::vector<LabelEvent>& labels,
+                                        const std::vector<replay::LabelEvent>& labels,
                                         core::Time run_end_ns,
                                         const std::vector<std::string>& sensors);
 

@@ -90,7 +90,7 @@ bool IsIdentifier(std::string_view s) {
   return true;
 }
 
-// Method names (harness/replay.h): single:vio@clean, fuse:vio+leica, consensus, ...
+// Method names (replay/replay.h): single:vio@clean, fuse:vio+leica, consensus, ...
 bool IsMethodName(std::string_view s) {
   if (s.empty()) return false;
   for (const char c : s) {

@@ -13,14 +13,27 @@
 #include "core/error.h"
 #include "core/lie.h"
 #include "core/random.h"
-#include "harness/recorded_log.h"
 #include "harness/run_directory.h"
 #include "harness/sample_stream.h"
+#include "replay/recorded_log.h"
 #include "sim/allocation.h"
 #include "sim/controller.h"
 #include "sim/wind.h"
 
 namespace tofu::harness {
+
+using replay::DescribeRunStreams;
+using replay::EstimationConfig;
+using replay::EstimationSetup;
+using replay::LabelEvent;
+using replay::MakeEstimationSetup;
+using replay::MethodRunner;
+using replay::ParseReplayMethod;
+using replay::RecordedLog;
+using replay::ReplayMethod;
+using replay::ReplayResult;
+using replay::StreamKind;
+
 namespace {
 
 // The process's resident set [MB] from /proc/self/statm (Linux); 0 where unreadable.

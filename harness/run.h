@@ -14,9 +14,9 @@
 #include "harness/closed_loop.h"
 #include "harness/consistency_eval.h"
 #include "harness/estimation.h"
-#include "harness/replay.h"
 #include "harness/scenario.h"
 #include "harness/sensor_suite.h"
+#include "replay/replay.h"
 #include "sim/trajectory.h"
 #include "sim/world.h"
 
@@ -87,13 +87,13 @@ struct RunRecord {
   double distance_horizon_m = 0.0;
   std::vector<ApproachResult> approaches;
   std::vector<SensorStream> sensors;  ///< in the order of scenario.sensors
-  std::vector<LabelEvent> labels;     ///< condition and fault transitions, by time
+  std::vector<replay::LabelEvent> labels;     ///< condition and fault transitions, by time
   /// With scenario.consistency: the sensors' velocity consistency (consistency_eval.h).
   std::optional<ConsistencyEvaluation> consistency;
   /// The estimation methods that ran in the loop, fed by the run's arrival-ordered
   /// sample stream: every method of scenario.estimation in a ground-truth flight, the
   /// flying method in a closed-loop flight.
-  std::vector<ReplayResult> in_loop;
+  std::vector<replay::ReplayResult> in_loop;
   /// Samples released to the in-loop consumers after a later-arriving one (a model whose
   /// sample arrives before the step it was produced in); 0 in a correct run.
   std::size_t late_samples = 0;

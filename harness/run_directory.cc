@@ -22,14 +22,23 @@
 #include "core/error.h"
 #include "core/lie.h"
 #include "harness/estimation.h"
-#include "harness/file_io.h"
-#include "harness/interrupt.h"
-#include "harness/replay.h"
 #include "harness/sensor_config.h"
+#include "replay/file_io.h"
+#include "replay/interrupt.h"
+#include "replay/replay.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
 
 namespace tofu::harness {
+
+using replay::EstimationConfig;
+using replay::LabelEvent;
+using replay::MethodFileStem;
+using replay::StagingPath;
+using replay::ThrowIfInterrupted;
+using replay::WaitForInterrupt;
+using replay::WriteFileAtomically;
+
 namespace {
 
 namespace fs = std::filesystem;

@@ -20,15 +20,20 @@
 
 #include "core/file_io.h"
 #include "core/lie.h"
-#include "harness/metrics.h"
 #include "harness/config_io.h"
 #include "harness/fault_config.h"
-#include "harness/replay.h"
+#include "harness/metrics.h"
 #include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
+#include "replay/replay.h"
 #include "sim/world.h"
 
 namespace tofu::harness {
+
+using replay::CheckMethodName;
+using replay::ConsensusConfig;
+using replay::EstimationConfig;
+
 namespace {
 
 using internal::FormatDouble;

@@ -91,7 +91,7 @@ struct Scenario {
   std::optional<ConsistencyConfig> consistency;
   /// `estimation:` the estimation methods `tofu run` replays on the run's streams and
   /// scores (harness/estimation.h); none when absent.
-  std::optional<EstimationConfig> estimation;
+  std::optional<replay::EstimationConfig> estimation;
   /// `control:` where the controller gets its state: ground truth (default), or each
   /// listed estimation method in a closed-loop flight of its own (harness/closed_loop.h).
   std::optional<ControlConfig> control;

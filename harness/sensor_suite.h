@@ -16,7 +16,7 @@
 #include <Eigen/Geometry>
 
 #include "core/time.h"
-#include "harness/labels.h"
+#include "replay/labels.h"
 #include "sim/faults.h"
 #include "sim/gnss.h"
 #include "sim/imu.h"

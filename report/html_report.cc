@@ -20,10 +20,10 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "harness/check_command.h"
-#include "harness/file_io.h"
 #include "harness/run_directory.h"
 #include "renders/csv_table.h"
 #include "renders/run_data.h"
+#include "replay/file_io.h"
 #include "report/html_report_assets.h"
 
 namespace tofu::report {
@@ -1093,7 +1093,7 @@ std::string RunPageHtml(const RunInputs& in, const PageContext& ctx) {
 
 void WriteRunPage(const RunInputs& in, const PageContext& ctx) {
   fs::create_directories(ctx.page_dir);
-  harness::WriteFileAtomically(ctx.page_dir / "index.html", RunPageHtml(in, ctx));
+  replay::WriteFileAtomically(ctx.page_dir / "index.html", RunPageHtml(in, ctx));
 }
 
 // ---- the output directory ----
@@ -1114,7 +1114,7 @@ void WriteReportDirectory(const fs::path& out_dir,
   fs::remove_all(staging);
   try {
     fs::create_directories(staging);
-    harness::WriteFileAtomically(staging / kReportMarkerFile,
+    replay::WriteFileAtomically(staging / kReportMarkerFile,
                                  "a tofu report: `tofu report --out` replaces this directory\n");
     fill(staging);
     fs::remove_all(old);
@@ -1538,7 +1538,7 @@ fs::path WriteCheckReport(const fs::path& check_dir, const fs::path& out_dir,
   for (const std::string& name : names) scenarios.push_back(ReadCheckScenario(check_dir, name));
   WriteReportDirectory(out_dir, [&](const fs::path& staging) {
     for (CheckScenario& sc : scenarios) WriteCheckPages(sc, staging);
-    harness::WriteFileAtomically(staging / "index.html", CheckPageHtml(check_dir, scenarios));
+    replay::WriteFileAtomically(staging / "index.html", CheckPageHtml(check_dir, scenarios));
   });
   return fs::absolute(out_dir).lexically_normal() / "index.html";
 }

@@ -21,11 +21,11 @@
 #include "harness/closed_loop.h"
 #include "harness/estimation.h"
 #include "harness/evaluation.h"
-#include "harness/recorded_log.h"
-#include "harness/replay.h"
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
 #include "tests/test_support.h"
 
 namespace tofu {
@@ -90,13 +90,13 @@ void ExpectSameOutputs(const std::vector<estimator::EstimatorOutput>& in_loop,
 
 // Replays one method on the run directory `dir` as `tofu estimate` does: the streams read
 // back from the CSVs, the estimator configured from the written calibration.
-harness::ReplayResult ReplayWrittenRun(const fs::path& dir, const harness::Scenario& scenario,
+replay::ReplayResult ReplayWrittenRun(const fs::path& dir, const harness::Scenario& scenario,
                                        const std::string& method_name) {
-  harness::RecordedLogOptions read;
+  replay::RecordedLogOptions read;
   read.use_clean_streams = method_name.ends_with("@clean");
-  const harness::RecordedLog log = harness::ReadRecordedLog(dir, read);
-  const harness::EstimationSetup setup = harness::MakeEstimationSetup(log, *scenario.estimation);
-  return harness::Replay(log, harness::ParseReplayMethod(method_name, log), setup.estimator,
+  const replay::RecordedLog log = replay::ReadRecordedLog(dir, read);
+  const replay::EstimationSetup setup = replay::MakeEstimationSetup(log, *scenario.estimation);
+  return replay::Replay(log, replay::ParseReplayMethod(method_name, log), setup.estimator,
                          setup.sensors, nullptr, setup.consensus);
 }
 

@@ -21,9 +21,9 @@
 
 #include "core/error.h"
 #include "estimator/consensus_estimator.h"
-#include "harness/recorded_log.h"
-#include "harness/replay.h"
 #include "harness/scenario.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
 
 namespace tofu {
 namespace {
@@ -80,7 +80,7 @@ class ConsensusEstimatorTest : public ::testing::Test {
                                   " --quiet --out " + (*dir_ / run).string();
       ASSERT_EQ(std::system(command.c_str()), 0) << command;
     }
-    log_ = new harness::RecordedLog(harness::ReadRecordedLog(*dir_ / "a"));
+    log_ = new replay::RecordedLog(replay::ReadRecordedLog(*dir_ / "a"));
   }
   // A failed flight in SetUpTestSuite must fail every test, not skip it.
   void SetUp() override { ASSERT_NE(log_, nullptr) << "the fixture's flight failed"; }
@@ -96,13 +96,13 @@ class ConsensusEstimatorTest : public ::testing::Test {
     std::vector<estimator::ConsensusRecord> records;
     estimator::LocalSmootherStats stats;
   };
-  static Run RunConsensus(const harness::RecordedLog& log) {
+  static Run RunConsensus(const replay::RecordedLog& log) {
     estimator::ConsensusEstimatorOptions options;
     options.selection.threshold = 0.3;
     options.selection.priority = {"vio", "lio"};
-    estimator::MultiGraphEstimatorOptions estimator_options = harness::DefaultEstimatorOptions(log);
+    estimator::MultiGraphEstimatorOptions estimator_options = replay::DefaultEstimatorOptions(log);
     estimator_options.local.huber_delta = 3.0;
-    estimator::ConsensusEstimator consensus(log.imu_stream, harness::SensorSpecsOf(log),
+    estimator::ConsensusEstimator consensus(log.imu_stream, replay::SensorSpecsOf(log),
                                             estimator_options, options);
     Run run;
     for (const core::StampedMeasurement& m : log.measurements) {
@@ -115,11 +115,11 @@ class ConsensusEstimatorTest : public ::testing::Test {
   }
 
   static fs::path* dir_;
-  static harness::RecordedLog* log_;
+  static replay::RecordedLog* log_;
 };
 
 fs::path* ConsensusEstimatorTest::dir_ = nullptr;
-harness::RecordedLog* ConsensusEstimatorTest::log_ = nullptr;
+replay::RecordedLog* ConsensusEstimatorTest::log_ = nullptr;
 
 TEST_F(ConsensusEstimatorTest, ExcludesTheDivergingFusedSensorWithinOneSecondAndDropsItsFactors) {
   const Run run = RunConsensus(*log_);
@@ -160,7 +160,7 @@ TEST_F(ConsensusEstimatorTest, ExcludesTheDivergingFusedSensorWithinOneSecondAnd
 // with NaN covariances) is unavailable to consensus, never selected, so that consensus
 // never fuses a stream it then has nothing of (0 outputs, exit 0 before).
 TEST_F(ConsensusEstimatorTest, ASensorWhoseEverySampleIsRejectedIsNeverSelected) {
-  harness::RecordedLog log = *log_;
+  replay::RecordedLog log = *log_;
   int poisoned = 0;
   for (core::StampedMeasurement& m : log.measurements) {
     if (m.sensor != "lio") continue;
@@ -181,7 +181,7 @@ TEST_F(ConsensusEstimatorTest, ASensorWhoseEverySampleIsRejectedIsNeverSelected)
 TEST_F(ConsensusEstimatorTest, PoseStreamsWithoutTwistAreDifferentiated) {
   // The same flight as a log whose odometry reports poses only (TUM files, real logs):
   // velocities come from the positions, and the divergence is still found.
-  harness::RecordedLog no_twist = *log_;
+  replay::RecordedLog no_twist = *log_;
   for (core::StampedMeasurement& m : no_twist.measurements) {
     if (auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) pose->has_twist = false;
   }
@@ -236,7 +236,7 @@ TEST_F(ConsensusEstimatorTest, EstimateCommandRunsConsensusOnARecordedLog) {
                               out.string();
   ASSERT_EQ(std::system(command.c_str()), 0) << command;
   const std::string decisions = ReadFile(out / "decisions.csv");
-  EXPECT_EQ(decisions.rfind(harness::kDecisionsCsvHeader, 0), 0u);
+  EXPECT_EQ(decisions.rfind(replay::kDecisionsCsvHeader, 0), 0u);
   EXPECT_NE(decisions.find(",consensus,lio,vio,,"), std::string::npos) << "VIO never excluded";
   EXPECT_NE(ReadFile(out / "consistency_consensus.csv").find(",vio-local,cm,"), std::string::npos);
 }

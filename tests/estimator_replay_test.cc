@@ -32,9 +32,9 @@
 #include "core/time.h"
 #include "estimator/consistency.h"
 #include "estimator/multi_graph_estimator.h"
-#include "harness/recorded_log.h"
-#include "harness/replay.h"
-#include "harness/trajectory_metrics.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
+#include "replay/trajectory_metrics.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
 #include "tests/test_support.h"
@@ -45,9 +45,9 @@ namespace {
 namespace fs = std::filesystem;
 using test::Quote;
 using core::Time;
-using harness::PoseSample;
-using harness::RecordedLog;
-using harness::ReplayResult;
+using replay::PoseSample;
+using replay::RecordedLog;
+using replay::ReplayResult;
 
 constexpr Time kSecond = core::kNanosecondsPerSecond;
 constexpr Time kMillisecond = 1'000'000;
@@ -55,29 +55,29 @@ constexpr Time kMillisecond = 1'000'000;
 std::vector<PoseSample> Truth(const RecordedLog& log) {
   std::vector<PoseSample> truth;
   truth.reserve(log.ground_truth.size());
-  for (const harness::GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+  for (const replay::GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
   return truth;
 }
 
 // SE(3)-aligned errors of the samples of `estimate` in [from_ns, to_ns], aligned on that
 // same span (EvaluateTrajectory reports over every matched sample, so the trajectory is
 // restricted first).
-harness::TrajectoryErrors ErrorsOnSpan(const std::vector<PoseSample>& estimate,
+replay::TrajectoryErrors ErrorsOnSpan(const std::vector<PoseSample>& estimate,
                                        const std::vector<PoseSample>& truth, Time from_ns,
                                        Time to_ns) {
   std::vector<PoseSample> span;
   for (const PoseSample& p : estimate) {
     if (p.t_ns >= from_ns && p.t_ns <= to_ns) span.push_back(p);
   }
-  harness::TrajectoryErrorOptions options;
-  options.alignment = harness::TrajectoryAlignment::kSE3;
+  replay::TrajectoryErrorOptions options;
+  options.alignment = replay::TrajectoryAlignment::kSE3;
   options.align_from_ns = from_ns;
   options.align_to_ns = to_ns;
-  return harness::EvaluateTrajectory(span, truth, options);
+  return replay::EvaluateTrajectory(span, truth, options);
 }
 
-harness::TrajectoryErrors ErrorsOverAll(const ReplayResult& result, const RecordedLog& log) {
-  return ErrorsOnSpan(harness::OutputTrajectory(result), Truth(log),
+replay::TrajectoryErrors ErrorsOverAll(const ReplayResult& result, const RecordedLog& log) {
+  return ErrorsOnSpan(replay::OutputTrajectory(result), Truth(log),
                       std::numeric_limits<Time>::min(), std::numeric_limits<Time>::max());
 }
 
@@ -154,9 +154,9 @@ class ArenaReplayTest : public ::testing::Test {
       return;
     }
     try {
-      log_ = new RecordedLog(harness::ReadRecordedLog(run));
-      options_ = new estimator::MultiGraphEstimatorOptions(harness::DefaultEstimatorOptions(*log_));
-      specs_ = new std::vector<estimator::SensorSpec>(harness::SensorSpecsOf(*log_));
+      log_ = new RecordedLog(replay::ReadRecordedLog(run));
+      options_ = new estimator::MultiGraphEstimatorOptions(replay::DefaultEstimatorOptions(*log_));
+      specs_ = new std::vector<estimator::SensorSpec>(replay::SensorSpecsOf(*log_));
       vio_ = new ReplayResult(Replay(*log_, "single:vio"));
       leica_ = new ReplayResult(Replay(*log_, "single:leica"));
     } catch (const std::exception& e) {
@@ -186,7 +186,7 @@ class ArenaReplayTest : public ::testing::Test {
   }
 
   static ReplayResult Replay(const RecordedLog& log, const std::string& method) {
-    return harness::Replay(log, harness::ParseReplayMethod(method, log), *options_, *specs_);
+    return replay::Replay(log, replay::ParseReplayMethod(method, log), *options_, *specs_);
   }
 
   // Stamp of the log's first sample (the simulated run starts at 0).
@@ -232,7 +232,7 @@ void ExpectCleanRun(const ReplayResult& r, const RecordedLog& log) {
              core::TimeToSeconds(jump_t - log.measurements.front().t_ns));
   EXPECT_LT(jump, 0.02) << "the output jumps at " << core::TimeToSeconds(jump_t - log.measurements.front().t_ns) << " s";
 
-  for (const harness::RecordedStream& s : log.streams) {
+  for (const replay::RecordedStream& s : log.streams) {
     SCOPED_TRACE(s.name);
     const estimator::StreamGateCounters& c = CountersOf(r, s.name);
     EXPECT_EQ(c.accepted, static_cast<std::int64_t>(s.rows));
@@ -249,7 +249,7 @@ void ExpectCleanRun(const ReplayResult& r, const RecordedLog& log) {
 }
 
 TEST_F(ArenaReplayTest, VioFusedMeetsTheIssueAccuracy) {
-  const harness::TrajectoryErrors e = ErrorsOverAll(*vio_, *log_);
+  const replay::TrajectoryErrors e = ErrorsOverAll(*vio_, *log_);
   fmt::print("single:vio: ATE {:.4f} m, rotation RMSE {:.3f} deg over {} samples\n",
              e.ate_position_rmse_m, e.rotation_rmse_deg, e.matched);
   RecordProperty("vio_ate_m", fmt::format("{:.5f}", e.ate_position_rmse_m));
@@ -264,7 +264,7 @@ TEST_F(ArenaReplayTest, TotalStationFusedMeetsTheIssueAccuracyOnceAligned) {
   const std::optional<Time> first_valid = FirstValidOutput(*leica_);
   ASSERT_TRUE(first_valid.has_value());
   const Time from = *first_valid + 5 * kSecond;
-  const harness::TrajectoryErrors e = ErrorsOnSpan(harness::OutputTrajectory(*leica_), Truth(*log_),
+  const replay::TrajectoryErrors e = ErrorsOnSpan(replay::OutputTrajectory(*leica_), Truth(*log_),
                                                    from, std::numeric_limits<Time>::max());
   fmt::print("single:leica: ATE {:.4f} m (from {:.1f} s), rotation RMSE {:.3f} deg, {} samples\n",
              e.ate_position_rmse_m, core::TimeToSeconds(from - T0()), e.rotation_rmse_deg,
@@ -308,8 +308,8 @@ TEST_F(ArenaReplayTest, TheOracleFusesExactlyTheSensorsTheLabelsCallHealthy) {
   }
   EXPECT_GT(checked, 10'000u);
   // The same labels on the un-faulted streams: faults do not apply there, conditions do.
-  const ReplayResult clean = harness::Replay(
-      labelled, harness::ParseReplayMethod("oracle@clean", labelled), *options_, *specs_);
+  const ReplayResult clean = replay::Replay(
+      labelled, replay::ParseReplayMethod("oracle@clean", labelled), *options_, *specs_);
   for (const estimator::EstimatorOutput& o : clean.outputs) {
     const double t_s = core::TimeToSeconds(o.t_ns - t0);
     if (t_s > 12 && t_s < 18) {
@@ -478,8 +478,8 @@ TEST_F(ArenaReplayTest, CorruptedStreamsAreCountedAndTheErrorStaysWithinTwiceThe
   EXPECT_EQ(invalid_after_init, 0u);
   EXPECT_EQ(non_finite, 0u);
 
-  const harness::TrajectoryErrors clean = ErrorsOverAll(*vio_, *log_);
-  const harness::TrajectoryErrors corrupted = ErrorsOverAll(*r, *log_);
+  const replay::TrajectoryErrors clean = ErrorsOverAll(*vio_, *log_);
+  const replay::TrajectoryErrors corrupted = ErrorsOverAll(*r, *log_);
   fmt::print("single:vio ATE clean {:.4f} m, corrupted {:.4f} m (ratio {:.2f}); rotation {:.3f} / "
              "{:.3f} deg; late keyframes {} / {}; reinitialisations {}, bad solves {}\n",
              clean.ate_position_rmse_m, corrupted.ate_position_rmse_m,
@@ -563,8 +563,8 @@ TEST_F(ArenaReplayTest, VioGoneForThirtySecondsAndBack) {
 
   // Accuracy over the last 10 s, aligned on that span.
   const Time end = r->outputs.back().t_ns;
-  const harness::TrajectoryErrors e =
-      ErrorsOnSpan(harness::OutputTrajectory(*r), Truth(*log_), end - 10 * kSecond, end);
+  const replay::TrajectoryErrors e =
+      ErrorsOnSpan(replay::OutputTrajectory(*r), Truth(*log_), end - 10 * kSecond, end);
   fmt::print("after the gap: ATE over the last 10 s {:.4f} m, rotation {:.3f} deg ({} samples)\n",
              e.ate_position_rmse_m, e.rotation_rmse_deg, e.matched);
   RecordProperty("gap_last10s_ate_m", fmt::format("{:.5f}", e.ate_position_rmse_m));
@@ -584,10 +584,10 @@ class EurocReplayTest : public ::testing::Test {
     if (!fs::exists(Dir() / "mav0" / "imu0" / "data.csv") || !fs::exists(Dir() / "pose_estimate.tum")) {
       return;
     }
-    log_ = new RecordedLog(harness::ReadRecordedLog(Dir()));
-    result_ = new ReplayResult(harness::Replay(
-        *log_, harness::ParseReplayMethod("single:pose_estimate", *log_),
-        harness::DefaultEstimatorOptions(*log_), harness::SensorSpecsOf(*log_)));
+    log_ = new RecordedLog(replay::ReadRecordedLog(Dir()));
+    result_ = new ReplayResult(replay::Replay(
+        *log_, replay::ParseReplayMethod("single:pose_estimate", *log_),
+        replay::DefaultEstimatorOptions(*log_), replay::SensorSpecsOf(*log_)));
   }
   static void TearDownTestSuite() {
     delete result_;
@@ -603,13 +603,13 @@ class EurocReplayTest : public ::testing::Test {
 };
 
 TEST_F(EurocReplayTest, FusedOutputIsNoWorseThanTheVisualEstimateAlone) {
-  const std::vector<PoseSample> fused = harness::OutputTrajectory(*result_);
+  const std::vector<PoseSample> fused = replay::OutputTrajectory(*result_);
   ASSERT_GT(fused.size(), 1000u);
   const Time from = fused.front().t_ns, to = fused.back().t_ns;
   const std::vector<PoseSample> truth = Truth(*log_);
-  const harness::TrajectoryErrors fused_errors = ErrorsOnSpan(fused, truth, from, to);
-  const harness::TrajectoryErrors visual_errors =
-      ErrorsOnSpan(harness::ReadTumTrajectory(Dir() / "pose_estimate.tum"), truth, from, to);
+  const replay::TrajectoryErrors fused_errors = ErrorsOnSpan(fused, truth, from, to);
+  const replay::TrajectoryErrors visual_errors =
+      ErrorsOnSpan(replay::ReadTumTrajectory(Dir() / "pose_estimate.tum"), truth, from, to);
   fmt::print("EuRoC V1_02 {:.1f} s: fused ATE {:.4f} m ({} samples), visual alone {:.4f} m ({} "
              "samples); rotation {:.3f} / {:.3f} deg\n",
              core::TimeToSeconds(to - from), fused_errors.ate_position_rmse_m,
@@ -634,7 +634,7 @@ TEST_F(EurocReplayTest, ConsistencyRisesWithinOneSecondOfADivergence) {
   auto clean_stream = std::find_if(log.streams.begin(), log.streams.end(),
                                    [&](const auto& s) { return s.name == clean_name; });
   ASSERT_NE(clean_stream, log.streams.end());
-  harness::RecordedStream faulty_stream = *clean_stream;
+  replay::RecordedStream faulty_stream = *clean_stream;
   faulty_stream.name = faulty_name;
   Time first_visual = std::numeric_limits<Time>::max();
   for (const core::StampedMeasurement& m : log.measurements) {
@@ -680,19 +680,19 @@ TEST_F(EurocReplayTest, ConsistencyRisesWithinOneSecondOfADivergence) {
   std::sort(log.streams.begin(), log.streams.end(),
             [](const auto& a, const auto& b) { return a.name < b.name; });
 
-  const ReplayResult r = harness::Replay(log, harness::ParseReplayMethod("single:" + clean_name, log),
-                                         harness::DefaultEstimatorOptions(log),
-                                         harness::SensorSpecsOf(log));
+  const ReplayResult r = replay::Replay(log, replay::ParseReplayMethod("single:" + clean_name, log),
+                                         replay::DefaultEstimatorOptions(log),
+                                         replay::SensorSpecsOf(log));
   // The unfused copy does not change the local estimate.
   ASSERT_EQ(r.outputs.size(), result_->outputs.size());
   EXPECT_EQ(r.outputs.back().state.p_LI, result_->outputs.back().state.p_LI);
 
   estimator::ConsistencyOptions options;
   options.window_ns = kSecond;
-  const std::vector<harness::LocalConsistencySeries> series =
-      harness::LocalConsistency(log, r, estimator::ConsistencyMetric::kCm, options, 10.0);
-  const harness::LocalConsistencySeries* clean = nullptr;
-  const harness::LocalConsistencySeries* faulty = nullptr;
+  const std::vector<replay::LocalConsistencySeries> series =
+      replay::LocalConsistency(log, r, estimator::ConsistencyMetric::kCm, options, 10.0);
+  const replay::LocalConsistencySeries* clean = nullptr;
+  const replay::LocalConsistencySeries* faulty = nullptr;
   for (const auto& s : series) {
     if (s.sensor == clean_name) clean = &s;
     if (s.sensor == faulty_name) faulty = &s;

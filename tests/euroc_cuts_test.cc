@@ -21,17 +21,17 @@
 #include <fmt/format.h>
 
 #include "core/time.h"
-#include "harness/recorded_log.h"
-#include "harness/replay.h"
-#include "harness/trajectory_metrics.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
+#include "replay/trajectory_metrics.h"
 
 namespace tofu {
 namespace {
 
 namespace fs = std::filesystem;
 using core::Time;
-using harness::RecordedLog;
-using harness::ReplayResult;
+using replay::RecordedLog;
+using replay::ReplayResult;
 
 constexpr Time kSecond = core::kNanosecondsPerSecond;
 
@@ -59,30 +59,30 @@ RecordedLog Cut(const RecordedLog& log, double start_s, double length_s) {
     cut.arrival_ns.push_back(log.arrival_ns[i]);
   }
   cut.ground_truth.clear();
-  for (const harness::GroundTruthPose& g : log.ground_truth) {
+  for (const replay::GroundTruthPose& g : log.ground_truth) {
     if (g.t_ns >= from && g.t_ns <= to) cut.ground_truth.push_back(g);
   }
   return cut;
 }
 
 ReplayResult ReplaySingle(const RecordedLog& log) {
-  return harness::Replay(log, harness::ParseReplayMethod("single:pose_estimate", log),
-                         harness::DefaultEstimatorOptions(log), harness::SensorSpecsOf(log));
+  return replay::Replay(log, replay::ParseReplayMethod("single:pose_estimate", log),
+                         replay::DefaultEstimatorOptions(log), replay::SensorSpecsOf(log));
 }
 
 // The fused estimate's errors and its input's on the same span (what `tofu estimate`
 // reports as input_check).
-harness::InputCheck Check(const RecordedLog& log, const ReplayResult& result) {
-  const std::vector<harness::PoseSample> trajectory = harness::OutputTrajectory(result);
-  std::vector<harness::PoseSample> truth;
-  for (const harness::GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
-  harness::TrajectoryErrorOptions options;
-  options.alignment = harness::TrajectoryAlignment::kSE3;
-  const harness::TrajectoryErrors errors = harness::EvaluateTrajectory(trajectory, truth, options);
-  const std::optional<harness::InputCheck> check =
-      harness::CheckAgainstInputs(log, result, trajectory, errors);
+replay::InputCheck Check(const RecordedLog& log, const ReplayResult& result) {
+  const std::vector<replay::PoseSample> trajectory = replay::OutputTrajectory(result);
+  std::vector<replay::PoseSample> truth;
+  for (const replay::GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+  replay::TrajectoryErrorOptions options;
+  options.alignment = replay::TrajectoryAlignment::kSE3;
+  const replay::TrajectoryErrors errors = replay::EvaluateTrajectory(trajectory, truth, options);
+  const std::optional<replay::InputCheck> check =
+      replay::CheckAgainstInputs(log, result, trajectory, errors);
   EXPECT_TRUE(check.has_value());
-  return check.value_or(harness::InputCheck{});
+  return check.value_or(replay::InputCheck{});
 }
 
 struct CutSpec {
@@ -92,7 +92,7 @@ struct CutSpec {
 constexpr CutSpec kCuts[] = {{0, 40}, {5, 35}, {10, 30}, {15, 25}, {20, 20}};
 
 struct CutOutcome {
-  harness::InputCheck check;
+  replay::InputCheck check;
   ReplayResult result;
 };
 
@@ -100,7 +100,7 @@ class EurocCutsTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     if (!fs::exists(EurocDir() / "mav0" / "imu0" / "data.csv")) return;
-    log_ = new RecordedLog(harness::ReadRecordedLog(EurocDir()));
+    log_ = new RecordedLog(replay::ReadRecordedLog(EurocDir()));
     outcomes_ = new std::map<double, CutOutcome>();
     for (const CutSpec& c : kCuts) {
       const RecordedLog cut = Cut(*log_, c.start_s, c.length_s);
@@ -129,7 +129,7 @@ class EurocCutsTest : public ::testing::Test {
 TEST_F(EurocCutsTest, OnEveryCutTheFusedEstimateIsNoWorseThanItsInput) {
   for (const auto& [start_s, outcome] : *outcomes_) {
     SCOPED_TRACE(fmt::format("cut at {} s", start_s));
-    const harness::InputCheck& c = outcome.check;
+    const replay::InputCheck& c = outcome.check;
     ASSERT_GT(c.input_ate_m, 0.0);
     EXPECT_LE(c.ate_m, 1.1 * c.input_ate_m);
     EXPECT_LE(c.rotation_deg, 1.5 * c.input_rotation_deg + 0.5);
@@ -207,8 +207,8 @@ TEST_F(EurocCutsTest, EstimatedBiasesConvergeToTheGroundTruths) {
   for (const auto& [start_s, outcome] : *outcomes_) {
     SCOPED_TRACE(fmt::format("cut at {} s", start_s));
     const estimator::EstimatorOutput& last = outcome.result.outputs.back();
-    const harness::GroundTruthPose* truth = nullptr;
-    for (const harness::GroundTruthPose& g : log_->ground_truth) {
+    const replay::GroundTruthPose* truth = nullptr;
+    for (const replay::GroundTruthPose& g : log_->ground_truth) {
       if (g.t_ns >= last.t_ns) {
         truth = &g;
         break;
@@ -248,8 +248,8 @@ TEST_F(EurocCutsTest, AFiveSecondImuGapRestartsTheGraphAndKeepsTheErrorOutsideIt
   for (const estimator::EstimatorOutput& o : r.outputs) {
     EXPECT_FALSE(o.t_ns > gap_from + kSecond / 10 && o.t_ns < gap_to) << "an output inside the hole";
   }
-  const harness::InputCheck with_gap = Check(gapped, r);
-  const harness::InputCheck without = outcomes_->at(10).check;
+  const replay::InputCheck with_gap = Check(gapped, r);
+  const replay::InputCheck without = outcomes_->at(10).check;
   fmt::print("IMU gap: fused {:.1f} cm {:.2f} deg, without the gap {:.1f} cm {:.2f} deg\n",
              100 * with_gap.ate_m, with_gap.rotation_deg, 100 * without.ate_m, without.rotation_deg);
   EXPECT_LE(with_gap.ate_m, 2.0 * without.ate_m);

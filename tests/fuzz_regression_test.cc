@@ -29,10 +29,10 @@
 #include "corpus/corpus_spec.h"
 #include "fuzz/recorded_log_layouts.h"
 #include "fuzz/scenario_round_trip.h"
-#include "harness/recorded_log.h"
 #include "harness/scenario.h"
-#include "harness/trajectory_metrics.h"
-#include "harness/velocity_csv.h"
+#include "replay/recorded_log.h"
+#include "replay/trajectory_metrics.h"
+#include "replay/velocity_csv.h"
 #include "tests/test_support.h"
 
 namespace tofu {
@@ -138,8 +138,8 @@ void ReadScenario(const std::string& bytes, const fs::path&) {
 }
 
 void ReadCalibration(const std::string& bytes, const fs::path&) {
-  using harness::StreamKind;
-  (void)harness::DescribeRunStreams({{"imu", StreamKind::kImu},
+  using replay::StreamKind;
+  (void)replay::DescribeRunStreams({{"imu", StreamKind::kImu},
                                      {"vio", StreamKind::kPose},
                                      {"lio", StreamKind::kPose},
                                      {"leica", StreamKind::kPosition}},
@@ -154,28 +154,28 @@ const std::vector<std::pair<std::string, Reader>>& Readers() {
        [](const std::string& bytes, const fs::path& dir) {
          fuzz::WriteRunDirectory(dir);
          fuzz::WriteFile(dir / "sensors" / "fuzz.csv", bytes);
-         (void)harness::ReadRecordedLog(dir);
+         (void)replay::ReadRecordedLog(dir);
        }},
       {"fuzz_euroc_imu",
        [](const std::string& bytes, const fs::path& dir) {
          fuzz::WriteEurocDirectory(dir, fuzz::kEurocImu);
          fuzz::WriteFile(dir / fuzz::kEurocImu, bytes);
-         (void)harness::ReadRecordedLog(dir);
+         (void)replay::ReadRecordedLog(dir);
        }},
       {"fuzz_euroc_groundtruth",
        [](const std::string& bytes, const fs::path& dir) {
          fuzz::WriteEurocDirectory(dir, fuzz::kEurocGroundTruth);
          fuzz::WriteFile(dir / fuzz::kEurocGroundTruth, bytes);
-         (void)harness::ReadRecordedLog(dir);
+         (void)replay::ReadRecordedLog(dir);
        }},
       {"fuzz_tum",
        [](const std::string& bytes, const fs::path& dir) {
          fuzz::WriteFile(dir / "stream.tum", bytes);
-         (void)harness::ReadTumTrajectory(dir / "stream.tum");
+         (void)replay::ReadTumTrajectory(dir / "stream.tum");
        }},
       {"fuzz_velocity_csv",
        [](const std::string& bytes, const fs::path&) {
-         (void)harness::ParseVelocityCsv(bytes, "fuzz_velocity.csv");
+         (void)replay::ParseVelocityCsv(bytes, "fuzz_velocity.csv");
        }},
       {"fuzz_corpus_spec",
        [](const std::string& bytes, const fs::path&) {
@@ -238,7 +238,7 @@ TEST(FuzzRegressions, StrayCommaInACorpusSpecIsASyntaxErrorNotAHang) {
   EXPECT_CONTAINS(outcome.text, "fuzz_corpus.yaml:1:1: YAML syntax error: unexpected ','");
 }
 
-// Finding 2 (harness/recorded_log.cc, ParseCalibration): a sensor of calibration.yaml
+// Finding 2 (replay/recorded_log.cc, ParseCalibration): a sensor of calibration.yaml
 // without an `options` key threw YAML::InvalidNode (`s.options = node["options"]` assigned
 // a missing node), so `tofu estimate` on a real log whose calibration.yaml gives only a
 // mount exited 3 with "invalid node; this may result from using a map iterator as a
@@ -248,7 +248,7 @@ TEST(FuzzRegressions, CalibrationSensorWithoutOptionsIsRead) {
   EXPECT_EQ(outcome.kind, Outcome::kParsed) << outcome.Describe();
 }
 
-// Finding 3 (harness/recorded_log.cc, ParseCalibration): a sensor name of calibration.yaml
+// Finding 3 (replay/recorded_log.cc, ParseCalibration): a sensor name of calibration.yaml
 // that is not a scalar ("[imu]: {}") threw YAML::TypedBadConversion
 // (`entry.first.as<std::string>()`) instead of an InputError naming the file and line.
 TEST(FuzzRegressions, CalibrationSensorNameThatIsAListIsAnInputError) {

@@ -1,6 +1,6 @@
-// SensorHealth (harness/labels.h): which sensors the ground-truth labels call healthy, the
+// SensorHealth (replay/labels.h): which sensors the ground-truth labels call healthy, the
 // timeline the `oracle` method fuses by; and the condition-fraction metric over labels.
-#include "harness/labels.h"
+#include "replay/labels.h"
 
 #include "harness/evaluation.h"
 #include "harness/metrics.h"
@@ -10,6 +10,9 @@
 
 namespace tofu::harness {
 namespace {
+
+using replay::LabelEvent;
+using replay::SensorHealth;
 
 LabelEvent Label(core::Time t_ns, const std::string& sensor, const std::string& label,
                  const std::string& source, bool active) {

@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# DESIGN.md layering: estimator/ never includes MuJoCo, sim/ or harness/; sim/ never
-# includes estimator/ or harness/; core/ includes nothing of the project but core/;
+# DESIGN.md layering: estimator/ never includes MuJoCo, sim/, replay/ or harness/; replay/
+# (the simulator-free path) includes core/ and estimator/ only, never MuJoCo, sim/,
+# harness/, renders/, report/, corpus/ or apps/; sim/ never includes estimator/, replay/ or
+# harness/; core/ includes nothing of the project but core/;
 # harness/ never includes renders/ (renders read its outputs); nothing but apps/ includes
 # report/ (MCAP and HTML of finished runs), and report/ never includes apps/; nothing but
 # apps/ includes corpus/, which builds on harness alone.
@@ -17,15 +19,18 @@ check() {  # dir, forbidden-include regex, why
   fi
 }
 check estimator 'mujoco/|sim/|harness/|apps/' "estimator depends on core, Eigen, Ceres only"
-check sim 'estimator/|harness/|apps/' "sim does not know who consumes its streams"
-check core 'mujoco/|sim/|harness/|estimator/|apps/|ceres/' "core is the vocabulary"
+check estimator 'replay/' "replay builds on the estimator, never the other way"
+check replay 'mujoco/|sim/|harness/|renders/|report/|corpus/|apps/' \
+  "replay is the simulator-free path: core and estimator only"
+check sim 'estimator/|replay/|harness/|apps/' "sim does not know who consumes its streams"
+check core 'mujoco/|sim/|harness/|estimator/|replay/|apps/|ceres/' "core is the vocabulary"
 check harness 'renders/|apps/' "renders read harness outputs, never the other way"
 check estimator 'renders/|report/' "the estimator is a library of its own"
 check harness 'report/' "reports read finished run directories"
 check renders 'report/|apps/' "reports draw on renders, never the other way"
 check sim 'report/|renders/' "sim does not know who reads its runs"
 check report 'apps/|corpus/' "the CLI calls reports, never the other way"
-for layer in core sim estimator harness renders report; do
+for layer in core sim estimator replay harness renders report; do
   check "$layer" 'corpus/' "corpora are built from harness runs; nothing below includes them"
 done
 check corpus 'apps/|renders/|report/' "corpus needs harness runs only"

@@ -18,9 +18,9 @@
 #include <gtest/gtest.h>
 
 #include "estimator/multi_graph_estimator.h"
-#include "harness/recorded_log.h"
-#include "harness/replay.h"
-#include "harness/trajectory_metrics.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
+#include "replay/trajectory_metrics.h"
 
 namespace tofu {
 namespace {
@@ -36,7 +36,7 @@ class MultiGraphEstimatorTest : public ::testing::Test {
                                 "/scenarios/estimator_arena.yaml --quiet --out " +
                                 run_dir_->string();
     ASSERT_EQ(std::system(command.c_str()), 0) << command;
-    log_ = new harness::RecordedLog(harness::ReadRecordedLog(*run_dir_));
+    log_ = new replay::RecordedLog(replay::ReadRecordedLog(*run_dir_));
   }
   // A failed flight in SetUpTestSuite must fail every test, not skip it.
   void SetUp() override { ASSERT_NE(log_, nullptr) << "the fixture's flight failed"; }
@@ -47,22 +47,22 @@ class MultiGraphEstimatorTest : public ::testing::Test {
     delete run_dir_;
   }
 
-  static std::vector<harness::PoseSample> Truth() {
-    std::vector<harness::PoseSample> truth;
+  static std::vector<replay::PoseSample> Truth() {
+    std::vector<replay::PoseSample> truth;
     for (const auto& g : log_->ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
     return truth;
   }
 
   static fs::path* run_dir_;
-  static harness::RecordedLog* log_;
+  static replay::RecordedLog* log_;
 };
 
 fs::path* MultiGraphEstimatorTest::run_dir_ = nullptr;
-harness::RecordedLog* MultiGraphEstimatorTest::log_ = nullptr;
+replay::RecordedLog* MultiGraphEstimatorTest::log_ = nullptr;
 
 TEST_F(MultiGraphEstimatorTest, InitialisesInMotionWhenTheLogStartsMidFlight) {
   // Drop the first 10 s (hover and take-off of the figure-eight): no rest to start from.
-  harness::RecordedLog cut = *log_;
+  replay::RecordedLog cut = *log_;
   cut.measurements.clear();
   cut.arrival_ns.clear();
   const core::Time start_ns = 10'000'000'000;
@@ -71,9 +71,9 @@ TEST_F(MultiGraphEstimatorTest, InitialisesInMotionWhenTheLogStartsMidFlight) {
     cut.measurements.push_back(log_->measurements[i]);
     cut.arrival_ns.push_back(log_->arrival_ns[i]);
   }
-  const harness::ReplayResult result =
-      harness::Replay(cut, harness::ParseReplayMethod("single:vio", cut),
-                      harness::DefaultEstimatorOptions(cut), harness::SensorSpecsOf(cut));
+  const replay::ReplayResult result =
+      replay::Replay(cut, replay::ParseReplayMethod("single:vio", cut),
+                      replay::DefaultEstimatorOptions(cut), replay::SensorSpecsOf(cut));
   ASSERT_FALSE(result.outputs.empty());
   // Nothing is output until a visual-inertial alignment of the VIO's first second with the
   // IMU makes gravity observable (issue 21); then at once.
@@ -84,22 +84,22 @@ TEST_F(MultiGraphEstimatorTest, InitialisesInMotionWhenTheLogStartsMidFlight) {
       << "the first output comes once the VIO's first second is aligned";
   EXPECT_GE(result.outputs.front().t_ns, start_ns + 1'000'000'000);
   // Converged after 5 s: the loose in-motion prior (velocity 2 m/s) was corrected.
-  harness::TrajectoryErrorOptions options;
+  replay::TrajectoryErrorOptions options;
   options.align_from_ns = start_ns + 5'000'000'000;
-  std::vector<harness::PoseSample> late;
-  for (const auto& p : harness::OutputTrajectory(result)) {
+  std::vector<replay::PoseSample> late;
+  for (const auto& p : replay::OutputTrajectory(result)) {
     if (p.t_ns >= options.align_from_ns) late.push_back(p);
   }
-  const harness::TrajectoryErrors errors = harness::EvaluateTrajectory(late, Truth(), options);
+  const replay::TrajectoryErrors errors = replay::EvaluateTrajectory(late, Truth(), options);
   EXPECT_LT(errors.ate_position_rmse_m, 0.05);
   EXPECT_LT(errors.rotation_rmse_deg, 1.5);
   EXPECT_EQ(result.counters.reinitialisations, 0);
 }
 
 TEST_F(MultiGraphEstimatorTest, SwitchingTheFusedSensorKeepsTheEstimateContinuous) {
-  const harness::RecordedLog& log = *log_;
-  estimator::MultiGraphEstimator estimator(log.imu_stream, harness::SensorSpecsOf(log),
-                                           harness::DefaultEstimatorOptions(log));
+  const replay::RecordedLog& log = *log_;
+  estimator::MultiGraphEstimator estimator(log.imu_stream, replay::SensorSpecsOf(log),
+                                           replay::DefaultEstimatorOptions(log));
   estimator.SetFusedSensors({"leica"});
   std::vector<estimator::EstimatorOutput> outputs;
   double max_step_m = 0.0;
@@ -132,12 +132,12 @@ TEST_F(MultiGraphEstimatorTest, SwitchingTheFusedSensorKeepsTheEstimateContinuou
     }
   }
   EXPECT_LT(max_step_m, 0.02) << "the estimate jumped at t = " << 1e-9 * max_step_t_ns << " s";
-  std::vector<harness::PoseSample> trajectory;
+  std::vector<replay::PoseSample> trajectory;
   for (const auto& o : outputs) {
     EXPECT_TRUE(o.valid);
     trajectory.push_back({o.t_ns, o.state.p_LI, o.state.q_LI});
   }
-  const harness::TrajectoryErrors errors = harness::EvaluateTrajectory(trajectory, Truth());
+  const replay::TrajectoryErrors errors = replay::EvaluateTrajectory(trajectory, Truth());
   EXPECT_LT(errors.ate_position_rmse_m, 0.03);
   EXPECT_EQ(estimator.counters().reinitialisations, 0);
 }
@@ -145,9 +145,9 @@ TEST_F(MultiGraphEstimatorTest, SwitchingTheFusedSensorKeepsTheEstimateContinuou
 TEST_F(MultiGraphEstimatorTest, AlignmentGraphOfAnUnfusedSensorExplainsItsPositions) {
   // VIO fused; the total station's graph estimates T_AL from its positions against the
   // local estimate. Horizontal figure-eights: all three rotations observable.
-  const harness::ReplayResult result = harness::Replay(
-      *log_, harness::ParseReplayMethod("single:vio", *log_),
-      harness::DefaultEstimatorOptions(*log_), harness::SensorSpecsOf(*log_));
+  const replay::ReplayResult result = replay::Replay(
+      *log_, replay::ParseReplayMethod("single:vio", *log_),
+      replay::DefaultEstimatorOptions(*log_), replay::SensorSpecsOf(*log_));
   const estimator::AlignmentEstimate& leica = result.alignment.at("leica");
   ASSERT_TRUE(leica.valid);
   EXPECT_EQ(leica.observable_rotation_dofs, 3);
@@ -165,9 +165,9 @@ TEST_F(MultiGraphEstimatorTest, ARestartedAlignmentTakesBackItsFrameWhenTheNewPa
   // inconsistent for a moment (no fault) and restarts its alignment: its old frame is
   // taken back once a second of new pairs fits it, not after a new 20 s alignment window
   // (wall_contact_inspection, seed 5: 44 s unfusable, the degenerate LIO fused instead).
-  const harness::RecordedLog& log = *log_;
-  estimator::MultiGraphEstimator estimator(log.imu_stream, harness::SensorSpecsOf(log),
-                                           harness::DefaultEstimatorOptions(log));
+  const replay::RecordedLog& log = *log_;
+  estimator::MultiGraphEstimator estimator(log.imu_stream, replay::SensorSpecsOf(log),
+                                           replay::DefaultEstimatorOptions(log));
   ASSERT_TRUE(estimator.SetFusedSensors({"vio"}));
   constexpr core::Time kRestartNs = 30'000'000'000;
   std::optional<Eigen::Isometry3d> before;
@@ -191,8 +191,8 @@ TEST_F(MultiGraphEstimatorTest, ARestartedAlignmentTakesBackItsFrameWhenTheNewPa
 }
 
 TEST_F(MultiGraphEstimatorTest, CountsStreamsItDoesNotKnowAndWrongKinds) {
-  estimator::MultiGraphEstimator estimator(log_->imu_stream, harness::SensorSpecsOf(*log_),
-                                           harness::DefaultEstimatorOptions(*log_));
+  estimator::MultiGraphEstimator estimator(log_->imu_stream, replay::SensorSpecsOf(*log_),
+                                           replay::DefaultEstimatorOptions(*log_));
   EXPECT_FALSE(estimator.SetFusedSensors({"vio", "no_such_sensor"}));
   EXPECT_EQ(estimator.fused_sensors(), std::vector<std::string>{"vio"});
   estimator.Add({"no_such_sensor", 1000, core::PositionMeasurement{}});
@@ -206,8 +206,8 @@ TEST_F(MultiGraphEstimatorTest, CountsStreamsItDoesNotKnowAndWrongKinds) {
 // stream and counted, before they can poison the order gate (one INT64_MAX accepted would
 // make every later sample "out of order") or overflow a time difference.
 TEST_F(MultiGraphEstimatorTest, StampsOutsideTheValidRangeAreRejectedAndCounted) {
-  estimator::MultiGraphEstimator estimator(log_->imu_stream, harness::SensorSpecsOf(*log_),
-                                           harness::DefaultEstimatorOptions(*log_));
+  estimator::MultiGraphEstimator estimator(log_->imu_stream, replay::SensorSpecsOf(*log_),
+                                           replay::DefaultEstimatorOptions(*log_));
   estimator.SetFusedSensors({"vio"});
   std::size_t outputs_after_bad = 0;
   bool injected = false;
@@ -241,16 +241,16 @@ TEST_F(MultiGraphEstimatorTest, StampsOutsideTheValidRangeAreRejectedAndCounted)
 // estimate` exits 1 with the reason per sensor instead of reporting an IMU-only dead
 // reckoning as the sensor's result.
 TEST_F(MultiGraphEstimatorTest, AMethodWhoseEverySampleWasRejectedHasNothingToFuse) {
-  harness::RecordedLog log = *log_;
+  replay::RecordedLog log = *log_;
   for (core::StampedMeasurement& m : log.measurements) {
     if (m.sensor != "vio") continue;
     auto& pose = std::get<core::PoseMeasurement>(m.value);
     pose.p_Ss.x() = std::numeric_limits<double>::quiet_NaN();
   }
-  const harness::ReplayResult all_nan =
-      harness::Replay(log, harness::ParseReplayMethod("single:vio", log),
-                      harness::DefaultEstimatorOptions(log), harness::SensorSpecsOf(log));
-  const std::optional<std::string> why = harness::NothingToFuse(all_nan, log.imu_stream);
+  const replay::ReplayResult all_nan =
+      replay::Replay(log, replay::ParseReplayMethod("single:vio", log),
+                      replay::DefaultEstimatorOptions(log), replay::SensorSpecsOf(log));
+  const std::optional<std::string> why = replay::NothingToFuse(all_nan, log.imu_stream);
   ASSERT_TRUE(why.has_value());
   EXPECT_NE(why->find("single:vio"), std::string::npos) << *why;
   const std::size_t vio_rows = std::count_if(
@@ -258,14 +258,14 @@ TEST_F(MultiGraphEstimatorTest, AMethodWhoseEverySampleWasRejectedHasNothingToFu
       [](const core::StampedMeasurement& m) { return m.sensor == "vio"; });
   EXPECT_NE(why->find(fmt::format("vio: {} non-finite", vio_rows)), std::string::npos) << *why;
   // The same log with its total station fused has something to fuse; imu_only never needs any.
-  const harness::ReplayResult leica =
-      harness::Replay(log, harness::ParseReplayMethod("fuse:vio+leica", log),
-                      harness::DefaultEstimatorOptions(log), harness::SensorSpecsOf(log));
-  EXPECT_FALSE(harness::NothingToFuse(leica, log.imu_stream).has_value());
-  const harness::ReplayResult imu_only =
-      harness::Replay(log, harness::ParseReplayMethod("imu_only", log),
-                      harness::DefaultEstimatorOptions(log), harness::SensorSpecsOf(log));
-  EXPECT_FALSE(harness::NothingToFuse(imu_only, log.imu_stream).has_value());
+  const replay::ReplayResult leica =
+      replay::Replay(log, replay::ParseReplayMethod("fuse:vio+leica", log),
+                      replay::DefaultEstimatorOptions(log), replay::SensorSpecsOf(log));
+  EXPECT_FALSE(replay::NothingToFuse(leica, log.imu_stream).has_value());
+  const replay::ReplayResult imu_only =
+      replay::Replay(log, replay::ParseReplayMethod("imu_only", log),
+                      replay::DefaultEstimatorOptions(log), replay::SensorSpecsOf(log));
+  EXPECT_FALSE(replay::NothingToFuse(imu_only, log.imu_stream).has_value());
 }
 
 }  // namespace

@@ -26,10 +26,10 @@
 #include <yaml-cpp/yaml.h>
 
 #include "core/error.h"
-#include "harness/recorded_log.h"
+#include "replay/recorded_log.h"
 #include "tests/test_support.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 namespace fs = std::filesystem;
@@ -645,4 +645,4 @@ TEST_F(RecordedLogInputTest, EmptyStreamsAreAllowed) {
 }
 
 }  // namespace
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -23,6 +23,7 @@
 namespace tofu::harness {
 namespace {
 
+using replay::LabelEvent;
 
 constexpr double kRadPerDeg = std::numbers::pi / 180.0;
 constexpr char kLabel[] = "inline.yaml";

@@ -19,6 +19,8 @@
 namespace tofu::harness {
 namespace {
 
+using replay::LabelEvent;
+
 constexpr const char* kLabel = "sensors.yaml";
 
 std::string BaseScenario(const std::string& sensors, const std::string& faults = "") {

@@ -23,11 +23,11 @@
 
 #include "core/error.h"
 #include "core/lie.h"
-#include "harness/recorded_log.h"
-#include "harness/trajectory_metrics.h"
+#include "replay/recorded_log.h"
+#include "replay/trajectory_metrics.h"
 #include "tests/test_support.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 namespace fs = std::filesystem;
@@ -447,4 +447,4 @@ TEST(TrajectoryMetricsEuroc, VisualEstimateOfV102HasTheDocumentedAte) {
 }
 
 }  // namespace
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -18,20 +18,20 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "corpus/corpus_command.h"
 #include "harness/check_command.h"
-#include "harness/consistency_command.h"
 #include "harness/evaluation.h"
-#include "harness/file_io.h"
-#include "harness/interrupt.h"
 #include "harness/metrics.h"
-#include "harness/replay.h"
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
 #include "renders/render_command.h"
+#include "replay/consistency_command.h"
+#include "replay/file_io.h"
+#include "replay/interrupt.h"
+#include "replay/replay.h"
 #include "report/html_report.h"
 #include "report/mcap_export.h"
-#include "corpus/corpus_command.h"
 
 namespace {
 
@@ -202,7 +202,7 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   tofu::harness::CheckOutputDirectory(out, force);
   tofu::harness::CheckScenarioModels(scenario);
   // What killed runs to the same directory left (interrupt.h: a live run's is kept).
-  for (const std::filesystem::path& stale : tofu::harness::SweepStaleStaging(out)) {
+  for (const std::filesystem::path& stale : tofu::replay::SweepStaleStaging(out)) {
     fmt::print(stderr, "tofu: removed {}, left by an earlier run that was killed\n",
                stale.string());
   }
@@ -216,11 +216,11 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   // Set even when nothing is drawn: the progress callbacks are the simulation's check
   // points of interruption (interrupt.h).
   options.progress = [&bar](double f) {
-    tofu::harness::ThrowIfInterrupted();
+    tofu::replay::ThrowIfInterrupted();
     if (bar) (*bar)(f);
   };
   options.closed_loop_progress = [&](const std::string& method, double f) {
-    tofu::harness::ThrowIfInterrupted();
+    tofu::replay::ThrowIfInterrupted();
     if (!draw) return;
     if (method != bar_method) {
       flight_bar.emplace("  closed loop: " + method);
@@ -229,11 +229,11 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
     (*flight_bar)(f);
   };
   tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
-  tofu::harness::ThrowIfInterrupted();
+  tofu::replay::ThrowIfInterrupted();
   tofu::harness::RunOutputOptions output;
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
-  tofu::harness::ThrowIfInterrupted();
+  tofu::replay::ThrowIfInterrupted();
   if (mcap_file) ExportMcap(out, *mcap_file, true, quiet);
   const int status = record.failure    ? tofu::core::kExitSimulationError
                      : evaluation.passed ? tofu::core::kExitOk
@@ -253,10 +253,10 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
     if (!quiet && ::isatty(STDERR_FILENO)) render_bar.emplace("  render");
     // A check point of interruption too: renders/ removes its staging when it unwinds.
     render.progress = [&render_bar](double f) {
-      tofu::harness::ThrowIfInterrupted();
+      tofu::replay::ThrowIfInterrupted();
       if (render_bar) (*render_bar)(f);
     };
-    tofu::harness::ThrowIfInterrupted();
+    tofu::replay::ThrowIfInterrupted();
     try {
       const tofu::renders::RenderEventsResult rendered = tofu::renders::RenderRunEvents(out, render);
       if (!quiet) {
@@ -379,7 +379,7 @@ int main(int argc, char** argv) {
 
   CLI::App* consistency = app.add_subcommand(
       "consistency", "Consistency metric between two velocity CSVs over a sliding window");
-  tofu::harness::ConsistencyCommandOptions cons;
+  tofu::replay::ConsistencyCommandOptions cons;
   consistency->add_option("--metric", cons.metric, "mae, pcc, kl or cm")->required();
   consistency->add_option("--window", cons.window_s, "Window length [s]")
       ->capture_default_str()
@@ -397,11 +397,11 @@ int main(int argc, char** argv) {
   consistency->add_option("A", cons.path_a, "Velocity CSV of stream A")->required();
   consistency->add_option("B", cons.path_b, "Velocity CSV of stream B")->required();
   consistency->add_option("--out", cons.out_path, "Output CSV (default: stdout)");
-  consistency->footer(tofu::harness::kConsistencyHelp);
+  consistency->footer(tofu::replay::kConsistencyHelp);
 
   CLI::App* estimate = app.add_subcommand(
       "estimate", "Run the multi-graph estimator on recorded streams (run directory or real log)");
-  tofu::harness::EstimateCommandOptions est;
+  tofu::replay::EstimateCommandOptions est;
   std::optional<std::string> est_out;
   estimate->add_option("log", est.log_dir,
                        "A tofu run directory (sensors/, calibration.yaml) or a real log "
@@ -488,9 +488,9 @@ int main(int argc, char** argv) {
   }
 
   // The commands that write outputs stop cleanly on SIGINT, SIGTERM and SIGHUP: staging
-  // removed, children stopped, exit 128 + signal (harness/interrupt.h). The others keep
+  // removed, children stopped, exit 128 + signal (replay/interrupt.h). The others keep
   // the default action (`tofu corpus generate` resumes a killed shard by design).
-  if (*run || *check || *estimate || *report) tofu::harness::InstallInterruptHandlers();
+  if (*run || *check || *estimate || *report) tofu::replay::InstallInterruptHandlers();
 
   try {
     if (*run) return RunCommand(scenario_path, out_dir, seed, quiet, force, run_mcap);
@@ -538,7 +538,7 @@ int main(int argc, char** argv) {
         return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
       }
       try {
-        tofu::harness::SweepStaleStaging(*check_report);
+        tofu::replay::SweepStaleStaging(*check_report);
         const auto page = tofu::report::WriteCheckReport(check_options.out_dir, *check_report, names);
         if (!check_options.quiet) fmt::print("HTML report: {}\n", page.string());
       } catch (const tofu::core::InputError& e) {
@@ -549,7 +549,7 @@ int main(int argc, char** argv) {
     }
     if (*check) return tofu::harness::RunCheckCommand(check_options);
     if (*consistency) {
-      tofu::harness::RunConsistencyCommand(cons);
+      tofu::replay::RunConsistencyCommand(cons);
       return tofu::core::kExitOk;
     }
     if (*estimate) {
@@ -559,7 +559,7 @@ int main(int argc, char** argv) {
       const bool draw = !est.quiet && isatty(STDERR_FILENO);
       // Set even when nothing is drawn: the check point of interruption of the replay.
       est.progress = [&](const std::string& method, double f) {
-        tofu::harness::ThrowIfInterrupted();
+        tofu::replay::ThrowIfInterrupted();
         if (!draw) return;
         if (method != bar_method) {
           bar.emplace("estimate " + method);
@@ -567,11 +567,15 @@ int main(int argc, char** argv) {
         }
         (*bar)(f);
       };
-      return tofu::harness::RunEstimateCommand(est);
+      // A tofu run directory's own scenario configures the methods as in its flight.
+      est.read_estimation_config = [](const std::filesystem::path& scenario_yaml) {
+        return tofu::harness::LoadScenario(scenario_yaml.string()).estimation;
+      };
+      return tofu::replay::RunEstimateCommand(est);
     }
     if (*report) {
       // The report directory is staged as <out>.tmp-<pid> too: sweep what killed reports left.
-      if (!report_out.empty()) tofu::harness::SweepStaleStaging(report_out);
+      if (!report_out.empty()) tofu::replay::SweepStaleStaging(report_out);
       const auto page = tofu::report::WriteReport(report_input, report_out);
       fmt::print("report: {}\n", page.string());
       return tofu::core::kExitOk;
@@ -597,11 +601,11 @@ int main(int argc, char** argv) {
       }
       return tofu::core::kExitOk;
     }
-  } catch (const tofu::harness::Interrupted& e) {
+  } catch (const tofu::replay::Interrupted& e) {
     // Unwinding removed the staging directories and waited for the children.
     fmt::print(stderr, "tofu: interrupted by {}: stopped, temporary files removed\n",
-               tofu::harness::InterruptSignalName(e.signal));
-    return tofu::harness::InterruptExitCode(e.signal);
+               tofu::replay::InterruptSignalName(e.signal));
+    return tofu::replay::InterruptExitCode(e.signal);
   } catch (const tofu::core::InputError& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return tofu::core::kExitBadInput;

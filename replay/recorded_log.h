@@ -39,9 +39,9 @@
 
 #include "core/measurement.h"
 #include "core/time.h"
-#include "harness/labels.h"
+#include "replay/labels.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// What a stream measures, told from its header (IMU: w_RS_S_x..., pose: p_Ss_x and
 /// q_Ss_w, position: p_Ss_x without q) or from its layout (EuRoC imu0, TUM).
@@ -156,4 +156,4 @@ RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> s
                                const std::string& calibration_yaml,
                                const std::filesystem::path& directory);
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -8,13 +8,13 @@
 #include <string_view>
 #include <vector>
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// Writes `text` to `path` whole or not at all: into a temporary sibling
 /// (<name>.tmp-<pid>) renamed into place, so a reader never sees a partial file. Creates
 /// missing parent directories. Throws core::IoError (exit 4) naming the file (and `key`,
 /// e.g. "--out", when given) on failure, leaving neither the temporary nor a partial file.
-/// A check point of interruption (harness/interrupt.h): throws Interrupted, leaving no
+/// A check point of interruption (replay/interrupt.h): throws Interrupted, leaving no
 /// temporary, once a signal was received.
 void WriteFileAtomically(const std::filesystem::path& path, std::string_view text,
                          std::string_view key = "");
@@ -29,4 +29,4 @@ std::filesystem::path StagingPath(const std::filesystem::path& path);
 /// Returns what was removed. Errors while removing are ignored (the next run tries again).
 std::vector<std::filesystem::path> SweepStaleStaging(const std::filesystem::path& path);
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

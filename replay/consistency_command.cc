@@ -1,4 +1,4 @@
-#include "harness/consistency_command.h"
+#include "replay/consistency_command.h"
 
 #include <unistd.h>
 
@@ -13,10 +13,10 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
-#include "harness/file_io.h"
-#include "harness/velocity_csv.h"
+#include "replay/file_io.h"
+#include "replay/velocity_csv.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 using core::InputError;
@@ -167,4 +167,4 @@ void RunConsistencyCommand(const ConsistencyCommandOptions& options) {
   }
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

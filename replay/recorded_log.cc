@@ -1,4 +1,4 @@
-#include "harness/recorded_log.h"
+#include "replay/recorded_log.h"
 
 #include <algorithm>
 #include <array>
@@ -19,9 +19,9 @@
 
 #include "core/error.h"
 #include "core/file_io.h"
-#include "harness/trajectory_metrics.h"
+#include "replay/trajectory_metrics.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 namespace fs = std::filesystem;
@@ -1060,4 +1060,4 @@ RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> s
   return log;
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

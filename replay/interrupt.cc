@@ -1,4 +1,4 @@
-#include "harness/interrupt.h"
+#include "replay/interrupt.h"
 
 #include <fcntl.h>
 #include <poll.h>
@@ -8,7 +8,7 @@
 #include <cerrno>
 #include <cstring>
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 // Written by the handler, read by check points on any thread: a lock-free atomic is the
@@ -82,4 +82,4 @@ const char* InterruptSignalName(int signal) {
   }
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

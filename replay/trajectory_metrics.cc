@@ -1,4 +1,4 @@
-#include "harness/trajectory_metrics.h"
+#include "replay/trajectory_metrics.h"
 
 #include <algorithm>
 #include <array>
@@ -15,9 +15,9 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "core/lie.h"
-#include "harness/file_io.h"
+#include "replay/file_io.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 namespace fs = std::filesystem;
@@ -440,4 +440,4 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
   return r;
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -1,4 +1,4 @@
-#include "harness/replay.h"
+#include "replay/replay.h"
 
 #include <algorithm>
 #include <chrono>
@@ -13,12 +13,11 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
-#include "harness/estimation.h"
-#include "harness/file_io.h"
-#include "harness/scenario.h"
 #include "estimator/velocity.h"
+#include "replay/estimation_config.h"
+#include "replay/file_io.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 double Percentile(std::vector<double> values, double fraction) {
@@ -856,8 +855,8 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   // estimation: block): the same configuration reproduces what ran in the flight.
   EstimationConfig run_config;
   if (const std::filesystem::path scenario = options.log_dir / "scenario.yaml";
-      std::filesystem::is_regular_file(scenario)) {
-    if (const std::optional<EstimationConfig> config = LoadScenario(scenario.string()).estimation) {
+      options.read_estimation_config && std::filesystem::is_regular_file(scenario)) {
+    if (const std::optional<EstimationConfig> config = options.read_estimation_config(scenario)) {
       run_config = *config;
       run_config.methods.clear();
       if (!options.quiet) {
@@ -1031,4 +1030,4 @@ std::vector<PoseSample> RawPoseTrajectory(const RecordedLog& log, const Recorded
   return raw;
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -11,7 +11,7 @@
 #include "core/time.h"
 #include "estimator/consistency.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// What `tofu consistency` was asked for, as typed on the command line (validated by
 /// RunConsistencyCommand, not by the CLI).
@@ -55,4 +55,4 @@ std::string ConsistencyOutputCsv(const estimator::VelocitySeries& a,
 /// input, before anything is written.
 void RunConsistencyCommand(const ConsistencyCommandOptions& options);
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -12,7 +12,7 @@
 
 #include "core/time.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// A label transition: a condition or a scheduled fault of a sensor starts or ends.
 struct LabelEvent {
@@ -48,4 +48,4 @@ class SensorHealth {
   std::map<std::string, Timeline> timelines_;
 };
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

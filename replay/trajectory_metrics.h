@@ -26,7 +26,7 @@
 
 #include "core/time.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// One pose of a trajectory: an estimate of T_LI (IMU frame I in the estimator's frame L)
 /// or ground truth T_WI. `q` is unit (readers normalise it).
@@ -126,4 +126,4 @@ std::vector<PoseSample> ReadTumTrajectory(const std::filesystem::path& file);
 /// std::runtime_error if the file cannot be written.
 void WriteTumTrajectory(const std::filesystem::path& file, const std::vector<PoseSample>& poses);
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -1,4 +1,4 @@
-#include "harness/velocity_csv.h"
+#include "replay/velocity_csv.h"
 
 #include <algorithm>
 #include <array>
@@ -16,7 +16,7 @@
 #include "core/error.h"
 #include "core/file_io.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 namespace {
 
 namespace fs = std::filesystem;
@@ -237,4 +237,4 @@ estimator::VelocitySeries ReadVelocityCsv(const std::string& path) {
   return ParseVelocityCsv(text, path);
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

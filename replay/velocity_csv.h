@@ -14,7 +14,7 @@
 
 #include "estimator/consistency.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// The header line a velocity CSV must start with.
 inline constexpr std::string_view kVelocityCsvHeader =
@@ -38,4 +38,4 @@ estimator::VelocitySeries ReadVelocityCsv(const std::string& path);
 /// errors.
 estimator::VelocitySeries ParseVelocityCsv(std::string_view text, const std::string& path);
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

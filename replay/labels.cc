@@ -1,9 +1,9 @@
-#include "harness/labels.h"
+#include "replay/labels.h"
 
 #include <algorithm>
 #include <string_view>
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 void SensorHealth::Add(const LabelEvent& label) {
   Timeline& timeline = timelines_[label.sensor];
@@ -51,4 +51,4 @@ std::string SensorHealth::ActiveLabels(const std::string& sensor, core::Time t_n
   return out;
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -3,7 +3,7 @@
 // recorded_log.h) through the multi-graph estimator, one method at a time, and the
 // evaluation of what it produced: trajectory errors against the ground truth and the
 // consistency of each sensor's velocity with the local estimate (seed paper Sec. 2.1).
-// Used by `tofu estimate RUN_DIR`.
+// Used by `tofu estimate RUN_DIR` and by the run loop (harness/run.h).
 
 #include <filesystem>
 #include <functional>
@@ -18,11 +18,12 @@
 #include "estimator/consistency.h"
 #include "estimator/local_smoother.h"
 #include "estimator/multi_graph_estimator.h"
-#include "harness/labels.h"
-#include "harness/recorded_log.h"
-#include "harness/trajectory_metrics.h"
+#include "replay/estimation_config.h"
+#include "replay/labels.h"
+#include "replay/recorded_log.h"
+#include "replay/trajectory_metrics.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// What a method fuses. Names:
 ///  - "single:<sensor>": one sensor all the time; "fuse:<a>+<b>": several all the time;
@@ -34,7 +35,7 @@ namespace tofu::harness {
 ///    fusing as the scenario's `consensus: {fuse: ...}` says; "consensus:pair_member" and
 ///    "consensus:consistent_set" choose that explicitly (both can run in one flight);
 ///  - "oracle": at every sample, exactly the sensors the ground-truth labels call healthy
-///    (no fault, no condition active: harness/labels.h), with the estimated alignments as
+///    (no fault, no condition active: replay/labels.h), with the estimated alignments as
 ///    consensus has them: the upper bound of any selection. A log without labels.csv (a
 ///    real log) has no label, so the oracle fuses everything there.
 /// A suffix "@clean" runs the method on the un-faulted streams (sensors/clean/): the
@@ -222,9 +223,14 @@ struct EstimateCommandOptions {
   std::optional<double> imu_noise_scale;
   /// `consensus` methods: the CM threshold (default 0.1, the paper's).
   std::optional<double> consensus_threshold;
+  /// Reads the `estimation:` block of a tofu run directory's scenario.yaml (the
+  /// harness's scenario reader; nullopt when the scenario has none), so the methods are
+  /// configured as in the flight. Unset: scenario.yaml is not read.
+  std::function<std::optional<EstimationConfig>(const std::filesystem::path& scenario_yaml)>
+      read_estimation_config;
   /// Progress of each method (the CLI draws a bar); may be empty.
   std::function<void(const std::string& method, double fraction)> progress;
 };
 int RunEstimateCommand(const EstimateCommandOptions& options);
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -16,7 +16,7 @@
 
 #include <csignal>
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 /// Thrown at a check point after SIGINT, SIGTERM or SIGHUP. Deliberately not a
 /// std::exception: the handlers of errors (`catch (const std::exception&)`) must not
@@ -47,4 +47,4 @@ inline int InterruptExitCode(int signal) { return 128 + signal; }
 /// "SIGINT", "SIGTERM", "SIGHUP" (else "a signal").
 const char* InterruptSignalName(int signal);
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

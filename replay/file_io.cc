@@ -1,4 +1,4 @@
-#include "harness/file_io.h"
+#include "replay/file_io.h"
 
 #include <signal.h>
 #include <unistd.h>
@@ -13,9 +13,9 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
-#include "harness/interrupt.h"
+#include "replay/interrupt.h"
 
-namespace tofu::harness {
+namespace tofu::replay {
 
 namespace fs = std::filesystem;
 
@@ -91,7 +91,7 @@ void WriteFileAtomically(const fs::path& path, std::string_view text, std::strin
     throw core::IoError(fmt::format("cannot write {}{}: {}", path.string(),
                                     key.empty() ? "" : fmt::format(" ({})", key), std::strerror(error)));
   };
-  // A check point of interruption (harness/interrupt.h): every writer of the harness
+  // A check point of interruption (replay/interrupt.h): every writer of the harness
   // passes here, so an interrupted command stops before its next file.
   ThrowIfInterrupted();
   std::error_code ec;
@@ -119,4 +119,4 @@ void WriteFileAtomically(const fs::path& path, std::string_view text, std::strin
   }
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::replay

@@ -1,0 +1,37 @@
+#include "replay/estimation_config.h"
+
+#include "core/time.h"
+#include "replay/recorded_log.h"
+#include "replay/replay.h"
+
+namespace tofu::replay {
+
+estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config) {
+  estimator::ConsensusOptions options;
+  options.threshold = config.threshold;
+  options.leave_threshold = config.leave_threshold;
+  options.min_dwell_ns = core::SecondsToTime(config.min_dwell_s);
+  options.policy = config.policy;
+  options.return_to_priority = config.return_to_priority;
+  options.priority = config.priority;
+  return options;
+}
+
+EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config) {
+  EstimationSetup setup;
+  setup.estimator = DefaultEstimatorOptions(log);
+  setup.estimator.local.huber_delta = config.huber_delta;
+  setup.sensors = SensorSpecsOf(log);
+  for (estimator::SensorSpec& spec : setup.sensors) {
+    spec.absolute_position = config.absolute_positions;
+  }
+  setup.consensus.selection = SelectionOptions(config.consensus);
+  setup.consensus.consistency.consistency.window_ns =
+      core::SecondsToTime(config.consensus.window_s);
+  setup.consensus.consistency.history_ns =
+      setup.consensus.consistency.consistency.window_ns + 2'000'000'000;
+  setup.consensus.evaluation_period_ns = core::PeriodFromRate(config.consensus.rate_hz);
+  return setup;
+}
+
+}  // namespace tofu::replay

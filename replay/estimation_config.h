@@ -1,0 +1,64 @@
+#pragma once
+// How the estimation methods of a run are configured: a scenario's `estimation:` block as
+// plain values (the YAML is read by harness/scenario.h), and what it makes of a recorded
+// log's streams. Shared by the run loop (harness/) and `tofu estimate` (replay.h), so an
+// in-loop estimate and a replay of the recorded streams are configured alike.
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "estimator/consensus_estimator.h"
+#include "estimator/consensus_selector.h"
+#include "estimator/multi_graph_estimator.h"
+
+namespace tofu::replay {
+
+struct RecordedLog;
+
+/// `estimation.consensus` in a scenario (and the options of `consensus` methods).
+struct ConsensusConfig {
+  double threshold = 0.1;                 ///< CM distance (m/s), paper: 0.1
+  std::optional<double> leave_threshold;  ///< hysteresis; unset = paper
+  double min_dwell_s = 0.0;               ///< 0 = paper
+  /// `fuse`: pair_member (one sensor of the most consistent pair, the paper) or
+  /// consistent_set (every sensor of the largest mutually consistent set).
+  estimator::ConsensusPolicy policy = estimator::ConsensusPolicy::kPairMember;
+  /// pair_member: give way to a preferred sensor that has recovered (false: the paper).
+  bool return_to_priority = true;
+  std::vector<std::string> priority;      ///< sensors, most preferred first
+  double window_s = 1.0;                  ///< CM window
+  double rate_hz = 10.0;                  ///< evaluations per second
+};
+
+/// `estimation:` in a scenario.
+struct EstimationConfig {
+  /// Method names (replay/replay.h ParseReplayMethod): consensus,
+  /// consensus:pair_member, consensus:consistent_set, oracle, naive, single:<sensor>,
+  /// fuse:<a>+<b>, imu_only, each optionally with @clean.
+  std::vector<std::string> methods;
+  ConsensusConfig consensus;
+  /// Huber loss on the between factors, in standard deviations (0: off, as the paper).
+  /// A faulty sensor is fused until consensus notices it (a few evaluations): without a
+  /// robust loss, metre-level outliers in that time can wreck the local graph.
+  double huber_delta = 0.0;
+  /// How position sensors (total station, GNSS) constrain the local graph: "between"
+  /// (displacements, the paper's eq. 3) or "absolute" (each position in L through the
+  /// frozen T_AL; estimator::SensorSpec::absolute_position).
+  bool absolute_positions = false;
+};
+
+/// What every method of a run is configured with, from the streams' description (the
+/// run directory's calibration, ReadRecordedLog or DescribeRunStreams) and the scenario's
+/// `estimation:` block: in the loop and in `tofu estimate` alike.
+struct EstimationSetup {
+  estimator::MultiGraphEstimatorOptions estimator;
+  std::vector<estimator::SensorSpec> sensors;
+  estimator::ConsensusEstimatorOptions consensus;
+};
+EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config);
+
+/// The options of the consensus estimator from a scenario's configuration.
+estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config);
+
+}  // namespace tofu::replay
