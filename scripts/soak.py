@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Soak run (issue 19): fly a long scenario and report its memory and speed over time.
 
-    scripts/soak.py [--tofu build/tofu] [--scenario scenarios/bench/soak_1h.yaml]
+    scripts/soak.py [--tofu build/tofu] [--scenario bench/soak_1h.yaml]
                     [--out runs/soak] [--json FILE]
 
 Runs `tofu run` once and prints, per simulated minute, the real-time factor and the
@@ -30,7 +30,7 @@ def directory_bytes(path):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--tofu", default="build/tofu")
-    parser.add_argument("--scenario", default="scenarios/bench/soak_1h.yaml")
+    parser.add_argument("--scenario", default="bench/soak_1h.yaml")
     parser.add_argument("--out", default="runs/soak")
     parser.add_argument("--json", help="also write the figures as JSON to this file")
     args = parser.parse_args()
