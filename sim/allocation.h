@@ -13,7 +13,7 @@
 
 #include <Eigen/Core>
 
-#include "sim/controller.h"
+#include "sim/rigid_body.h"
 
 namespace tofu::sim {
 

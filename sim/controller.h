@@ -9,6 +9,7 @@
 #include <Eigen/Geometry>
 
 #include "core/time.h"
+#include "sim/rigid_body.h"
 #include "sim/trajectory.h"
 
 namespace tofu::sim {
@@ -48,18 +49,7 @@ struct ControllerOptions {
   double attitude_integral_error_band_rad = 0.02;  ///< as integral_error_band_m
 };
 
-/// Mass properties the controller assumes (read from the model at start).
-struct RigidBodyParams {
-  double mass_kg = 4.5;
-  Eigen::Matrix3d inertia_B_kgm2 = Eigen::Matrix3d::Identity() * 0.1;  ///< about CoM, in B
-  double gravity_mps2 = 9.81;
-};
 
-/// Body wrench about the centre of mass, in B.
-struct Wrench {
-  Eigen::Vector3d force_B_N = Eigen::Vector3d::Zero();
-  Eigen::Vector3d torque_B_Nm = Eigen::Vector3d::Zero();
-};
 
 class GeometricController {
  public:

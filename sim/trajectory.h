@@ -15,6 +15,7 @@
 #include <Eigen/Geometry>
 
 #include "core/time.h"
+#include "sim/rigid_body.h"
 
 namespace tofu::sim {
 
@@ -29,11 +30,6 @@ struct Reference {
   Eigen::Vector3d alpha_WB_B = Eigen::Vector3d::Zero();  ///< angular accel. in B [rad/s^2]
 };
 
-/// A pose of B in W used as waypoint or start.
-struct Waypoint {
-  Eigen::Vector3d p_WB = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond q_WB = Eigen::Quaterniond::Identity();
-};
 
 /// Dynamic limits that set the time parametrisation of every primitive.
 struct DynamicLimits {

@@ -16,8 +16,7 @@
 
 #include "core/time.h"
 #include "sim/allocation.h"
-#include "sim/controller.h"
-#include "sim/trajectory.h"
+#include "sim/rigid_body.h"
 
 struct mjModel_;
 struct mjData_;
