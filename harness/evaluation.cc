@@ -103,7 +103,7 @@ std::optional<double> SensorMetricValue(const RunRecord& record, const std::stri
   const double to_s = window_s ? std::min(window_s->second, run_s) : run_s;
   if (pattern == "sensors.<sensor>.delivered_samples") {
     size_t count = 0;
-    for (const sim::SensorSample& s : stream->delivered) count += InWindow(s.t_ns, window_s);
+    for (const core::Time t_ns : stream->delivered_t_ns) count += InWindow(t_ns, window_s);
     return static_cast<double>(count);
   }
   if (pattern == "sensors.<sensor>.condition.<condition>") {
@@ -112,18 +112,16 @@ std::optional<double> SensorMetricValue(const RunRecord& record, const std::stri
            (to_s - from_s);
   }
   if (pattern == "sensors.<sensor>.position_error_rms_m") {
+    // The digest holds an error per delivered sample of a position or pose stream; an
+    // IMU has no position.
+    if (stream->delivered_position_error_m2.size() != stream->delivered_t_ns.size()) {
+      return std::nullopt;
+    }
     double sum_squares = 0.0;
     size_t count = 0;
-    for (const sim::SensorSample& s : stream->delivered) {
-      if (!InWindow(s.t_ns, window_s)) continue;
-      std::optional<Eigen::Vector3d> error;
-      if (const auto* m = std::get_if<core::PositionMeasurement>(&s.measured)) {
-        error = m->p_Ss - std::get<core::PositionMeasurement>(s.truth).p_Ss;
-      } else if (const auto* p = std::get_if<core::PoseMeasurement>(&s.measured)) {
-        error = p->p_Ss - std::get<core::PoseMeasurement>(s.truth).p_Ss;
-      }
-      if (!error) return std::nullopt;  // an IMU has no position
-      sum_squares += error->squaredNorm();
+    for (size_t k = 0; k < stream->delivered_t_ns.size(); ++k) {
+      if (!InWindow(stream->delivered_t_ns[k], window_s)) continue;
+      sum_squares += stream->delivered_position_error_m2[k];
       ++count;
     }
     if (count == 0) return std::nullopt;
@@ -249,10 +247,9 @@ ClosedLoopMetrics ComputeClosedLoopMetrics(const RunRecord& flight) {
   // The estimate the controller flew on against the truth at the same output instants.
   double est_sum = 0.0;
   std::size_t est_count = 0;
-  for (std::size_t k = 0; k < cl.samples.size() && k < flight.groundtruth.size(); ++k) {
-    const ClosedLoopSample& s = cl.samples[k];
-    if (!s.p_WB_est || s.mode == FlightMode::kTruth) continue;
-    est_sum += (*s.p_WB_est - flight.groundtruth[k].p_WB).squaredNorm();
+  for (const ClosedLoopSample& s : cl.samples) {
+    if (!s.estimate_squared_error_m2 || s.mode == FlightMode::kTruth) continue;
+    est_sum += *s.estimate_squared_error_m2;
     ++est_count;
   }
   if (est_count > 0) m.estimate_ate_m = std::sqrt(est_sum / static_cast<double>(est_count));
@@ -539,8 +536,8 @@ Evaluation Evaluate(const RunRecord& record) {
     sensors[stream.name] = {
         {"type", stream.type},
         {"site", stream.site},
-        {"samples", stream.clean.size()},
-        {"delivered", stream.delivered.size()},
+        {"samples", stream.produced_count},
+        {"delivered", stream.delivered_count},
         {"condition_time_fraction", conditions},
         {"position_error_rms_m",
          OptionalNumber(SensorMetricValue(record, "sensors.<sensor>.position_error_rms_m",

@@ -14,7 +14,9 @@
 #include "core/lie.h"
 #include "core/random.h"
 #include "harness/run_directory.h"
+#include "harness/run_recorder.h"
 #include "harness/sample_stream.h"
+#include "replay/file_io.h"
 #include "replay/recorded_log.h"
 #include "sim/allocation.h"
 #include "sim/controller.h"
@@ -176,6 +178,24 @@ Eigen::Isometry3d NominalImuMount(const Scenario& scenario, const sim::RobotDesc
   return Eigen::Isometry3d::Identity();
 }
 
+// A delivered sample into the stream's counts and digest (evaluation.h's windowed
+// metrics), and into its vectors when the run keeps them.
+void RecordDelivered(const sim::SensorSample& sample, uint32_t faults, bool keep,
+                     SensorStream& stream) {
+  ++stream.delivered_count;
+  stream.delivered_t_ns.push_back(sample.t_ns);
+  if (const auto* m = std::get_if<core::PositionMeasurement>(&sample.measured)) {
+    stream.delivered_position_error_m2.push_back(
+        (m->p_Ss - std::get<core::PositionMeasurement>(sample.truth).p_Ss).squaredNorm());
+  } else if (const auto* p = std::get_if<core::PoseMeasurement>(&sample.measured)) {
+    stream.delivered_position_error_m2.push_back(
+        (p->p_Ss - std::get<core::PoseMeasurement>(sample.truth).p_Ss).squaredNorm());
+  }
+  if (!keep) return;
+  stream.delivered.push_back(sample);
+  stream.delivered_faults.push_back(faults);
+}
+
 // Each stream's place among the streams sorted by name: the tie-break ReadRecordedLog
 // uses between samples of equal arrival, so the queue must use it too.
 std::vector<uint32_t> RanksByName(const std::vector<SensorStream>& streams) {
@@ -251,20 +271,41 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
     stream.name = config.name;
     stream.type = std::string(SensorTypeName(config.options));
     stream.site = SensorSite(config.options);
-    // A sample is ~1.5 kB (core::Measurement holds a pose's two 6x6 covariances): growing
-    // the streams by doubling copied them and touched twice their final memory.
-    const auto expected_samples =
-        static_cast<size_t>(std::ceil(scenario.duration_s * SensorRate_hz(config.options))) + 2;
-    stream.clean.reserve(expected_samples);
-    stream.delivered.reserve(expected_samples);
-    stream.delivered_faults.reserve(expected_samples);
-    if (std::holds_alternative<sim::ImuOptions>(config.options)) {
-      stream.imu_biases.reserve(expected_samples);
-    }
     record.sensors.push_back(std::move(stream));
     conditions.push_back(sim::kConditionNone);
   }
   std::vector<sim::SensorSample> sensor_scratch;
+  std::vector<sim::SensorSample> delivered_scratch;
+
+  // The recorder: with a record_dir every per-sample file is written as produced and the
+  // record keeps only what the evaluation needs (RunRecord::recorded_to).
+  std::optional<RunRecorder> recorder;
+  if (options.record_dir) {
+    RecorderLayout layout;
+    for (const SensorStream& s : record.sensors) layout.streams.push_back({s.name, s.type, s.site});
+    layout.robot = record.robot;
+    layout.closed_loop = options.fly_on.has_value();
+    recorder.emplace(*options.record_dir, std::move(layout));
+    record.recorded_to = *options.record_dir;
+  }
+  const bool keep_samples = !recorder;
+  // The consistency evaluation (consistency_eval.h) reads the non-IMU streams and the
+  // ground truth of the whole run after it.
+  const bool keep_for_consistency = scenario.consistency.has_value();
+  if (keep_samples) {
+    // A sample is ~1.5 kB (core::Measurement holds a pose's two 6x6 covariances): growing
+    // the streams by doubling copied them and touched twice their final memory.
+    for (size_t i = 0; i < record.sensors.size(); ++i) {
+      SensorStream& stream = record.sensors[i];
+      const auto expected_samples = static_cast<size_t>(std::ceil(
+                                        scenario.duration_s *
+                                        SensorRate_hz(scenario.sensors[i].options))) + 2;
+      stream.clean.reserve(expected_samples);
+      stream.delivered.reserve(expected_samples);
+      stream.delivered_faults.reserve(expected_samples);
+      if (stream.type == "imu") stream.imu_biases.reserve(expected_samples);
+    }
+  }
 
   // The run's consumers of the arrival-ordered sample stream besides the recorder: the
   // estimation methods in the loop, and through the flying one, the controller.
@@ -336,9 +377,11 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   for (size_t i = 0; i < record.segments.size(); ++i) {
     if (record.segments[i].kind == "approach") approach_segments.push_back(i);
   }
-  record.groundtruth.reserve(static_cast<size_t>(
-      scenario.duration_s * scenario.output.groundtruth_rate_hz + 2));
-  record.tracking.reserve(record.groundtruth.capacity());
+  const auto output_samples =
+      static_cast<size_t>(scenario.duration_s * scenario.output.groundtruth_rate_hz + 2);
+  record.tracking.reserve(output_samples);
+  if (keep_samples || keep_for_consistency) record.groundtruth.reserve(output_samples);
+  if (keep_samples) record.references.reserve(output_samples);
   CollisionTracker collisions;
 
   const auto wall_start = std::chrono::steady_clock::now();
@@ -388,11 +431,14 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
 
       if (truth.t_ns >= next_output_ns) {
         const sim::Reference reference = trajectory->Sample(truth.t_ns);
-        record.groundtruth.push_back(truth);
-        record.tracking.push_back(
-            {truth.t_ns, reference, (truth.p_WB - reference.p_WB).norm(),
-             core::RotationAngleBetween(reference.q_WB.toRotationMatrix(),
-                                        truth.q_WB.toRotationMatrix())});
+        const TrackingSample tracking{
+            truth.t_ns, (truth.p_WB - reference.p_WB).norm(),
+            core::RotationAngleBetween(reference.q_WB.toRotationMatrix(),
+                                       truth.q_WB.toRotationMatrix())};
+        record.tracking.push_back(tracking);
+        if (keep_samples || keep_for_consistency) record.groundtruth.push_back(truth);
+        if (keep_samples) record.references.push_back(reference);
+        const ClosedLoopSample* flown = nullptr;
         if (pilot) {
           ClosedLoopSample sample;
           sample.t_ns = truth.t_ns;
@@ -400,10 +446,13 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
           if (const auto& believed = pilot->last_state()) {
             sample.p_WB_est = believed->p_WB;
             sample.q_WB_est = believed->q_WB;
+            sample.estimate_squared_error_m2 = (believed->p_WB - truth.p_WB).squaredNorm();
           }
           sample.structure_distance_m = structure_distance_m;
           record.closed_loop->samples.push_back(sample);
+          flown = &record.closed_loop->samples.back();
         }
+        if (recorder) recorder->AddGroundTruth(truth, reference, tracking, flown);
         next_output_ns += output_period_ns;
       }
 
@@ -418,18 +467,23 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
           sensor_scratch.clear();
           models[i]->Step(input, &sensor_scratch);
           for (const sim::SensorSample& sample : sensor_scratch) {
-            stream.clean.push_back(sample);
-            if (imu != nullptr) stream.imu_biases.push_back(bias);
-            const size_t first_new = stream.delivered.size();
-            injectors[i].Apply(sample, &stream.delivered);
-            stream.delivered_faults.resize(stream.delivered.size(),
-                                           injectors[i].ActiveFaults(sample.t_ns));
-            if (in_loop.empty()) continue;
-            for (size_t k = first_new; k < stream.delivered.size(); ++k) {
-              if (options.tamper) options.tamper(stream.name, stream.delivered[k]);
-              delivered_queue.Push(i, stream.delivered[k]);
+            ++stream.produced_count;
+            if (keep_samples) {
+              stream.clean.push_back(sample);
+              if (imu != nullptr) stream.imu_biases.push_back(bias);
             }
-            if (in_loop.any_clean()) clean_queue.Push(i, sample);
+            if (recorder) recorder->AddClean(i, sample, imu != nullptr ? &bias : nullptr);
+            delivered_scratch.clear();
+            injectors[i].Apply(sample, &delivered_scratch);
+            const uint32_t faults = injectors[i].ActiveFaults(sample.t_ns);
+            for (sim::SensorSample& delivered : delivered_scratch) {
+              if (options.tamper && !in_loop.empty()) options.tamper(stream.name, delivered);
+              RecordDelivered(delivered, faults,
+                              keep_samples || (keep_for_consistency && imu == nullptr), stream);
+              if (recorder) recorder->AddDelivered(i, delivered, faults);
+              if (!in_loop.empty()) delivered_queue.Push(i, delivered);
+            }
+            if (!in_loop.empty() && in_loop.any_clean()) clean_queue.Push(i, sample);
           }
           const uint32_t now_conditions = models[i]->conditions();
           if (now_conditions != conditions[i]) {
@@ -479,6 +533,7 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   } catch (const core::SimulationError& e) {
     record.failure = e.what();
   }
+  if (recorder) recorder->Close();
   record.wall_time_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
@@ -520,6 +575,10 @@ std::vector<RunRecord> FlyClosedLoopFlights(const Scenario& scenario,
     flight.models_dir = options.models_dir;
     flight.fly_on = method;
     flight.tamper = options.tamper;
+    if (options.record_dir) {
+      flight.record_dir = *options.record_dir / "closed_loop" / replay::MethodFileStem(method);
+      std::filesystem::create_directories(*flight.record_dir);
+    }
     if (options.closed_loop_progress) {
       flight.progress = [&](double f) { options.closed_loop_progress(method, f); };
     }

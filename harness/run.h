@@ -1,10 +1,13 @@
 #pragma once
 // One run of a scenario: world + trajectory + controller + disturbances stepped at the
-// physics rate, recorded in memory (RunRecord), evaluated (evaluation.h) and written to
-// a run directory (run_directory.h). Simulate() does no file I/O, so benchmarks and
-// tests can run the loop alone.
+// physics rate, evaluated (evaluation.h) and written to a run directory
+// (run_directory.h). Its per-sample files are written while it flies when it is given a
+// directory (SimulateOptions::record_dir: `tofu run`, whose memory then stays flat with
+// flight time), else kept in the RunRecord and written after it (tests, benchmarks,
+// corpus episodes), through the same recorder (run_recorder.h).
 
 #include <cstdint>
+#include <filesystem>
 #include <functional>
 #include <optional>
 #include <string>
@@ -22,10 +25,10 @@
 
 namespace tofu::harness {
 
-/// Reference and error at one output sample.
+/// The controller's tracking error at one output sample (the reference itself is in
+/// tracking.csv, and in RunRecord::references of a run kept in memory).
 struct TrackingSample {
   core::Time t_ns = 0;
-  sim::Reference reference;
   double position_error_m = 0.0;
   double attitude_error_rad = 0.0;
 };
@@ -60,6 +63,8 @@ struct ClosedLoopSample {
   /// The estimate of B in W the controller used last (none before the handover).
   std::optional<Eigen::Vector3d> p_WB_est;
   std::optional<Eigen::Quaterniond> q_WB_est;
+  /// |p_WB_est - p_WB|² against the truth at this instant, with p_WB_est.
+  std::optional<double> estimate_squared_error_m2;
   /// Distance of the robot to the nearest structure (ground aside), when within the
   /// distance horizon.
   std::optional<double> structure_distance_m;
@@ -79,8 +84,14 @@ struct RunRecord {
   Scenario scenario;  ///< with the effective seed
   sim::RobotDescription robot;
   std::vector<sim::SegmentInfo> segments;
+  /// Where the run's per-sample files were written while it flew (record_dir), or
+  /// nullopt for a run kept in memory. A recorded run keeps no sample vectors (below)
+  /// but what its evaluation needs: ground truth and delivered samples of the
+  /// non-IMU streams with scenario.consistency, counts and the digests of SensorStream.
+  std::optional<std::filesystem::path> recorded_to;
   std::vector<sim::TruthState> groundtruth;  ///< at output.groundtruth_rate_hz
-  std::vector<TrackingSample> tracking;      ///< at the same instants
+  std::vector<sim::Reference> references;    ///< at the same instants
+  std::vector<TrackingSample> tracking;      ///< at the same instants, in both kinds of run
   std::vector<std::pair<core::Time, bool>> saturation;  ///< per controller update
   std::vector<CollisionEvent> collisions;
   std::optional<ProximityRecord> closest_structure;  ///< within the distance horizon
@@ -129,6 +140,10 @@ struct SimulateOptions {
   std::optional<std::string> fly_on;
   /// A closed-loop flight's progress: (method, fraction).
   std::function<void(const std::string&, double)> closed_loop_progress;
+  /// Write the run's per-sample files into this directory (which exists) while flying,
+  /// keeping none of them in memory (RunRecord::recorded_to); the closed-loop flights go
+  /// to closed_loop/<method>/ under it. Unset: everything is kept in the record.
+  std::optional<std::filesystem::path> record_dir;
   /// Testing hook: called with every sample before the in-loop consumers see it, to
   /// change it (the causality test alters samples arriving after a given time).
   std::function<void(const std::string& stream, sim::SensorSample&)> tamper;

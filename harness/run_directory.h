@@ -35,29 +35,29 @@ void WriteRunDirectory(const RunRecord& record, const Evaluation& evaluation,
                        const std::string& out_dir,
                        const std::function<void(const std::filesystem::path& staging)>& finish = {});
 
+/// Creates the staging directory of `out_dir` (<out>.tmp-<pid>, emptied) for a run that
+/// records its files while it flies (SimulateOptions::record_dir); WriteRun completes it
+/// and renames it into place, or removes it when it fails. A caller whose flight throws
+/// removes it (std::filesystem::remove_all).
+std::filesystem::path CreateStagingDirectory(const std::string& out_dir);
+
 struct RunOutputOptions {
   /// Draw consensus.png with scripts/plot_consensus.py (python3 + matplotlib); a missing
   /// interpreter or library is a warning, never a failure of the run.
   bool plot = true;
 };
 
-/// What `tofu run` does after the simulation: writes the run directory; with an
-/// `estimation:` block, scores the methods that ran in the loop (record.methods) and
-/// writes their estimates; writes each closed-loop flight under closed_loop/<method>/;
-/// evaluates the expectations including the methods' and the closed-loop metrics and
-/// draws consensus.png and closed_loop.png, all before the directory is renamed into
-/// place. Returns the final evaluation.
 /// calibration.yaml of a run: mounts (nominal and true), the sensors' options, the true
 /// reference frames T_WS of record.sensors.
 std::string CalibrationYamlText(const RunRecord& record);
 
-/// A sample's value as its row in sensors/<name>.csv holds it (the writer's precision,
-/// the reader's parse and normalisation): what the run loop hands its in-loop consumers,
-/// so that a recorded run replays bit-identically (`tofu estimate`). `stream_type` is
-/// SensorStream::type.
-core::Measurement RecordedMeasurement(const std::string& stream_type,
-                                      const core::Measurement& value);
-
+/// What `tofu run` does after the simulation: writes the run directory (into the
+/// directory a recorded run flew into, record.recorded_to); with an `estimation:` block,
+/// scores the methods that ran in the loop (record.methods) and writes their estimates;
+/// writes each closed-loop flight under closed_loop/<method>/; evaluates the
+/// expectations including the methods' and the closed-loop metrics and draws
+/// consensus.png and closed_loop.png, all before the directory is renamed into place.
+/// Returns the final evaluation.
 Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
                     const RunOutputOptions& options = {});
 

@@ -57,12 +57,19 @@ double SensorRate_hz(const SensorOptions& options);
 std::unique_ptr<sim::SensorModel> MakeSensorModel(const SensorConfig& config,
                                                   const sim::World& world, uint64_t seed);
 
-/// Everything a run recorded of one sensor.
+/// What a run recorded of one sensor. The sample vectors are kept only by a run held in
+/// memory (RunRecord::recorded_to unset); the counts and the digest by every run.
 struct SensorStream {
   std::string name;
   std::string type;
   std::string site;
   Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();  ///< true reference frame in W
+  std::size_t produced_count = 0;   ///< clean samples
+  std::size_t delivered_count = 0;  ///< samples after scheduled faults
+  /// Digest of the delivered samples for windowed metrics (evaluation.h): their times,
+  /// and for position and pose streams |p_measured - p_true|² [m²] of each.
+  std::vector<core::Time> delivered_t_ns;
+  std::vector<double> delivered_position_error_m2;
   std::vector<sim::SensorSample> clean;      ///< as the model produced them
   std::vector<sim::SensorSample> delivered;  ///< after scheduled faults: what a consumer gets
   std::vector<uint32_t> delivered_faults;    ///< active fault bits per delivered sample

@@ -85,37 +85,67 @@ std::vector<fs::path> SweepStaleStaging(const fs::path& path) {
 }
 
 void WriteFileAtomically(const fs::path& path, std::string_view text, std::string_view key) {
-  // Not the user's input but the machine (permissions, a full disk, a path through a
-  // file): the I/O exit code, naming the file and what it was for.
-  const auto fail = [&](int error) {
-    throw core::IoError(fmt::format("cannot write {}{}: {}", path.string(),
-                                    key.empty() ? "" : fmt::format(" ({})", key), std::strerror(error)));
-  };
+  AtomicFileWriter writer(path, std::string(key));
+  writer.Append(text);
+  writer.Commit();
+}
+
+AtomicFileWriter::AtomicFileWriter(fs::path path, std::string key)
+    : path_(std::move(path)), staging_(StagingPath(path_)), key_(std::move(key)) {
   // A check point of interruption (replay/interrupt.h): every writer of the harness
   // passes here, so an interrupted command stops before its next file.
   ThrowIfInterrupted();
   std::error_code ec;
-  if (path.has_parent_path()) fs::create_directories(path.parent_path(), ec);
-  const fs::path staging = StagingPath(path);
-  std::FILE* file = std::fopen(staging.c_str(), "wb");
-  if (file == nullptr) fail(errno);
-  const bool written = std::fwrite(text.data(), 1, text.size(), file) == text.size();
-  const int write_errno = errno;
-  const bool closed = std::fclose(file) == 0;
-  if (!written || !closed) {
-    std::remove(staging.c_str());
-    fail(write_errno != 0 ? write_errno : EIO);
+  if (path_.has_parent_path()) fs::create_directories(path_.parent_path(), ec);
+  file_ = std::fopen(staging_.c_str(), "wb");
+  if (file_ == nullptr) Fail(errno);
+}
+
+AtomicFileWriter::~AtomicFileWriter() {
+  if (file_ == nullptr) return;
+  std::fclose(file_);
+  std::remove(staging_.c_str());
+}
+
+void AtomicFileWriter::Flush() {
+  if (buffer_.size() == 0) return;
+  if (std::fwrite(buffer_.data(), 1, buffer_.size(), file_) != buffer_.size()) {
+    Fail(errno != 0 ? errno : EIO);
+  }
+  buffer_.clear();
+}
+
+void AtomicFileWriter::Fail(int error) {
+  // Not the user's input but the machine (permissions, a full disk, a path through a
+  // file): the I/O exit code, naming the file and what it was for. No temporary stays.
+  if (file_ != nullptr) std::fclose(file_);
+  file_ = nullptr;
+  std::remove(staging_.c_str());
+  throw core::IoError(fmt::format("cannot write {}{}: {}", path_.string(),
+                                  key_.empty() ? "" : fmt::format(" ({})", key_),
+                                  std::strerror(error)));
+}
+
+void AtomicFileWriter::Commit() {
+  Flush();
+  errno = 0;
+  const bool closed = std::fclose(file_) == 0;
+  const int close_errno = errno;
+  file_ = nullptr;
+  if (!closed) {
+    std::remove(staging_.c_str());
+    Fail(close_errno != 0 ? close_errno : EIO);
   }
   if (InterruptSignal() != 0) {
     // Interrupted while writing: the command will not finish, so its temporary goes
     // rather than into an output that is about to be abandoned.
-    std::remove(staging.c_str());
+    std::remove(staging_.c_str());
     ThrowIfInterrupted();
   }
-  if (std::rename(staging.c_str(), path.c_str()) != 0) {
+  if (std::rename(staging_.c_str(), path_.c_str()) != 0) {
     const int rename_errno = errno;
-    std::remove(staging.c_str());
-    fail(rename_errno);
+    std::remove(staging_.c_str());
+    Fail(rename_errno);
   }
 }
 

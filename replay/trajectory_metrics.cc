@@ -340,14 +340,14 @@ std::vector<PoseSample> ReadTumTrajectory(const fs::path& file) {
 }
 
 void WriteTumTrajectory(const fs::path& file, const std::vector<PoseSample>& poses) {
-  fmt::memory_buffer out;
+  AtomicFileWriter out(file);
   for (const PoseSample& s : poses) {
     const Eigen::Quaterniond q = s.q.w() < 0.0 ? Eigen::Quaterniond(-s.q.coeffs()) : s.q;
-    fmt::format_to(std::back_inserter(out), "{} {:.6f} {:.6f} {:.6f} {:.9f} {:.9f} {:.9f} {:.9f}\n",
-                   FormatNanosecondsAsSeconds(s.t_ns), s.p.x(), s.p.y(), s.p.z(), q.x(), q.y(),
-                   q.z(), q.w());
+    out.Format("{} {:.6f} {:.6f} {:.6f} {:.9f} {:.9f} {:.9f} {:.9f}\n",
+               FormatNanosecondsAsSeconds(s.t_ns), s.p.x(), s.p.y(), s.p.z(), q.x(), q.y(), q.z(),
+               q.w());
   }
-  WriteFileAtomically(file, std::string_view(out.data(), out.size()));
+  out.Commit();
 }
 
 TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,

@@ -487,42 +487,35 @@ std::string LongHover(double duration_s) {
          "  lio: {type: lidar_odometry}\n";
 }
 
-// SIGINT, SIGTERM and SIGHUP while a run writes its staging directory (and once while it
-// flies): before, the process died and left the 35 MB staging directory; now it removes
-// it, writes no run directory and exits 128 + signal.
+// SIGINT, SIGTERM and SIGHUP while a run flies, recording its streams into its staging
+// directory (run_recorder.h): before, the process died and left the 35 MB staging
+// directory; now it removes it, writes no run directory and exits 128 + signal.
 TEST_F(CliTest, InterruptedRunRemovesItsStagingDirectoryAndExits128PlusTheSignal) {
   WriteFile(work_ / "long.yaml", LongHover(60));
-  const struct {
-    int signal;
-    bool while_writing;  // else while flying, before the staging directory exists
-  } cases[] = {{SIGINT, true}, {SIGTERM, true}, {SIGHUP, true}, {SIGTERM, false}};
-  for (const auto& c : cases) {
-    SCOPED_TRACE(strsignal(c.signal));
+  for (const int signal : {SIGINT, SIGTERM, SIGHUP}) {
+    SCOPED_TRACE(strsignal(signal));
     fs::remove(logs_ / "run.log");
     test::ChildProcess run({TOFU_BINARY, "run", "long.yaml", "--out", "run", "--quiet"}, work_,
                            logs_ / "run.log");
     const fs::path staging = work_ / ("run.tmp-" + std::to_string(run.pid()));
-    if (c.while_writing) {
-      ASSERT_TRUE(test::WaitUntil([&] { return fs::exists(staging) || run.Exited(); },
-                                  std::chrono::minutes(5)));
-      ASSERT_FALSE(run.Exited()) << "ended before its staging directory was seen: "
-                                 << ReadFile(logs_ / "run.log");
-    } else {
-      // Once it handles the signal (a slow start, e.g. under ASan, must not meet the
-      // default action), and a little into the flight.
-      ASSERT_TRUE(test::WaitUntil(
-          [&] { return test::CatchesSignal(run.pid(), c.signal) || run.Exited(); },
-          std::chrono::minutes(1)));
-      std::this_thread::sleep_for(std::chrono::milliseconds(300));
-      ASSERT_FALSE(run.Exited()) << ReadFile(logs_ / "run.log");
-      ASSERT_FALSE(fs::exists(staging)) << "already writing: the flight was too short";
-    }
-    ASSERT_EQ(::kill(run.pid(), c.signal), 0);
+    // Once it handles the signal (a slow start, e.g. under ASan, must not meet the default
+    // action) and records: the IMU's rows go to their file while it flies.
+    const fs::path recording = staging / "sensors" / ("imu.csv.tmp-" + std::to_string(run.pid()));
+    ASSERT_TRUE(test::WaitUntil(
+        [&] {
+          return (test::CatchesSignal(run.pid(), signal) && fs::exists(recording)) ||
+                 run.Exited();
+        },
+        std::chrono::minutes(5)));
+    ASSERT_FALSE(run.Exited()) << "ended before it was seen recording: "
+                               << ReadFile(logs_ / "run.log");
+    ASSERT_FALSE(fs::exists(staging / "summary.json")) << "the flight was too short";
+    ASSERT_EQ(::kill(run.pid(), signal), 0);
     const std::optional<int> status = run.Wait(std::chrono::minutes(2));
     ASSERT_TRUE(status.has_value()) << "still running 2 min after the signal";
     ASSERT_TRUE(WIFEXITED(*status)) << "ended by signal " << WTERMSIG(*status)
                                     << " instead of exiting after its cleanup";
-    EXPECT_EQ(WEXITSTATUS(*status), 128 + c.signal);
+    EXPECT_EQ(WEXITSTATUS(*status), 128 + signal);
     // Neither the staging directory nor anything that looks like a run.
     EXPECT_EQ(WorkEntries(), std::set<std::string>{"long.yaml"});
     EXPECT_CONTAINS(ReadFile(logs_ / "run.log"), "interrupted by");
@@ -555,6 +548,10 @@ TEST_F(CliTest, StaleStagingDirectoriesAreSweptByTheNextRunButNeverALiveOne) {
   const fs::path live_comm = fs::path("/proc") / std::to_string(live.pid()) / "comm";
   ASSERT_TRUE(test::WaitUntil([&] { return ReadFile(live_comm) == "tofu\n"; },
                               std::chrono::seconds(30)));
+  // ... and records into its own staging directory while it flies.
+  const std::string live_recording = "elsewhere.tmp-" + std::to_string(live.pid());
+  ASSERT_TRUE(test::WaitUntil([&] { return fs::exists(work_ / live_recording); },
+                              std::chrono::seconds(60)));
 
   // (A trailing slash names the same directory: its staging siblings are the same.)
   const Result r = Tofu("run s.yaml --out run/ --quiet");
@@ -564,10 +561,11 @@ TEST_F(CliTest, StaleStagingDirectoriesAreSweptByTheNextRunButNeverALiveOne) {
   EXPECT_CONTAINS(r.err, reused_staging);
   EXPECT_EQ(r.err.find(live_staging), std::string::npos) << r.err;
   EXPECT_EQ(WorkEntries(), (std::set<std::string>{"s.yaml", "endless.yaml", "run", other_output,
-                                                  live_staging}));
+                                                  live_staging, live_recording}));
   EXPECT_TRUE(fs::exists(work_ / "run" / ".tofu-run"));
   ::kill(live.pid(), SIGTERM);
   EXPECT_TRUE(live.Wait(std::chrono::minutes(2)).has_value());
+  EXPECT_FALSE(fs::exists(work_ / live_recording)) << "an interrupted run removes its staging";
 }
 
 TEST_F(CliTest, MetricsListsTheCatalogue) {

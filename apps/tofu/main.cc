@@ -228,8 +228,19 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
     }
     (*flight_bar)(f);
   };
-  tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
-  tofu::replay::ThrowIfInterrupted();
+  // The run's files are written while it flies, into the staging directory that becomes
+  // `out` when the run is complete (memory stays flat with flight time, issue 19).
+  const std::filesystem::path staging = tofu::harness::CreateStagingDirectory(out);
+  options.record_dir = staging;
+  tofu::harness::RunRecord record;
+  try {
+    record = tofu::harness::Simulate(scenario, options);
+    tofu::replay::ThrowIfInterrupted();
+  } catch (...) {
+    std::error_code ignored;
+    std::filesystem::remove_all(staging, ignored);
+    throw;
+  }
   tofu::harness::RunOutputOptions output;
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
