@@ -24,6 +24,7 @@ using replay::GroundTruthPose;
 using replay::kDecisionsCsvHeader;
 using replay::LabelEvent;
 using replay::MethodFiles;
+using replay::PoseSample;
 using replay::MethodFileStem;
 using replay::ReadRecordedLog;
 using replay::RecordedLog;
@@ -105,7 +106,7 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
                                                  const replay::EstimationConfig& config,
                                                  const std::vector<LabelEvent>& labels,
                                                  double run_duration_s,
-                                                 const std::vector<ReplayResult>& results) {
+                                                 std::vector<ReplayResult>& results) {
   // The streams' descriptions and the ground truth: the samples went through the
   // estimators in the loop (results), not through this reader.
   RecordedLogOptions read;
@@ -121,18 +122,20 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
   std::string decisions_csv = kDecisionsCsvHeader;
   bool any_consensus = false;
   std::vector<MethodEvaluation> evaluations;
-  for (const ReplayResult& result : results) {
+  for (ReplayResult& result : results) {
     const ReplayMethod& method = result.method;
-    const MethodFiles files = WriteMethodResult(log, result, run_dir);
-
     MethodEvaluation e;
+    e.outputs = result.outputs.size();
+    // The outputs are released once written, before the trajectory is scored: what the
+    // scoring below needs of them is in files (trajectory, position covariances).
+    const MethodFiles files = replay::WriteMethodResultReleasingOutputs(log, result, run_dir);
+
     e.method = method.name;
     e.run_duration_s = run_duration_s;
     e.wall_time_s = result.wall_time_s;
-    e.outputs = result.outputs.size();
-    e.valid_fraction = result.outputs.empty() ? 0.0
-                                              : static_cast<double>(files.trajectory.size()) /
-                                                    static_cast<double>(result.outputs.size());
+    e.valid_fraction = e.outputs == 0 ? 0.0
+                                      : static_cast<double>(files.trajectory.size()) /
+                                            static_cast<double>(e.outputs);
     if (files.errors) {
       const TrajectoryErrors& t = *files.errors;
       e.ate_m = t.ate_position_rmse_m;
@@ -147,16 +150,24 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
       double nees_sum = 0.0;
       std::size_t k = 0;
       std::optional<core::Time> last_row;
-      for (const estimator::EstimatorOutput& o : result.outputs) {
-        if (!o.valid) continue;
+      std::size_t c = 0;  // next of files.position_covariances
+      for (std::size_t i = 0; i < files.trajectory.size(); ++i) {
+        const PoseSample& o = files.trajectory[i];  // the i-th valid output
+        while (c < files.position_covariances.size() && files.position_covariances[c].first < i) {
+          ++c;
+        }
+        const Eigen::Matrix3d* covariance =
+            c < files.position_covariances.size() && files.position_covariances[c].first == i
+                ? &files.position_covariances[c].second
+                : nullptr;
         while (k < t.t_ns.size() && t.t_ns[k] < o.t_ns) ++k;
         if (k == t.t_ns.size()) break;
         if (t.t_ns[k] != o.t_ns) continue;  // no ground truth there
         std::optional<double> nees;
-        if (o.position_covariance_m2) {
+        if (covariance != nullptr) {
           if (const auto p_WI = TruthPositionAt(log.ground_truth, o.t_ns)) {
-            const Eigen::Vector3d e_L = R_LW * (t.T_W_L * o.state.p_LI - *p_WI);
-            const Eigen::Matrix3d& P = *o.position_covariance_m2;
+            const Eigen::Vector3d e_L = R_LW * (t.T_W_L * o.p - *p_WI);
+            const Eigen::Matrix3d& P = *covariance;
             const Eigen::LDLT<Eigen::Matrix3d> ldlt(P);
             if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
               nees = e_L.dot(ldlt.solve(e_L));

@@ -45,14 +45,6 @@ std::string_view Trim(std::string_view s) {
 }
 
 
-// The file's text without a UTF-8 byte-order mark (spreadsheet exports): it is not part
-// of the header.
-std::string ReadCsvText(const fs::path& path) {
-  std::string text = core::ReadWholeFile(path);
-  if (text.compare(0, 3, "\xEF\xBB\xBF") == 0) text.erase(0, 3);
-  return text;
-}
-
 // The key of a header field: "#timestamp [ns]" -> "timestamp", " p_RS_R_x [m]" -> "p_RS_R_x".
 std::string_view ColumnKey(std::string_view field) {
   field = Trim(field);
@@ -66,13 +58,22 @@ std::string_view ColumnKey(std::string_view field) {
 // visited with Next(); field accessors throw InputError naming file, line, column.
 class CsvFile {
  public:
+  /// Reads the header line; rows are read one at a time by Next() (an hour of IMU is 250
+  /// MB of text, never held whole).
   CsvFile(fs::path path, std::string expected_header)
-      : path_(std::move(path)), name_(path_.string()), text_(ReadCsvText(path_)) {
+      : path_(std::move(path)), name_(path_.string()), reader_(path_) {
     std::string_view line;
-    if (!NextLine(line) || Trim(line).empty()) {
+    bool had_newline = false;
+    const bool any = NextLine(line, &had_newline);
+    // A UTF-8 byte-order mark (spreadsheet exports) is not part of the header.
+    if (any && line.starts_with("\xEF\xBB\xBF")) line.remove_prefix(3);
+    if (!any || Trim(line).empty()) {
+      // Nothing but a byte-order mark is an empty file too.
+      const bool empty =
+          !any || (!had_newline && (line_text_.empty() || line_text_ == "\xEF\xBB\xBF"));
       throw InputError({name_, 1, 0}, "",
                        fmt::format("missing header: {}, expected a header line like '{}'",
-                                   text_.empty() ? "the file is empty" : "line 1 is blank",
+                                   empty ? "the file is empty" : "line 1 is blank",
                                    expected_header));
     }
     Split(line);
@@ -97,9 +98,8 @@ class CsvFile {
 
   const std::string& name() const { return name_; }
   const std::vector<std::string>& keys() const { return keys_; }
-  size_t RowsUpperBound() const {
-    return static_cast<size_t>(std::count(text_.begin(), text_.end(), '\n')) + 1;
-  }
+  /// The rows left (a scan of the rest of the file): what to reserve.
+  size_t RowsUpperBound() { return reader_.CountRemainingLines() + 1; }
 
   /// Index of the column `key`, or -1.
   int Find(std::string_view key) const {
@@ -188,12 +188,11 @@ class CsvFile {
     int column = 0;  // 1-based character column in the line
   };
 
-  bool NextLine(std::string_view& line) {
-    if (pos_ >= text_.size()) return false;
-    const size_t end = std::min(text_.find('\n', pos_), text_.size());
-    line = std::string_view(text_).substr(pos_, end - pos_);
+  // The next line into line_text_ (fields_ view it until the next call).
+  bool NextLine(std::string_view& line, bool* had_newline = nullptr) {
+    if (!reader_.Next(line_text_, had_newline)) return false;
+    line = line_text_;
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-    pos_ = end + 1;
     ++line_;
     return true;
   }
@@ -212,11 +211,11 @@ class CsvFile {
 
   fs::path path_;
   std::string name_;
-  std::string text_;
+  core::LineReader reader_;
+  std::string line_text_;
   std::vector<std::string> raw_names_;
   std::vector<std::string> keys_;
   std::vector<Field> fields_;
-  size_t pos_ = 0;
   int line_ = 0;
 };
 
@@ -321,7 +320,7 @@ SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
   const int t_col = csv.Require("timestamp", "time of validity in ns");
   const int arrival_col = csv.Find("arrival");
   size_t rows = 0;
-  const size_t reserve = csv.RowsUpperBound();
+  const size_t reserve = options.read_measurements ? csv.RowsUpperBound() : 0;
   sink.measurements->reserve(sink.measurements->size() + reserve);
   sink.arrival_ns->reserve(sink.arrival_ns->size() + reserve);
   const auto push = [&](Time t, core::Measurement&& value) {

@@ -62,8 +62,13 @@ void WriteEstimateCsv(const std::filesystem::path& file, const ReplayResult& res
 
 // Per-sample errors with both trajectories in W (the estimate through the alignment), for
 // plots: scripts/plot_estimate.py draws this file.
+const Eigen::Vector3d& PositionOf(const PoseSample& s) { return s.p; }
+const Eigen::Vector3d& PositionOf(const GroundTruthPose& g) { return g.p_WI; }
+
+// `truth`: PoseSample or GroundTruthPose (a recorded log's, read without a copy).
+template <typename Truth>
 void WriteErrorsCsv(const std::filesystem::path& file, const TrajectoryErrors& errors,
-                    const std::vector<PoseSample>& estimate, const std::vector<PoseSample>& truth) {
+                    const std::vector<PoseSample>& estimate, const std::vector<Truth>& truth) {
   AtomicFileWriter csv(file);
   csv.Append(
       "#timestamp [ns],position_error [m],rotation_error [deg],p_W_est_x [m],p_W_est_y [m],"
@@ -75,11 +80,11 @@ void WriteErrorsCsv(const std::filesystem::path& file, const TrajectoryErrors& e
     while (e + 1 < estimate.size() && estimate[e].t_ns < t) ++e;
     while (g + 1 < truth.size() && truth[g + 1].t_ns <= t) ++g;
     const Eigen::Vector3d p_est = errors.T_W_L * estimate[e].p;
-    Eigen::Vector3d p_true = truth[g].p;
+    Eigen::Vector3d p_true = PositionOf(truth[g]);
     if (g + 1 < truth.size() && truth[g + 1].t_ns > truth[g].t_ns) {
       const double u = static_cast<double>(t - truth[g].t_ns) /
                        static_cast<double>(truth[g + 1].t_ns - truth[g].t_ns);
-      p_true = (1 - u) * truth[g].p + u * truth[g + 1].p;
+      p_true = (1 - u) * PositionOf(truth[g]) + u * PositionOf(truth[g + 1]);
     }
     csv.Format("{},{:.6f},{:.4f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f}\n", t,
                errors.position_error_m[k], errors.rotation_error_deg[k], p_est.x(), p_est.y(),
@@ -470,6 +475,7 @@ ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
 
 std::vector<PoseSample> OutputTrajectory(const ReplayResult& result) {
   std::vector<PoseSample> trajectory;
+  trajectory.reserve(result.outputs.size());  // not grown by doubling: an hour is 46 MB
   for (const estimator::EstimatorOutput& o : result.outputs) {
     if (!o.valid) continue;
     trajectory.push_back(PoseSample{o.t_ns, o.state.p_LI, o.state.q_LI.normalized()});
@@ -710,12 +716,25 @@ std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const Repla
   return best;
 }
 
-MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
-                              const std::filesystem::path& out_dir) {
+namespace {
+
+// WriteMethodResult; with `release` (result.outputs itself), the outputs are released
+// once everything that reads them is written, before the trajectory is scored.
+MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResult& result,
+                                       const std::filesystem::path& out_dir,
+                                       std::vector<estimator::EstimatorOutput>* release) {
   const std::string stem = "estimate_" + SafeFileName(result.method.name);
   WriteEstimateCsv(out_dir / (stem + ".csv"), result);
   MethodFiles files;
   files.trajectory = OutputTrajectory(result);
+  std::size_t valid = 0;
+  for (const estimator::EstimatorOutput& o : result.outputs) {
+    if (!o.valid) continue;
+    if (o.position_covariance_m2) {
+      files.position_covariances.emplace_back(valid, *o.position_covariance_m2);
+    }
+    ++valid;
+  }
   const std::vector<PoseSample>& trajectory = files.trajectory;
   WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
 
@@ -724,12 +743,19 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
   j["fused"] = result.method.fused;
   j["outputs"] = result.outputs.size();
   j["valid_outputs"] = trajectory.size();
+  // What reads the outputs, before they may go.
+  const std::optional<nlohmann::ordered_json> tilt_error = TiltErrorJson(log, result);
+  const std::optional<nlohmann::ordered_json> bias_error = BiasErrorJson(log, result);
+  if (release != nullptr) std::vector<estimator::EstimatorOutput>().swap(*release);
   std::optional<TrajectoryErrors>& errors = files.errors;
   if (!log.ground_truth.empty() && trajectory.size() > 10) {
+    // The ground truth as poses, sorted in place by the scoring; the errors file reads the
+    // log's own (one copy of an hour's ground truth at a time, not three).
     std::vector<PoseSample> truth;
+    truth.reserve(log.ground_truth.size());
     for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
-    errors = EvaluateTrajectory(trajectory, truth);
-    WriteErrorsCsv(out_dir / (stem + "_errors.csv"), *errors, trajectory, truth);
+    errors = EvaluateTrajectory(trajectory, std::move(truth));
+    WriteErrorsCsv(out_dir / (stem + "_errors.csv"), *errors, trajectory, log.ground_truth);
     j["ate"] = {{"alignment", "se3"},
                 {"matched", errors->matched},
                 {"position_rmse_m", errors->ate_position_rmse_m},
@@ -798,8 +824,8 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
   j["imu_gaps"] = {{"count", result.counters.imu_gaps},
                    {"total_s", result.counters.imu_gap_total_s},
                    {"restarts_after_gap", result.counters.restarts_after_gap}};
-  if (std::optional<nlohmann::ordered_json> tilt = TiltErrorJson(log, result)) j["tilt_error"] = *tilt;
-  if (std::optional<nlohmann::ordered_json> bias = BiasErrorJson(log, result)) j["bias_error"] = *bias;
+  if (tilt_error) j["tilt_error"] = *tilt_error;
+  if (bias_error) j["bias_error"] = *bias_error;
   if (errors) {
     files.input_check = CheckAgainstInputs(log, result, trajectory, *errors);
     if (const std::optional<InputCheck>& c = files.input_check) {
@@ -838,6 +864,18 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
   files.update_budget_ms = budget_ms;
   WriteFileAtomically(out_dir / ("timing_" + stem + ".json"), timing.dump(2) + "\n");
   return files;
+}
+
+}  // namespace
+
+MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
+                              const std::filesystem::path& out_dir) {
+  return WriteMethodResultReleasing(log, result, out_dir, nullptr);
+}
+
+MethodFiles WriteMethodResultReleasingOutputs(const RecordedLog& log, ReplayResult& result,
+                                              const std::filesystem::path& out_dir) {
+  return WriteMethodResultReleasing(log, result, out_dir, &result.outputs);
 }
 
 int RunEstimateCommand(const EstimateCommandOptions& options) {

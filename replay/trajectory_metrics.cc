@@ -353,20 +353,46 @@ void WriteTumTrajectory(const fs::path& file, const std::vector<PoseSample>& pos
 TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
                                     const std::vector<PoseSample>& ground_truth,
                                     const TrajectoryErrorOptions& options) {
+  return EvaluateTrajectory(estimate, std::vector<PoseSample>(ground_truth), options);
+}
+
+TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
+                                    std::vector<PoseSample>&& ground_truth,
+                                    const TrajectoryErrorOptions& options) {
   TrajectoryErrors r;
   r.rpe_delta_s = core::TimeToSeconds(options.rpe_delta_ns);
 
-  // Ground truth sorted, finite, one sample per stamp (the first).
-  std::vector<PoseSample> gt = SortedFinite(ground_truth, nullptr);
+  // Ground truth sorted, finite, one sample per stamp (the first): SortedFinite in place.
+  std::vector<PoseSample> gt = std::move(ground_truth);
+  gt.erase(std::remove_if(gt.begin(), gt.end(), [](const PoseSample& s) { return !IsFinite(s); }),
+           gt.end());
+  for (PoseSample& s : gt) s.q.normalize();
+  std::stable_sort(gt.begin(), gt.end(),
+                   [](const PoseSample& a, const PoseSample& b) { return a.t_ns < b.t_ns; });
   gt.erase(std::unique(gt.begin(), gt.end(),
                        [](const PoseSample& a, const PoseSample& b) { return a.t_ns == b.t_ns; }),
            gt.end());
-  const std::vector<PoseSample> est = SortedFinite(estimate, &r.skipped_non_finite);
+  // The estimate finite, normalised and in time order: sorted already (an estimator's
+  // outputs), its samples are taken one by one instead of from a sorted copy (46 MB for an
+  // hour at 200 Hz), with the same result.
+  const auto by_time = [](const PoseSample& a, const PoseSample& b) { return a.t_ns < b.t_ns; };
+  const bool in_order = std::is_sorted(estimate.begin(), estimate.end(), by_time);
+  std::vector<PoseSample> est;
+  if (!in_order) est = SortedFinite(estimate, &r.skipped_non_finite);
+  const std::vector<PoseSample>& est_source = in_order ? estimate : est;
 
   // Match every estimate sample with interpolated ground truth.
   std::vector<Pair> pairs;
-  pairs.reserve(est.size());
-  for (const PoseSample& e : est) {
+  pairs.reserve(est_source.size());
+  for (const PoseSample& sample : est_source) {
+    PoseSample e = sample;
+    if (in_order) {
+      if (!IsFinite(e)) {
+        ++r.skipped_non_finite;
+        continue;
+      }
+      e.q.normalize();
+    }
     const std::optional<PoseSample> truth =
         InterpolateAt(gt, e.t_ns, options.max_interpolation_gap_ns);
     if (!truth) {
@@ -376,6 +402,9 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
     pairs.push_back({e.t_ns, e, *truth});
   }
   r.matched = pairs.size();
+  // The pairs hold both trajectories from here on: an hour at 200 Hz is 46 MB a copy.
+  std::vector<PoseSample>().swap(gt);
+  std::vector<PoseSample>().swap(est);
 
   // Alignment from the pairs inside the alignment range.
   std::vector<const Pair*> in_range;
