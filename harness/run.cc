@@ -16,7 +16,6 @@
 #include "harness/run_directory.h"
 #include "harness/run_recorder.h"
 #include "harness/sample_stream.h"
-#include "replay/file_io.h"
 #include "replay/recorded_log.h"
 #include "sim/allocation.h"
 #include "sim/controller.h"
@@ -281,11 +280,7 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   // record keeps only what the evaluation needs (RunRecord::recorded_to).
   std::optional<RunRecorder> recorder;
   if (options.record_dir) {
-    RecorderLayout layout;
-    for (const SensorStream& s : record.sensors) layout.streams.push_back({s.name, s.type, s.site});
-    layout.robot = record.robot;
-    layout.closed_loop = options.fly_on.has_value();
-    recorder.emplace(*options.record_dir, std::move(layout));
+    recorder.emplace(*options.record_dir, RecorderLayoutOf(record, options.fly_on.has_value()));
     record.recorded_to = *options.record_dir;
   }
   const bool keep_samples = !recorder;

@@ -223,11 +223,7 @@ std::string EventsCsv(const ClosedLoopFlight& flight) {
 // The per-sample files of a run kept in memory, through the recorder that writes them
 // while a recorded run flies (run_recorder.h): the same bytes either way.
 void WriteRecordedFiles(const RunRecord& record, const fs::path& dir) {
-  RecorderLayout layout;
-  for (const SensorStream& s : record.sensors) layout.streams.push_back({s.name, s.type, s.site});
-  layout.robot = record.robot;
-  layout.closed_loop = record.closed_loop.has_value();
-  RunRecorder recorder(dir, std::move(layout));
+  RunRecorder recorder(dir, RecorderLayoutOf(record, record.closed_loop.has_value()));
   const std::size_t outputs = std::min({record.groundtruth.size(), record.references.size(),
                                         record.tracking.size()});
   for (std::size_t k = 0; k < outputs; ++k) {

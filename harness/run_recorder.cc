@@ -176,6 +176,14 @@ Eigen::Matrix<double, N, N> UpperTriangleAsWritten(const Eigen::Matrix<double, N
 
 }  // namespace
 
+RecorderLayout RecorderLayoutOf(const RunRecord& record, bool closed_loop) {
+  RecorderLayout layout;
+  for (const SensorStream& s : record.sensors) layout.streams.push_back({s.name, s.type, s.site});
+  layout.robot = record.robot;
+  layout.closed_loop = closed_loop;
+  return layout;
+}
+
 RunRecorder::RunRecorder(const fs::path& dir, RecorderLayout layout) : layout_(std::move(layout)) {
   groundtruth_csv_ = std::make_unique<replay::AtomicFileWriter>(dir / "groundtruth.csv");
   groundtruth_csv_->Format("#timestamp [ns],p_WB_x [m],p_WB_y [m],p_WB_z [m],"

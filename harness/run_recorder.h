@@ -29,6 +29,7 @@
 namespace tofu::harness {
 
 struct ClosedLoopSample;  // run.h
+struct RunRecord;         // run.h
 struct TrackingSample;    // run.h
 
 /// What the recorder must know of a run before its first sample.
@@ -42,6 +43,10 @@ struct RecorderLayout {
   sim::RobotDescription robot;  ///< mounts (the EuRoC ground truth is of the IMU frame)
   bool closed_loop = false;     ///< a flight on an estimate: control.csv
 };
+
+/// The layout of a run's record: its streams and robot; `closed_loop` for a flight on an
+/// estimate.
+RecorderLayout RecorderLayoutOf(const RunRecord& record, bool closed_loop);
 
 /// The true biases (gyro [rad/s], accel [m/s²]) of an IMU's clean sample.
 using ImuBias = std::pair<Eigen::Vector3d, Eigen::Vector3d>;
