@@ -119,8 +119,8 @@ nlohmann::json ScoreMethods(const harness::RunRecord& record) {
   for (const harness::SensorStream& s : record.sensors) {
     if (s.type != "imu") continue;
     if (const sim::MountSite* site = record.robot.FindSite(s.site)) {
-      T_BI.linear() = site->q_B_s.toRotationMatrix();
-      T_BI.translation() = site->p_B_s;
+      T_BI.linear() = site->q_Bs.toRotationMatrix();
+      T_BI.translation() = site->p_Bs;
     }
     break;
   }

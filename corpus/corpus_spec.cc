@@ -11,6 +11,7 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "core/random.h"
+#include "core/units.h"
 #include "harness/scenario.h"
 #include "harness/yaml_reader.h"
 
@@ -22,7 +23,7 @@ using harness::internal::NumberRule;
 using harness::internal::YamlMap;
 using harness::internal::YamlValue;
 
-constexpr double kPi = 3.14159265358979323846;
+using core::kPi;
 
 // [lo, hi] or a single number (a constant), each in `rule`; lo <= hi.
 Range ReadRange(const YamlValue& value, const NumberRule& rule) {

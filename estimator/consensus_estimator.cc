@@ -209,8 +209,8 @@ struct ConsensusEstimator::Impl {
   // differentiated by a local least-squares fit.
   void AddSensorVelocities(Sensor& s, core::Time t_eval) {
     if (s.raw.empty()) return;
-    const Eigen::Matrix3d R_Is = s.spec.T_I_s.linear();
-    const Eigen::Vector3d p_Is = s.spec.T_I_s.translation();
+    const Eigen::Matrix3d R_Is = s.spec.T_Is.linear();
+    const Eigen::Vector3d p_Is = s.spec.T_Is.translation();
     const auto emit = [&](core::Time tg, const Eigen::Vector3d& v) { matrix.Add(s.stream, tg, v); };
     const core::Time half = HalfWindowOf(s);
     if (s.reports_twist) {

@@ -632,8 +632,9 @@ ConsensusSelector::ConsensusSelector(std::vector<std::string> sensors, Consensus
   clean_since_ns_.assign(n, std::nullopt);
 }
 
-ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
-  const int n = static_cast<int>(sensors_.size());
+namespace {
+
+void CheckDecideInput(const ConsensusInput& input, int n) {
   const auto un = static_cast<std::size_t>(n);
   if (input.available.size() != un || input.vs_local.size() != un ||
       (!input.fusable.empty() && input.fusable.size() != un) ||
@@ -646,21 +647,20 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
                                 std::to_string(input.pair.size()) + " " +
                                 std::to_string(input.vs_local.size()));
   }
-  if (last_t_ns_ && input.t_ns < *last_t_ns_) {
-    throw std::invalid_argument("ConsensusSelector::Decide: t_ns " + std::to_string(input.t_ns) +
-                                " is before the previous decision's " +
-                                std::to_string(*last_t_ns_));
-  }
-  const core::Time t = input.t_ns;
-  const double enter = options_.threshold;
-  const double leave = options_.leave_threshold.value_or(options_.threshold);
-  const bool dwell = options_.min_dwell_ns > 0;
+}
 
-  // ---- judge every value once (hysteresis: leave_threshold around fused sensors) ----
-  auto clean = [this](const std::optional<double>& v) -> std::optional<double> {
+// Every value judged once against the thresholds, with hysteresis: a pair with a fused
+// member, or a fused sensor against the local graph, is judged against `leave` (the
+// paper's single threshold when leave_threshold is unset). A NaN, infinite or negative
+// value counts as unknown (and in `ignored_values`).
+Snapshot Judge(const ConsensusInput& input, const std::vector<bool>& fused_mask, double enter,
+               double leave, int64_t* ignored_values) {
+  const int n = static_cast<int>(input.available.size());
+  const auto un = static_cast<std::size_t>(n);
+  const auto clean = [&](const std::optional<double>& v) -> std::optional<double> {
     if (!v) return std::nullopt;
     if (!std::isfinite(*v) || *v < 0.0) {
-      ++ignored_values_;
+      ++*ignored_values;
       return std::nullopt;
     }
     return v;
@@ -679,7 +679,7 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
       const auto v = clean(input.pair[static_cast<std::size_t>(
           ConsistencyMatrix::PairIndex(i, j, n))]);
       if (!v || !s.available[ui] || !s.available[uj]) continue;
-      const double limit = fused_mask_[ui] || fused_mask_[uj] ? leave : enter;
+      const double limit = fused_mask[ui] || fused_mask[uj] ? leave : enter;
       const Relation r = *v < limit ? Relation::kConsistent : Relation::kInconsistent;
       s.value[ui * un + uj] = s.value[uj * un + ui] = v;
       s.rel[ui * un + uj] = s.rel[uj * un + ui] = r;
@@ -687,9 +687,88 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
     const auto v = clean(input.vs_local[ui]);
     if (!v || !s.available[ui]) continue;
     s.local[ui] = v;
-    s.tier[ui] = *v < (fused_mask_[ui] ? leave : enter) ? LocalTier::kConsistent
-                                                        : LocalTier::kInconsistent;
+    s.tier[ui] = *v < (fused_mask[ui] ? leave : enter) ? LocalTier::kConsistent
+                                                       : LocalTier::kInconsistent;
   }
+  return s;
+}
+
+// "<sensor> inconsistent with k of m (cross pattern)" for each sensor the cross pattern
+// marks (>= 3 available).
+void NoteCrossPattern(const Snapshot& s, const std::vector<bool>& cross,
+                      const std::vector<std::string>& sensors, std::vector<std::string>& notes) {
+  for (int i = 0; i < s.n; ++i) {
+    if (!At(cross, i)) continue;
+    int known = 0;
+    int bad = 0;
+    for (int j = 0; j < s.n; ++j) {
+      if (j == i || !s.Available(j) || s.Rel(i, j) == Relation::kUnknown) continue;
+      ++known;
+      if (s.Rel(i, j) == Relation::kInconsistent) ++bad;
+    }
+    notes.push_back(sensors[static_cast<std::size_t>(i)] + " inconsistent with " +
+                    std::to_string(bad) + " of " + std::to_string(known) + " (cross pattern)");
+  }
+}
+
+// Re-admission dwell: excluded (quarantined) sensors wait for min_dwell of positive
+// evidence: consistent with the local graph, or below the entry threshold with an available
+// sensor outside the cross pattern. Returns the sensors still waiting.
+std::vector<bool> AdvanceReadmission(const Snapshot& s, const std::vector<bool>& cross,
+                                     core::Time t, const ConsensusOptions& options,
+                                     const std::vector<std::string>& sensors,
+                                     std::vector<bool>& quarantined,
+                                     std::vector<std::optional<core::Time>>& clean_since_ns,
+                                     std::vector<std::string>& notes) {
+  const std::size_t un = sensors.size();
+  std::vector<bool> waiting(un, false);
+  for (int i = 0; i < s.n; ++i) {
+    const auto ui = static_cast<std::size_t>(i);
+    if (!quarantined[ui]) continue;
+    bool evidence = false;
+    if (s.Available(i) && !cross[ui]) {
+      evidence = s.Tier(i) == LocalTier::kConsistent;
+      for (int j = 0; j < s.n && !evidence; ++j) {
+        evidence = j != i && s.Available(j) && !At(cross, j) && s.Value(i, j) &&
+                   *s.Value(i, j) < options.threshold;
+      }
+    }
+    if (!evidence) {
+      clean_since_ns[ui].reset();
+    } else if (!clean_since_ns[ui]) {
+      clean_since_ns[ui] = t;
+    }
+    if (evidence && t - *clean_since_ns[ui] >= options.min_dwell_ns) {
+      quarantined[ui] = false;
+      clean_since_ns[ui].reset();
+      notes.push_back(sensors[ui] + " re-admitted");
+    } else if (s.Available(i) && !cross[ui]) {
+      waiting[ui] = true;
+      const std::string progress =
+          evidence ? "consistent " + Seconds(t - *clean_since_ns[ui]) : "not consistent";
+      notes.push_back(sensors[ui] + " awaiting re-admission (" + progress + " of " +
+                      Seconds(options.min_dwell_ns) + " s)");
+    }
+  }
+  return waiting;
+}
+
+}  // namespace
+
+ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
+  const int n = static_cast<int>(sensors_.size());
+  const auto un = static_cast<std::size_t>(n);
+  CheckDecideInput(input, n);
+  if (last_t_ns_ && input.t_ns < *last_t_ns_) {
+    throw std::invalid_argument("ConsensusSelector::Decide: t_ns " + std::to_string(input.t_ns) +
+                                " is before the previous decision's " +
+                                std::to_string(*last_t_ns_));
+  }
+  const core::Time t = input.t_ns;
+  const bool dwell = options_.min_dwell_ns > 0;
+  const Snapshot s = Judge(input, fused_mask_, options_.threshold,
+                           options_.leave_threshold.value_or(options_.threshold),
+                           &ignored_values_);
 
   ConsensusDecision decision;
   decision.t_ns = t;
@@ -699,54 +778,12 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
       notes.push_back(sensors_[static_cast<std::size_t>(i)] + " unavailable");
     }
   }
-
-  // ---- cross pattern (>= 3 available) ----
   const std::vector<bool> cross = CrossPattern(s, rank_);
-  for (int i = 0; i < n; ++i) {
-    if (!At(cross, i)) continue;
-    int known = 0;
-    int bad = 0;
-    for (int j = 0; j < n; ++j) {
-      if (j == i || !s.Available(j) || s.Rel(i, j) == Relation::kUnknown) continue;
-      ++known;
-      if (s.Rel(i, j) == Relation::kInconsistent) ++bad;
-    }
-    notes.push_back(sensors_[static_cast<std::size_t>(i)] + " inconsistent with " +
-                    std::to_string(bad) + " of " + std::to_string(known) + " (cross pattern)");
-  }
-
-  // ---- re-admission dwell: excluded sensors wait for min_dwell of positive evidence ----
-  std::vector<bool> waiting(un, false);
-  if (dwell) {
-    for (int i = 0; i < n; ++i) {
-      const auto ui = static_cast<std::size_t>(i);
-      if (!quarantined_[ui]) continue;
-      bool evidence = false;
-      if (s.Available(i) && !cross[ui]) {
-        evidence = s.Tier(i) == LocalTier::kConsistent;
-        for (int j = 0; j < n && !evidence; ++j) {
-          evidence = j != i && s.Available(j) && !At(cross, j) && s.Value(i, j) &&
-                     *s.Value(i, j) < enter;
-        }
-      }
-      if (!evidence) {
-        clean_since_ns_[ui].reset();
-      } else if (!clean_since_ns_[ui]) {
-        clean_since_ns_[ui] = t;
-      }
-      if (evidence && t - *clean_since_ns_[ui] >= options_.min_dwell_ns) {
-        quarantined_[ui] = false;
-        clean_since_ns_[ui].reset();
-        notes.push_back(sensors_[ui] + " re-admitted");
-      } else if (s.Available(i) && !cross[ui]) {
-        waiting[ui] = true;
-        const std::string progress =
-            evidence ? "consistent " + Seconds(t - *clean_since_ns_[ui]) : "not consistent";
-        notes.push_back(sensors_[ui] + " awaiting re-admission (" + progress + " of " +
-                        Seconds(options_.min_dwell_ns) + " s)");
-      }
-    }
-  }
+  NoteCrossPattern(s, cross, sensors_, notes);
+  const std::vector<bool> waiting =
+      dwell ? AdvanceReadmission(s, cross, t, options_, sensors_, quarantined_, clean_since_ns_,
+                                 notes)
+            : std::vector<bool>(un, false);
 
   // ---- selection among the eligible sensors ----
   std::vector<bool> eligible(un, false);
@@ -774,19 +811,32 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
                                                            : chooser.ConsistentSet();
     for (std::string& note : selection.notes) notes.push_back(std::move(note));
   }
+  Conclude(s.available, cross, waiting, eligible, selection.fused, selection.excluded, decision);
 
-  // ---- the decision and the state it leaves ----
+  std::string reason;
+  for (const std::string& note : notes) reason += (reason.empty() ? "" : "; ") + note;
+  decision.reason = Sanitize(reason.empty() ? "no decision" : reason);
+  return decision;
+}
+
+void ConsensusSelector::Conclude(const std::vector<bool>& available, const std::vector<bool>& cross,
+                                 const std::vector<bool>& waiting,
+                                 const std::vector<bool>& eligible,
+                                 const std::vector<bool>& fused,
+                                 const std::vector<bool>& excluded, ConsensusDecision& decision) {
+  // The decision's lists, and the state it leaves: quarantine, the fused set, switches.
+  const bool dwell = options_.min_dwell_ns > 0;
   std::vector<int> fused_ids;
-  for (int i = 0; i < n; ++i) {
+  for (int i = 0; i < static_cast<int>(sensors_.size()); ++i) {
     const auto ui = static_cast<std::size_t>(i);
-    if (selection.fused[ui]) fused_ids.push_back(i);
-    if (eligible[ui] && !selection.excluded[ui]) decision.eligible.push_back(sensors_[ui]);
-    if (!s.available[ui]) {
+    if (fused[ui]) fused_ids.push_back(i);
+    if (eligible[ui] && !excluded[ui]) decision.eligible.push_back(sensors_[ui]);
+    if (!available[ui]) {
       decision.unavailable.push_back(sensors_[ui]);
-    } else if (cross[ui] || waiting[ui] || selection.excluded[ui]) {
+    } else if (cross[ui] || waiting[ui] || excluded[ui]) {
       decision.excluded.push_back(sensors_[ui]);
-      if (cross[ui] || selection.excluded[ui]) decision.inconsistent.push_back(sensors_[ui]);
-      if (dwell && (cross[ui] || selection.excluded[ui])) {
+      if (cross[ui] || excluded[ui]) decision.inconsistent.push_back(sensors_[ui]);
+      if (dwell && (cross[ui] || excluded[ui])) {
         quarantined_[ui] = true;
         clean_since_ns_[ui].reset();
       }
@@ -797,20 +847,15 @@ ConsensusDecision ConsensusSelector::Decide(const ConsensusInput& input) {
   });
   for (const int i : fused_ids) decision.fused.push_back(sensors_[static_cast<std::size_t>(i)]);
 
-  decision.changed = selection.fused != fused_mask_;
+  decision.changed = fused != fused_mask_;
   if (decision.changed) {
     if (had_fused_) ++switches_;
-    last_change_ns_ = t;
+    last_change_ns_ = decision.t_ns;
   }
   if (!fused_ids.empty()) had_fused_ = true;
-  fused_mask_ = selection.fused;
+  fused_mask_ = fused;
   fused_ = decision.fused;
-  last_t_ns_ = t;
-
-  std::string reason;
-  for (const std::string& note : notes) reason += (reason.empty() ? "" : "; ") + note;
-  decision.reason = Sanitize(reason.empty() ? "no decision" : reason);
-  return decision;
+  last_t_ns_ = decision.t_ns;
 }
 
 }  // namespace tofu::estimator

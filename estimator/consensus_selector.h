@@ -155,6 +155,14 @@ class ConsensusSelector final {
   int64_t ignored_values() const { return ignored_values_; }
 
  private:
+  // The decision's lists from the selection (per sensor: available, in the cross pattern,
+  // waiting for re-admission, eligible, fused, excluded), and the state it leaves:
+  // quarantine, the fused set, the switch count.
+  void Conclude(const std::vector<bool>& available, const std::vector<bool>& cross,
+                const std::vector<bool>& waiting, const std::vector<bool>& eligible,
+                const std::vector<bool>& fused, const std::vector<bool>& excluded,
+                ConsensusDecision& decision);
+
   std::vector<std::string> sensors_;
   ConsensusOptions options_;
   std::vector<int> rank_;  // priority rank per sensor, 0 = most preferred

@@ -6,8 +6,8 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
-#include <numbers>
 
+#include "core/units.h"
 #include "estimator/consistency_matrix.h"
 
 namespace tofu::estimator {
@@ -109,7 +109,7 @@ void EvaluateKde(std::span<const double> sorted, double h, double lo, double ste
                  int intervals, std::vector<double>& density) {
   density.assign(static_cast<std::size_t>(intervals) + 1, 0.0);
   const double norm = 1.0 / (static_cast<double>(sorted.size()) * h *
-                             std::sqrt(2.0 * std::numbers::pi));
+                             std::sqrt(core::kTwoPi));
   std::size_t first = 0;
   std::size_t last = 0;
   for (int k = 0; k <= intervals; ++k) {

@@ -23,6 +23,7 @@
 #include <Eigen/Geometry>
 
 #include "core/time.h"
+#include "core/units.h"
 #include "estimator/imu_preintegration.h"
 
 namespace tofu::estimator {
@@ -35,7 +36,7 @@ struct LocalSmootherOptions {
   /// false: states leaving the window are dropped and the oldest kept pose is held fixed
   /// instead (only to show what marginalisation is worth).
   bool marginalize = true;
-  double gravity_mps2 = 9.81;
+  double gravity_mps2 = core::kWorldGravity_mps2;
   ImuNoiseParams imu_noise;
   /// true: an IMU sample stamped t_k is the average over (t_{k−1}, t_k] (tofu's simulated
   /// IMU, most MEMS IMUs with a decimation filter); false: an instantaneous sample, and

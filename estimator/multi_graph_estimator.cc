@@ -7,6 +7,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "core/lie.h"
+#include "core/units.h"
 
 namespace tofu::estimator {
 namespace {
@@ -246,7 +247,7 @@ struct MultiGraphEstimator::Impl {
       prior = options.prior_in_motion;
     }
     // Gauge: yaw and origin of L from the first fused sensor.
-    const Eigen::Isometry3d& T_Is = sensor.spec.T_I_s;
+    const Eigen::Isometry3d& T_Is = sensor.spec.T_Is;
     Eigen::Matrix3d R_LI = state.q_LI.toRotationMatrix();
     if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
       const Eigen::Matrix3d R_AI = pose->q_Ss.normalized().toRotationMatrix() *
@@ -332,7 +333,7 @@ struct MultiGraphEstimator::Impl {
   void MeasureStreamNoise(SensorState& sensor, const core::StampedMeasurement& m) {
     const auto* pose = std::get_if<core::PoseMeasurement>(&m.value);
     if (pose == nullptr || !sensor.spec.between_noise_from_data) return;
-    if (!AppendSpaced(sensor.spec.T_I_s, *pose, m.t_ns, &sensor.noise_window)) return;
+    if (!AppendSpaced(sensor.spec.T_Is, *pose, m.t_ns, &sensor.noise_window)) return;
     std::optional<Eigen::Vector3d> b_g;
     if (const std::optional<KeyframeState> newest = smoother.NewestKeyframe()) {
       b_g = newest->bias.gyro_radps;
@@ -423,7 +424,7 @@ struct MultiGraphEstimator::Impl {
       init_wait_start_ns = m.t_ns;
     }
     if (&sensor != init_sensor) return false;
-    if (!AppendSpaced(sensor.spec.T_I_s, *pose, m.t_ns, &init_poses)) return false;
+    if (!AppendSpaced(sensor.spec.T_Is, *pose, m.t_ns, &init_poses)) return false;
     const std::optional<VisualInertialAlignment> alignment = Align(init_poses);
     if (alignment && alignment->observable) {
       InitializeAligned(sensor, *alignment);
@@ -461,7 +462,7 @@ struct MultiGraphEstimator::Impl {
     InitialStatePrior prior;
     // Tilt as well known as the window made gravity (never tighter than 0.2°); yaw and
     // origin are the gauge of L.
-    const double tilt_std_rad = std::max(a.gravity_direction_std_rad, 0.2 * M_PI / 180.0);
+    const double tilt_std_rad = std::max(a.gravity_direction_std_rad, core::RadFromDeg(0.2));
     prior.rotation_std_rad = Eigen::Vector3d(tilt_std_rad, tilt_std_rad, 1e-3);
     prior.rotation_std_in_L = true;
     prior.position_std_m = Eigen::Vector3d::Constant(1e-3);
@@ -529,7 +530,7 @@ struct MultiGraphEstimator::Impl {
         const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
         if (T_AL) R_LA = T_AL->linear().transpose();
       }
-      use = smoother.AddPose(sensor.id, m.t_ns, T_As, sensor.spec.T_I_s, sqrt_information, R_LA);
+      use = smoother.AddPose(sensor.id, m.t_ns, T_As, sensor.spec.T_Is, sqrt_information, R_LA);
     } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
       const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
       // A position sensor fused before its T_AL was known: its graph kept collecting pairs
@@ -545,7 +546,7 @@ struct MultiGraphEstimator::Impl {
       std::optional<Eigen::Vector3d> p_LA;
       if (sensor.spec.absolute_position) p_LA = T_AL->inverse().translation();
       use = smoother.AddPosition(sensor.id, m.t_ns, position->p_Ss, position->covariance,
-                                 sensor.spec.T_I_s.translation(), T_AL->linear().transpose(),
+                                 sensor.spec.T_Is.translation(), T_AL->linear().transpose(),
                                  sensor.spec.min_position_std_m, p_LA);
     }
     if (use == MeasurementUse::kFactor || use == MeasurementUse::kAnchor ||
@@ -619,7 +620,7 @@ struct MultiGraphEstimator::Impl {
       pair.covariance_A = p.covariance_A + Eigen::Matrix3d::Identity() *
                                                (options.alignment_local_position_std_m *
                                                 options.alignment_local_position_std_m);
-      pair.p_Ls_estimated = local->p_LI + local->q_LI * p.sensor->spec.T_I_s.translation();
+      pair.p_Ls_estimated = local->p_LI + local->q_LI * p.sensor->spec.T_Is.translation();
       p.sensor->graph->AddPair(pair);
       p.sensor->graph->Update(p.t_ns);
     }

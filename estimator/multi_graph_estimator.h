@@ -24,6 +24,7 @@
 
 #include "core/measurement.h"
 #include "core/time.h"
+#include "core/units.h"
 #include "estimator/alignment_graph.h"
 #include "estimator/imu_preintegration.h"
 #include "estimator/local_smoother.h"
@@ -38,7 +39,7 @@ struct SensorSpec {
   std::string name;
   SensorKind kind = SensorKind::kPose;
   /// Mount frame s in the IMU frame I (extrinsic calibration).
-  Eigen::Isometry3d T_I_s = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_Is = Eigen::Isometry3d::Identity();
   /// Pose sensors: weights of the pose between factor, the paper's concentration
   /// parameters ω_o, ω_q (eq. 2) as the standard deviation of one relative measurement
   /// between keyframes. Odometry's reported absolute covariance grows with its drift and
@@ -112,7 +113,7 @@ struct MultiGraphEstimatorOptions {
                                        Eigen::Vector3d(0.1, 0.1, 1e-3), 2.0, 0.2, 0.01};
   /// A position sensor is fused only with a T_AL whose rotation std is below this and
   /// whose window rms residual is below max_alignment_rms_m (then frozen, paper Sec. 2.2).
-  double max_alignment_rotation_std_rad = 0.5 * 3.14159265358979 / 180.0;
+  double max_alignment_rotation_std_rad = core::RadFromDeg(0.5);
   double max_alignment_rms_m = 0.05;
   /// Uncertainty of the local estimate's positions over an alignment window, added to each
   /// pair's sensor covariance.

@@ -26,6 +26,7 @@
 #include <Eigen/Geometry>
 
 #include "core/time.h"
+#include "core/units.h"
 #include "estimator/imu_preintegration.h"
 
 namespace tofu::estimator {
@@ -38,14 +39,14 @@ struct ImuPoseInA {
 };
 
 struct VisualInertialAlignmentOptions {
-  double gravity_mps2 = 9.81;
+  double gravity_mps2 = core::kWorldGravity_mps2;
   /// The window must span this long and hold this many samples before it is solved.
   double min_window_s = 1.0;
   int min_samples = 6;
   /// Observable: the gravity direction known to this (1σ) from the window. Without
   /// rotation in the window, tilt and accelerometer bias are one unknown: the bound then
   /// rests on the bias prior (0.1 m/s² ~ 0.6°); rotation separates them.
-  double max_gravity_direction_std_rad = 1.0 * 3.14159265358979 / 180.0;
+  double max_gravity_direction_std_rad = core::RadFromDeg(1.0);
   /// The unconstrained |g_A| within this fraction of gravity_mps2 (a stream whose time
   /// stamps or scale are grossly off fails here instead of initialising wrongly; a
   /// moderate scale error, 1.5x, may pass and shows in relative_position_std_m instead).
@@ -67,7 +68,7 @@ struct VisualInertialAlignmentOptions {
 
 struct VisualInertialAlignment {
   bool observable = false;
-  Eigen::Vector3d g_A = Eigen::Vector3d(0, 0, -9.81);  ///< gravity in A, |g_A| = g
+  Eigen::Vector3d g_A = Eigen::Vector3d(0, 0, -core::kWorldGravity_mps2);  ///< gravity in A, |g_A| = g
   double unconstrained_gravity_norm_mps2 = 0.0;
   double gravity_direction_std_rad = 0.0;
   std::vector<Eigen::Vector3d> v_A_mps;  ///< velocity of I in A at each sample

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include "core/lie.h"
+#include "core/units.h"
 
 namespace tofu::harness {
 
@@ -24,8 +25,8 @@ const char* FlightModeName(FlightMode mode) {
   return "?";
 }
 
-ClosedLoopPilot::ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_B_I)
-    : failsafe_(failsafe), T_B_I_(T_B_I) {}
+ClosedLoopPilot::ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_BI)
+    : failsafe_(failsafe), T_B_I_(T_BI) {}
 
 bool ClosedLoopPilot::TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest,
                                   const Eigen::Isometry3d& T_WB_true) {
@@ -44,7 +45,7 @@ bool ClosedLoopPilot::TryHandover(core::Time t_ns, const estimator::EstimatorOut
   mode_ = FlightMode::kEstimate;
   events_.push_back({t_ns, "handover",
                      fmt::format("estimate valid; W registered to L (yaw {:.3f} deg)",
-                                 yaw * 180.0 / M_PI)});
+                                 core::DegFromRad(yaw))});
   return true;
 }
 

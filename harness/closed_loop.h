@@ -73,8 +73,8 @@ struct FlightEvent {
 
 class ClosedLoopPilot {
  public:
-  /// `T_B_I`: the IMU's nominal mount (what the estimator is given).
-  ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_B_I);
+  /// `T_BI`: the IMU's nominal mount (what the estimator is given).
+  ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_BI);
 
   bool handed_over() const { return handed_over_; }
   /// Before the handover: hands over when `newest` is valid, registering W to L with

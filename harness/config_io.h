@@ -11,12 +11,14 @@
 #include <Eigen/Geometry>
 #include <yaml-cpp/yaml.h>
 
+#include "core/units.h"
+
 #include "harness/yaml_reader.h"
 
 namespace tofu::harness::internal::config {
 
-inline constexpr double kRadPerDeg = 3.14159265358979323846 / 180.0;
-inline constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
+using core::kDegPerRad;
+using core::kRadPerDeg;
 
 /// Attitude in YAML: roll, pitch, yaw in degrees, R = Rz(yaw) Ry(pitch) Rx(roll).
 Eigen::Quaterniond QuatFromRpyDeg(const Eigen::Vector3d& rpy_deg);

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "core/lie.h"
+#include "core/units.h"
 #include "estimator/frame_alignment.h"
 #include "estimator/velocity.h"
 #include "harness/run.h"
@@ -54,8 +55,8 @@ ConsistencyEvaluation EvaluateConsistency(const RunRecord& record,
     if (stream.type == "imu" || stream.delivered.empty()) continue;
     const sim::MountSite* site = record.robot.FindSite(stream.site);
     if (site == nullptr) continue;
-    const Eigen::Matrix3d R_Bs = site->q_B_s.toRotationMatrix();
-    const Eigen::Vector3d p_sB = -(R_Bs.transpose() * site->p_B_s);  // lever arm s -> B, in s
+    const Eigen::Matrix3d R_Bs = site->q_Bs.toRotationMatrix();
+    const Eigen::Vector3d p_sB = -(R_Bs.transpose() * site->p_Bs);  // lever arm s -> B, in s
     estimator::VelocitySeries v_B;
 
     const auto* first_pose = std::get_if<core::PoseMeasurement>(&stream.delivered.front().measured);
@@ -115,15 +116,15 @@ ConsistencyEvaluation EvaluateConsistency(const RunRecord& record,
         for (size_t i = window_begin; i < window_end; ++i) {
           const sim::TruthState* x = TruthAt(truth, t_ns[i]);
           if (x == nullptr) continue;
-          p_W.push_back(x->p_WB + x->q_WB.toRotationMatrix() * site->p_B_s);
+          p_W.push_back(x->p_WB + x->q_WB.toRotationMatrix() * site->p_Bs);
           p_A.push_back(p_S[i]);
         }
         if (const auto aligned = estimator::AlignPositions(p_W, p_A)) {
           R_WS_est = aligned->T_AL.linear().transpose();
           eval.alignment.push_back(
               {t, stream.name,
-               core::RotationAngleBetween(*R_WS_est, DeliveredFrameRotation(record, stream, t)) *
-                   180.0 / 3.14159265358979323846,
+               core::DegFromRad(core::RotationAngleBetween(
+                   *R_WS_est, DeliveredFrameRotation(record, stream, t))),
                aligned->observable_rotation_dofs, aligned->rms_residual_m});
         }
       }

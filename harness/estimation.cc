@@ -146,7 +146,7 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
         e.rpe_deg = t.rpe_rotation_rmse_deg;
       }
       // errors.csv rows and the NEES of the reported position covariance, in L.
-      const Eigen::Matrix3d R_LW = t.T_W_L.linear().transpose();
+      const Eigen::Matrix3d R_LW = t.T_WL.linear().transpose();
       double nees_sum = 0.0;
       std::size_t k = 0;
       std::optional<core::Time> last_row;
@@ -166,7 +166,7 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
         std::optional<double> nees;
         if (covariance != nullptr) {
           if (const auto p_WI = TruthPositionAt(log.ground_truth, o.t_ns)) {
-            const Eigen::Vector3d e_L = R_LW * (t.T_W_L * o.p - *p_WI);
+            const Eigen::Vector3d e_L = R_LW * (t.T_WL * o.p - *p_WI);
             const Eigen::Matrix3d& P = *covariance;
             const Eigen::LDLT<Eigen::Matrix3d> ldlt(P);
             if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {

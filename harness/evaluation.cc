@@ -4,11 +4,11 @@
 #include <cmath>
 #include <deque>
 #include <map>
-#include <numbers>
 #include <set>
 #include <stdexcept>
 #include <tuple>
 
+#include "core/units.h"
 #include "harness/metrics.h"
 
 namespace tofu::harness {
@@ -17,7 +17,7 @@ using replay::LabelEvent;
 
 namespace {
 
-constexpr double kRadToDeg = 180.0 / std::numbers::pi;
+using core::kDegPerRad;
 
 bool InWindow(core::Time t_ns, const std::optional<std::pair<double, double>>& window_s) {
   if (!window_s) return true;
@@ -292,7 +292,7 @@ nlohmann::json ClosedLoopJson(const RunRecord& flight) {
 std::optional<double> MetricValue(const RunRecord& record, const std::string& metric,
                                   const std::optional<std::pair<double, double>>& window_s) {
   const auto position = [](const TrackingSample& s) { return s.position_error_m; };
-  const auto attitude = [](const TrackingSample& s) { return s.attitude_error_rad * kRadToDeg; };
+  const auto attitude = [](const TrackingSample& s) { return s.attitude_error_rad * kDegPerRad; };
   if (metric == "tracking.position_rmse_m") return TrackingStats(record, window_s, position).rmse();
   if (metric == "tracking.position_max_m") {
     return TrackingStats(record, window_s, position).maximum();

@@ -7,6 +7,8 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <memory>
+#include <optional>
 #include <stdexcept>
 #include <variant>
 
@@ -166,13 +168,13 @@ Eigen::Isometry3d PoseOf(const Eigen::Vector3d& p, const Eigen::Quaterniond& q) 
   return T;
 }
 
-// The IMU's nominal mount T_B_I (what the flight stack is told), identity without one.
+// The IMU's nominal mount T_BI (what the flight stack is told), identity without one.
 Eigen::Isometry3d NominalImuMount(const Scenario& scenario, const sim::RobotDescription& robot) {
   for (const SensorConfig& config : scenario.sensors) {
     if (!std::holds_alternative<sim::ImuOptions>(config.options)) continue;
     const sim::MountSite* site = robot.FindSite(SensorSite(config.options));
     if (site == nullptr) break;
-    return PoseOf(site->p_B_s, site->q_B_s) * config.calibration_error;
+    return PoseOf(site->p_Bs, site->q_Bs) * config.calibration_error;
   }
   return Eigen::Isometry3d::Identity();
 }
@@ -209,351 +211,432 @@ std::vector<uint32_t> RanksByName(const std::vector<SensorStream>& streams) {
 
 }  // namespace
 
-RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
-  RunRecord record;
-  record.scenario = scenario;
+namespace {
 
-  sim::WorldOptions world_options;
-  world_options.models_dir = options.models_dir;
-  world_options.world = scenario.world;
-  world_options.robot = scenario.robot;
-  world_options.physics_rate_hz = scenario.physics.rate_hz;
-  record.distance_horizon_m = world_options.distance_horizon_m;
-  std::unique_ptr<sim::World> world_ptr;
-  try {
-    world_ptr = std::make_unique<sim::World>(world_options);
-  } catch (const core::InputError& e) {
-    // Name the scenario that asked for the model, and the model's own problem.
-    throw core::InputError({scenario.source_file, 0, 0}, e.key_path(), e.what());
+// One flight of a scenario: the world, the controller and its pilot, the sensor models
+// with their fault injectors, and the consumers of the arrival-ordered sample stream (the
+// recorder and the in-loop methods). Simulate builds it, steps it and finishes it; each
+// method is one part of a physics step (DESIGN.md "The run loop").
+class Flight {
+ public:
+  Flight(const Scenario& scenario, const SimulateOptions& options, RunRecord& record)
+      : scenario_(scenario), options_(options), record_(record) {
+    BuildWorld();
+    BuildSensors();
+    BuildConsumers();
+    wall_start_ = std::chrono::steady_clock::now();  // the flight's wall time, not the set-up's
   }
-  sim::World& world = *world_ptr;
-  record.robot = world.robot();
 
-  sim::TrajectoryContext context;
-  context.p_B_tool = record.robot.FindSite("tool_tip")->p_B_s;
-  context.surface_distance = [&world](const Eigen::Vector3d& origin_W,
-                                      const Eigen::Vector3d& direction_W) {
-    return world.RayDistance(origin_W, direction_W);
-  };
-  std::unique_ptr<sim::Trajectory> trajectory;
-  try {
-    trajectory = sim::BuildTrajectory(scenario.trajectory, context);
-  } catch (const std::invalid_argument& e) {
-    throw core::InputError({scenario.source_file, 0, 0}, "trajectory.segments", e.what());
+  int64_t total_steps() const { return total_steps_; }
+
+  // One physics step: control (when due), physics, ground truth (when due), sensors, the
+  // release of what has arrived, contacts and structure distance.
+  void Step(int64_t step) {
+    const core::Time t_ns = world_->time_ns();
+    const sim::TruthState now = world_->Truth();
+    if (t_ns >= next_controller_ns_) Control(t_ns, now);
+    wind_->Advance(dt_s_);
+    world_->SetExternalForce_W(wind_->DragForce_W(now.v_WB_W));
+
+    const sim::TruthState& truth = world_->Step();
+    ++record_.physics_steps;
+    if (record_.physics_steps % steps_per_minute_ == 0) {
+      record_.minutes.push_back({WallSeconds(), ResidentMegabytes()});
+    }
+    if (truth.t_ns >= next_output_ns_) RecordGroundTruth(truth);
+    if (!models_.empty()) StepSensors(truth);
+    // Every sample that has arrived by the end of this step reaches its consumers before
+    // the controller's next update.
+    Release(truth.t_ns, false);
+    WatchStructure();
+    if (options_.progress && step % progress_every_ == 0) {
+      options_.progress(static_cast<double>(step) / static_cast<double>(total_steps_));
+    }
   }
-  record.segments = trajectory->segments();
 
-  const sim::Waypoint& start = scenario.trajectory.start;
-  world.Reset(sim::Waypoint{start.p_WB + scenario.initial_offset.position_W_m,
-                            start.q_WB * scenario.initial_offset.q_offset});
-  sim::GeometricController controller(scenario.controller, record.robot.rigid_body);
-  const sim::Allocator allocator(record.robot.allocation);
-  sim::Wind wind(scenario.wind, core::RandomStream(scenario.seed, "wind"));
+  // After the last step (or a SimulationError): close the recording, hand the samples
+  // still in flight to the methods, merge the labels, evaluate consistency.
+  void Finish() {
+    if (recorder_) recorder_->Close();
+    record_.wall_time_s = WallSeconds();
+    // The true reference frames are known once the models have started (e.g. VIO's
+    // odometry frame is where the camera booted).
+    for (size_t i = 0; i < models_.size(); ++i) record_.sensors[i].T_WS = models_[i]->T_WS();
+    // What was recorded but had not arrived when the flight ended still reaches the
+    // methods: the recorded run's replay sees it too.
+    if (!record_.failure) {
+      Release(0, true);
+      record_.in_loop = in_loop_->Finish();
+    }
+    if (pilot_) record_.closed_loop->events = pilot_->events();
+    // Scheduled faults as labels, merged with the condition transitions by time.
+    const core::Time run_end_ns = record_.physics_steps * dt_ns_;
+    for (const sim::FaultLabel& label : sim::FaultLabels(scenario_.faults, run_end_ns)) {
+      record_.labels.push_back({label.t_ns, label.sensor, label.fault, "fault", label.active});
+    }
+    std::stable_sort(record_.labels.begin(), record_.labels.end(),
+                     [](const LabelEvent& a, const LabelEvent& b) { return a.t_ns < b.t_ns; });
+    if (scenario_.consistency && !record_.failure) {
+      record_.consistency = EvaluateConsistency(record_, *scenario_.consistency);
+    }
+  }
 
-  // Sensors: one model per configured stream, its scheduled faults in an injector. Each
-  // draws only from streams seeded by (seed, its own name).
-  std::vector<std::unique_ptr<sim::SensorModel>> models;
-  std::vector<sim::FaultInjector> injectors;
-  std::vector<uint32_t> conditions;
-  for (const SensorConfig& config : scenario.sensors) {
+ private:
+  double WallSeconds() const {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start_).count();
+  }
+
+  // The MuJoCo world, the reference trajectory, the controller, allocation and wind.
+  void BuildWorld() {
+    sim::WorldOptions world_options;
+    world_options.models_dir = options_.models_dir;
+    world_options.world = scenario_.world;
+    world_options.robot = scenario_.robot;
+    world_options.physics_rate_hz = scenario_.physics.rate_hz;
+    record_.distance_horizon_m = world_options.distance_horizon_m;
     try {
-      models.push_back(MakeSensorModel(config, world, scenario.seed));
+      world_ = std::make_unique<sim::World>(world_options);
+    } catch (const core::InputError& e) {
+      // Name the scenario that asked for the model, and the model's own problem.
+      throw core::InputError({scenario_.source_file, 0, 0}, e.key_path(), e.what());
+    }
+    record_.robot = world_->robot();
+
+    sim::TrajectoryContext context;
+    context.p_B_tool = record_.robot.FindSite("tool_tip")->p_Bs;
+    context.surface_distance = [world = world_.get()](const Eigen::Vector3d& origin_W,
+                                                      const Eigen::Vector3d& direction_W) {
+      return world->RayDistance(origin_W, direction_W);
+    };
+    try {
+      trajectory_ = sim::BuildTrajectory(scenario_.trajectory, context);
     } catch (const std::invalid_argument& e) {
-      throw core::InputError({scenario.source_file, 0, 0}, "sensors." + config.name, e.what());
+      throw core::InputError({scenario_.source_file, 0, 0}, "trajectory.segments", e.what());
     }
-    std::vector<sim::FaultSpec> specs;
-    for (const sim::FaultSpec& fault : scenario.faults) {
-      if (fault.sensor == config.name) specs.push_back(fault);
+    record_.segments = trajectory_->segments();
+    for (size_t i = 0; i < record_.segments.size(); ++i) {
+      if (record_.segments[i].kind == "approach") approach_segments_.push_back(i);
     }
-    injectors.emplace_back(std::move(specs), scenario.seed);
-    SensorStream stream;
-    stream.name = config.name;
-    stream.type = std::string(SensorTypeName(config.options));
-    stream.site = SensorSite(config.options);
-    record.sensors.push_back(std::move(stream));
-    conditions.push_back(sim::kConditionNone);
-  }
-  std::vector<sim::SensorSample> sensor_scratch;
-  std::vector<sim::SensorSample> delivered_scratch;
 
-  // The recorder: with a record_dir every per-sample file is written as produced and the
-  // record keeps only what the evaluation needs (RunRecord::recorded_to).
-  std::optional<RunRecorder> recorder;
-  if (options.record_dir) {
-    recorder.emplace(*options.record_dir, RecorderLayoutOf(record, options.fly_on.has_value()));
-    record.recorded_to = *options.record_dir;
-  }
-  const bool keep_samples = !recorder;
-  // The consistency evaluation (consistency_eval.h) reads the non-IMU streams and the
-  // ground truth of the whole run after it.
-  const bool keep_for_consistency = scenario.consistency.has_value();
-  if (keep_samples) {
-    // A sample is ~1.5 kB (core::Measurement holds a pose's two 6x6 covariances): growing
-    // the streams by doubling copied them and touched twice their final memory.
-    for (size_t i = 0; i < record.sensors.size(); ++i) {
-      SensorStream& stream = record.sensors[i];
-      const auto expected_samples = static_cast<size_t>(std::ceil(
-                                        scenario.duration_s *
-                                        SensorRate_hz(scenario.sensors[i].options))) + 2;
-      stream.clean.reserve(expected_samples);
-      stream.delivered.reserve(expected_samples);
-      stream.delivered_faults.reserve(expected_samples);
-      if (stream.type == "imu") stream.imu_biases.reserve(expected_samples);
-    }
+    const sim::Waypoint& start = scenario_.trajectory.start;
+    world_->Reset(sim::Waypoint{start.p_WB + scenario_.initial_offset.position_W_m,
+                                start.q_WB * scenario_.initial_offset.q_offset});
+    controller_.emplace(scenario_.controller, record_.robot.rigid_body);
+    allocator_.emplace(record_.robot.allocation);
+    wind_.emplace(scenario_.wind, core::RandomStream(scenario_.seed, "wind"));
+
+    dt_ns_ = world_->timestep_ns();
+    dt_s_ = core::TimeToSeconds(dt_ns_);
+    controller_period_ns_ = core::PeriodFromRate(scenario_.controller.rate_hz);
+    output_period_ns_ = core::PeriodFromRate(scenario_.output.groundtruth_rate_hz);
+    total_steps_ = std::llround(scenario_.duration_s * scenario_.physics.rate_hz);
+    progress_every_ = std::max<int64_t>(1, total_steps_ / 200);
+    steps_per_minute_ = std::max<int64_t>(1, std::llround(60.0 * scenario_.physics.rate_hz));
   }
 
-  // The run's consumers of the arrival-ordered sample stream besides the recorder: the
-  // estimation methods in the loop, and through the flying one, the controller.
-  std::vector<std::string> in_loop_names;
-  if (options.fly_on) {
-    in_loop_names.push_back(*options.fly_on);
-  } else if (scenario.estimation) {
-    in_loop_names = scenario.estimation->methods;
+  // One model per configured stream, its scheduled faults in an injector. Each draws only
+  // from streams seeded by (seed, its own name).
+  void BuildSensors() {
+    for (const SensorConfig& config : scenario_.sensors) {
+      try {
+        models_.push_back(MakeSensorModel(config, *world_, scenario_.seed));
+      } catch (const std::invalid_argument& e) {
+        throw core::InputError({scenario_.source_file, 0, 0}, "sensors." + config.name, e.what());
+      }
+      std::vector<sim::FaultSpec> specs;
+      for (const sim::FaultSpec& fault : scenario_.faults) {
+        if (fault.sensor == config.name) specs.push_back(fault);
+      }
+      injectors_.emplace_back(std::move(specs), scenario_.seed);
+      SensorStream stream;
+      stream.name = config.name;
+      stream.type = std::string(SensorTypeName(config.options));
+      stream.site = SensorSite(config.options);
+      stream.sky_directions_S = models_.back()->sky_directions_S();
+      record_.sensors.push_back(std::move(stream));
+      conditions_.push_back(sim::kConditionNone);
+    }
   }
-  InLoopMethods in_loop(in_loop_names,
-                        scenario.estimation ? *scenario.estimation : EstimationConfig{});
-  const std::vector<uint32_t> stream_rank = RanksByName(record.sensors);
-  ArrivalQueue delivered_queue(stream_rank);
-  ArrivalQueue clean_queue(stream_rank);
-  core::Time released_until_ns = std::numeric_limits<core::Time>::min();
-  const auto release = [&](core::Time now_ns, bool flush) {
-    if (in_loop.empty()) return;
-    if (!in_loop.started()) {
+
+  // The recorder, what the record keeps, the in-loop methods and their queues, the pilot.
+  void BuildConsumers() {
+    // With a record_dir every per-sample file is written as produced and the record keeps
+    // only what the evaluation needs (RunRecord::recorded_to).
+    if (options_.record_dir) {
+      recorder_.emplace(*options_.record_dir,
+                        RecorderLayoutOf(record_, options_.fly_on.has_value()));
+      record_.recorded_to = *options_.record_dir;
+    }
+    keep_samples_ = !recorder_;
+    // The consistency evaluation (consistency_eval.h) reads the non-IMU streams and the
+    // ground truth of the whole run after it.
+    keep_for_consistency_ = scenario_.consistency.has_value();
+    if (keep_samples_) {
+      // A sample is ~1.5 kB (core::Measurement holds a pose's two 6x6 covariances): growing
+      // the streams by doubling copied them and touched twice their final memory.
+      for (size_t i = 0; i < record_.sensors.size(); ++i) {
+        SensorStream& stream = record_.sensors[i];
+        const auto expected_samples = static_cast<size_t>(std::ceil(
+                                          scenario_.duration_s *
+                                          SensorRate_hz(scenario_.sensors[i].options))) + 2;
+        stream.clean.reserve(expected_samples);
+        stream.delivered.reserve(expected_samples);
+        stream.delivered_faults.reserve(expected_samples);
+        if (stream.type == "imu") stream.imu_biases.reserve(expected_samples);
+      }
+    }
+
+    // The run's consumers of the arrival-ordered sample stream besides the recorder: the
+    // estimation methods in the loop, and through the flying one, the controller.
+    std::vector<std::string> in_loop_names;
+    if (options_.fly_on) {
+      in_loop_names.push_back(*options_.fly_on);
+    } else if (scenario_.estimation) {
+      in_loop_names = scenario_.estimation->methods;
+    }
+    in_loop_.emplace(in_loop_names,
+                     scenario_.estimation ? *scenario_.estimation : EstimationConfig{});
+    const std::vector<uint32_t> stream_rank = RanksByName(record_.sensors);
+    delivered_queue_.emplace(stream_rank);
+    clean_queue_.emplace(stream_rank);
+    std::vector<LabelEvent> schedule;
+    for (const sim::FaultLabel& label :
+         sim::FaultLabels(scenario_.faults, total_steps_ * dt_ns_)) {
+      schedule.push_back({label.t_ns, label.sensor, label.fault, "fault", label.active});
+    }
+    in_loop_->SetFaultSchedule(std::move(schedule));
+
+    // A closed-loop flight: the pilot between the flying method and the controller.
+    if (options_.fly_on) {
+      const ControlConfig control = scenario_.control.value_or(ControlConfig{});
+      pilot_.emplace(control.failsafe, NominalImuMount(scenario_, record_.robot));
+      record_.closed_loop.emplace();
+      record_.closed_loop->method = *options_.fly_on;
+      record_.closed_loop->control = control;
+    }
+
+    const auto output_samples =
+        static_cast<size_t>(scenario_.duration_s * scenario_.output.groundtruth_rate_hz + 2);
+    record_.tracking.reserve(output_samples);
+    if (keep_samples_ || keep_for_consistency_) record_.groundtruth.reserve(output_samples);
+    if (keep_samples_) record_.references.reserve(output_samples);
+  }
+
+  // The controller's update: the reference, the state it flies on (ground truth, or the
+  // pilot's view of the flying method's newest output), allocation to the actuators.
+  void Control(core::Time t_ns, const sim::TruthState& now) {
+    sim::Reference reference = trajectory_->Sample(t_ns);
+    sim::RobotState state = ToRobotState(now);
+    if (pilot_) {
+      // The flying method's newest output: only samples with arrival <= t_ns made it.
+      const estimator::EstimatorOutput* newest = nullptr;
+      if (in_loop_->started() && !in_loop_->runner(0).outputs().empty()) {
+        newest = &in_loop_->runner(0).outputs().back();
+      }
+      if (!pilot_->handed_over() &&
+          pilot_->TryHandover(t_ns, newest, PoseOf(now.p_WB, now.q_WB))) {
+        record_.closed_loop->handover_ns = t_ns;
+        record_.closed_loop->T_WL = pilot_->T_WL();
+      }
+      if (pilot_->handed_over()) {
+        const ClosedLoopPilot::Command command = pilot_->Fly(t_ns, *newest, reference);
+        state = command.state;
+        reference = command.reference;
+        disarmed_ = command.disarmed;
+      }
+    }
+    const sim::Wrench wrench = controller_->Compute(state, reference);
+    sim::AllocationResult allocation = allocator_->Allocate(wrench, now.tilt_rad);
+    if (disarmed_) allocation.command.rotor_thrust_N.fill(0.0);
+    world_->SetCommand(allocation.command);
+    record_.saturation.emplace_back(t_ns, allocation.saturated);
+    next_controller_ns_ += controller_period_ns_;
+  }
+
+  // Tracking error against the reference, ground truth, the closed-loop sample.
+  void RecordGroundTruth(const sim::TruthState& truth) {
+    const sim::Reference reference = trajectory_->Sample(truth.t_ns);
+    const TrackingSample tracking{
+        truth.t_ns, (truth.p_WB - reference.p_WB).norm(),
+        core::RotationAngleBetween(reference.q_WB.toRotationMatrix(),
+                                   truth.q_WB.toRotationMatrix())};
+    record_.tracking.push_back(tracking);
+    if (keep_samples_ || keep_for_consistency_) record_.groundtruth.push_back(truth);
+    if (keep_samples_) record_.references.push_back(reference);
+    const ClosedLoopSample* flown = nullptr;
+    if (pilot_) {
+      ClosedLoopSample sample;
+      sample.t_ns = truth.t_ns;
+      sample.mode = pilot_->mode();
+      if (const auto& believed = pilot_->last_state()) {
+        sample.p_WB_est = believed->p_WB;
+        sample.q_WB_est = believed->q_WB;
+        sample.estimate_squared_error_m2 = (believed->p_WB - truth.p_WB).squaredNorm();
+      }
+      sample.structure_distance_m = structure_distance_m_;
+      record_.closed_loop->samples.push_back(sample);
+      flown = &record_.closed_loop->samples.back();
+    }
+    if (recorder_) recorder_->AddGroundTruth(truth, reference, tracking, flown);
+    next_output_ns_ += output_period_ns_;
+  }
+
+  // Each model's samples of this step: recorded clean, through its injector, recorded as
+  // delivered and queued for the in-loop methods; condition transitions become labels.
+  void StepSensors(const sim::TruthState& truth) {
+    const auto rotor_thrust_N = world_->RotorThrusts_N();
+    const sim::SensorInput input{truth, *world_, rotor_thrust_N};
+    for (size_t i = 0; i < models_.size(); ++i) {
+      SensorStream& stream = record_.sensors[i];
+      const auto* imu = dynamic_cast<const sim::ImuModel*>(models_[i].get());
+      std::pair<Eigen::Vector3d, Eigen::Vector3d> bias;
+      if (imu != nullptr) bias = {imu->gyro_bias_radps(), imu->accel_bias_mps2()};
+      sensor_scratch_.clear();
+      models_[i]->Step(input, &sensor_scratch_);
+      for (const sim::SensorSample& sample : sensor_scratch_) {
+        ++stream.produced_count;
+        if (keep_samples_) {
+          stream.clean.push_back(sample);
+          if (imu != nullptr) stream.imu_biases.push_back(bias);
+        }
+        if (recorder_) recorder_->AddClean(i, sample, imu != nullptr ? &bias : nullptr);
+        delivered_scratch_.clear();
+        injectors_[i].Apply(sample, &delivered_scratch_);
+        const uint32_t faults = injectors_[i].ActiveFaults(sample.t_ns);
+        for (sim::SensorSample& delivered : delivered_scratch_) {
+          if (options_.tamper && !in_loop_->empty()) options_.tamper(stream.name, delivered);
+          RecordDelivered(delivered, faults,
+                          keep_samples_ || (keep_for_consistency_ && imu == nullptr), stream);
+          if (recorder_) recorder_->AddDelivered(i, delivered, faults);
+          if (!in_loop_->empty()) delivered_queue_->Push(i, delivered);
+        }
+        if (!in_loop_->empty() && in_loop_->any_clean()) clean_queue_->Push(i, sample);
+      }
+      RecordConditions(i, truth.t_ns);
+    }
+  }
+
+  void RecordConditions(size_t i, core::Time t_ns) {
+    const uint32_t now_conditions = models_[i]->conditions();
+    if (now_conditions == conditions_[i]) return;
+    for (const sim::Condition bit : sim::AllConditions()) {
+      if (((now_conditions ^ conditions_[i]) & bit) == 0) continue;
+      record_.labels.push_back({t_ns, record_.sensors[i].name, std::string(sim::ConditionName(bit)),
+                                "condition", (now_conditions & bit) != 0});
+      if (in_loop_->started()) in_loop_->AddLabel(record_.labels.back());
+    }
+    conditions_[i] = now_conditions;
+  }
+
+  // The samples that have arrived by now_ns (all of them with `flush`) to the in-loop
+  // methods, in (arrival, stream rank, t, order).
+  void Release(core::Time now_ns, bool flush) {
+    if (in_loop_->empty()) return;
+    if (!in_loop_->started()) {
       // The models have latched their reference frames by now (first step).
-      for (size_t i = 0; i < models.size(); ++i) record.sensors[i].T_WS = models[i]->T_WS();
-      in_loop.Start(record);
+      for (size_t i = 0; i < models_.size(); ++i) record_.sensors[i].T_WS = models_[i]->T_WS();
+      in_loop_->Start(record_);
     }
     const auto feed = [&](bool clean) {
       return [&, clean](const ArrivedSample& a) {
-        if (a.sample->arrival_ns < released_until_ns) ++record.late_samples;
-        in_loop.Feed(clean, record.sensors, a);
+        if (a.sample->arrival_ns < released_until_ns_) ++record_.late_samples;
+        in_loop_->Feed(clean, record_.sensors, a);
       };
     };
     if (flush) {
-      delivered_queue.Flush(feed(false));
-      clean_queue.Flush(feed(true));
+      delivered_queue_->Flush(feed(false));
+      clean_queue_->Flush(feed(true));
     } else {
-      delivered_queue.Release(now_ns, feed(false));
-      clean_queue.Release(now_ns, feed(true));
-      released_until_ns = now_ns;
+      delivered_queue_->Release(now_ns, feed(false));
+      clean_queue_->Release(now_ns, feed(true));
+      released_until_ns_ = now_ns;
     }
-  };
-
-  // A closed-loop flight: the pilot between the flying method and the controller.
-  std::optional<ClosedLoopPilot> pilot;
-  const ControlConfig control = scenario.control.value_or(ControlConfig{});
-  if (options.fly_on) {
-    pilot.emplace(control.failsafe, NominalImuMount(scenario, record.robot));
-    record.closed_loop.emplace();
-    record.closed_loop->method = *options.fly_on;
-    record.closed_loop->control = control;
   }
-  std::optional<double> structure_distance_m;
-  bool disarmed = false;
 
-  const core::Time dt_ns = world.timestep_ns();
-  const double dt_s = core::TimeToSeconds(dt_ns);
-  const core::Time controller_period_ns = core::PeriodFromRate(scenario.controller.rate_hz);
-  const core::Time output_period_ns = core::PeriodFromRate(scenario.output.groundtruth_rate_hz);
-  const int64_t total_steps =
-      std::llround(scenario.duration_s * scenario.physics.rate_hz);
-  const int64_t progress_every = std::max<int64_t>(1, total_steps / 200);
-  {
-    std::vector<LabelEvent> schedule;
-    for (const sim::FaultLabel& label : sim::FaultLabels(scenario.faults, total_steps * dt_ns)) {
-      schedule.push_back({label.t_ns, label.sensor, label.fault, "fault", label.active});
+  // Collisions, the closest structure, and where the tool tip stands when an approach
+  // segment's reference comes to rest.
+  void WatchStructure() {
+    const std::vector<sim::Contact>& contacts = world_->Contacts();
+    collisions_.Update(world_->time_ns(), contacts, *world_, record_.collisions);
+    const auto closest = world_->ClosestStructure();
+    structure_distance_m_.reset();
+    if (closest) structure_distance_m_ = closest->distance_m;
+    if (closest && (!record_.closest_structure ||
+                    closest->distance_m < record_.closest_structure->proximity.distance_m)) {
+      record_.closest_structure = ProximityRecord{world_->time_ns(), *closest};
     }
-    in_loop.SetFaultSchedule(std::move(schedule));
+    if (next_approach_ < approach_segments_.size()) {
+      const sim::SegmentInfo& seg = record_.segments[approach_segments_[next_approach_]];
+      if (world_->time_ns() >= seg.end_ns) {
+        const Eigen::Isometry3d T_W_tip = world_->SitePose_W("tool_tip");
+        record_.approaches.push_back(
+            {static_cast<int>(approach_segments_[next_approach_]), world_->time_ns(),
+             seg.approach_standoff_m,
+             world_->RayDistance(T_W_tip.translation(), seg.approach_direction_W)});
+        ++next_approach_;
+      }
+    }
   }
-  core::Time next_controller_ns = 0;
-  core::Time next_output_ns = 0;
-  size_t next_approach = 0;
-  std::vector<size_t> approach_segments;
-  for (size_t i = 0; i < record.segments.size(); ++i) {
-    if (record.segments[i].kind == "approach") approach_segments.push_back(i);
-  }
-  const auto output_samples =
-      static_cast<size_t>(scenario.duration_s * scenario.output.groundtruth_rate_hz + 2);
-  record.tracking.reserve(output_samples);
-  if (keep_samples || keep_for_consistency) record.groundtruth.reserve(output_samples);
-  if (keep_samples) record.references.reserve(output_samples);
-  CollisionTracker collisions;
 
-  const auto wall_start = std::chrono::steady_clock::now();
-  const int64_t steps_per_minute = std::max<int64_t>(1, std::llround(60.0 * scenario.physics.rate_hz));
+  const Scenario& scenario_;
+  const SimulateOptions& options_;
+  RunRecord& record_;
+
+  // The world and what flies the robot.
+  std::unique_ptr<sim::World> world_;
+  std::unique_ptr<sim::Trajectory> trajectory_;
+  std::optional<sim::GeometricController> controller_;
+  std::optional<sim::Allocator> allocator_;
+  std::optional<sim::Wind> wind_;
+  std::optional<ClosedLoopPilot> pilot_;
+  bool disarmed_ = false;
+
+  // Sensors.
+  std::vector<std::unique_ptr<sim::SensorModel>> models_;
+  std::vector<sim::FaultInjector> injectors_;
+  std::vector<uint32_t> conditions_;
+  std::vector<sim::SensorSample> sensor_scratch_;
+  std::vector<sim::SensorSample> delivered_scratch_;
+
+  // Consumers of the sample stream.
+  std::optional<RunRecorder> recorder_;
+  bool keep_samples_ = true;
+  bool keep_for_consistency_ = false;
+  std::optional<InLoopMethods> in_loop_;
+  std::optional<ArrivalQueue> delivered_queue_;
+  std::optional<ArrivalQueue> clean_queue_;
+  core::Time released_until_ns_ = std::numeric_limits<core::Time>::min();
+
+  // Clocks and what the steps watch.
+  core::Time dt_ns_ = 0;
+  double dt_s_ = 0.0;
+  core::Time controller_period_ns_ = 0;
+  core::Time output_period_ns_ = 0;
+  int64_t total_steps_ = 0;
+  int64_t progress_every_ = 1;
+  int64_t steps_per_minute_ = 1;
+  core::Time next_controller_ns_ = 0;
+  core::Time next_output_ns_ = 0;
+  std::vector<size_t> approach_segments_;
+  size_t next_approach_ = 0;
+  std::optional<double> structure_distance_m_;
+  CollisionTracker collisions_;
+  std::chrono::steady_clock::time_point wall_start_;
+};
+
+}  // namespace
+
+RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
+  RunRecord record;
+  record.scenario = scenario;
+  Flight flight(scenario, options, record);
   try {
-    for (int64_t step = 0; step < total_steps; ++step) {
-      const core::Time t_ns = world.time_ns();
-      const sim::TruthState now = world.Truth();
-      if (t_ns >= next_controller_ns) {
-        sim::Reference reference = trajectory->Sample(t_ns);
-        sim::RobotState state = ToRobotState(now);
-        if (pilot) {
-          // The flying method's newest output: only samples with arrival <= t_ns made it.
-          const estimator::EstimatorOutput* newest = nullptr;
-          if (in_loop.started() && !in_loop.runner(0).outputs().empty()) {
-            newest = &in_loop.runner(0).outputs().back();
-          }
-          if (!pilot->handed_over() &&
-              pilot->TryHandover(t_ns, newest, PoseOf(now.p_WB, now.q_WB))) {
-            record.closed_loop->handover_ns = t_ns;
-            record.closed_loop->T_WL = pilot->T_WL();
-          }
-          if (pilot->handed_over()) {
-            const ClosedLoopPilot::Command command = pilot->Fly(t_ns, *newest, reference);
-            state = command.state;
-            reference = command.reference;
-            disarmed = command.disarmed;
-          }
-        }
-        const sim::Wrench wrench = controller.Compute(state, reference);
-        sim::AllocationResult allocation = allocator.Allocate(wrench, now.tilt_rad);
-        if (disarmed) allocation.command.rotor_thrust_N.fill(0.0);
-        world.SetCommand(allocation.command);
-        record.saturation.emplace_back(t_ns, allocation.saturated);
-        next_controller_ns += controller_period_ns;
-      }
-      wind.Advance(dt_s);
-      world.SetExternalForce_W(wind.DragForce_W(now.v_WB_W));
-
-      const sim::TruthState& truth = world.Step();
-      ++record.physics_steps;
-      if (record.physics_steps % steps_per_minute == 0) {
-        record.minutes.push_back(
-            {std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count(),
-             ResidentMegabytes()});
-      }
-
-      if (truth.t_ns >= next_output_ns) {
-        const sim::Reference reference = trajectory->Sample(truth.t_ns);
-        const TrackingSample tracking{
-            truth.t_ns, (truth.p_WB - reference.p_WB).norm(),
-            core::RotationAngleBetween(reference.q_WB.toRotationMatrix(),
-                                       truth.q_WB.toRotationMatrix())};
-        record.tracking.push_back(tracking);
-        if (keep_samples || keep_for_consistency) record.groundtruth.push_back(truth);
-        if (keep_samples) record.references.push_back(reference);
-        const ClosedLoopSample* flown = nullptr;
-        if (pilot) {
-          ClosedLoopSample sample;
-          sample.t_ns = truth.t_ns;
-          sample.mode = pilot->mode();
-          if (const auto& believed = pilot->last_state()) {
-            sample.p_WB_est = believed->p_WB;
-            sample.q_WB_est = believed->q_WB;
-            sample.estimate_squared_error_m2 = (believed->p_WB - truth.p_WB).squaredNorm();
-          }
-          sample.structure_distance_m = structure_distance_m;
-          record.closed_loop->samples.push_back(sample);
-          flown = &record.closed_loop->samples.back();
-        }
-        if (recorder) recorder->AddGroundTruth(truth, reference, tracking, flown);
-        next_output_ns += output_period_ns;
-      }
-
-      if (!models.empty()) {
-        const auto rotor_thrust_N = world.RotorThrusts_N();
-        const sim::SensorInput input{truth, world, rotor_thrust_N};
-        for (size_t i = 0; i < models.size(); ++i) {
-          SensorStream& stream = record.sensors[i];
-          const auto* imu = dynamic_cast<const sim::ImuModel*>(models[i].get());
-          std::pair<Eigen::Vector3d, Eigen::Vector3d> bias;
-          if (imu != nullptr) bias = {imu->gyro_bias_radps(), imu->accel_bias_mps2()};
-          sensor_scratch.clear();
-          models[i]->Step(input, &sensor_scratch);
-          for (const sim::SensorSample& sample : sensor_scratch) {
-            ++stream.produced_count;
-            if (keep_samples) {
-              stream.clean.push_back(sample);
-              if (imu != nullptr) stream.imu_biases.push_back(bias);
-            }
-            if (recorder) recorder->AddClean(i, sample, imu != nullptr ? &bias : nullptr);
-            delivered_scratch.clear();
-            injectors[i].Apply(sample, &delivered_scratch);
-            const uint32_t faults = injectors[i].ActiveFaults(sample.t_ns);
-            for (sim::SensorSample& delivered : delivered_scratch) {
-              if (options.tamper && !in_loop.empty()) options.tamper(stream.name, delivered);
-              RecordDelivered(delivered, faults,
-                              keep_samples || (keep_for_consistency && imu == nullptr), stream);
-              if (recorder) recorder->AddDelivered(i, delivered, faults);
-              if (!in_loop.empty()) delivered_queue.Push(i, delivered);
-            }
-            if (!in_loop.empty() && in_loop.any_clean()) clean_queue.Push(i, sample);
-          }
-          const uint32_t now_conditions = models[i]->conditions();
-          if (now_conditions != conditions[i]) {
-            for (const sim::Condition bit : sim::AllConditions()) {
-              if (((now_conditions ^ conditions[i]) & bit) == 0) continue;
-              record.labels.push_back({truth.t_ns, stream.name,
-                                       std::string(sim::ConditionName(bit)), "condition",
-                                       (now_conditions & bit) != 0});
-              if (in_loop.started()) in_loop.AddLabel(record.labels.back());
-            }
-            conditions[i] = now_conditions;
-          }
-        }
-      }
-
-      // Every sample that has arrived by the end of this step reaches its consumers before
-      // the controller's next update.
-      release(truth.t_ns, false);
-
-      const std::vector<sim::Contact>& contacts = world.Contacts();
-      collisions.Update(world.time_ns(), contacts, world, record.collisions);
-      const auto closest = world.ClosestStructure();
-      structure_distance_m.reset();
-      if (closest) structure_distance_m = closest->distance_m;
-      if (closest && (!record.closest_structure ||
-                      closest->distance_m < record.closest_structure->proximity.distance_m)) {
-        record.closest_structure = ProximityRecord{world.time_ns(), *closest};
-      }
-
-      // Where the tool tip stands when an approach segment's reference comes to rest.
-      if (next_approach < approach_segments.size()) {
-        const sim::SegmentInfo& seg = record.segments[approach_segments[next_approach]];
-        if (world.time_ns() >= seg.end_ns) {
-          const Eigen::Isometry3d T_W_tip = world.SitePose_W("tool_tip");
-          record.approaches.push_back(
-              {static_cast<int>(approach_segments[next_approach]), world.time_ns(),
-               seg.approach_standoff_m,
-               world.RayDistance(T_W_tip.translation(), seg.approach_direction_W)});
-          ++next_approach;
-        }
-      }
-
-      if (options.progress && step % progress_every == 0) {
-        options.progress(static_cast<double>(step) / static_cast<double>(total_steps));
-      }
-    }
+    for (int64_t step = 0; step < flight.total_steps(); ++step) flight.Step(step);
   } catch (const core::SimulationError& e) {
     record.failure = e.what();
   }
-  if (recorder) recorder->Close();
-  record.wall_time_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
-
-  // The true reference frames are known once the models have started (e.g. VIO's
-  // odometry frame is where the camera booted).
-  for (size_t i = 0; i < models.size(); ++i) record.sensors[i].T_WS = models[i]->T_WS();
-  // What was recorded but had not arrived when the flight ended still reaches the
-  // methods: the recorded run's replay sees it too.
-  if (!record.failure) {
-    release(0, true);
-    record.in_loop = in_loop.Finish();
-  }
-  if (pilot) record.closed_loop->events = pilot->events();
-  // Scheduled faults as labels, merged with the condition transitions by time.
-  const core::Time run_end_ns = record.physics_steps * dt_ns;
-  for (const sim::FaultLabel& label : sim::FaultLabels(scenario.faults, run_end_ns)) {
-    record.labels.push_back({label.t_ns, label.sensor, label.fault, "fault", label.active});
-  }
-  std::stable_sort(record.labels.begin(), record.labels.end(),
-                   [](const LabelEvent& a, const LabelEvent& b) { return a.t_ns < b.t_ns; });
-  if (scenario.consistency && !record.failure) {
-    record.consistency = EvaluateConsistency(record, *scenario.consistency);
-  }
+  flight.Finish();
   if (options.progress) options.progress(1.0);
-
   if (!options.fly_on) record.closed_loop_flights = FlyClosedLoopFlights(scenario, options);
   return record;
 }

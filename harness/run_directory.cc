@@ -82,7 +82,7 @@ std::string CalibrationYaml(const RunRecord& record) {
   out << YAML::EndSeq;
 
   out << YAML::Key << "mounts" << YAML::Value << YAML::BeginMap;
-  for (const sim::MountSite& site : robot.sites) EmitPose(out, site.name, site.p_B_s, site.q_B_s);
+  for (const sim::MountSite& site : robot.sites) EmitPose(out, site.name, site.p_Bs, site.q_Bs);
   out << YAML::EndMap;
 
   out << YAML::Key << "sensors" << YAML::Value << YAML::BeginMap;
@@ -93,16 +93,25 @@ std::string CalibrationYaml(const RunRecord& record) {
     out << YAML::Key << "type" << YAML::Value << stream.type;
     out << YAML::Key << "site" << YAML::Value << stream.site;
     if (const sim::MountSite* site = robot.FindSite(stream.site)) {
-      Eigen::Isometry3d T_B_s_true = Eigen::Isometry3d::Identity();
-      T_B_s_true.linear() = site->q_B_s.toRotationMatrix();
-      T_B_s_true.translation() = site->p_B_s;
-      const Eigen::Isometry3d T_B_s = T_B_s_true * config.calibration_error;
-      EmitPose(out, "T_B_s", T_B_s.translation(), Eigen::Quaterniond(T_B_s.linear()));
+      Eigen::Isometry3d T_Bs_true = Eigen::Isometry3d::Identity();
+      T_Bs_true.linear() = site->q_Bs.toRotationMatrix();
+      T_Bs_true.translation() = site->p_Bs;
+      const Eigen::Isometry3d T_Bs = T_Bs_true * config.calibration_error;
+      EmitPose(out, "T_B_s", T_Bs.translation(), Eigen::Quaterniond(T_Bs.linear()));
       if (config.calibration_error.matrix() != Eigen::Matrix4d::Identity()) {
-        EmitPose(out, "true_T_B_s", site->p_B_s, site->q_B_s);
+        EmitPose(out, "true_T_B_s", site->p_Bs, site->q_Bs);
       }
     }
     EmitPose(out, "true_T_WS", stream.T_WS.translation(), Eigen::Quaterniond(stream.T_WS.linear()));
+    if (!stream.sky_directions_S.empty()) {
+      // Shortest round-trip decimals: a reader gets the very directions the run used.
+      out << YAML::Key << "sky_directions_S" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+      for (const Eigen::Vector3d& d : stream.sky_directions_S) {
+        out << YAML::Flow << YAML::BeginSeq << fmt::format("{}", d.x()) << fmt::format("{}", d.y())
+            << fmt::format("{}", d.z()) << YAML::EndSeq;
+      }
+      out << YAML::EndSeq;
+    }
     out << YAML::Key << "options" << YAML::Value << YAML::BeginMap;
     internal::EmitSensorOptions(out, config.options);
     out << YAML::EndMap;

@@ -6,12 +6,12 @@
 #include <cstdlib>
 #include <cstring>
 #include <iterator>
-#include <numbers>
 #include <string_view>
 #include <variant>
 
 #include "core/error.h"
 #include "core/lie.h"
+#include "core/units.h"
 #include "harness/run.h"
 #include "replay/file_io.h"
 #include "sim/faults.h"
@@ -217,8 +217,8 @@ RunRecorder::RunRecorder(const fs::path& dir, RecorderLayout layout) : layout_(s
     if (stream.type != "imu" || euroc_imu_) continue;
     euroc_imu_ = i;
     if (const sim::MountSite* site = layout_.robot.FindSite(stream.site)) {
-      p_B_I_ = site->p_B_s;
-      q_B_I_ = site->q_B_s;
+      p_B_I_ = site->p_Bs;
+      q_B_I_ = site->q_Bs;
     }
     euroc_imu_csv_ = std::make_unique<replay::AtomicFileWriter>(dir / "mav0" / "imu0" / "data.csv");
     euroc_imu_csv_->Format("#timestamp [ns],w_RS_S_x [rad s-1],w_RS_S_y [rad s-1],w_RS_S_z [rad s-1],"
@@ -255,7 +255,7 @@ void RunRecorder::AddGroundTruth(const sim::TruthState& s, const sim::Reference&
                  "{:.7f},{:.5f}\n",
                  tracking.t_ns, r.p_WB.x(), r.p_WB.y(), r.p_WB.z(), q_ref.w(), q_ref.x(),
                  q_ref.y(), q_ref.z(), r.v_WB_W.x(), r.v_WB_W.y(), r.v_WB_W.z(),
-                 tracking.position_error_m, tracking.attitude_error_rad * 180.0 / std::numbers::pi);
+                 tracking.position_error_m, core::DegFromRad(tracking.attitude_error_rad));
 
   if (control_csv_ && control != nullptr) {
     replay::AtomicFileWriter& out = *control_csv_;

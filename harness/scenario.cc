@@ -14,7 +14,6 @@
 #include <map>
 #include <memory>
 #include <fstream>
-#include <numbers>
 #include <sstream>
 #include <type_traits>
 
@@ -791,7 +790,7 @@ void CheckScenarioModels(const Scenario& scenario, const std::string& models_dir
                                        scenario.robot));
   }
   sim::TrajectoryContext context;
-  context.p_B_tool = tool->p_B_s;
+  context.p_B_tool = tool->p_Bs;
   context.surface_distance = [&world](const Eigen::Vector3d& origin_W,
                                       const Eigen::Vector3d& direction_W) {
     return world->RayDistance(origin_W, direction_W);

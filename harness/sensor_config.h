@@ -20,7 +20,7 @@ SensorOptions ReadSensorOptions(std::string_view type, const YamlValue& value);
 void EmitSensorOptions(YAML::Emitter& out, const SensorOptions& options);
 
 /// `calibration_error: {translation_m: [x, y, z], rpy_deg: [r, p, y]}`: the error of the
-/// nominal extrinsics given to the estimator, T_B_s_nominal = T_B_s_true * T_error.
+/// nominal extrinsics given to the estimator, T_Bs_nominal = T_Bs_true * T_error.
 Eigen::Isometry3d ReadCalibrationError(const YamlValue& value);
 
 /// Writes `calibration_error:` into the current map unless it is the identity.

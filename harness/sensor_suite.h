@@ -40,7 +40,7 @@ struct SensorConfig {
   std::string name;  ///< stream name: [a-z0-9_]+, the key under `sensors:`
   SensorOptions options;
   /// Error of the nominal extrinsics an estimator is given (calibration.yaml):
-  /// T_B_s_nominal = T_B_s_true * calibration_error. The simulation uses the truth.
+  /// T_Bs_nominal = T_Bs_true * calibration_error. The simulation uses the truth.
   Eigen::Isometry3d calibration_error = Eigen::Isometry3d::Identity();
 };
 
@@ -64,6 +64,7 @@ struct SensorStream {
   std::string type;
   std::string site;
   Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();  ///< true reference frame in W
+  std::vector<Eigen::Vector3d> sky_directions_S;  ///< GNSS satellites in S (fixed for the run)
   std::size_t produced_count = 0;   ///< clean samples
   std::size_t delivered_count = 0;  ///< samples after scheduled faults
   /// Digest of the delivered samples for windowed metrics (evaluation.h): their times,

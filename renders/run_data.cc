@@ -11,13 +11,14 @@
 
 #include "core/error.h"
 #include "core/file_io.h"
-#include "renders/csv_table.h"
+#include "replay/csv_reader.h"
 
 namespace tofu::renders {
 namespace {
 
 namespace fs = std::filesystem;
 using core::InputError;
+using replay::CsvTable;
 
 // ---- YAML ----
 
@@ -38,34 +39,6 @@ YAML::Node LoadYaml(const fs::path& path) {
   throw InputError({path.string(), mark.line >= 0 ? mark.line + 1 : 0,
                     mark.column >= 0 ? mark.column + 1 : 0},
                    key, message);
-}
-
-double YamlDouble(const fs::path& path, const YAML::Node& node, const std::string& key) {
-  try {
-    const double v = node.as<double>();
-    if (!std::isfinite(v)) FailYaml(path, node, key, "expected a finite number");
-    return v;
-  } catch (const YAML::Exception&) {
-    FailYaml(path, node, key, "expected a number");
-  }
-}
-
-// {p_m: [x, y, z], q_wxyz: [w, x, y, z]} -> T.
-Eigen::Isometry3d YamlPose(const fs::path& path, const YAML::Node& node, const std::string& key) {
-  const YAML::Node p = node["p_m"];
-  const YAML::Node q = node["q_wxyz"];
-  if (!node.IsMap() || !p.IsSequence() || p.size() != 3 || !q.IsSequence() || q.size() != 4) {
-    FailYaml(path, node, key, "expected {p_m: [x, y, z], q_wxyz: [w, x, y, z]}");
-  }
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  for (int k = 0; k < 3; ++k) T.translation()(k) = YamlDouble(path, p[k], key + ".p_m");
-  Eigen::Quaterniond quat(YamlDouble(path, q[0], key + ".q_wxyz"),
-                          YamlDouble(path, q[1], key + ".q_wxyz"),
-                          YamlDouble(path, q[2], key + ".q_wxyz"),
-                          YamlDouble(path, q[3], key + ".q_wxyz"));
-  if (quat.norm() < 1e-9) FailYaml(path, q, key + ".q_wxyz", "expected a unit quaternion");
-  T.linear() = quat.normalized().toRotationMatrix();
-  return T;
 }
 
 std::string YamlString(const fs::path& path, const YAML::Node& node, const std::string& key) {
@@ -146,55 +119,45 @@ void ReadGroundTruth(RunData& run) {
   }
 }
 
-struct SensorCalibration {
-  std::string type;
-  std::string site;
-  Eigen::Isometry3d T_B_s = Eigen::Isometry3d::Identity();
-  Eigen::Isometry3d true_T_WS = Eigen::Isometry3d::Identity();
-};
-
-std::map<std::string, SensorCalibration> ReadCalibration(RunData& run) {
+// calibration.yaml through the one reader of the run-directory schema: mounts, the IMU's
+// nominal mount, and the geometry of the sensors that have one to draw.
+replay::RunCalibration ReadCalibration(RunData& run) {
   const fs::path path = run.directory / "calibration.yaml";
-  const YAML::Node root = LoadYaml(path);
-  if (!root.IsMap()) FailYaml(path, root, "", "expected a mapping (tofu calibration)");
-  if (const YAML::Node mounts = root["mounts"]) {
-    for (const auto& item : mounts) {
-      const std::string name = item.first.as<std::string>();
-      run.mounts[name] = YamlPose(path, item.second, "mounts." + name);
-    }
+  if (!fs::is_regular_file(path)) {
+    throw InputError({path.string()}, "", "missing: expected the file of a tofu run directory");
   }
-  std::map<std::string, SensorCalibration> sensors;
-  if (const YAML::Node list = root["sensors"]) {
-    for (const auto& item : list) {
-      const std::string name = item.first.as<std::string>();
-      const std::string key = "sensors." + name;
-      SensorCalibration c;
-      c.type = YamlString(path, item.second["type"], key + ".type");
-      c.site = item.second["site"] ? YamlString(path, item.second["site"], key + ".site") : "";
-      if (item.second["T_B_s"]) c.T_B_s = YamlPose(path, item.second["T_B_s"], key + ".T_B_s");
-      if (item.second["true_T_WS"]) {
-        c.true_T_WS = YamlPose(path, item.second["true_T_WS"], key + ".true_T_WS");
-      }
-      sensors[name] = c;
-    }
-  }
+  replay::RunCalibration calibration = replay::ReadRunCalibration(path);
+  run.mounts = calibration.mounts;
   // The estimates are of the IMU frame I: its nominal mount (what the estimator is given).
   bool imu_found = false;
-  for (const auto& [name, c] : sensors) {
-    if (c.type != "imu") continue;
-    run.T_BI = c.T_B_s;
+  for (const auto& [name, c] : calibration.sensors) {
+    if (c.type != "imu" || !c.T_Bs) continue;
+    run.T_BI = *c.T_Bs;
     imu_found = true;
     break;
   }
   if (!imu_found && run.mounts.count("imu") != 0) run.T_BI = run.mounts.at("imu");
-  return sensors;
+  for (const auto& [name, c] : calibration.sensors) {
+    if (const std::optional<replay::LidarBeamPattern> beams = calibration.LidarBeams(name)) {
+      run.lidars.push_back({c.site, *beams});
+    }
+    if (!c.sky_directions_S.empty()) {
+      SkyGeometry sky;
+      sky.site = c.site;
+      sky.T_WS = c.true_T_WS.value_or(Eigen::Isometry3d::Identity());
+      sky.directions_S = c.sky_directions_S;
+      sky.ray_length_m = calibration.OptionNumber(name, "sky_ray_length_m").value_or(200.0);
+      run.skies.push_back(std::move(sky));
+    }
+  }
+  return calibration;
 }
 
-void ReadSensors(RunData& run, const std::map<std::string, SensorCalibration>& calibration) {
+void ReadSensors(RunData& run, const replay::RunCalibration& calibration) {
   for (const fs::path& file : SensorCsvFiles(run.directory)) {
     const std::string name = file.stem().string();
-    const auto cal = calibration.find(name);
-    if (cal == calibration.end()) {
+    const auto cal = calibration.sensors.find(name);
+    if (cal == calibration.sensors.end()) {
       run.notes.push_back(fmt::format("sensors/{}.csv: not in calibration.yaml, not drawn", name));
       continue;
     }
@@ -205,7 +168,7 @@ void ReadSensors(RunData& run, const std::map<std::string, SensorCalibration>& c
     track.name = name;
     track.type = cal->second.type;
     track.site = cal->second.site;
-    track.true_T_WS = cal->second.true_T_WS;
+    track.true_T_WS = cal->second.true_T_WS.value_or(Eigen::Isometry3d::Identity());
     const int t = csv.Require("timestamp");
     const int p[3] = {csv.Require("p_Ss_x"), csv.Require("p_Ss_y"), csv.Require("p_Ss_z")};
     const int conditions = csv.Find("conditions");
@@ -434,7 +397,8 @@ void ReadClosedLoopFlights(RunData& run) {
 void ReadDecisions(RunData& run) {
   const fs::path path = run.directory / "decisions.csv";
   if (!fs::exists(path)) return;
-  const CsvTable csv(path, "#timestamp [ns],method,fused,excluded,unavailable,reason", true);
+  const CsvTable csv(path, "#timestamp [ns],method,fused,excluded,unavailable,reason",
+                     replay::CsvOptions{.last_column_takes_rest = true});
   const int t = csv.Require("timestamp");
   const int method = csv.Require("method");
   const int fused = csv.Require("fused");

@@ -18,6 +18,7 @@
 #include <nlohmann/json_fwd.hpp>
 
 #include "core/time.h"
+#include "replay/run_calibration.h"
 
 namespace tofu::renders {
 
@@ -95,17 +96,34 @@ struct ErrorRow {
   double rotation_error_deg = 0.0;
 };
 
+/// A LiDAR's beams, to draw where they hit.
+struct LidarGeometry {
+  std::string site;
+  replay::LidarBeamPattern beams;
+};
+
+/// A GNSS antenna's sky: the satellites' directions, to draw which are blocked.
+struct SkyGeometry {
+  std::string site;
+  Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();
+  std::vector<Eigen::Vector3d> directions_S;
+  double ray_length_m = 200.0;  ///< an obstacle farther than this does not block
+};
+
 struct RunData {
   std::filesystem::path directory;
   std::string scenario_name;
   std::string world;
   std::string robot = "omav";
   std::vector<TimedPose> groundtruth;  ///< T_WB, time order, not empty
-  /// Mount sites of calibration.yaml (`mounts:`): T_B_s.
+  /// Mount sites of calibration.yaml (`mounts:`): T_Bs.
   std::map<std::string, Eigen::Isometry3d> mounts;
   /// The IMU's nominal mount T_BI (the frame the estimates are of).
   Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
   std::vector<SensorTrack> sensors;  ///< sorted by name; IMU streams excluded
+  /// Sensor geometry of calibration.yaml, by sensor name order.
+  std::vector<LidarGeometry> lidars;
+  std::vector<SkyGeometry> skies;
   std::vector<LabelRow> labels;
   std::vector<CollisionRow> collisions;
   /// Sorted by method name, then the closed-loop flights' true paths ("flown on <m>").

@@ -11,16 +11,14 @@
 #include <mujoco/mujoco.h>
 
 #include "core/error.h"
-#include "harness/scenario.h"
-#include "harness/sensor_suite.h"
-#include "sim/gnss.h"
+#include "core/units.h"
 #include "sim/world.h"
 
 namespace tofu::renders {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDegToRad = kPi / 180.0;
+using core::kPi;
+constexpr double kDegToRad = core::kRadPerDeg;
 constexpr int kMaxSceneGeoms = 12000;
 
 // Free-camera fields of view: the chase camera frames the robot, the overview the run.
@@ -132,20 +130,6 @@ struct SceneRenderer::Impl {
   double overview_fovy_deg = kOverviewFovyDeg;
   std::vector<Eigen::Vector3d> overview_targets;  // points the overview must show
   std::vector<Eigen::Vector3d> cutaway_targets;   // of the current frame's camera
-  // Optional layers, from the resolved scenario.
-  std::optional<harness::Scenario> scenario;
-  struct Lidar {
-    std::string site;
-    sim::LidarOdometryOptions options;
-  };
-  std::vector<Lidar> lidars;
-  struct Sky {
-    std::string site;
-    Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();
-    std::vector<Eigen::Vector3d> directions_S;
-    double ray_length_m = 200.0;
-  };
-  std::vector<Sky> skies;
   CameraView view;
 
   Impl(const RunData& r, const RenderOptions& o) : run(r), options(o) {
@@ -223,7 +207,6 @@ struct SceneRenderer::Impl {
     SelectGhosts();
     SelectConsistency();
     ComputeOverview();
-    if (options.lidar_hits || options.gnss_sky) LoadSensorGeometry();
   }
 
   void SelectGhosts() {
@@ -412,29 +395,6 @@ struct SceneRenderer::Impl {
     return occluders;
   }
 
-  void LoadSensorGeometry() {
-    const std::string path = (run.directory / "scenario.yaml").string();
-    scenario = harness::LoadScenario(path);
-    for (const harness::SensorConfig& config : scenario->sensors) {
-      if (const auto* lidar = std::get_if<sim::LidarOdometryOptions>(&config.options)) {
-        lidars.push_back({lidar->site, *lidar});
-      }
-      if (options.gnss_sky && std::holds_alternative<sim::GnssOptions>(config.options)) {
-        // The sky is drawn once per scenario from the sensor's own seeded stream: the
-        // model built as the run built it has the very same satellites.
-        const auto model_ptr = harness::MakeSensorModel(config, *world, scenario->seed);
-        const auto* gnss = dynamic_cast<const sim::GnssModel*>(model_ptr.get());
-        if (gnss == nullptr) continue;
-        Sky sky;
-        sky.site = gnss->site();
-        sky.T_WS = gnss->T_WS();
-        sky.directions_S = gnss->satellite_directions_S();
-        sky.ray_length_m = std::get<sim::GnssOptions>(config.options).sky_ray_length_m;
-        skies.push_back(std::move(sky));
-      }
-    }
-  }
-
   // ---- scene building ----
 
   mjvGeom* NewGeom() {
@@ -566,9 +526,9 @@ struct SceneRenderer::Impl {
   }
 
   void AddLidarHits(const Eigen::Isometry3d& T_WB) {
-    for (const Lidar& lidar : lidars) {
+    for (const LidarGeometry& lidar : run.lidars) {
       const Eigen::Isometry3d T_Ws = T_WB * Mount(lidar.site);
-      const sim::LidarOdometryOptions& o = lidar.options;
+      const replay::LidarBeamPattern& o = lidar.beams;
       for (int e = 0; e < o.elevation_count; ++e) {
         const double el = o.elevation_count > 1
                               ? o.elevation_min_rad + (o.elevation_max_rad - o.elevation_min_rad) *
@@ -588,7 +548,7 @@ struct SceneRenderer::Impl {
 
   void AddSkyRays(const Eigen::Isometry3d& T_WB) {
     constexpr double kDrawnLength_m = 6.0;
-    for (const Sky& sky : skies) {
+    for (const SkyGeometry& sky : run.skies) {
       const Eigen::Vector3d antenna_W = T_WB * Mount(sky.site).translation();
       for (const Eigen::Vector3d& d_S : sky.directions_S) {
         const Eigen::Vector3d d_W = sky.T_WS.linear() * d_S;

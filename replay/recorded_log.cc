@@ -19,7 +19,11 @@
 
 #include "core/error.h"
 #include "core/file_io.h"
+#include "core/units.h"
+#include "replay/csv_reader.h"
+#include "replay/run_calibration.h"
 #include "replay/trajectory_metrics.h"
+#include "replay/yaml_fields.h"
 
 namespace tofu::replay {
 namespace {
@@ -30,198 +34,9 @@ using core::Time;
 
 // ---- text and CSV ----
 
-std::string Quoted(std::string_view s) {
-  constexpr size_t kMax = 60;
-  if (s.size() <= kMax) return fmt::format("'{}'", s);
-  return fmt::format("'{}...'", s.substr(0, kMax));
-}
-
-bool IsBlank(char c) { return c == ' ' || c == '\t'; }
-
-std::string_view Trim(std::string_view s) {
-  while (!s.empty() && IsBlank(s.front())) s.remove_prefix(1);
-  while (!s.empty() && (IsBlank(s.back()) || s.back() == '\r')) s.remove_suffix(1);
-  return s;
-}
-
-
-// The key of a header field: "#timestamp [ns]" -> "timestamp", " p_RS_R_x [m]" -> "p_RS_R_x".
-std::string_view ColumnKey(std::string_view field) {
-  field = Trim(field);
-  if (!field.empty() && field.front() == '#') field = Trim(field.substr(1));
-  const size_t bracket = field.find('[');
-  if (bracket != std::string_view::npos) field = Trim(field.substr(0, bracket));
-  return field;
-}
-
-// One comma-separated file with a header line; columns are looked up by key. Rows are
-// visited with Next(); field accessors throw InputError naming file, line, column.
-class CsvFile {
- public:
-  /// Reads the header line; rows are read one at a time by Next() (an hour of IMU is 250
-  /// MB of text, never held whole).
-  CsvFile(fs::path path, std::string expected_header)
-      : path_(std::move(path)), name_(path_.string()), reader_(path_) {
-    std::string_view line;
-    bool had_newline = false;
-    const bool any = NextLine(line, &had_newline);
-    // A UTF-8 byte-order mark (spreadsheet exports) is not part of the header.
-    if (any && line.starts_with("\xEF\xBB\xBF")) line.remove_prefix(3);
-    if (!any || Trim(line).empty()) {
-      // Nothing but a byte-order mark is an empty file too.
-      const bool empty =
-          !any || (!had_newline && (line_text_.empty() || line_text_ == "\xEF\xBB\xBF"));
-      throw InputError({name_, 1, 0}, "",
-                       fmt::format("missing header: {}, expected a header line like '{}'",
-                                   empty ? "the file is empty" : "line 1 is blank",
-                                   expected_header));
-    }
-    Split(line);
-    for (const Field& f : fields_) {
-      raw_names_.emplace_back(Trim(f.text));
-      keys_.emplace_back(ColumnKey(f.text));
-    }
-    const bool has_timestamp = std::find(keys_.begin(), keys_.end(), "timestamp") != keys_.end();
-    if (Trim(line).front() != '#' && !has_timestamp) {
-      throw InputError({name_, 1, 1}, "",
-                       fmt::format("missing header: expected a header line like '{}' (columns "
-                                   "named, '#timestamp [ns]' first), got {}",
-                                   expected_header, Quoted(line)));
-    }
-    if (!has_timestamp) {
-      throw InputError({name_, 1, 1}, "",
-                       fmt::format("header has no 'timestamp' column, expected a header like "
-                                   "'{}'",
-                                   expected_header));
-    }
-  }
-
-  const std::string& name() const { return name_; }
-  const std::vector<std::string>& keys() const { return keys_; }
-  /// The rows left (a scan of the rest of the file): what to reserve.
-  size_t RowsUpperBound() { return reader_.CountRemainingLines() + 1; }
-
-  /// Index of the column `key`, or -1.
-  int Find(std::string_view key) const {
-    const auto it = std::find(keys_.begin(), keys_.end(), key);
-    return it == keys_.end() ? -1 : static_cast<int>(it - keys_.begin());
-  }
-  /// Index of the column `key`; InputError at the header if it is missing.
-  int Require(std::string_view key, std::string_view what) const {
-    const int index = Find(key);
-    if (index < 0) {
-      throw InputError({name_, 1, 0}, "",
-                       fmt::format("header: missing column '{}' ({})", key, what));
-    }
-    return index;
-  }
-
-  /// Advances to the next non-blank data line; false at the end.
-  bool Next() {
-    std::string_view line;
-    while (NextLine(line)) {
-      if (Trim(line).empty()) continue;
-      Split(line);
-      if (fields_.size() != keys_.size()) {
-        const size_t n = fields_.size();
-        throw InputError(
-            {name_, line_, 0}, "",
-            fmt::format("expected {} comma-separated fields as in the header, got {} ({})",
-                        keys_.size(), n,
-                        n < keys_.size()
-                            ? fmt::format("column {} '{}' and later are missing", n + 1,
-                                          raw_names_[n])
-                            : fmt::format("extra field after the last column '{}'",
-                                          raw_names_.back())));
-      }
-      return true;
-    }
-    return false;
-  }
-  int line() const { return line_; }
-
-  std::string_view Text(int column) const { return Trim(fields_[column].text); }
-  bool Empty(int column) const { return Text(column).empty(); }
-
-  Time Integer(int column) const {
-    const std::string_view s = Text(column);
-    Time value = 0;
-    const char* first = s.data();
-    const char* last = first + s.size();
-    if (first != last && *first == '+') ++first;
-    const auto [end, ec] = std::from_chars(first, last, value);
-    if (ec != std::errc() || end != last || s.empty()) {
-      throw Error(column, fmt::format("expected an integer timestamp in ns{}, got {}",
-                                      ec == std::errc::result_out_of_range ? " (64-bit)" : "",
-                                      Quoted(s)));
-    }
-    return value;
-  }
-
-  /// A number; "nan"/"inf" parse (and pass through), an empty or other field throws.
-  double Number(int column) const {
-    const std::string_view s = Text(column);
-    double value = 0.0;
-    const char* first = s.data();
-    const char* last = first + s.size();
-    if (first != last && *first == '+') ++first;  // from_chars rejects a leading '+'
-    const auto [end, ec] = std::from_chars(first, last, value);
-    if (s.empty()) throw Error(column, "empty field, expected a number");
-    if (end != last || (ec != std::errc() && ec != std::errc::result_out_of_range)) {
-      throw Error(column, fmt::format("expected a number, got {}", Quoted(s)));
-    }
-    if (ec == std::errc::result_out_of_range) {
-      // Beyond the double range: an underflow to 0 or an overflow to +-Inf, as strtod.
-      value = std::strtod(std::string(s).c_str(), nullptr);
-    }
-    return value;
-  }
-
-  InputError Error(int column, const std::string& message) const {
-    return InputError({name_, line_, fields_[column].column}, "",
-                      fmt::format("column '{}': {}", raw_names_[column], message));
-  }
-
- private:
-  struct Field {
-    std::string_view text;
-    int column = 0;  // 1-based character column in the line
-  };
-
-  // The next line into line_text_ (fields_ view it until the next call).
-  bool NextLine(std::string_view& line, bool* had_newline = nullptr) {
-    if (!reader_.Next(line_text_, had_newline)) return false;
-    line = line_text_;
-    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-    ++line_;
-    return true;
-  }
-
-  void Split(std::string_view line) {
-    fields_.clear();
-    size_t start = 0;
-    while (true) {
-      const size_t comma = line.find(',', start);
-      const size_t end = comma == std::string_view::npos ? line.size() : comma;
-      fields_.push_back({line.substr(start, end - start), static_cast<int>(start) + 1});
-      if (comma == std::string_view::npos) return;
-      start = comma + 1;
-    }
-  }
-
-  fs::path path_;
-  std::string name_;
-  core::LineReader reader_;
-  std::string line_text_;
-  std::vector<std::string> raw_names_;
-  std::vector<std::string> keys_;
-  std::vector<Field> fields_;
-  int line_ = 0;
-};
-
 // Columns of a 3-vector "<prefix>x,<prefix>y,<prefix>z" (or w first for quaternions).
 template <size_t N>
-std::array<int, N> RequireAll(const CsvFile& csv, std::string_view prefix,
+std::array<int, N> RequireAll(const CsvReader& csv, std::string_view prefix,
                               std::string_view suffixes, std::string_view what) {
   std::array<int, N> columns{};
   for (size_t i = 0; i < N; ++i) {
@@ -233,7 +48,7 @@ std::array<int, N> RequireAll(const CsvFile& csv, std::string_view prefix,
 // The N(N+1)/2 columns <prefix>rk (row-major upper triangle, as run_directory.cc writes
 // them); empty if none of them is in the header, InputError if only some are.
 template <int N>
-std::vector<int> UpperTriangleColumns(const CsvFile& csv, std::string_view prefix) {
+std::vector<int> UpperTriangleColumns(const CsvReader& csv, std::string_view prefix) {
   std::vector<int> columns;
   std::string missing;
   for (int r = 0; r < N; ++r) {
@@ -256,7 +71,7 @@ std::vector<int> UpperTriangleColumns(const CsvFile& csv, std::string_view prefi
 }
 
 template <int N>
-Eigen::Matrix<double, N, N> ReadUpperTriangle(const CsvFile& csv, const std::vector<int>& cols) {
+Eigen::Matrix<double, N, N> ReadUpperTriangle(const CsvReader& csv, const std::vector<int>& cols) {
   Eigen::Matrix<double, N, N> c;
   size_t i = 0;
   for (int r = 0; r < N; ++r) {
@@ -302,7 +117,7 @@ struct SensorCsvContents {
 SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
                                 const RecordedLogOptions& options, Sink sink,
                                 std::vector<std::string>& notes) {
-  CsvFile csv(path, std::string(kSensorHeader));
+  CsvReader csv(path, std::string(kSensorHeader));
   StreamKind kind;
   if (csv.Find("w_RS_S_x") >= 0) {
     kind = StreamKind::kImu;
@@ -445,16 +260,16 @@ SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
 // Ground truth CSV: T_WX from the columns <p>_x.. and <q>_w.., composed with T_XI.
 std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::string_view p_prefix,
                                                 std::string_view q_prefix,
-                                                const Eigen::Isometry3d& T_X_I) {
-  CsvFile csv(path, fmt::format("#timestamp [ns],{}x [m],{}y [m],{}z [m],{}w [],{}x [],{}y [],"
+                                                const Eigen::Isometry3d& T_XI) {
+  CsvReader csv(path, fmt::format("#timestamp [ns],{}x [m],{}y [m],{}z [m],{}w [],{}x [],{}y [],"
                                 "{}z [],...",
                                 p_prefix, p_prefix, p_prefix, q_prefix, q_prefix, q_prefix,
                                 q_prefix));
   const int t_col = csv.Require("timestamp", "time in ns");
   const auto p = RequireAll<3>(csv, p_prefix, "xyz", "ground-truth position in m");
   const auto q = RequireAll<4>(csv, q_prefix, "wxyz", "ground-truth attitude, Hamilton");
-  const Eigen::Quaterniond q_X_I(T_X_I.linear());
-  const bool identity = T_X_I.isApprox(Eigen::Isometry3d::Identity(), 0.0);
+  const Eigen::Quaterniond q_XI(T_XI.linear());
+  const bool identity = T_XI.isApprox(Eigen::Isometry3d::Identity(), 0.0);
   // Bias columns (EuRoC's estimate of the IMU biases) when all three of a kind are there.
   const auto optional_triple = [&](std::string_view prefix) -> std::optional<std::array<int, 3>> {
     std::array<int, 3> cols{};
@@ -480,8 +295,8 @@ std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::strin
       g.p_WI = p_WX;
       g.q_WI = q_WX;
     } else {
-      g.p_WI = p_WX + q_WX * T_X_I.translation();
-      g.q_WI = (q_WX * q_X_I).normalized();
+      g.p_WI = p_WX + q_WX * T_XI.translation();
+      g.q_WI = (q_WX * q_XI).normalized();
     }
     if (g.q_WI.w() < 0.0) g.q_WI.coeffs() *= -1.0;
     out.push_back(g);
@@ -491,7 +306,7 @@ std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::strin
 
 // labels.csv of a run directory (run_directory.cc LabelsCsv).
 std::vector<LabelEvent> ReadLabelsCsv(const fs::path& path) {
-  CsvFile csv(path, "#timestamp [ns],sensor,label,source,active");
+  CsvReader csv(path, "#timestamp [ns],sensor,label,source,active");
   const int t_col = csv.Require("timestamp", "time in ns");
   const int sensor_col = csv.Require("sensor", "the sensor's name");
   const int label_col = csv.Require("label", "a condition or fault kind");
@@ -510,11 +325,11 @@ std::vector<LabelEvent> ReadLabelsCsv(const fs::path& path) {
     }
     if (e.source != "condition" && e.source != "fault") {
       throw csv.Error(source_col, fmt::format("expected condition or fault, got {}",
-                                              Quoted(e.source)));
+                                              CsvQuoted(e.source)));
     }
     const std::string_view active = csv.Text(active_col);
     if (active != "0" && active != "1") {
-      throw csv.Error(active_col, fmt::format("expected 1 or 0, got {}", Quoted(active)));
+      throw csv.Error(active_col, fmt::format("expected 1 or 0, got {}", CsvQuoted(active)));
     }
     e.active = active == "1";
     if (!out.empty() && e.t_ns < out.back().t_ns) {
@@ -528,122 +343,16 @@ std::vector<LabelEvent> ReadLabelsCsv(const fs::path& path) {
 
 // ---- calibration.yaml ----
 
-struct SensorCalibration {
-  std::optional<Eigen::Isometry3d> T_B_s;       // nominal mount (what an estimator is given)
-  std::optional<Eigen::Isometry3d> true_T_B_s;  // only where a calibration error was set
-  std::optional<Eigen::Isometry3d> true_T_WS;   // the true reference frame (scoring only)
-  YAML::Node options;
-};
-
-struct Calibration {
-  bool present = false;
-  std::map<std::string, SensorCalibration> sensors;
-};
-
-InputError YamlError(const std::string& file, const YAML::Mark& mark, const std::string& key,
-                     const std::string& message) {
-  return InputError({file, mark.is_null() ? 0 : mark.line + 1, mark.is_null() ? 0 : mark.column + 1},
-                    key, message);
-}
-
-// A YAML text's root; a syntax error is an InputError at its line and column.
-YAML::Node LoadYaml(const std::string& text, const std::string& file) {
-  try {
-    return YAML::Load(text);
-  } catch (const YAML::Exception& e) {
-    throw YamlError(file, e.mark, "", fmt::format("not valid YAML: {}", e.msg));
-  }
-}
-
-double YamlNumber(const YAML::Node& node, const std::string& file, const std::string& key) {
-  if (!node.IsScalar()) throw YamlError(file, node.Mark(), key, "expected a number");
-  try {
-    return node.as<double>();
-  } catch (const YAML::Exception&) {
-    throw YamlError(file, node.Mark(), key,
-                    fmt::format("expected a number, got '{}'", node.Scalar()));
-  }
-}
-
-// {p_m: [x, y, z], q_wxyz: [w, x, y, z]} as an isometry.
-Eigen::Isometry3d YamlPose(const YAML::Node& node, const std::string& file, const std::string& key) {
-  if (!node.IsMap()) {
-    throw YamlError(file, node.Mark(), key, "expected a map {p_m: [x, y, z], q_wxyz: [w, x, y, z]}");
-  }
-  const auto vector = [&](const char* name, size_t n) {
-    const YAML::Node v = node[name];
-    const std::string sub = key + "." + name;
-    if (!v || !v.IsSequence() || v.size() != n) {
-      throw YamlError(file, v ? v.Mark() : node.Mark(), sub,
-                      fmt::format("expected a list of {} numbers", n));
-    }
-    std::vector<double> out;
-    for (size_t i = 0; i < n; ++i) out.push_back(YamlNumber(v[i], file, fmt::format("{}[{}]", sub, i)));
-    return out;
-  };
-  const std::vector<double> p = vector("p_m", 3);
-  const std::vector<double> q = vector("q_wxyz", 4);
-  Eigen::Quaterniond quat(q[0], q[1], q[2], q[3]);
-  if (!(quat.norm() > 0.5 && quat.norm() < 1.5)) {
-    throw YamlError(file, node["q_wxyz"].Mark(), key + ".q_wxyz",
-                    "expected a unit quaternion [w, x, y, z]");
-  }
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = quat.normalized().toRotationMatrix();
-  T.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
-  return T;
-}
-
-// calibration.yaml's text; `file` names it in messages.
-Calibration ParseCalibration(const std::string& text, const std::string& file) {
-  Calibration cal;
-  cal.present = true;
-  const YAML::Node root = LoadYaml(text, file);
-  const YAML::Node sensors = root.IsMap() ? root["sensors"] : YAML::Node();
-  if (!sensors) return cal;
-  if (!sensors.IsMap()) {
-    throw YamlError(file, sensors.Mark(), "sensors", "expected a map of sensor name to calibration");
-  }
-  for (const auto& entry : sensors) {
-    if (!entry.first.IsScalar()) {
-      throw YamlError(file, entry.first.Mark(), "sensors",
-                      "expected a sensor name (a string) as each key of sensors");
-    }
-    const std::string name = entry.first.Scalar();
-    const YAML::Node& node = entry.second;
-    const std::string key = "sensors." + name;
-    if (!node.IsMap()) throw YamlError(file, node.Mark(), key, "expected a map");
-    SensorCalibration s;
-    if (node["T_B_s"]) s.T_B_s = YamlPose(node["T_B_s"], file, key + ".T_B_s");
-    if (node["true_T_B_s"]) s.true_T_B_s = YamlPose(node["true_T_B_s"], file, key + ".true_T_B_s");
-    if (node["true_T_WS"]) s.true_T_WS = YamlPose(node["true_T_WS"], file, key + ".true_T_WS");
-    // Only when present: assigning yaml-cpp's node for a missing key makes s.options an
-    // invalid node that throws at its first use (a sensor with a mount and no options).
-    if (const YAML::Node options = node["options"]) s.options = options;
-    cal.sensors[name] = s;
-  }
-  return cal;
-}
-
-Calibration ReadCalibration(const fs::path& path) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) return Calibration{};
-  return ParseCalibration(core::ReadWholeFile(path, "calibration file", core::kMaxConfigFileBytes),
-                          path.string());
-}
-
 // The four IMU noise densities from sensors.<imu>.options; nullopt (and a note) if absent.
-std::optional<RecordedImuNoise> ReadImuNoise(const Calibration& cal, const std::string& imu,
-                                             const fs::path& path,
+std::optional<RecordedImuNoise> ReadImuNoise(const RunCalibration& cal, const std::string& imu,
                                              std::vector<std::string>& notes) {
   const auto it = cal.sensors.find(imu);
-  if (it == cal.sensors.end() || !it->second.options || !it->second.options.IsMap()) {
+  if (it == cal.sensors.end() || !it->second.has_options) {
     notes.push_back(fmt::format("IMU noise densities: none (no sensors.{}.options in "
                                 "calibration.yaml)",
                                 imu));
     return std::nullopt;
   }
-  const YAML::Node& options = it->second.options;
   RecordedImuNoise noise;
   const std::array<std::pair<const char*, double*>, 4> keys = {
       {{"gyro_noise_density_radps_per_sqrthz", &noise.gyro_noise_density_radps_per_sqrthz},
@@ -652,12 +361,12 @@ std::optional<RecordedImuNoise> ReadImuNoise(const Calibration& cal, const std::
        {"accel_random_walk_mps3_per_sqrthz", &noise.accel_random_walk_mps3_per_sqrthz}}};
   std::vector<std::string> missing;
   for (const auto& [key, out] : keys) {
-    const YAML::Node v = options[key];
+    const std::optional<double> v = cal.OptionNumber(imu, key);
     if (!v) {
       missing.emplace_back(key);
       continue;
     }
-    *out = YamlNumber(v, path.string(), fmt::format("sensors.{}.options.{}", imu, key));
+    *out = *v;
   }
   if (!missing.empty()) {
     notes.push_back(fmt::format("IMU noise densities: none (sensors.{}.options lacks {})", imu,
@@ -673,7 +382,7 @@ std::optional<RecordedImuNoise> ReadImuNoise(const Calibration& cal, const std::
 // (a 4x4 row-major matrix under T_BS.data). nullopt when the file does not exist.
 struct EurocImuCalibration {
   RecordedImuNoise noise;
-  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
 };
 
 std::optional<EurocImuCalibration> ReadEurocImuSensorYaml(const fs::path& path) {
@@ -681,7 +390,7 @@ std::optional<EurocImuCalibration> ReadEurocImuSensorYaml(const fs::path& path) 
   if (!fs::is_regular_file(path, ec)) return std::nullopt;
   const std::string file = path.string();
   const YAML::Node root =
-      LoadYaml(core::ReadWholeFile(path, "EuRoC sensor.yaml", core::kMaxConfigFileBytes), file);
+      LoadYamlText(core::ReadWholeFile(path, "EuRoC sensor.yaml", core::kMaxConfigFileBytes), file);
   if (!root.IsMap()) throw YamlError(file, root.Mark(), "", "expected a map (EuRoC sensor.yaml)");
   EurocImuCalibration out;
   const std::array<std::pair<const char*, double*>, 4> keys = {
@@ -719,69 +428,58 @@ std::optional<EurocImuCalibration> ReadEurocImuSensorYaml(const fs::path& path) 
                       "expected a rigid transform: an orthonormal rotation with determinant "
                       "+1 and a last row 0 0 0 1");
     }
-    out.T_B_I.linear() = Eigen::Quaterniond(R).normalized().toRotationMatrix();
-    out.T_B_I.translation() = M.topRightCorner<3, 1>();
+    out.T_BI.linear() = Eigen::Quaterniond(R).normalized().toRotationMatrix();
+    out.T_BI.translation() = M.topRightCorner<3, 1>();
   }
   return out;
 }
 
-// Mounts (T_I_s = T_B_I^-1 T_B_s, nominal), odometry noise, true reference frames and
+// Mounts (T_Is = T_BI^-1 T_Bs, nominal), odometry noise, true reference frames and
 // IMU noise of the log's streams from its calibration; returns the true IMU mount
-// T_B_I (the ground truth's B-to-I step).
-Eigen::Isometry3d ApplyCalibration(const Calibration& cal, const fs::path& cal_path,
-                                   RecordedLog& log) {
-  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
-  Eigen::Isometry3d T_B_I_true = Eigen::Isometry3d::Identity();
+// T_BI (the ground truth's B-to-I step).
+Eigen::Isometry3d ApplyCalibration(const RunCalibration& cal, RecordedLog& log) {
+  Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_BI_true = Eigen::Isometry3d::Identity();
   if (!cal.present) {
     log.notes.push_back("no calibration.yaml: identity mounts");
   } else {
     const auto imu = cal.sensors.find(log.imu_stream);
-    if (!log.imu_stream.empty() && imu != cal.sensors.end() && imu->second.T_B_s) {
-      T_B_I = *imu->second.T_B_s;
-      T_B_I_true = imu->second.true_T_B_s ? *imu->second.true_T_B_s : T_B_I;
+    if (!log.imu_stream.empty() && imu != cal.sensors.end() && imu->second.T_Bs) {
+      T_BI = *imu->second.T_Bs;
+      T_BI_true = imu->second.true_T_Bs ? *imu->second.true_T_Bs : T_BI;
     } else {
       log.notes.push_back("calibration.yaml: no IMU mount, T_B_I = identity");
     }
     for (RecordedStream& s : log.streams) {
       const auto it = cal.sensors.find(s.name);
       if (it != cal.sensors.end()) s.true_T_WS = it->second.true_T_WS;
-      if (it == cal.sensors.end() || !it->second.T_B_s) {
+      if (it == cal.sensors.end() || !it->second.T_Bs) {
         log.notes.push_back(fmt::format("{}: no mount in calibration.yaml, T_I_s = identity",
                                         s.name));
         continue;
       }
-      s.T_I_s = T_B_I.inverse() * *it->second.T_B_s;
+      s.T_Is = T_BI.inverse() * *it->second.T_Bs;
     }
     for (RecordedStream& s : log.streams) {
-      const auto it = cal.sensors.find(s.name);
-      if (it == cal.sensors.end() || !it->second.options || !it->second.options.IsMap()) continue;
-      const YAML::Node& o = it->second.options;
-      const std::string file = cal_path.string();
-      const std::string key = "sensors." + s.name + ".options.";
-      if (o["position_noise_m"]) {
-        s.position_noise_m = YamlNumber(o["position_noise_m"], file, key + "position_noise_m");
+      if (const auto v = cal.OptionNumber(s.name, "position_noise_m")) s.position_noise_m = *v;
+      if (const auto v = cal.OptionNumber(s.name, "rotation_noise_deg")) {
+        s.rotation_noise_rad = core::RadFromDeg(*v);
       }
-      if (o["rotation_noise_deg"]) {
-        s.rotation_noise_rad =
-            YamlNumber(o["rotation_noise_deg"], file, key + "rotation_noise_deg") * M_PI / 180.0;
-      }
-      if (o["position_random_walk_m_per_sqrtm"]) {
-        s.position_random_walk_m_per_sqrtm =
-            YamlNumber(o["position_random_walk_m_per_sqrtm"], file,
-                       key + "position_random_walk_m_per_sqrtm");
+      if (const auto v = cal.OptionNumber(s.name, "position_random_walk_m_per_sqrtm")) {
+        s.position_random_walk_m_per_sqrtm = *v;
       }
     }
     log.notes.push_back("mounts: T_I_s = T_B_I^-1 T_B_s from calibration.yaml");
   }
   if (!log.imu_stream.empty()) {
     if (cal.present) {
-      log.imu_noise = ReadImuNoise(cal, log.imu_stream, cal_path, log.notes);
+      log.imu_noise = ReadImuNoise(cal, log.imu_stream, log.notes);
     } else {
       log.notes.push_back("IMU noise densities: none (no calibration.yaml)");
     }
   }
 
-  return T_B_I_true;
+  return T_BI_true;
 }
 
 // The IMU frame I: the only IMU stream, else the one named "imu", else the first by
@@ -876,25 +574,23 @@ const char* StreamKindName(StreamKind kind) {
   return "?";
 }
 
-RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions& options) {
-  std::error_code ec;
-  if (!fs::exists(directory, ec)) {
-    throw InputError({directory.string()}, "",
-                     "no such directory, expected a tofu run directory (sensors/*.csv) or an "
-                     "EuRoC-style log (mav0/imu0/data.csv, *.tum)");
-  }
-  if (!fs::is_directory(directory, ec)) {
-    throw InputError({directory.string()}, "",
-                     "not a directory, expected a tofu run directory or an EuRoC-style log");
-  }
-  RecordedLog log;
-  log.directory = directory;
+namespace {
 
-  // Which layout, which files.
-  std::vector<Source> sources;
-  const bool run_directory = fs::is_directory(directory / "sensors", ec);
+// Where a log's streams and ground truth are: a tofu run directory (sensors/*.csv) or an
+// EuRoC-style log (mav0/imu0/data.csv, *.tum).
+struct LogLayout {
+  bool run_directory = false;
+  std::vector<Source> sources;  // by name
   fs::path ground_truth_file;
-  if (run_directory) {
+};
+
+LogLayout FindLayout(const fs::path& directory, const RecordedLogOptions& options,
+                     std::vector<std::string>& notes) {
+  std::error_code ec;
+  LogLayout layout;
+  layout.run_directory = fs::is_directory(directory / "sensors", ec);
+  std::vector<Source>& sources = layout.sources;
+  if (layout.run_directory) {
     const fs::path folder =
         options.use_clean_streams ? directory / "sensors" / "clean" : directory / "sensors";
     if (!fs::is_directory(folder, ec)) {
@@ -906,10 +602,10 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
         sources.push_back({entry.path().stem().string(), entry.path(), false});
       }
     }
-    log.notes.push_back(fmt::format("layout: tofu run directory, streams from {}",
-                                    options.use_clean_streams ? "sensors/clean/*.csv (un-faulted)"
-                                                              : "sensors/*.csv"));
-    ground_truth_file = directory / "groundtruth.csv";
+    notes.push_back(fmt::format("layout: tofu run directory, streams from {}",
+                                options.use_clean_streams ? "sensors/clean/*.csv (un-faulted)"
+                                                          : "sensors/*.csv"));
+    layout.ground_truth_file = directory / "groundtruth.csv";
   } else {
     const fs::path imu = directory / "mav0" / "imu0" / "data.csv";
     if (fs::is_regular_file(imu, ec)) sources.push_back({"imu", imu, false});
@@ -917,15 +613,15 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
       if (!entry.is_regular_file() || entry.path().extension() != ".tum") continue;
       const std::string stem = entry.path().stem().string();
       if (IsReservedTum(stem)) {
-        log.notes.push_back(fmt::format("{}: not read (a tofu output, not a sensor stream)",
-                                        entry.path().filename().string()));
+        notes.push_back(fmt::format("{}: not read (a tofu output, not a sensor stream)",
+                                    entry.path().filename().string()));
         continue;
       }
       sources.push_back({stem, entry.path(), true});
     }
-    log.notes.push_back("layout: EuRoC-style log (mav0/imu0/data.csv as 'imu', *.tum as pose "
-                        "streams)");
-    ground_truth_file = directory / "mav0" / "state_groundtruth_estimate0" / "data.csv";
+    notes.push_back("layout: EuRoC-style log (mav0/imu0/data.csv as 'imu', *.tum as pose "
+                    "streams)");
+    layout.ground_truth_file = directory / "mav0" / "state_groundtruth_estimate0" / "data.csv";
   }
   std::sort(sources.begin(), sources.end(),
             [](const Source& a, const Source& b) { return a.name < b.name; });
@@ -941,8 +637,13 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
                      "no IMU stream found: expected sensors/<name>.csv (tofu run directory) or "
                      "mav0/imu0/data.csv (EuRoC)");
   }
+  return layout;
+}
 
-  // Every stream, in name order.
+// Every stream, in name order, into log.streams and log.measurements; returns where each
+// stream's measurements end (SortByArrival merges them).
+std::vector<size_t> ReadStreams(const fs::path& directory, const std::vector<Source>& sources,
+                                const RecordedLogOptions& options, RecordedLog& log) {
   std::vector<size_t> stream_end;
   const Sink sink{&log.measurements, &log.arrival_ns};
   for (const Source& source : sources) {
@@ -967,7 +668,8 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
       log.notes.push_back(fmt::format("{}: TUM pose stream, arrival = t, default covariance",
                                       source.name));
     } else {
-      const SensorCsvContents contents = ReadSensorCsv(source.file, source.name, options, sink, log.notes);
+      const SensorCsvContents contents =
+          ReadSensorCsv(source.file, source.name, options, sink, log.notes);
       stream.kind = contents.kind;
       stream.rows = contents.rows;
       stream.covariance_stated = contents.covariance_stated;
@@ -978,6 +680,72 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
     log.streams.push_back(std::move(stream));
     stream_end.push_back(log.measurements.size());
   }
+  return stream_end;
+}
+
+// EuRoC's own IMU calibration (mav0/imu0/sensor.yaml): its noise densities unless
+// calibration.yaml (the user's) states them; its mount when there is no calibration.yaml.
+// EuRoC's body frame is the one its ground truth and (taken here) the pose streams are of.
+void ApplyEurocImuCalibration(const fs::path& directory, bool calibration_present,
+                              Eigen::Isometry3d& T_BI_true, RecordedLog& log) {
+  const fs::path sensor_yaml = directory / "mav0" / "imu0" / "sensor.yaml";
+  const std::optional<EurocImuCalibration> euroc = ReadEurocImuSensorYaml(sensor_yaml);
+  if (!euroc) return;
+  if (!log.imu_noise) {
+    log.imu_noise = euroc->noise;
+    log.notes.push_back("IMU noise densities from mav0/imu0/sensor.yaml");
+  }
+  if (calibration_present) return;
+  T_BI_true = euroc->T_BI;
+  for (RecordedStream& stream : log.streams) {
+    if (stream.name != log.imu_stream) stream.T_Is = euroc->T_BI.inverse();
+  }
+  log.notes.push_back("mounts: T_B_I from mav0/imu0/sensor.yaml T_BS, other streams of the body");
+}
+
+// Ground truth of the IMU frame (T_WB x the true IMU mount), and a run's labels.
+void ReadGroundTruthAndLabels(const fs::path& directory, const LogLayout& layout,
+                              const Eigen::Isometry3d& T_BI_true, RecordedLog& log) {
+  std::error_code ec;
+  if (fs::is_regular_file(layout.ground_truth_file, ec)) {
+    if (layout.run_directory) {
+      log.ground_truth = ReadGroundTruthCsv(layout.ground_truth_file, "p_WB_", "q_WB_", T_BI_true);
+      log.notes.push_back("ground truth: groundtruth.csv (T_WB) x T_B_I (true IMU mount)");
+    } else {
+      log.ground_truth =
+          ReadGroundTruthCsv(layout.ground_truth_file, "p_RS_R_", "q_RS_", T_BI_true);
+      log.notes.push_back("ground truth: mav0/state_groundtruth_estimate0/data.csv (T_WB) x T_B_I");
+    }
+  } else {
+    log.notes.push_back(fmt::format("no ground truth ({} not found)",
+                                    fs::relative(layout.ground_truth_file, directory).string()));
+  }
+  if (layout.run_directory) {
+    const fs::path labels_file = directory / "labels.csv";
+    if (fs::is_regular_file(labels_file, ec)) {
+      log.labels = ReadLabelsCsv(labels_file);
+      log.notes.push_back(fmt::format("labels: labels.csv ({} transitions)", log.labels.size()));
+    }
+  }
+}
+
+}  // namespace
+
+RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions& options) {
+  std::error_code ec;
+  if (!fs::exists(directory, ec)) {
+    throw InputError({directory.string()}, "",
+                     "no such directory, expected a tofu run directory (sensors/*.csv) or an "
+                     "EuRoC-style log (mav0/imu0/data.csv, *.tum)");
+  }
+  if (!fs::is_directory(directory, ec)) {
+    throw InputError({directory.string()}, "",
+                     "not a directory, expected a tofu run directory or an EuRoC-style log");
+  }
+  RecordedLog log;
+  log.directory = directory;
+  const LogLayout layout = FindLayout(directory, options, log.notes);
+  const std::vector<size_t> stream_end = ReadStreams(directory, layout.sources, options, log);
 
   // The IMU: the only IMU stream, else the one named "imu", else the first by name.
   if (!ChooseImuStream(log) && options.require_imu) {
@@ -985,56 +753,18 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
                      fmt::format("no IMU stream found among {} stream(s): expected a CSV "
                                  "with columns w_RS_S_x/y/z, a_RS_S_x/y/z ({})",
                                  log.streams.size(),
-                                 run_directory ? "sensors/<name>.csv" : "mav0/imu0/data.csv"));
+                                 layout.run_directory ? "sensors/<name>.csv"
+                                                      : "mav0/imu0/data.csv"));
   }
-  log.imu_samples_are_interval_averages = run_directory;
+  log.imu_samples_are_interval_averages = layout.run_directory;
 
-  // Mounts: T_I_s = T_B_I^-1 T_B_s (nominal mounts).
-  const fs::path cal_path = directory / "calibration.yaml";
-  const Calibration calibration = ReadCalibration(cal_path);
-  Eigen::Isometry3d T_B_I_true = ApplyCalibration(calibration, cal_path, log);
-  if (!run_directory && !log.imu_stream.empty()) {
-    // EuRoC's own IMU calibration: its noise densities unless calibration.yaml (the user's)
-    // states them; its mount when there is no calibration.yaml. EuRoC's body frame is the
-    // one its ground truth and (taken here) the pose streams are of.
-    const fs::path sensor_yaml = directory / "mav0" / "imu0" / "sensor.yaml";
-    if (const std::optional<EurocImuCalibration> euroc = ReadEurocImuSensorYaml(sensor_yaml)) {
-      if (!log.imu_noise) {
-        log.imu_noise = euroc->noise;
-        log.notes.push_back("IMU noise densities from mav0/imu0/sensor.yaml");
-      }
-      if (!calibration.present) {
-        T_B_I_true = euroc->T_B_I;
-        for (RecordedStream& stream : log.streams) {
-          if (stream.name != log.imu_stream) stream.T_I_s = euroc->T_B_I.inverse();
-        }
-        log.notes.push_back("mounts: T_B_I from mav0/imu0/sensor.yaml T_BS, other streams of the body");
-      }
-    }
+  // Mounts: T_Is = T_BI^-1 T_Bs (nominal mounts).
+  const RunCalibration calibration = ReadRunCalibration(directory / "calibration.yaml");
+  Eigen::Isometry3d T_BI_true = ApplyCalibration(calibration, log);
+  if (!layout.run_directory && !log.imu_stream.empty()) {
+    ApplyEurocImuCalibration(directory, calibration.present, T_BI_true, log);
   }
-
-  // Ground truth of the IMU frame.
-  if (fs::is_regular_file(ground_truth_file, ec)) {
-    if (run_directory) {
-      log.ground_truth = ReadGroundTruthCsv(ground_truth_file, "p_WB_", "q_WB_", T_B_I_true);
-      log.notes.push_back("ground truth: groundtruth.csv (T_WB) x T_B_I (true IMU mount)");
-    } else {
-      log.ground_truth = ReadGroundTruthCsv(ground_truth_file, "p_RS_R_", "q_RS_", T_B_I_true);
-      log.notes.push_back("ground truth: mav0/state_groundtruth_estimate0/data.csv (T_WB) x T_B_I");
-    }
-  } else {
-    log.notes.push_back(fmt::format("no ground truth ({} not found)",
-                                    fs::relative(ground_truth_file, directory).string()));
-  }
-
-  if (run_directory) {
-    const fs::path labels_file = directory / "labels.csv";
-    if (fs::is_regular_file(labels_file, ec)) {
-      log.labels = ReadLabelsCsv(labels_file);
-      log.notes.push_back(fmt::format("labels: labels.csv ({} transitions)", log.labels.size()));
-    }
-  }
-
+  ReadGroundTruthAndLabels(directory, layout, T_BI_true, log);
   SortByArrival(log, stream_end);
   return log;
 }
@@ -1055,7 +785,7 @@ RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> s
   ChooseImuStream(log);
   log.imu_samples_are_interval_averages = true;
   const fs::path cal_path = directory / "calibration.yaml";
-  ApplyCalibration(ParseCalibration(calibration_yaml, cal_path.string()), cal_path, log);
+  ApplyCalibration(ParseRunCalibration(calibration_yaml, cal_path.string()), log);
   return log;
 }
 

@@ -54,10 +54,10 @@ struct RecordedStream {
   std::string name;
   StreamKind kind = StreamKind::kImu;
   std::filesystem::path file;
-  /// Mount frame s of the sensor in the IMU frame I: T_I_s = T_B_I^-1 T_B_s with the
-  /// nominal mounts T_B_s of calibration.yaml (what an estimator is given, not the true
-  /// ones); T_B_I = identity without an IMU mount, T_B_s = identity without the sensor's.
-  Eigen::Isometry3d T_I_s = Eigen::Isometry3d::Identity();
+  /// Mount frame s of the sensor in the IMU frame I: T_Is = T_BI^-1 T_Bs with the
+  /// nominal mounts T_Bs of calibration.yaml (what an estimator is given, not the true
+  /// ones); T_BI = identity without an IMU mount, T_Bs = identity without the sensor's.
+  Eigen::Isometry3d T_Is = Eigen::Isometry3d::Identity();
   std::size_t rows = 0;  ///< data rows read (= measurements of this stream)
   /// Whether the samples carry their own covariance (a tofu sensor CSV's cov_* columns);
   /// false for a TUM file or a CSV without them, whose samples hold the default.
@@ -125,7 +125,7 @@ struct RecordedLog {
   /// IMUs (EuRoC's ADIS16448) are taken as instantaneous samples.
   bool imu_samples_are_interval_averages = false;
   /// Pose of the IMU frame I in W, in file order; empty without ground truth. Layout (a):
-  /// T_WI = T_WB T_B_I with the IMU's true mount (true_T_B_s when calibration.yaml has one).
+  /// T_WI = T_WB T_BI with the IMU's true mount (true_T_Bs when calibration.yaml has one).
   std::vector<GroundTruthPose> ground_truth;
   /// Layout (a): labels.csv (conditions and scheduled faults), by time; empty otherwise.
   std::vector<LabelEvent> labels;

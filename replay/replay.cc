@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
+#include "core/units.h"
 #include "estimator/velocity.h"
 #include "replay/estimation_config.h"
 #include "replay/file_io.h"
@@ -79,7 +80,7 @@ void WriteErrorsCsv(const std::filesystem::path& file, const TrajectoryErrors& e
     const core::Time t = errors.t_ns[k];
     while (e + 1 < estimate.size() && estimate[e].t_ns < t) ++e;
     while (g + 1 < truth.size() && truth[g + 1].t_ns <= t) ++g;
-    const Eigen::Vector3d p_est = errors.T_W_L * estimate[e].p;
+    const Eigen::Vector3d p_est = errors.T_WL * estimate[e].p;
     Eigen::Vector3d p_true = PositionOf(truth[g]);
     if (g + 1 < truth.size() && truth[g + 1].t_ns > truth[g].t_ns) {
       const double u = static_cast<double>(t - truth[g].t_ns) /
@@ -264,7 +265,7 @@ std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
     spec.name = s.name;
     spec.kind = s.kind == StreamKind::kPose ? estimator::SensorKind::kPose
                                              : estimator::SensorKind::kPosition;
-    spec.T_I_s = s.T_I_s;
+    spec.T_Is = s.T_Is;
     // Between-factor weights from the stated odometry noise: the white noise of both ends
     // plus the drift over the distance flown between keyframes (~5 cm at 1.5 m/s, 30 Hz).
     constexpr double kDistanceBetweenKeyframes_m = 0.05;
@@ -531,8 +532,8 @@ std::vector<LocalConsistencySeries> LocalConsistency(
 
     // Local estimate at the mount, in s, at the output times.
     estimator::VelocitySeries local;
-    const Eigen::Matrix3d R_Is = stream.T_I_s.linear();
-    const Eigen::Vector3d p_Is = stream.T_I_s.translation();
+    const Eigen::Matrix3d R_Is = stream.T_Is.linear();
+    const Eigen::Vector3d p_Is = stream.T_Is.translation();
     for (const estimator::EstimatorOutput& o : result.outputs) {
       if (!o.valid) continue;
       const Eigen::Matrix3d R_LI = o.state.q_LI.toRotationMatrix();
@@ -588,7 +589,7 @@ namespace {
 double TiltErrorDeg(const Eigen::Quaterniond& q_LI, const Eigen::Quaterniond& q_WI) {
   const Eigen::Vector3d down_I_est = q_LI.conjugate() * -Eigen::Vector3d::UnitZ();
   const Eigen::Vector3d down_I_true = q_WI.conjugate() * -Eigen::Vector3d::UnitZ();
-  return std::atan2(down_I_est.cross(down_I_true).norm(), down_I_est.dot(down_I_true)) * 180.0 / M_PI;
+  return std::atan2(down_I_est.cross(down_I_true).norm(), down_I_est.dot(down_I_true)) * 180.0 / core::kPi;
 }
 
 // The ground truth nearest in time (200 Hz and more: within half a period).
@@ -616,9 +617,9 @@ nlohmann::ordered_json InitialisationJson(const RecordedLog& log, const ReplayRe
     e["after_imu_gap"] = r.after_imu_gap;
     if (r.method == estimator::InitialisationRecord::Method::kVisualInertial) {
       e["window_s"] = r.window_s;
-      e["gravity_direction_std_deg"] = r.gravity_direction_std_rad * 180.0 / M_PI;
+      e["gravity_direction_std_deg"] = core::DegFromRad(r.gravity_direction_std_rad);
       e["relative_position_std_m"] = r.relative_position_std_m;
-      e["relative_rotation_std_deg"] = r.relative_rotation_std_rad * 180.0 / M_PI;
+      e["relative_rotation_std_deg"] = core::DegFromRad(r.relative_rotation_std_rad);
     }
     if (const GroundTruthPose* g = TruthAt(log.ground_truth, r.t_ns)) {
       e["gravity_direction_error_deg"] = TiltErrorDeg(r.state.q_LI, g->q_WI);
@@ -765,8 +766,8 @@ MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResul
                 {"rpe_translation_rmse_m", errors->rpe_translation_rmse_m},
                 {"rpe_rotation_rmse_deg", errors->rpe_rotation_rmse_deg}};
     // The alignment of L to W, so that renders can place the estimate in the world.
-    const Eigen::Quaterniond q_WL(errors->T_W_L.linear());
-    const Eigen::Vector3d p_WL = errors->T_W_L.translation();
+    const Eigen::Quaterniond q_WL(errors->T_WL.linear());
+    const Eigen::Vector3d p_WL = errors->T_WL.translation();
     j["T_WL"] = {{"p_m", {p_WL.x(), p_WL.y(), p_WL.z()}},
                  {"q_wxyz", {q_WL.w(), q_WL.x(), q_WL.y(), q_WL.z()}}};
   }
@@ -817,7 +818,7 @@ MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResul
   nlohmann::ordered_json noise = nlohmann::ordered_json::object();
   for (const auto& [name, n] : result.stream_noise) {
     noise[name] = {{"between_position_std_m", n.between_position_std_m},
-                   {"between_rotation_std_deg", n.between_rotation_std_rad * 180.0 / M_PI},
+                   {"between_rotation_std_deg", core::DegFromRad(n.between_rotation_std_rad)},
                    {"source", n.source}};
   }
   j["stream_noise"] = noise;
@@ -1055,7 +1056,7 @@ std::optional<std::string> NothingToFuse(const ReplayResult& result,
 std::vector<PoseSample> RawPoseTrajectory(const RecordedLog& log, const RecordedStream& stream,
                                           core::Time from_ns, core::Time to_ns) {
   std::vector<PoseSample> raw;
-  const Eigen::Isometry3d T_sI = stream.T_I_s.inverse();
+  const Eigen::Isometry3d T_sI = stream.T_Is.inverse();
   for (const core::StampedMeasurement& m : log.measurements) {
     if (m.sensor != stream.name || m.t_ns < from_ns || m.t_ns > to_ns) continue;
     const auto* pose = std::get_if<core::PoseMeasurement>(&m.value);

@@ -15,6 +15,7 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "core/lie.h"
+#include "core/units.h"
 #include "replay/file_io.h"
 
 namespace tofu::replay {
@@ -24,7 +25,7 @@ namespace fs = std::filesystem;
 using core::InputError;
 using core::Time;
 
-constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
+using core::kDegPerRad;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 // ---- TUM text ----
@@ -116,7 +117,7 @@ struct Pair {
   PoseSample truth;     // T_WI
 };
 
-// T_W_L from the pairs inside the alignment range (see TrajectoryErrorOptions).
+// T_WL from the pairs inside the alignment range (see TrajectoryErrorOptions).
 Eigen::Isometry3d Align(const std::vector<const Pair*>& pairs, const TrajectoryErrorOptions& options,
                         bool* from_attitude) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
@@ -412,16 +413,16 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
     if (p.t_ns >= options.align_from_ns && p.t_ns <= options.align_to_ns) in_range.push_back(&p);
   }
   r.aligned_on = in_range.size();
-  r.T_W_L = Align(in_range, options, &r.alignment_from_attitude);
+  r.T_WL = Align(in_range, options, &r.alignment_from_attitude);
 
   // ATE and attitude error per matched sample.
-  const Eigen::Matrix3d R_WL = r.T_W_L.linear();
+  const Eigen::Matrix3d R_WL = r.T_WL.linear();
   r.t_ns.reserve(pairs.size());
   r.t_s.reserve(pairs.size());
   r.position_error_m.reserve(pairs.size());
   r.rotation_error_deg.reserve(pairs.size());
   for (const Pair& p : pairs) {
-    const Eigen::Vector3d p_W = r.T_W_L * p.estimate.p;
+    const Eigen::Vector3d p_W = r.T_WL * p.estimate.p;
     const Eigen::Matrix3d R_WI = R_WL * p.estimate.q.toRotationMatrix();
     r.t_ns.push_back(p.t_ns);
     r.t_s.push_back(core::TimeToSeconds(p.t_ns));

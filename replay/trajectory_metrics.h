@@ -38,7 +38,7 @@ struct PoseSample {
 
 /// How the estimate's frame L is aligned to W before errors are taken.
 enum class TrajectoryAlignment {
-  kNone,         ///< T_W_L = identity
+  kNone,         ///< T_WL = identity
   kSE3,          ///< rigid, no scale: Umeyama/Horn on the positions (evo `-a`)
   kPositionYaw,  ///< translation + rotation about gravity z (rpg "posyaw", 4-DoF)
 };
@@ -72,7 +72,7 @@ struct TrajectoryErrors {
   /// True when the alignment's rotation came from the attitudes (positions too clustered,
   /// see min_alignment_spread_m).
   bool alignment_from_attitude = false;
-  Eigen::Isometry3d T_W_L = Eigen::Isometry3d::Identity();  ///< the alignment applied
+  Eigen::Isometry3d T_WL = Eigen::Isometry3d::Identity();  ///< the alignment applied
 
   // ATE over all matched samples; NaN when matched == 0.
   double ate_position_rmse_m = 0.0;

@@ -15,6 +15,7 @@
 
 #include "core/error.h"
 #include "core/file_io.h"
+#include "replay/csv_reader.h"
 
 namespace tofu::replay {
 namespace {
@@ -41,13 +42,6 @@ std::string_view Trim(std::string_view s) {
 }
 
 bool IsBlankLine(std::string_view line) { return Trim(line).empty(); }
-
-// A field or line as quoted in an error message: at most 60 characters.
-std::string Quoted(std::string_view s) {
-  constexpr size_t kMax = 60;
-  if (s.size() <= kMax) return fmt::format("'{}'", s);
-  return fmt::format("'{}...'", s.substr(0, kMax));
-}
 
 
 // Splits text into lines ('\n'; a '\r' before it is dropped), counting them from 1.
@@ -105,7 +99,7 @@ void CheckHeader(std::string_view line, const std::string& path) {
   if (count != kFields) {
     throw InputError({path, 1, 1}, "",
                      fmt::format("{}, got {} ({} comma-separated columns, not {})", expected,
-                                 Quoted(line), count, kFields));
+                                 CsvQuoted(line), count, kFields));
   }
   for (int i = 0; i < kFields; ++i) {
     const bool ok =
@@ -113,7 +107,7 @@ void CheckHeader(std::string_view line, const std::string& path) {
     if (!ok) {
       throw InputError({path, 1, fields[i].column}, "",
                        fmt::format("{}: column {} should be '{}', got {}", expected, i + 1,
-                                   kHeaderFields[i], Quoted(fields[i].text)));
+                                   kHeaderFields[i], CsvQuoted(fields[i].text)));
     }
   }
 }
@@ -180,12 +174,12 @@ estimator::VelocitySeries ParseVelocityCsv(std::string_view text, const std::str
     if (t_ec == std::errc::result_out_of_range) {
       throw InputError({path, number, tf.column}, "",
                        fmt::format("field 1 ({}): {} does not fit in a 64-bit integer",
-                                   kColumnNames[0], Quoted(tf.text)));
+                                   kColumnNames[0], CsvQuoted(tf.text)));
     }
     if (t_ec != std::errc() || t_end != tf.text.data() + tf.text.size()) {
       throw InputError({path, number, tf.column}, "",
                        fmt::format("field 1 ({}): expected an integer timestamp in ns, got {}",
-                                   kColumnNames[0], Quoted(tf.text)));
+                                   kColumnNames[0], CsvQuoted(tf.text)));
     }
     if (!series.t_ns.empty() && t <= series.t_ns.back()) {
       throw InputError(
@@ -204,18 +198,18 @@ estimator::VelocitySeries ParseVelocityCsv(std::string_view text, const std::str
       if (ec == std::errc::result_out_of_range) {
         throw InputError({path, number, f.column}, "",
                          fmt::format("field {} ({}): {} is out of the range of a double", i + 1,
-                                     kColumnNames[i], Quoted(f.text)));
+                                     kColumnNames[i], CsvQuoted(f.text)));
       }
       if (ec != std::errc() || end != f.text.data() + f.text.size()) {
         throw InputError({path, number, f.column}, "",
                          fmt::format("field {} ({}): expected a number, got {}", i + 1,
-                                     kColumnNames[i], Quoted(f.text)));
+                                     kColumnNames[i], CsvQuoted(f.text)));
       }
       if (!std::isfinite(value)) {
         throw InputError({path, number, f.column}, "",
                          fmt::format("field {} ({}): {} is not a finite number; NaN and Inf "
                                      "are not accepted in a velocity CSV",
-                                     i + 1, kColumnNames[i], Quoted(f.text)));
+                                     i + 1, kColumnNames[i], CsvQuoted(f.text)));
       }
       v[i - 1] = value;
     }

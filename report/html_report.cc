@@ -21,8 +21,8 @@
 #include "core/file_io.h"
 #include "harness/check_command.h"
 #include "harness/run_directory.h"
-#include "renders/csv_table.h"
 #include "renders/run_data.h"
+#include "replay/csv_reader.h"
 #include "replay/file_io.h"
 #include "report/html_report_assets.h"
 
@@ -297,7 +297,7 @@ struct RunInputs {
   std::map<std::string, std::pair<Series, Series>> closed_loop;
 };
 
-RunInputs::Series ReadColumn(const renders::CsvTable& csv, const char* column) {
+RunInputs::Series ReadColumn(const replay::CsvTable& csv, const char* column) {
   RunInputs::Series out;
   const int t = csv.Require("timestamp");
   const int c = csv.Require(column);
@@ -326,7 +326,7 @@ RunInputs ReadRunInputs(const fs::path& dir) {
   }
   in.data = renders::ReadRunData(dir);
   if (fs::exists(dir / "tracking.csv")) {
-    const renders::CsvTable csv(
+    const replay::CsvTable csv(
         dir / "tracking.csv",
         "#timestamp [ns],p_ref_x [m],...,position_error [m],attitude_error [deg]");
     in.tracking = ReadColumn(csv, "position_error");
@@ -336,7 +336,7 @@ RunInputs ReadRunInputs(const fs::path& dir) {
     for (const auto& entry : fs::directory_iterator(dir / "closed_loop")) {
       const fs::path control = entry.path() / "control.csv";
       if (!entry.is_directory() || !fs::exists(control)) continue;
-      const renders::CsvTable csv(control,
+      const replay::CsvTable csv(control,
                                   "#timestamp [ns],mode,...,tracking_error [m],"
                                   "estimate_error [m],structure_distance [m]");
       in.closed_loop[entry.path().filename().string()] = {ReadColumn(csv, "tracking_error"),

@@ -15,9 +15,9 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
-#include "renders/csv_table.h"
 #include "renders/events.h"
 #include "renders/run_data.h"
+#include "replay/csv_reader.h"
 #include "report/json_text.h"
 #include "report/mcap_schemas.h"
 #include "sim/world.h"
@@ -26,7 +26,7 @@ namespace tofu::report {
 namespace {
 
 namespace fs = std::filesystem;
-using renders::CsvTable;
+using replay::CsvTable;
 using renders::RunData;
 using renders::TimedPose;
 
@@ -402,7 +402,8 @@ void ExportLabelsAndEvents(const RunData& run, Channels& out) {
     }
     const fs::path events = dir / "events.csv";
     if (!fs::exists(events)) continue;
-    const CsvTable csv(events, "#timestamp [ns],event,detail", true);
+    const CsvTable csv(events, "#timestamp [ns],event,detail",
+                       replay::CsvOptions{.last_column_takes_rest = true});
     const int t = csv.Require("timestamp");
     const int event = csv.Require("event");
     const int detail = csv.Find("detail");

@@ -1,10 +1,12 @@
 #include "sim/allocation.h"
 
+
 #include <algorithm>
 #include <cmath>
-#include <numbers>
 
 #include <Eigen/SVD>
+
+#include "core/units.h"
 
 namespace tofu::sim {
 namespace {
@@ -17,7 +19,7 @@ Eigen::Matrix<double, 6, 1> Stack(const Wrench& w) {
 
 // Among a + 2k*pi in [lo, hi], the value closest to `near`.
 double ClosestEquivalentAngle(double a, double near, double lo, double hi) {
-  const double two_pi = 2.0 * std::numbers::pi;
+  const double two_pi = core::kTwoPi;
   double best = a;
   double best_distance = INFINITY;
   const double k0 = std::round((near - a) / two_pi);

@@ -1,14 +1,17 @@
 #include "sim/gnss.h"
 
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <utility>
 
+#include "core/units.h"
+
 namespace tofu::sim {
 namespace {
 
-// Position in W of a point fixed in B at p_B_s, at t + tau (rigid-body kinematics,
+// Position in W of a point fixed in B at p_Bs, at t + tau (rigid-body kinematics,
 // second-order extrapolation over tau < one physics step):
 //   p_Ws = p_WB + R_WB r,  v_Ws = v_WB + R_WB (omega x r),
 //   a_Ws = a_WB + R_WB (alpha x r + omega x (omega x r)).
@@ -48,7 +51,7 @@ GnssModel::GnssModel(std::string name, const GnssOptions& options, const World& 
   if (mount == nullptr) {
     throw std::invalid_argument(who + "robot has no site '" + options_.site + "'");
   }
-  p_B_s_ = mount->p_B_s;
+  p_B_s_ = mount->p_Bs;
   if (!(period_ns_ > 0)) throw std::invalid_argument(who + "rate_hz must be positive");
   if (!(options_.min_satellites_single >= 4 &&
         options_.min_satellites_single <= options_.min_satellites_float &&
@@ -68,7 +71,7 @@ GnssModel::GnssModel(std::string name, const GnssOptions& options, const World& 
   core::RandomStream sky(seed, "sensor/" + name_ + "/sky");
   const double sin_mask = std::sin(options_.elevation_mask_rad);
   for (int i = 0; i < options_.satellite_count; ++i) {
-    const double az = sky.Uniform(0.0, 2.0 * 3.14159265358979323846);
+    const double az = sky.Uniform(0.0, core::kTwoPi);
     const double sin_el = sky.Uniform(sin_mask, 1.0);
     const double cos_el = std::sqrt(std::max(0.0, 1.0 - sin_el * sin_el));
     sky_S_.emplace_back(cos_el * std::cos(az), cos_el * std::sin(az), sin_el);

@@ -13,6 +13,7 @@
 
 #include "core/random.h"
 #include "core/time.h"
+#include "core/units.h"
 #include "sim/sensor.h"
 #include "sim/world.h"
 
@@ -47,7 +48,7 @@ struct GnssOptions {
   /// (azimuth uniform, sin(elevation) uniform), static during a run (GNSS satellites move
   /// ~0.5 deg/min, negligible over a few-minute mission).
   int satellite_count = 22;  ///< GPS + Galileo in view, typical open sky (assumed)
-  double elevation_mask_rad = 10.0 * 3.14159265358979323846 / 180.0;
+  double elevation_mask_rad = core::RadFromDeg(10.0);
   double sky_ray_length_m = 200.0;  ///< hits beyond count as clear sky
 
   /// Fix type from the visible count n: n < min_satellites_single: none;
@@ -101,13 +102,13 @@ class GnssModel final : public SensorModel {
   uint32_t conditions() const override { return conditions_; }
   Eigen::Isometry3d T_WS() const override { return T_WS_; }
   const std::string& site() const override { return options_.site; }
+  /// Satellite unit directions in S, drawn at construction from the sensor's own stream.
+  std::vector<Eigen::Vector3d> sky_directions_S() const override { return sky_S_; }
 
   /// Fix type of the latest epoch.
   GnssFix fix() const { return fix_; }
   /// Satellites visible at the latest epoch.
   int visible_satellites() const { return visible_; }
-  /// Satellite unit directions in S (fixed for the run).
-  const std::vector<Eigen::Vector3d>& satellite_directions_S() const { return sky_S_; }
 
  private:
   const GnssFixErrorOptions& ErrorOptions(GnssFix fix) const;

@@ -3,16 +3,16 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-#include <numbers>
 #include <stdexcept>
 #include <utility>
 
 #include "core/lie.h"
+#include "core/units.h"
 
 namespace tofu::sim {
 namespace {
 
-constexpr double kTwoPi = 2.0 * std::numbers::pi;
+using core::kTwoPi;
 
 Eigen::Vector3d NormalVector(core::RandomStream& stream) {
   const double x = stream.Normal();
@@ -61,8 +61,8 @@ ImuModel::ImuModel(std::string name, const ImuOptions& options, const World& wor
     throw std::invalid_argument("IMU '" + name_ + "': the robot has no site '" + options_.site +
                                 "'");
   }
-  p_B_I_ = site->p_B_s;
-  R_BI_ = site->q_B_s.normalized().toRotationMatrix();
+  p_B_I_ = site->p_Bs;
+  R_BI_ = site->q_Bs.normalized().toRotationMatrix();
   g_W_ = Eigen::Vector3d(0.0, 0.0, -world.robot().rigid_body.gravity_mps2);
   period_ns_ = core::PeriodFromRate(options_.rate_hz);
   period_s_ = core::TimeToSeconds(period_ns_);

@@ -14,6 +14,7 @@
 
 #include "core/random.h"
 #include "core/time.h"
+#include "core/units.h"
 #include "sim/allocation.h"
 #include "sim/sensor.h"
 #include "sim/world.h"
@@ -49,7 +50,7 @@ struct ImuOptions {
 
   // ---- measurement range (ADIS16448: ±1000 °/s, ±18 g) ----
   double gyro_range_radps = 17.45;
-  double accel_range_mps2 = 18.0 * 9.80665;
+  double accel_range_mps2 = 18.0 * core::kStandardGravity_mps2;
 
   // ---- rotor vibration ----
   /// Rotor thrust coefficient k_f in T = k_f w^2 [N/(rad/s)^2]: 3.68 N of hover thrust
@@ -69,12 +70,12 @@ struct ImuOptions {
   double mount_transmissibility = 0.15;
 };
 
-/// Inertial measurement unit at a mount site I (p_B_I, R_BI from the robot model).
+/// Inertial measurement unit at a mount site I (p_BI, R_BI from the robot model).
 ///
 /// Truth, for every physics step [t_k, t_k + dt), evaluated at the step's midpoint from
 /// the state at t_k by a first-order expansion (midpoint rule for the step's average):
 ///   omega_B  = omega_WB_B + alpha_WB_B dt/2,   R_WB = R_WB(t_k) Exp(omega dt/2 + alpha dt^2/8)
-///   f_I      = R_BI^T [ R_WB^T (a_WB_W - g_W) + alpha x r + omega x (omega x r) ],  r = p_B_I
+///   f_I      = R_BI^T [ R_WB^T (a_WB_W - g_W) + alpha x r + omega x (omega x r) ],  r = p_BI
 ///   omega_I  = R_BI^T omega_B
 /// i.e. f_I = R_WI^T (a_WI - g_W) with a_WI = a_WB + R_WB (alpha x r + omega x (omega x r))
 /// and g_W = (0, 0, -g). a_WB_W is held over the step (no jerk in the truth; exact for

@@ -8,12 +8,13 @@
 #include <Eigen/Eigenvalues>
 
 #include "core/lie.h"
+#include "core/units.h"
 #include "sim/mount_motion.h"
 
 namespace tofu::sim {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using core::kPi;
 /// Fractional part of the golden ratio: successive multiples fill [0, 1) evenly.
 constexpr double kGoldenFraction = 0.6180339887498949;
 
@@ -33,8 +34,8 @@ LidarOdometryModel::LidarOdometryModel(std::string name, const LidarOdometryOpti
   const MountSite* mount = world.robot().FindSite(options_.site);
   Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
   T_B_s_ = Eigen::Isometry3d::Identity();
-  T_B_s_.translation() = mount->p_B_s;
-  T_B_s_.linear() = mount->q_B_s.normalized().toRotationMatrix();
+  T_B_s_.translation() = mount->p_Bs;
+  T_B_s_.linear() = mount->q_Bs.normalized().toRotationMatrix();
 
   Require(period_ns_ > 0, name_, "rate_hz must be positive");
   Require(options_.latency_s >= 0.0, name_, "latency_s must be >= 0");

@@ -15,6 +15,7 @@
 
 #include "core/random.h"
 #include "core/time.h"
+#include "core/units.h"
 #include "sim/sensor.h"
 #include "sim/world.h"
 
@@ -33,8 +34,8 @@ struct LidarOdometryOptions {
   // ---- scan pattern (Mid-360: 360 deg x [-7, 52] deg) ----
   int azimuth_count = 72;    ///< rays per elevation row (the real 200 kpts/s thinned)
   int elevation_count = 12;  ///< rows, evenly spaced from min to max
-  double elevation_min_rad = -7.0 * 3.14159265358979323846 / 180.0;
-  double elevation_max_rad = 52.0 * 3.14159265358979323846 / 180.0;
+  double elevation_min_rad = core::RadFromDeg(-7.0);
+  double elevation_max_rad = core::RadFromDeg(52.0);
   double min_range_m = 0.1;   ///< Mid-360 close blind zone 0.1 m
   /// Mid-360 spec: 40 m at 10 % reflectivity, 70 m at 80 %; 40 m (dark, weathered
   /// concrete and grass are ~10-30 %) is the default.

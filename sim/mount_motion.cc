@@ -4,7 +4,7 @@
 
 namespace tofu::sim {
 
-MountMotion MountMotionAt(const TruthState& x, const Eigen::Isometry3d& T_B_s, double tau_s) {
+MountMotion MountMotionAt(const TruthState& x, const Eigen::Isometry3d& T_Bs, double tau_s) {
   const Eigen::Vector3d omega_B = x.omega_WB_B + x.alpha_WB_B * tau_s;
   Eigen::Matrix3d R_WB = x.q_WB.toRotationMatrix();
   Eigen::Vector3d p_WB = x.p_WB;
@@ -14,8 +14,8 @@ MountMotion MountMotionAt(const TruthState& x, const Eigen::Isometry3d& T_B_s, d
     p_WB += x.v_WB_W * tau_s + 0.5 * x.a_WB_W * tau_s * tau_s;
     v_WB += x.a_WB_W * tau_s;
   }
-  const Eigen::Vector3d r = T_B_s.translation();
-  const Eigen::Matrix3d R_Bs = T_B_s.linear();
+  const Eigen::Vector3d r = T_Bs.translation();
+  const Eigen::Matrix3d R_Bs = T_Bs.linear();
   MountMotion m;
   m.p_Ws = p_WB + R_WB * r;
   m.R_Ws = R_WB * R_Bs;

@@ -7,13 +7,15 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "core/units.h"
+
 namespace tofu::sim {
 
 /// Mass properties the controller assumes (read from the model at start).
 struct RigidBodyParams {
   double mass_kg = 4.5;
   Eigen::Matrix3d inertia_B_kgm2 = Eigen::Matrix3d::Identity() * 0.1;  ///< about CoM, in B
-  double gravity_mps2 = 9.81;
+  double gravity_mps2 = core::kWorldGravity_mps2;
 };
 
 /// Body wrench about the centre of mass, in B.

@@ -83,6 +83,10 @@ class SensorModel {
   virtual Eigen::Isometry3d T_WS() const { return Eigen::Isometry3d::Identity(); }
   /// The mount site on the robot.
   virtual const std::string& site() const = 0;
+  /// Unit directions in S of the signal sources the sensor needs a line of sight to and
+  /// that are fixed for the run (GNSS satellites); empty for the others. Recorded in the
+  /// run directory so that a picture of the run needs no model.
+  virtual std::vector<Eigen::Vector3d> sky_directions_S() const { return {}; }
 };
 
 }  // namespace tofu::sim

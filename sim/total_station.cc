@@ -7,7 +7,7 @@
 namespace tofu::sim {
 namespace {
 
-// Position and velocity in W of a point fixed in B at p_B_s, at t + tau (rigid-body
+// Position and velocity in W of a point fixed in B at p_Bs, at t + tau (rigid-body
 // kinematics, second-order extrapolation over tau < one physics step):
 //   p_Ws = p_WB + R_WB r,  v_Ws = v_WB + R_WB (omega x r),
 //   a_Ws = a_WB + R_WB (alpha x r + omega x (omega x r)).
@@ -40,7 +40,7 @@ TotalStationModel::TotalStationModel(std::string name, const TotalStationOptions
     throw std::invalid_argument("total station '" + name_ + "': robot has no site '" +
                                 options_.site + "'");
   }
-  p_B_s_ = mount->p_B_s;
+  p_B_s_ = mount->p_Bs;
   if (!(period_ns_ > 0)) {
     throw std::invalid_argument("total station '" + name_ + "': rate_hz must be positive");
   }

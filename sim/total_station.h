@@ -13,13 +13,14 @@
 
 #include "core/random.h"
 #include "core/time.h"
+#include "core/units.h"
 #include "sim/sensor.h"
 #include "sim/world.h"
 
 namespace tofu::sim {
 
 /// One arc-second in radians (1" = pi / (180 * 3600)).
-inline constexpr double kArcSecondRad = 3.14159265358979323846 / (180.0 * 3600.0);
+using core::kArcSecondRad;
 
 struct TotalStationOptions {
   std::string site = "prism";  ///< robot mount site of the prism

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
-#include <numbers>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -15,6 +14,7 @@
 #include <fmt/format.h>
 
 #include "core/lie.h"
+#include "core/units.h"
 #include "sim/min_snap.h"
 
 // A trajectory is a sequence of pieces, each a reference over its own time [0, T] that
@@ -38,7 +38,7 @@ namespace {
 using min_snap::PhaseProfile;
 using min_snap::PhaseState;
 
-constexpr double kTwoPi = 2.0 * std::numbers::pi;
+using core::kTwoPi;
 /// Closer than this [m] to a curve's entry point, the robot needs no transfer.
 constexpr double kOnCurveTolerance_m = 1e-9;
 

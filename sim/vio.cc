@@ -5,12 +5,13 @@
 #include <utility>
 
 #include "core/lie.h"
+#include "core/units.h"
 #include "sim/mount_motion.h"
 
 namespace tofu::sim {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using core::kPi;
 
 void Require(bool ok, const std::string& name, const std::string& what) {
   if (!ok) throw std::invalid_argument("vio '" + name + "': " + what);
@@ -32,8 +33,8 @@ VioModel::VioModel(std::string name, const VioOptions& options, const World& wor
   const MountSite* mount = world.robot().FindSite(options_.site);
   Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
   T_B_s_ = Eigen::Isometry3d::Identity();
-  T_B_s_.translation() = mount->p_B_s;
-  T_B_s_.linear() = mount->q_B_s.normalized().toRotationMatrix();
+  T_B_s_.translation() = mount->p_Bs;
+  T_B_s_.linear() = mount->q_Bs.normalized().toRotationMatrix();
 
   Require(period_ns_ > 0, name_, "rate_hz must be positive");
   Require(feature_period_ns_ > 0, name_, "feature_check_rate_hz must be positive");

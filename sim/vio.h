@@ -14,6 +14,7 @@
 
 #include "core/random.h"
 #include "core/time.h"
+#include "core/units.h"
 #include "sim/sensor.h"
 #include "sim/world.h"
 
@@ -54,8 +55,8 @@ struct VioOptions {
   int feature_grid_rows = 6;
   /// Usable field of view of the fisheye pair (T265: 163 deg diagonal; the rim carries few
   /// trackable features, hence ~110 x 90 deg).
-  double feature_fov_horizontal_rad = 110.0 * 3.14159265358979323846 / 180.0;
-  double feature_fov_vertical_rad = 90.0 * 3.14159265358979323846 / 180.0;
+  double feature_fov_horizontal_rad = core::RadFromDeg(110.0);
+  double feature_fov_vertical_rad = core::RadFromDeg(90.0);
   /// A ray whose hit lies in [min, max] along the ray on a textured surface is a feature
   /// (closer: out of focus / no stereo overlap; farther: too little parallax, assumed).
   double feature_min_depth_m = 0.3;
@@ -89,7 +90,7 @@ struct VioOptions {
 
 /// VIO (T265-like): pose T_Ss and body twist of the camera site s in the odometry frame S.
 ///
-/// Truth. With T_Ws(t) from the body state and the mount T_B_s:
+/// Truth. With T_Ws(t) from the body state and the mount T_Bs:
 ///   T_Ss = T_WS^-1 T_Ws,  v_s = R_Ws^T (v_WB + R_WB (omega_B x r)),  omega_s = R_Bs^T omega_B.
 /// Error state (per physics step, d = distance travelled by s, dd its increment, f the
 /// drift multiplier of the active conditions, g_S = R_WS^T e_z the gravity axis in S):

@@ -623,10 +623,10 @@ struct World::Impl {
       const int site = Id(mjOBJ_SITE, name, "site");
       MountSite mount;
       mount.name = name;
-      mount.p_B_s = R_W_base.transpose() * (Vec3(d->site_xpos + 3 * site) - p_W_base);
-      mount.q_B_s = Eigen::Quaterniond(R_W_base.transpose() * Mat3(d->site_xmat + 9 * site));
-      mount.q_B_s.normalize();
-      if (mount.q_B_s.w() < 0.0) mount.q_B_s.coeffs() *= -1.0;
+      mount.p_Bs = R_W_base.transpose() * (Vec3(d->site_xpos + 3 * site) - p_W_base);
+      mount.q_Bs = Eigen::Quaterniond(R_W_base.transpose() * Mat3(d->site_xmat + 9 * site));
+      mount.q_Bs.normalize();
+      if (mount.q_Bs.w() < 0.0) mount.q_Bs.coeffs() *= -1.0;
       robot.sites.push_back(mount);
     }
   }

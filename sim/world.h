@@ -39,8 +39,8 @@ struct WorldOptions {
 /// A mount site on the robot: pose of the site frame s in B.
 struct MountSite {
   std::string name;
-  Eigen::Vector3d p_B_s = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond q_B_s = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d p_Bs = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_Bs = Eigen::Quaterniond::Identity();
 };
 
 /// What the harness and the controller need to know of the robot, read from the model.

@@ -195,9 +195,9 @@ estimator::EstimatorOutput Output(core::Time t_ns, const Eigen::Vector3d& p_LI, 
 }
 
 TEST(ClosedLoopPilot, HandsOverAtTheFirstValidOutputAndRegistersYawAndPosition) {
-  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
-  T_B_I.translation() = Eigen::Vector3d(0.05, 0.0, 0.02);
-  ClosedLoopPilot pilot(harness::FailsafeConfig{}, T_B_I);
+  Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
+  T_BI.translation() = Eigen::Vector3d(0.05, 0.0, 0.02);
+  ClosedLoopPilot pilot(harness::FailsafeConfig{}, T_BI);
   Eigen::Isometry3d T_WB = Eigen::Isometry3d::Identity();
   T_WB.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   T_WB.translation() = Eigen::Vector3d(2.0, -1.0, 1.5);

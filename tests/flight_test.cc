@@ -170,7 +170,7 @@ TEST(FlightApproach, ToolTipStopsAtTheStandoffWithoutTouching) {
       [&](const sim::TruthState& a, const sim::TruthState& b) {
         return std::abs(a.t_ns - approach.t_ns) < std::abs(b.t_ns - approach.t_ns);
       });
-  const Eigen::Vector3d p_W_tip = at->p_WB + at->q_WB * record.robot.FindSite("tool_tip")->p_B_s;
+  const Eigen::Vector3d p_W_tip = at->p_WB + at->q_WB * record.robot.FindSite("tool_tip")->p_Bs;
   EXPECT_NEAR(p_W_tip.x(), 4.998 - 0.3, 0.02);
 
   EXPECT_TRUE(record.collisions.empty());
@@ -212,7 +212,7 @@ TEST(FlightCollision, FlyingIntoAWallIsRecordedNamedAndFailsTheRun) {
   const sim::MountSite& tip = *record.robot.FindSite("tool_tip");
   core::Time reached_ns = -1;
   for (const sim::TruthState& s : record.groundtruth) {
-    const Eigen::Vector3d p_W_tip = s.p_WB + s.q_WB * tip.p_B_s;
+    const Eigen::Vector3d p_W_tip = s.p_WB + s.q_WB * tip.p_Bs;
     if (reached_ns < 0 && p_W_tip.x() >= 5.97) reached_ns = s.t_ns;
     EXPECT_LT(s.p_WB.x(), 6.0 - 0.4);
   }

@@ -82,14 +82,17 @@ TEST(Gnss, SkyLiesAboveTheMaskAndIsFixedBySeed) {
   GnssOptions options;
   GnssModel a("gnss", options, world, 42), b("gnss", options, world, 42);
   GnssModel c("gnss", options, world, 43);
-  ASSERT_EQ(static_cast<int>(a.satellite_directions_S().size()), options.satellite_count);
-  for (size_t i = 0; i < a.satellite_directions_S().size(); ++i) {
-    const Eigen::Vector3d& d = a.satellite_directions_S()[i];
+  const std::vector<Eigen::Vector3d> sky_a = a.sky_directions_S();
+  const std::vector<Eigen::Vector3d> sky_b = b.sky_directions_S();
+  ASSERT_EQ(static_cast<int>(sky_a.size()), options.satellite_count);
+  ASSERT_EQ(sky_b.size(), sky_a.size());
+  for (size_t i = 0; i < sky_a.size(); ++i) {
+    const Eigen::Vector3d& d = sky_a[i];
     EXPECT_NEAR(d.norm(), 1.0, 1e-12);
     EXPECT_GE(std::asin(d.z()), options.elevation_mask_rad);
-    EXPECT_EQ(d, b.satellite_directions_S()[i]);
+    EXPECT_EQ(d, sky_b[i]);
   }
-  EXPECT_NE(a.satellite_directions_S()[0], c.satellite_directions_S()[0]);
+  EXPECT_NE(sky_a[0], c.sky_directions_S()[0]);
 
   GnssOptions bad = options;
   bad.min_satellites_fixed = 5;  // below min_satellites_float
@@ -136,7 +139,7 @@ TEST(Gnss, OutdoorsFloatThenFixedAfterTimeToFix) {
                                              e.std_vertical_m * e.std_vertical_m)
                                  .asDiagonal().toDenseMatrix()));
     EXPECT_EQ(std::get<core::PositionMeasurement>(s.truth).p_Ss,
-              kOutdoors + world.robot().FindSite("gnss_antenna")->p_B_s);
+              kOutdoors + world.robot().FindSite("gnss_antenna")->p_Bs);
   }
   EXPECT_EQ(model.fix(), GnssFix::kFixed);
   EXPECT_EQ(model.conditions(), kConditionNone);
@@ -278,7 +281,7 @@ TEST(Gnss, EnuFrameIsConfigurable) {
   const Eigen::Matrix3d R_WS =
       Eigen::AngleAxisd(options.enu_yaw_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   EXPECT_TRUE(model.T_WS().linear().isApprox(R_WS, 1e-15));
-  const Eigen::Vector3d p_Ws = kOutdoors + world.robot().FindSite("gnss_antenna")->p_B_s;
+  const Eigen::Vector3d p_Ws = kOutdoors + world.robot().FindSite("gnss_antenna")->p_Bs;
   EXPECT_TRUE(std::get<core::PositionMeasurement>(rec.samples[0].truth)
                   .p_Ss.isApprox(R_WS.transpose() * (p_Ws - options.enu_origin_W_m), 1e-12));
 }

@@ -19,7 +19,10 @@ resolved scenario (bridge_inspection's consensus estimate, paper_consensus_indoo
 estimate_consensus.json, every estimation scenario's scenario.yaml), and when a restarted
 alignment kept its frame as a candidate (wall_contact_inspection's summary.json: its
 consensus values) and bridge_sensors asserted the time without RTK (its scenario.yaml and
-summary.json: the expectation, nothing flown differed).
+summary.json: the expectation, nothing flown differed), and when calibration.yaml gained
+the GNSS sky (`sky_directions_S`, issue 18: the renderer reads it from the run directory;
+the calibration.yaml of bridge_sensors, indoor_outdoor_window and window_sensors, one added
+line each, nothing else differed).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)

@@ -214,8 +214,8 @@ sensors:
   ASSERT_FALSE(record.failure.has_value()) << *record.failure;
   const sim::MountSite* site = record.robot.FindSite("imu");
   ASSERT_NE(site, nullptr);
-  const Eigen::Vector3d p_BI = site->p_B_s;
-  const Eigen::Matrix3d R_BI = site->q_B_s.toRotationMatrix();
+  const Eigen::Vector3d p_BI = site->p_Bs;
+  const Eigen::Matrix3d R_BI = site->q_Bs.toRotationMatrix();
   const Eigen::Vector3d g_W(0.0, 0.0, -record.robot.rigid_body.gravity_mps2);
 
   // State of I in W (= L) from the truth of B.

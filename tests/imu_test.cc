@@ -382,8 +382,8 @@ TEST(ImuIntegration, PerfectImuReproducesTheTrueMotion) {
   options.enable_noise = false;
   ImuModel imu("imu", options, world, 1);
   const MountSite& site = *world.robot().FindSite("imu");
-  const Eigen::Vector3d& r = site.p_B_s;
-  const Eigen::Matrix3d R_BI = site.q_B_s.toRotationMatrix();
+  const Eigen::Vector3d& r = site.p_Bs;
+  const Eigen::Matrix3d R_BI = site.q_Bs.toRotationMatrix();
   const Eigen::Vector3d g_W(0.0, 0.0, -world.robot().rigid_body.gravity_mps2);
   const AnalyticMotion motion;
 

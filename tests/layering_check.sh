@@ -3,7 +3,8 @@
 # (the simulator-free path) includes core/ and estimator/ only, never MuJoCo, sim/,
 # harness/, renders/, report/, corpus/ or apps/; sim/ never includes estimator/, replay/ or
 # harness/; core/ includes nothing of the project but core/;
-# harness/ never includes renders/ (renders read its outputs); nothing but apps/ includes
+# harness/ never includes renders/ and renders/ never includes harness/ (renders read
+# the run directory through replay/); nothing but apps/ includes
 # report/ (MCAP and HTML of finished runs), and report/ never includes apps/; nothing but
 # apps/ includes corpus/, which builds on harness alone.
 set -u
@@ -28,6 +29,7 @@ check harness 'renders/|apps/' "renders read harness outputs, never the other wa
 check estimator 'renders/|report/' "the estimator is a library of its own"
 check harness 'report/' "reports read finished run directories"
 check renders 'report/|apps/' "reports draw on renders, never the other way"
+check renders 'harness/' "renders read the run directory (replay's schema), never the scenario loader"
 check sim 'report/|renders/' "sim does not know who reads its runs"
 check report 'apps/|corpus/' "the CLI calls reports, never the other way"
 for layer in core sim estimator replay harness renders report; do

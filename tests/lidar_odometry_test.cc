@@ -231,13 +231,13 @@ TEST(LidarOdometryModel, NoiseOffReproducesTheLidarKinematics) {
     EXPECT_EQ(Measured(s).v_s_s_mps, Truth(s).v_s_s_mps);
     // Truth against the test's own kinematics.
     const TruthState x = ConstantTwist(start, v_W, omega_B, s.t_ns);
-    const Eigen::Matrix3d R_Ws = x.q_WB.toRotationMatrix() * mount.q_B_s.toRotationMatrix();
-    const Eigen::Vector3d p_Ws = x.p_WB + x.q_WB * mount.p_B_s;
+    const Eigen::Matrix3d R_Ws = x.q_WB.toRotationMatrix() * mount.q_Bs.toRotationMatrix();
+    const Eigen::Vector3d p_Ws = x.p_WB + x.q_WB * mount.p_Bs;
     EXPECT_LT((Truth(s).p_Ss - lio.T_WS().inverse() * p_Ws).norm(), 1e-12);
     const Eigen::Vector3d v_s =
-        R_Ws.transpose() * (v_W + x.q_WB * omega_B.cross(mount.p_B_s));
+        R_Ws.transpose() * (v_W + x.q_WB * omega_B.cross(mount.p_Bs));
     EXPECT_LT((Truth(s).v_s_s_mps - v_s).norm(), 1e-12);
-    EXPECT_LT((Truth(s).omega_s_s_radps - mount.q_B_s.conjugate() * omega_B).norm(), 1e-12);
+    EXPECT_LT((Truth(s).omega_s_s_radps - mount.q_Bs.conjugate() * omega_B).norm(), 1e-12);
   }
 }
 

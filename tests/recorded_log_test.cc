@@ -27,6 +27,7 @@
 
 #include "core/error.h"
 #include "replay/recorded_log.h"
+#include "replay/run_calibration.h"
 #include "tests/test_support.h"
 
 namespace tofu::replay {
@@ -204,25 +205,25 @@ TEST_F(RecordedLogTest, MeasurementsAreInArrivalOrderWithEachRowsOwnArrival) {
 TEST_F(RecordedLogTest, MountsAreTheCalibrationsComposedInTheImuFrame) {
   const RecordedLog log = ReadRecordedLog(Dir("ws"));
   const YAML::Node cal = YAML::LoadFile((Dir("ws") / "calibration.yaml").string());
-  const Eigen::Isometry3d T_B_I = PoseFromYaml(cal["sensors"]["imu"]["T_B_s"]);
+  const Eigen::Isometry3d T_BI = PoseFromYaml(cal["sensors"]["imu"]["T_B_s"]);
   for (const RecordedStream& s : log.streams) {
-    const Eigen::Isometry3d T_B_s = PoseFromYaml(cal["sensors"][s.name]["T_B_s"]);
-    // T_I_s = T_B_I^-1 T_B_s, written out: R_I_s = R_B_I^T R_B_s, p_I_s = R_B_I^T (p_B_s - p_B_I).
-    const Eigen::Matrix3d R = T_B_I.linear().transpose() * T_B_s.linear();
-    const Eigen::Vector3d p = T_B_I.linear().transpose() * (T_B_s.translation() - T_B_I.translation());
-    EXPECT_TRUE(s.T_I_s.linear().isApprox(R, 1e-9)) << s.name << "\n" << s.T_I_s.linear();
-    EXPECT_TRUE(s.T_I_s.translation().isApprox(p, 1e-9)) << s.name << " " << s.T_I_s.translation().transpose();
+    const Eigen::Isometry3d T_Bs = PoseFromYaml(cal["sensors"][s.name]["T_B_s"]);
+    // T_Is = T_BI^-1 T_Bs, written out: R_Is = R_BI^T R_Bs, p_Is = R_BI^T (p_Bs - p_BI).
+    const Eigen::Matrix3d R = T_BI.linear().transpose() * T_Bs.linear();
+    const Eigen::Vector3d p = T_BI.linear().transpose() * (T_Bs.translation() - T_BI.translation());
+    EXPECT_TRUE(s.T_Is.linear().isApprox(R, 1e-9)) << s.name << "\n" << s.T_Is.linear();
+    EXPECT_TRUE(s.T_Is.translation().isApprox(p, 1e-9)) << s.name << " " << s.T_Is.translation().transpose();
   }
   // One by hand: the IMU is mounted upside down (180 deg about x) at (0.03, -0.02, 0.04),
   // the LiDAR at (-0.05, 0, 0.14): p_I_lidar = diag(1, -1, -1) (-0.08, 0.02, 0.10).
   ASSERT_EQ(log.streams[1].name, "lidar");
   if (cal["sensors"]["imu"]["T_B_s"]["q_wxyz"][1].as<double>() == 1.0 &&
       cal["sensors"]["lidar"]["T_B_s"]["p_m"][2].as<double>() == 0.14) {
-    EXPECT_TRUE(log.streams[1].T_I_s.translation().isApprox(Eigen::Vector3d(-0.08, -0.02, -0.10),
+    EXPECT_TRUE(log.streams[1].T_Is.translation().isApprox(Eigen::Vector3d(-0.08, -0.02, -0.10),
                                                              1e-12))
-        << log.streams[1].T_I_s.translation().transpose();
+        << log.streams[1].T_Is.translation().transpose();
   }
-  EXPECT_TRUE(log.streams[0].T_I_s.isApprox(Eigen::Isometry3d::Identity(), 1e-12));
+  EXPECT_TRUE(log.streams[0].T_Is.isApprox(Eigen::Isometry3d::Identity(), 1e-12));
 }
 
 TEST_F(RecordedLogTest, ImuNoiseDensitiesComeFromTheImuOptions) {
@@ -344,9 +345,9 @@ TEST_F(RecordedLogTest, TotalStationRunWithoutImuNeedsRequireImuOff) {
   EXPECT_EQ(log.streams[0].name, "leica");
   EXPECT_EQ(log.streams[0].kind, StreamKind::kPosition);
   EXPECT_EQ(log.streams[1].kind, StreamKind::kPose);
-  // Without an IMU, T_I_s is the mount in the body frame itself.
+  // Without an IMU, T_Is is the mount in the body frame itself.
   const YAML::Node cal = YAML::LoadFile((Dir("pme") / "calibration.yaml").string());
-  EXPECT_TRUE(log.streams[0].T_I_s.isApprox(PoseFromYaml(cal["sensors"]["leica"]["T_B_s"]), 1e-12));
+  EXPECT_TRUE(log.streams[0].T_Is.isApprox(PoseFromYaml(cal["sensors"]["leica"]["T_B_s"]), 1e-12));
   // A total-station row with its position covariance.
   const fs::path file = Dir("pme") / "sensors" / "leica.csv";
   const auto header = CsvHeader(file);
@@ -407,7 +408,7 @@ TEST(RecordedLogEuroc, ReadsImuTumPosesAndGroundTruthWithExactStamps) {
     }
   }
   for (const RecordedStream& s : log.streams) {
-    EXPECT_TRUE(s.T_I_s.isApprox(Eigen::Isometry3d::Identity())) << s.name;
+    EXPECT_TRUE(s.T_Is.isApprox(Eigen::Isometry3d::Identity())) << s.name;
   }
 }
 
@@ -456,11 +457,11 @@ TEST_F(RecordedLogEurocSensorYaml, NoiseDensitiesAndMountComeFromTheImusSensorYa
   const auto vio = std::find_if(log.streams.begin(), log.streams.end(),
                                 [](const RecordedStream& s) { return s.name == "vio"; });
   ASSERT_NE(vio, log.streams.end());
-  // T_I_s = T_B_I⁻¹ (the stream is of the body frame): the body origin seen from the IMU.
-  Eigen::Isometry3d T_B_I = Eigen::Isometry3d::Identity();
-  T_B_I.linear() << 0, -1, 0, 1, 0, 0, 0, 0, 1;
-  T_B_I.translation() = Eigen::Vector3d(0.05, 0, 0);
-  EXPECT_TRUE(vio->T_I_s.isApprox(T_B_I.inverse(), 1e-12));
+  // T_Is = T_BI⁻¹ (the stream is of the body frame): the body origin seen from the IMU.
+  Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
+  T_BI.linear() << 0, -1, 0, 1, 0, 0, 0, 0, 1;
+  T_BI.translation() = Eigen::Vector3d(0.05, 0, 0);
+  EXPECT_TRUE(vio->T_Is.isApprox(T_BI.inverse(), 1e-12));
   EXPECT_NE(std::find(log.notes.begin(), log.notes.end(),
                       "IMU noise densities from mav0/imu0/sensor.yaml"),
             log.notes.end());
@@ -477,7 +478,7 @@ TEST_F(RecordedLogEurocSensorYaml, CalibrationYamlWinsOverIt) {
   ASSERT_TRUE(log.imu_noise.has_value());
   EXPECT_EQ(log.imu_noise->gyro_noise_density_radps_per_sqrthz, 1e-3);
   for (const RecordedStream& s : log.streams) {
-    EXPECT_TRUE(s.T_I_s.isApprox(Eigen::Isometry3d::Identity())) << s.name;
+    EXPECT_TRUE(s.T_Is.isApprox(Eigen::Isometry3d::Identity())) << s.name;
   }
 }
 
@@ -642,6 +643,54 @@ TEST_F(RecordedLogInputTest, EmptyStreamsAreAllowed) {
   ASSERT_EQ(log.streams.size(), 1u);
   EXPECT_EQ(log.streams[0].rows, 0u);
   EXPECT_EQ(log.imu_stream, "imu");
+}
+
+// calibration.yaml has one reader (replay/run_calibration.h) for `tofu estimate`, `tofu
+// consistency` and the renderer: malformed content is an InputError at its line and key,
+// read where it is asked for.
+TEST(RunCalibration, MalformedFieldsNameTheirLineAndKey) {
+  const auto error_of = [](const auto& read) -> core::InputError {
+    try {
+      read();
+    } catch (const core::InputError& e) {
+      return e;
+    }
+    ADD_FAILURE() << "expected an InputError";
+    return core::InputError({}, "", "");
+  };
+  const std::string text =
+      "sensors:\n"
+      "  vio:\n"
+      "    type: vio\n"
+      "    options: {position_noise_m: abc}\n"
+      "  lidar:\n"
+      "    type: lidar_odometry\n"
+      "    options:\n"
+      "      azimuth_count: 0\n"
+      "      elevation_count: 4\n"
+      "      elevation_min_deg: -7\n"
+      "      elevation_max_deg: 52\n"
+      "      min_range_m: 0.5\n"
+      "      max_range_m: 40\n";
+  const replay::RunCalibration cal = replay::ParseRunCalibration(text, "cal.yaml");
+  const core::InputError not_a_number = error_of([&] { cal.OptionNumber("vio", "position_noise_m"); });
+  EXPECT_EQ(not_a_number.location().line, 4) << not_a_number.what();
+  EXPECT_EQ(not_a_number.key_path(), "sensors.vio.options.position_noise_m");
+  const core::InputError zero_azimuths = error_of([&] { cal.LidarBeams("lidar"); });
+  EXPECT_EQ(zero_azimuths.location().line, 8) << zero_azimuths.what();
+  EXPECT_EQ(zero_azimuths.key_path(), "sensors.lidar.options.azimuth_count");
+  EXPECT_FALSE(cal.LidarBeams("vio").has_value());
+  EXPECT_EQ(cal.OptionNumber("lidar", "missing_key"), std::nullopt);
+
+  const core::InputError list_root =
+      error_of([] { replay::ParseRunCalibration("- a\n- b\n", "cal.yaml"); });
+  EXPECT_EQ(list_root.location().line, 1) << list_root.what();
+  const core::InputError nan_mount = error_of([] {
+    replay::ParseRunCalibration("mounts:\n  imu: {p_m: [0, .nan, 0], q_wxyz: [1, 0, 0, 0]}\n",
+                                "cal.yaml");
+  });
+  EXPECT_EQ(nan_mount.key_path(), "mounts.imu.p_m[1]") << nan_mount.what();
+  EXPECT_FALSE(replay::ReadRunCalibration("/nonexistent/calibration.yaml").present);
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -489,6 +490,67 @@ TEST(RenderRunData, MalformedCsvNamesFileLineAndColumn) {
     EXPECT_GT(e.location().column, 1) << e.what();
     EXPECT_NE(std::string(e.what()).find("groundtruth.csv"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("p_WB_x"), std::string::npos) << e.what();
+  }
+}
+
+// Sensor geometry is the run directory's (calibration.yaml), never the scenario's: a LiDAR's
+// beams from its options, a GNSS antenna's sky from the directions the run recorded. The
+// renderer includes nothing of harness (ctest `layering`); these layers would be empty,
+// and the frames equal, if it did not read them.
+constexpr char kGeometrySensors[] =
+    "  gnss:\n"
+    "    type: gnss\n"
+    "    site: prism\n"
+    "    true_T_WS: {p_m: [0, 0, 0], q_wxyz: [1, 0, 0, 0]}\n"
+    "    sky_directions_S: [[0, 0, 1], [0.6, 0, 0.8], [0, -0.8, 0.6]]\n"
+    "    options: {site: prism, sky_ray_length_m: 150}\n"
+    "  lidar:\n"
+    "    type: lidar_odometry\n"
+    "    site: prism\n"
+    "    options: {site: prism, azimuth_count: 36, elevation_count: 3, elevation_min_deg: -10,\n"
+    "              elevation_max_deg: 20, min_range_m: 0.5, max_range_m: 30}\n";
+
+TEST(RenderRunData, SensorGeometryComesFromTheRunDirectory) {
+  const RunDirectory dir("geometry");
+  Write(dir / "calibration.yaml", Read(dir / "calibration.yaml") + kGeometrySensors);
+  const RunData run = ReadRunData(dir);
+  ASSERT_EQ(run.skies.size(), 1u);
+  EXPECT_EQ(run.skies[0].site, "prism");
+  EXPECT_EQ(run.skies[0].ray_length_m, 150.0);
+  ASSERT_EQ(run.skies[0].directions_S.size(), 3u);
+  EXPECT_EQ(run.skies[0].directions_S[1], Eigen::Vector3d(0.6, 0.0, 0.8));
+  ASSERT_EQ(run.lidars.size(), 1u);
+  EXPECT_EQ(run.lidars[0].beams.azimuth_count, 36);
+  EXPECT_EQ(run.lidars[0].beams.elevation_count, 3);
+  EXPECT_DOUBLE_EQ(run.lidars[0].beams.elevation_min_rad, -10.0 * M_PI / 180.0);
+  EXPECT_DOUBLE_EQ(run.lidars[0].beams.elevation_max_rad, 20.0 * M_PI / 180.0);
+  EXPECT_EQ(run.lidars[0].beams.max_range_m, 30.0);
+
+  RenderOptions plain = SmallOptions();
+  RenderOptions layered = plain;
+  layered.gnss_sky = true;
+  layered.lidar_hits = true;
+  const Image without = SceneRenderer(run, plain).Render(2'000'000'000, "chase");
+  const Image with = SceneRenderer(run, layered).Render(2'000'000'000, "chase");
+  int changed = 0;
+  for (size_t i = 0; i < with.rgb.size(); ++i) changed += with.rgb[i] != without.rgb[i] ? 1 : 0;
+  EXPECT_GT(changed, 100) << "the sky rays and the LiDAR hits were not drawn";
+}
+
+TEST(RenderRunData, MalformedSensorGeometryNamesFileLineAndKey) {
+  const RunDirectory dir("bad_geometry");
+  std::string sensors = kGeometrySensors;
+  sensors.replace(sensors.find("[0.6, 0, 0.8]"), 13, "[0.6, 0, 0.9]");  // not a unit vector
+  const std::string calibration = Read(dir / "calibration.yaml");
+  Write(dir / "calibration.yaml", calibration + sensors);
+  const int line = 1 + static_cast<int>(std::count(calibration.begin(), calibration.end(), '\n')) + 4;
+  try {
+    ReadRunData(dir);
+    FAIL() << "expected an InputError";
+  } catch (const core::InputError& e) {
+    EXPECT_EQ(e.location().line, line) << e.what();
+    EXPECT_NE(std::string(e.what()).find("calibration.yaml"), std::string::npos) << e.what();
+    EXPECT_EQ(e.key_path(), "sensors.gnss.sky_directions_S[1]") << e.what();
   }
 }
 

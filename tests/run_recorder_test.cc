@@ -9,10 +9,12 @@
 #include <cstddef>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
+#include "replay/run_calibration.h"
 #include "test_support.h"
 
 namespace tofu::harness {
@@ -137,6 +139,38 @@ TEST(RecordedRun, KeepsWhatTheConsistencyEvaluationReads) {
   ASSERT_TRUE(record.consistency.has_value());
   EXPECT_FALSE(record.consistency->rows.empty());
   fs::remove_all(*record.recorded_to);
+}
+
+// calibration.yaml carries what a reader of the run needs and only the models knew: the
+// GNSS satellites' directions, read back bit for bit by replay's one calibration reader
+// (the renderer draws them from there, without the scenario or the sensor models).
+TEST(RecordedRun, CalibrationCarriesTheGnssSkyBitForBit) {
+  const Scenario scenario = Load("scenarios/bridge_sensors.yaml", 1.0);
+  RunRecord record = Simulate(scenario);
+  ASSERT_FALSE(record.failure.has_value()) << *record.failure;
+  std::vector<Eigen::Vector3d> sky;
+  for (const SensorStream& stream : record.sensors) {
+    if (stream.type == "gnss") {
+      sky = stream.sky_directions_S;
+    } else {
+      EXPECT_TRUE(stream.sky_directions_S.empty()) << stream.name;
+    }
+  }
+  ASSERT_FALSE(sky.empty());
+  const fs::path dir = test::PerTestDirectory("recorder_sky_");
+  RunOutputOptions no_plots;
+  no_plots.plot = false;
+  WriteRun(record, dir.string(), no_plots);
+  const replay::RunCalibration calibration = replay::ReadRunCalibration(dir / "calibration.yaml");
+  ASSERT_EQ(calibration.sensors.count("gnss"), 1u);
+  EXPECT_EQ(calibration.sensors.at("gnss").sky_directions_S, sky);
+  EXPECT_EQ(calibration.OptionNumber("gnss", "satellite_count"), static_cast<double>(sky.size()));
+  for (const auto& [name, sensor] : calibration.sensors) {
+    if (name != "gnss") {
+      EXPECT_TRUE(sensor.sky_directions_S.empty()) << name;
+    }
+  }
+  fs::remove_all(dir);
 }
 
 }  // namespace

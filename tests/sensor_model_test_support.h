@@ -31,12 +31,12 @@ inline Waypoint Pose(const Eigen::Vector3d& p_WB, double yaw_deg = 0.0) {
                             Eigen::AngleAxisd(yaw_deg * std::numbers::pi / 180.0, Eigen::Vector3d::UnitZ()))};
 }
 
-// Pose of a mount site for the body at `body` (T_WB T_B_s).
+// Pose of a mount site for the body at `body` (T_WB T_Bs).
 inline Eigen::Isometry3d SitePose(const World& world, const Waypoint& body, const std::string& site) {
   const MountSite* mount = world.robot().FindSite(site);
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = (body.q_WB * mount->q_B_s).toRotationMatrix();
-  T.translation() = body.p_WB + body.q_WB * mount->p_B_s;
+  T.linear() = (body.q_WB * mount->q_Bs).toRotationMatrix();
+  T.translation() = body.p_WB + body.q_WB * mount->p_Bs;
   return T;
 }
 

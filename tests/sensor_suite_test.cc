@@ -225,10 +225,10 @@ TEST(SensorSuite, CalibrationErrorShiftsTheNominalExtrinsicsOnly) {
   const sim::MountSite* site = record.robot.FindSite("vio_camera");
   ASSERT_NE(site, nullptr);
   const Eigen::Vector3d expected =
-      site->p_B_s + site->q_B_s.toRotationMatrix() * Eigen::Vector3d(0.01, 0, 0);
+      site->p_Bs + site->q_Bs.toRotationMatrix() * Eigen::Vector3d(0.01, 0, 0);
   for (int k = 0; k < 3; ++k) {
     EXPECT_NEAR(vio["T_B_s"]["p_m"][k].as<double>(), expected(k), 1e-6);
-    EXPECT_NEAR(vio["true_T_B_s"]["p_m"][k].as<double>(), site->p_B_s(k), 1e-6);
+    EXPECT_NEAR(vio["true_T_B_s"]["p_m"][k].as<double>(), site->p_Bs(k), 1e-6);
   }
   EXPECT_EQ(vio["options"]["rate_hz"].as<double>(), 200.0);
   std::filesystem::remove_all(out);

@@ -80,7 +80,7 @@ double PillarClearance(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
 const Eigen::Vector3d kStation_W(-15.0, 0.0, 1.5);  // bridge.xml station_tripod
 
 Eigen::Vector3d Prism_W(const World& world, const Eigen::Vector3d& p_WB) {
-  return p_WB + world.robot().FindSite("prism")->p_B_s;
+  return p_WB + world.robot().FindSite("prism")->p_Bs;
 }
 
 TEST(TotalStation, StationFrameIsTheTripodSiteUnlessOverridden) {
@@ -227,7 +227,7 @@ TEST(TotalStation, FastAngularMotionLosesLockAlthoughVisible) {
 TEST(TotalStation, RobotBodyHidesThePrism) {
   World world({.world = "bridge"});
   TotalStationModel model("ts", {}, world, 5);
-  const Eigen::Vector3d p_B_prism = world.robot().FindSite("prism")->p_B_s;
+  const Eigen::Vector3d p_B_prism = world.robot().FindSite("prism")->p_Bs;
   const Eigen::Vector3d above = kStation_W + Eigen::Vector3d(0, 0, 2.5) -
                                 Eigen::Vector3d(p_B_prism.x(), p_B_prism.y(), 0.0);
   const Recording rec = Drive(world, model, 200 * kMs, [&](double) {

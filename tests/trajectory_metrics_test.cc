@@ -109,11 +109,11 @@ TEST(TrajectoryMetrics, Se3AlignmentRecoversARigidOffsetAndAteEqualsTheInjectedN
   const double min_spread = std::sqrt(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(scatter).eigenvalues()(0));
   const double rotation_tolerance_rad = 5.0 * sigma / (std::sqrt(n) * min_spread);
   const Eigen::Isometry3d T_WL = T_LW.inverse();
-  EXPECT_LT(core::RotationAngleBetween(r.T_W_L.linear(), T_WL.linear()), rotation_tolerance_rad);
+  EXPECT_LT(core::RotationAngleBetween(r.T_WL.linear(), T_WL.linear()), rotation_tolerance_rad);
   // The translation: noise of the centroid plus the rotation error's lever arm.
   const double translation_tolerance =
       5.0 * sigma / std::sqrt(n) + rotation_tolerance_rad * (T_LW * mean).norm();
-  EXPECT_LT((r.T_W_L.translation() - T_WL.translation()).norm(), translation_tolerance);
+  EXPECT_LT((r.T_WL.translation() - T_WL.translation()).norm(), translation_tolerance);
   // Attitudes were not perturbed: their error is the alignment's.
   EXPECT_LT(r.rotation_max_deg, rotation_tolerance_rad / kDeg);
   EXPECT_LE(r.ate_position_median_m, r.ate_position_max_m);
@@ -131,7 +131,7 @@ TEST(TrajectoryMetrics, PositionYawAlignmentRecoversYawAndTranslationButNotRoll)
   const TrajectoryErrors yaw = EvaluateTrajectory(Transformed(gt, T_LW, 4), gt, four_dof);
   EXPECT_LT(yaw.ate_position_max_m, 1e-9);
   EXPECT_LT(yaw.rotation_max_deg, 1e-6);
-  EXPECT_TRUE(yaw.T_W_L.isApprox(T_LW.inverse(), 1e-12));
+  EXPECT_TRUE(yaw.T_WL.isApprox(T_LW.inverse(), 1e-12));
 
   // A roll offset is not an alignment a 4-DoF evaluation may remove: ATE and attitude
   // error grow (the attitude error is the roll itself), while SE(3) removes it.
@@ -143,13 +143,13 @@ TEST(TrajectoryMetrics, PositionYawAlignmentRecoversYawAndTranslationButNotRoll)
   const TrajectoryErrors se3 = EvaluateTrajectory(rolled, gt);
   EXPECT_LT(se3.ate_position_max_m, 1e-9);
   EXPECT_LT(se3.rotation_max_deg, 1e-6);
-  EXPECT_TRUE(se3.T_W_L.isApprox(T_LW_roll.inverse(), 1e-12));
+  EXPECT_TRUE(se3.T_WL.isApprox(T_LW_roll.inverse(), 1e-12));
 
   // No alignment: the offset stays in the error.
   TrajectoryErrorOptions none;
   none.alignment = TrajectoryAlignment::kNone;
   const TrajectoryErrors raw = EvaluateTrajectory(Transformed(gt, T_LW, 4), gt, none);
-  EXPECT_TRUE(raw.T_W_L.isApprox(Eigen::Isometry3d::Identity()));
+  EXPECT_TRUE(raw.T_WL.isApprox(Eigen::Isometry3d::Identity()));
   EXPECT_GT(raw.ate_position_rmse_m, 1.0);
 }
 
@@ -164,7 +164,7 @@ TEST(TrajectoryMetrics, AlignmentUsesOnlyItsTimeRange) {
   TrajectoryErrorOptions options;
   options.align_to_ns = 20 * core::kNanosecondsPerSecond;
   const TrajectoryErrors r = EvaluateTrajectory(est, gt, options);
-  EXPECT_TRUE(r.T_W_L.isApprox(T_LW.inverse(), 1e-9));
+  EXPECT_TRUE(r.T_WL.isApprox(T_LW.inverse(), 1e-9));
   EXPECT_EQ(r.aligned_on, static_cast<size_t>(20 * 200 / 2 + 1));
   EXPECT_NEAR(r.ate_position_max_m, 1.0, 1e-9);
   EXPECT_NEAR(r.position_error_m.front(), 0.0, 1e-9);
@@ -186,7 +186,7 @@ TEST(TrajectoryMetrics, HoverIsAlignedByItsAttitudes) {
     options.alignment = a;
     const TrajectoryErrors r = EvaluateTrajectory(Transformed(gt, T_LW), gt, options);
     EXPECT_TRUE(r.alignment_from_attitude);
-    EXPECT_TRUE(r.T_W_L.isApprox(T_LW.inverse(), 1e-9)) << r.T_W_L.matrix();
+    EXPECT_TRUE(r.T_WL.isApprox(T_LW.inverse(), 1e-9)) << r.T_WL.matrix();
     EXPECT_LT(r.ate_position_max_m, 1e-9);
   }
 }

@@ -96,9 +96,9 @@ TEST(VioModel, NoiseOffReproducesTheCameraKinematics) {
   const Eigen::Isometry3d T_WS = vio.T_WS();
   EXPECT_TRUE(T_WS.isApprox(world.SitePose_W("vio_camera"), 1e-9));
 
-  const Eigen::Matrix3d R_Bs = cam.q_B_s.toRotationMatrix();
+  const Eigen::Matrix3d R_Bs = cam.q_Bs.toRotationMatrix();
   auto p_Ws = [&](double t) -> Eigen::Vector3d {
-    return motion.Position(t) + motion.Rotation(t) * cam.p_B_s;
+    return motion.Position(t) + motion.Rotation(t) * cam.p_Bs;
   };
   auto R_Ws = [&](double t) -> Eigen::Matrix3d { return motion.Rotation(t) * R_Bs; };
   double worst_pose = 0.0, worst_twist = 0.0;

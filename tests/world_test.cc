@@ -88,15 +88,15 @@ TEST(World, EveryWorldLoadsWithThePhysicallySensibleOmav) {
       SCOPED_TRACE(site_name);
       const MountSite* site = robot.FindSite(site_name);
       ASSERT_NE(site, nullptr);
-      EXPECT_GT(site->p_B_s.norm(), 0.01);
-      EXPECT_NEAR(site->q_B_s.norm(), 1.0, 1e-9);
-      EXPECT_GE(site->q_B_s.w(), 0.0);
-      if (site->q_B_s.angularDistance(Eigen::Quaterniond::Identity()) > 1e-3) ++rotated;
+      EXPECT_GT(site->p_Bs.norm(), 0.01);
+      EXPECT_NEAR(site->q_Bs.norm(), 1.0, 1e-9);
+      EXPECT_GE(site->q_Bs.w(), 0.0);
+      if (site->q_Bs.angularDistance(Eigen::Quaterniond::Identity()) > 1e-3) ++rotated;
     }
     EXPECT_GE(rotated, 2);
     for (size_t i = 0; i < robot.sites.size(); ++i) {
       for (size_t j = i + 1; j < robot.sites.size(); ++j) {
-        EXPECT_GT((robot.sites[i].p_B_s - robot.sites[j].p_B_s).norm(), 0.01)
+        EXPECT_GT((robot.sites[i].p_Bs - robot.sites[j].p_Bs).norm(), 0.01)
             << robot.sites[i].name << " and " << robot.sites[j].name << " share a lever arm";
       }
     }

@@ -18,6 +18,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "core/units.h"
 #include "corpus/corpus_command.h"
 #include "harness/check_command.h"
 #include "harness/evaluation.h"
@@ -434,7 +435,7 @@ int main(int argc, char** argv) {
       ->check(FiniteIn(0.0, 100.0, "m", true));
   estimate->add_option("--between-rotation-std", est.between_rotation_std_rad,
                        "Pose sensors: std of one relative rotation [rad] (0.01)")
-      ->check(FiniteIn(0.0, M_PI, "rad", true));
+      ->check(FiniteIn(0.0, tofu::core::kPi, "rad", true));
   estimate->add_option("--imu-noise-scale", est.imu_noise_scale,
                        "Factor on the IMU white-noise densities")
       ->check(FiniteIn(0.0, 1000.0, "", true));

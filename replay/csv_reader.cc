@@ -1,0 +1,276 @@
+#include "replay/csv_reader.h"
+
+#include <algorithm>
+#include <charconv>
+#include <cstdlib>
+#include <limits>
+#include <optional>
+#include <system_error>
+#include <utility>
+
+#include <fmt/format.h>
+
+namespace tofu::replay {
+namespace {
+
+using core::InputError;
+
+bool IsBlank(char c) { return c == ' ' || c == '\t'; }
+
+std::string_view Trim(std::string_view s) {
+  while (!s.empty() && IsBlank(s.front())) s.remove_prefix(1);
+  while (!s.empty() && (IsBlank(s.back()) || s.back() == '\r')) s.remove_suffix(1);
+  return s;
+}
+
+// An integer field, or the message saying why it is not one.
+std::optional<int64_t> ParseInteger(std::string_view s, std::string_view what, std::string* error) {
+  int64_t value = 0;
+  const char* first = s.data();
+  const char* last = first + s.size();
+  if (first != last && *first == '+') ++first;
+  const auto [end, ec] = std::from_chars(first, last, value);
+  if (ec != std::errc() || end != last || s.empty()) {
+    *error = fmt::format("expected an integer{}{}{}, got {}", what.empty() ? "" : " ", what,
+                         ec == std::errc::result_out_of_range ? " (64-bit)" : "", CsvQuoted(s));
+    return std::nullopt;
+  }
+  return value;
+}
+
+// A number field ("nan"/"inf" included), or the message saying why it is not one.
+std::optional<double> ParseNumber(std::string_view s, std::string* error) {
+  if (s.empty()) {
+    *error = "empty field, expected a number";
+    return std::nullopt;
+  }
+  double value = 0.0;
+  const char* first = s.data();
+  const char* last = first + s.size();
+  if (first != last && *first == '+') ++first;  // from_chars rejects a leading '+'
+  const auto [end, ec] = std::from_chars(first, last, value);
+  if (end != last || (ec != std::errc() && ec != std::errc::result_out_of_range)) {
+    *error = fmt::format("expected a number, got {}", CsvQuoted(s));
+    return std::nullopt;
+  }
+  if (ec == std::errc::result_out_of_range) {
+    // Beyond the double range: an underflow to 0 or an overflow to +-Inf, as strtod.
+    value = std::strtod(std::string(s).c_str(), nullptr);
+  }
+  return value;
+}
+
+int FindKey(const std::vector<std::string>& keys, std::string_view key) {
+  const auto it = std::find(keys.begin(), keys.end(), key);
+  return it == keys.end() ? -1 : static_cast<int>(it - keys.begin());
+}
+
+}  // namespace
+
+std::string CsvQuoted(std::string_view s) {
+  constexpr size_t kMax = 60;
+  if (s.size() <= kMax) return fmt::format("'{}'", s);
+  return fmt::format("'{}...'", s.substr(0, kMax));
+}
+
+std::string_view CsvColumnKey(std::string_view field) {
+  field = Trim(field);
+  if (!field.empty() && field.front() == '#') field = Trim(field.substr(1));
+  const size_t bracket = field.find('[');
+  if (bracket != std::string_view::npos) field = Trim(field.substr(0, bracket));
+  return field;
+}
+
+// ---- CsvReader ----
+
+CsvReader::CsvReader(const std::filesystem::path& path, std::string expected_header,
+                     CsvOptions options)
+    : name_(path.string()),
+      expected_header_(std::move(expected_header)),
+      options_(options),
+      reader_(path) {
+  std::string_view line;
+  bool had_newline = false;
+  const bool any = NextLine(line, &had_newline);
+  // A UTF-8 byte-order mark (spreadsheet exports) is not part of the header.
+  if (any && line.starts_with("\xEF\xBB\xBF")) line.remove_prefix(3);
+  if (!any || Trim(line).empty()) {
+    // Nothing but a byte-order mark is an empty file too.
+    const bool empty =
+        !any || (!had_newline && (line_text_.empty() || line_text_ == "\xEF\xBB\xBF"));
+    throw InputError({name_, 1, 0}, "",
+                     fmt::format("missing header: {}, expected a header line like '{}'",
+                                 empty ? "the file is empty" : "line 1 is blank",
+                                 expected_header_));
+  }
+  Split(line);
+  for (const Field& f : fields_) {
+    raw_names_.emplace_back(Trim(f.text));
+    keys_.emplace_back(CsvColumnKey(f.text));
+  }
+  const bool has_timestamp = std::find(keys_.begin(), keys_.end(), "timestamp") != keys_.end();
+  if (Trim(line).front() != '#' && !has_timestamp) {
+    throw InputError({name_, 1, 1}, "",
+                     fmt::format("missing header: expected a header line like '{}' (columns "
+                                 "named, '#timestamp [ns]' first), got {}",
+                                 expected_header_, CsvQuoted(line)));
+  }
+  if (!has_timestamp) {
+    throw InputError({name_, 1, 1}, "",
+                     fmt::format("header has no 'timestamp' column, expected a header like "
+                                 "'{}'",
+                                 expected_header_));
+  }
+}
+
+std::size_t CsvReader::RowsUpperBound() { return reader_.CountRemainingLines() + 1; }
+
+int CsvReader::Find(std::string_view key) const { return FindKey(keys_, key); }
+
+int CsvReader::Require(std::string_view key, std::string_view what) const {
+  const int index = Find(key);
+  if (index < 0) {
+    throw InputError({name_, 1, 0}, "",
+                     what.empty()
+                         ? fmt::format("header: missing column '{}', expected a header like '{}'",
+                                       key, expected_header_)
+                         : fmt::format("header: missing column '{}' ({})", key, what));
+  }
+  return index;
+}
+
+bool CsvReader::Next() {
+  std::string_view line;
+  while (NextLine(line)) {
+    if (Trim(line).empty()) continue;
+    Split(line);
+    if (options_.last_column_takes_rest && fields_.size() > keys_.size()) {
+      const size_t offset = static_cast<size_t>(fields_[keys_.size() - 1].column - 1);
+      fields_.resize(keys_.size());
+      fields_.back().text = line.substr(offset);
+    }
+    if (fields_.size() != keys_.size()) {
+      const size_t n = fields_.size();
+      throw InputError(
+          {name_, line_, 0}, "",
+          fmt::format("expected {} comma-separated fields as in the header, got {} ({})",
+                      keys_.size(), n,
+                      n < keys_.size()
+                          ? fmt::format("column {} '{}' and later are missing", n + 1,
+                                        raw_names_[n])
+                          : fmt::format("extra field after the last column '{}'",
+                                        raw_names_.back())));
+    }
+    return true;
+  }
+  return false;
+}
+
+std::string_view CsvReader::Text(int column) const { return Trim(fields_[column].text); }
+
+int64_t CsvReader::Integer(int column, std::string_view what) const {
+  std::string error;
+  const std::optional<int64_t> value = ParseInteger(Text(column), what, &error);
+  if (!value) throw Error(column, error);
+  return *value;
+}
+
+double CsvReader::Number(int column) const {
+  std::string error;
+  const std::optional<double> value = ParseNumber(Text(column), &error);
+  if (!value) throw Error(column, error);
+  return *value;
+}
+
+double CsvReader::NumberOrNaN(int column) const {
+  return Empty(column) ? std::numeric_limits<double>::quiet_NaN() : Number(column);
+}
+
+InputError CsvReader::Error(int column, const std::string& message) const {
+  return InputError({name_, line_, fields_[column].column}, "",
+                    fmt::format("column '{}': {}", raw_names_[column], message));
+}
+
+bool CsvReader::NextLine(std::string_view& line, bool* had_newline) {
+  if (!reader_.Next(line_text_, had_newline)) return false;
+  line = line_text_;
+  if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+  ++line_;
+  return true;
+}
+
+void CsvReader::Split(std::string_view line) {
+  fields_.clear();
+  size_t start = 0;
+  while (true) {
+    const size_t comma = line.find(',', start);
+    const size_t end = comma == std::string_view::npos ? line.size() : comma;
+    fields_.push_back({line.substr(start, end - start), static_cast<int>(start) + 1});
+    if (comma == std::string_view::npos) return;
+    start = comma + 1;
+  }
+}
+
+// ---- CsvTable ----
+
+CsvTable::CsvTable(const std::filesystem::path& path, std::string expected_header,
+                   CsvOptions options)
+    : file_(path.string()), expected_header_(expected_header) {
+  CsvReader reader(path, std::move(expected_header), options);
+  keys_ = reader.keys();
+  raw_names_ = reader.header_fields();
+  const int columns = static_cast<int>(keys_.size());
+  while (reader.Next()) {
+    lines_.push_back(reader.line());
+    for (int c = 0; c < columns; ++c) {
+      const std::string_view text = reader.Text(c);
+      if (text_.size() + text.size() > std::numeric_limits<uint32_t>::max()) {
+        throw InputError({file_, reader.line(), 0}, "",
+                         "over 4 GB of fields: too large to hold, expected a run's file");
+      }
+      cells_.push_back({static_cast<uint32_t>(text_.size()), static_cast<uint32_t>(text.size()),
+                        reader.FieldColumn(c)});
+      text_.append(text);
+    }
+  }
+}
+
+int CsvTable::Find(std::string_view key) const { return FindKey(keys_, key); }
+
+int CsvTable::Require(std::string_view key) const {
+  const int index = Find(key);
+  if (index < 0) {
+    throw InputError({file_, 1, 0}, "",
+                     fmt::format("header: missing column '{}', expected a header like '{}'", key,
+                                 expected_header_));
+  }
+  return index;
+}
+
+void CsvTable::Fail(std::size_t row, int column, const std::string& message) const {
+  throw InputError({file_, lines_[row], At(row, column).column}, "",
+                   fmt::format("column '{}': {}", raw_names_[column], message));
+}
+
+std::string_view CsvTable::Text(std::size_t row, int column) const {
+  const Cell& cell = At(row, column);
+  return std::string_view(text_).substr(cell.offset, cell.length);
+}
+
+int64_t CsvTable::Int(std::size_t row, int column) const {
+  std::string error;
+  const std::optional<int64_t> value = ParseInteger(Text(row, column), "", &error);
+  if (!value) Fail(row, column, error);
+  return *value;
+}
+
+double CsvTable::Double(std::size_t row, int column, bool allow_empty) const {
+  const std::string_view text = Text(row, column);
+  if (text.empty() && allow_empty) return std::numeric_limits<double>::quiet_NaN();
+  std::string error;
+  const std::optional<double> value = ParseNumber(text, &error);
+  if (!value) Fail(row, column, error);
+  return *value;
+}
+
+}  // namespace tofu::replay

@@ -1,0 +1,166 @@
+#include "replay/run_calibration.h"
+
+#include <cmath>
+#include <system_error>
+
+#include <fmt/format.h>
+
+#include "core/file_io.h"
+#include "core/units.h"
+#include "replay/yaml_fields.h"
+
+namespace tofu::replay {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string YamlText(const YAML::Node& node, const std::string& file, const std::string& key) {
+  if (!node.IsScalar()) throw YamlError(file, node.Mark(), key, "expected a string");
+  return node.Scalar();
+}
+
+std::vector<Eigen::Vector3d> YamlDirections(const YAML::Node& node, const std::string& file,
+                                            const std::string& key) {
+  if (!node.IsSequence()) {
+    throw YamlError(file, node.Mark(), key, "expected a list of unit vectors [[x, y, z], ...]");
+  }
+  std::vector<Eigen::Vector3d> out;
+  for (size_t i = 0; i < node.size(); ++i) {
+    const YAML::Node v = node[i];
+    const std::string element = fmt::format("{}[{}]", key, i);
+    if (!v.IsSequence() || v.size() != 3) {
+      throw YamlError(file, v.Mark(), element, "expected a unit vector [x, y, z]");
+    }
+    Eigen::Vector3d d;
+    for (int k = 0; k < 3; ++k) d(k) = YamlNumber(v[k], file, element);
+    if (!d.allFinite() || std::abs(d.norm() - 1.0) > 1e-6) {
+      throw YamlError(file, v.Mark(), element, "expected a unit vector [x, y, z]");
+    }
+    out.push_back(d);
+  }
+  return out;
+}
+
+SensorCalibration ParseSensor(const YAML::Node& node, const std::string& file,
+                              const std::string& key) {
+  if (!node.IsMap()) throw YamlError(file, node.Mark(), key, "expected a map");
+  SensorCalibration s;
+  if (node["type"]) s.type = YamlText(node["type"], file, key + ".type");
+  if (node["site"]) s.site = YamlText(node["site"], file, key + ".site");
+  if (node["T_B_s"]) s.T_Bs = YamlPose(node["T_B_s"], file, key + ".T_B_s");
+  if (node["true_T_B_s"]) s.true_T_Bs = YamlPose(node["true_T_B_s"], file, key + ".true_T_B_s");
+  if (node["true_T_WS"]) s.true_T_WS = YamlPose(node["true_T_WS"], file, key + ".true_T_WS");
+  if (node["sky_directions_S"]) {
+    s.sky_directions_S = YamlDirections(node["sky_directions_S"], file, key + ".sky_directions_S");
+  }
+  if (const YAML::Node options = node["options"]; options && options.IsMap()) {
+    s.has_options = true;
+    for (const auto& entry : options) {
+      if (!entry.first.IsScalar() || !entry.second.IsScalar()) continue;
+      const YAML::Mark mark = entry.second.Mark();
+      s.options[entry.first.Scalar()] = {entry.second.Scalar(), mark.is_null() ? 0 : mark.line + 1,
+                                         mark.is_null() ? 0 : mark.column + 1};
+    }
+  }
+  return s;
+}
+
+}  // namespace
+
+std::optional<double> RunCalibration::OptionNumber(const std::string& sensor,
+                                                   const std::string& key) const {
+  const auto s = sensors.find(sensor);
+  if (s == sensors.end()) return std::nullopt;
+  const auto v = s->second.options.find(key);
+  if (v == s->second.options.end()) return std::nullopt;
+  // The scalar again as YAML: the same number syntax (and message) as every other field.
+  YAML::Node scalar(v->second.text);
+  try {
+    return scalar.as<double>();
+  } catch (const YAML::Exception&) {
+    throw core::InputError({file, v->second.line, v->second.column},
+                           fmt::format("sensors.{}.options.{}", sensor, key),
+                           fmt::format("expected a number, got '{}'", v->second.text));
+  }
+}
+
+std::optional<LidarBeamPattern> RunCalibration::LidarBeams(const std::string& sensor) const {
+  const auto s = sensors.find(sensor);
+  if (s == sensors.end() || s->second.type != "lidar_odometry") return std::nullopt;
+  const auto azimuths = OptionNumber(sensor, "azimuth_count");
+  const auto elevations = OptionNumber(sensor, "elevation_count");
+  const auto min_deg = OptionNumber(sensor, "elevation_min_deg");
+  const auto max_deg = OptionNumber(sensor, "elevation_max_deg");
+  const auto min_range = OptionNumber(sensor, "min_range_m");
+  const auto max_range = OptionNumber(sensor, "max_range_m");
+  if (!azimuths || !elevations || !min_deg || !max_deg || !min_range || !max_range) {
+    return std::nullopt;
+  }
+  // The limits of the scenario's own reader (harness/sensor_config_lidar_odometry.cc): a
+  // pattern outside them was not written by a run.
+  const auto count = [&](double v, int max, const char* key) {
+    if (!(v >= 1 && v <= max && v == std::floor(v))) {
+      const CalibrationScalar& at = s->second.options.at(key);
+      throw core::InputError({file, at.line, at.column},
+                             fmt::format("sensors.{}.options.{}", sensor, key),
+                             fmt::format("expected an integer in [1, {}]", max));
+    }
+    return static_cast<int>(v);
+  };
+  LidarBeamPattern beams;
+  beams.azimuth_count = count(*azimuths, 3600, "azimuth_count");
+  beams.elevation_count = count(*elevations, 256, "elevation_count");
+  beams.elevation_min_rad = *min_deg * core::kRadPerDeg;
+  beams.elevation_max_rad = *max_deg * core::kRadPerDeg;
+  beams.min_range_m = *min_range;
+  beams.max_range_m = *max_range;
+  if (!(std::abs(*min_deg) <= 90.0 && std::abs(*max_deg) <= 90.0 && *min_deg <= *max_deg &&
+        beams.min_range_m >= 0.0 && beams.max_range_m > beams.min_range_m)) {
+    const CalibrationScalar& at = s->second.options.at("elevation_min_deg");
+    throw core::InputError({file, at.line, at.column}, fmt::format("sensors.{}.options", sensor),
+                           "expected -90 <= elevation_min_deg <= elevation_max_deg <= 90 and "
+                           "0 <= min_range_m < max_range_m");
+  }
+  return beams;
+}
+
+RunCalibration ParseRunCalibration(const std::string& text, const std::string& file) {
+  RunCalibration cal;
+  cal.present = true;
+  cal.file = file;
+  const YAML::Node root = LoadYamlText(text, file);
+  if (root.IsNull()) return cal;
+  if (!root.IsMap()) throw YamlError(file, root.Mark(), "", "expected a map (tofu calibration)");
+  if (const YAML::Node mounts = root["mounts"]) {
+    if (!mounts.IsMap()) {
+      throw YamlError(file, mounts.Mark(), "mounts", "expected a map of site name to pose");
+    }
+    for (const auto& entry : mounts) {
+      const std::string name = YamlText(entry.first, file, "mounts");
+      cal.mounts[name] = YamlPose(entry.second, file, "mounts." + name);
+    }
+  }
+  const YAML::Node sensors = root["sensors"];
+  if (!sensors) return cal;
+  if (!sensors.IsMap()) {
+    throw YamlError(file, sensors.Mark(), "sensors", "expected a map of sensor name to calibration");
+  }
+  for (const auto& entry : sensors) {
+    if (!entry.first.IsScalar()) {
+      throw YamlError(file, entry.first.Mark(), "sensors",
+                      "expected a sensor name (a string) as each key of sensors");
+    }
+    const std::string name = entry.first.Scalar();
+    cal.sensors[name] = ParseSensor(entry.second, file, "sensors." + name);
+  }
+  return cal;
+}
+
+RunCalibration ReadRunCalibration(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return RunCalibration{};
+  return ParseRunCalibration(
+      core::ReadWholeFile(path, "calibration file", core::kMaxConfigFileBytes), path.string());
+}
+
+}  // namespace tofu::replay

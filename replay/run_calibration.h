@@ -1,0 +1,82 @@
+#pragma once
+// The one reader of a run directory's calibration.yaml (harness/run_directory.cc writes
+// it; a user may write one beside a recorded log). Simulator-free: `tofu estimate`,
+// `tofu consistency` and the renderer read mounts, extrinsics, sensor options and the
+// geometry a picture needs from the run directory itself, never from the scenario.
+//
+// Schema (every key optional unless named; poses {p_m: [x, y, z], q_wxyz: [w, x, y, z]}):
+//   mounts:  {<site>: T_Bs}                  mount frame s in body frame B (true)
+//   sensors: {<name>: {                       one per stream sensors/<name>.csv
+//     type: imu|vio|lidar_odometry|total_station|gnss
+//     site: <site>
+//     T_Bs: pose                             nominal mount: what an estimator is given
+//     true_T_Bs: pose                        the truth, only where the two differ
+//     true_T_WS: pose                         the stream's reference frame S in W (scoring)
+//     sky_directions_S: [[x, y, z], ...]      GNSS: unit satellite directions in S
+//     options: {<key>: <scalar>, ...}}}       the sensor's options, units in the key names
+
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+namespace tofu::replay {
+
+/// One scalar of a sensor's `options:` block, as written, with where it sits.
+struct CalibrationScalar {
+  std::string text;
+  int line = 0;    ///< 1-based
+  int column = 0;  ///< 1-based
+};
+
+struct SensorCalibration {
+  std::string type;  ///< empty when not stated (a user's calibration may omit it)
+  std::string site;
+  std::optional<Eigen::Isometry3d> T_Bs;       ///< nominal mount
+  std::optional<Eigen::Isometry3d> true_T_Bs;  ///< only where a calibration error was set
+  std::optional<Eigen::Isometry3d> true_T_WS;   ///< the true reference frame (scoring only)
+  /// Whether an `options:` map is present; its scalar entries by key (nested maps such
+  /// as a GNSS fix class's error model are not kept).
+  bool has_options = false;
+  std::map<std::string, CalibrationScalar> options;
+  std::vector<Eigen::Vector3d> sky_directions_S;  ///< GNSS only
+};
+
+/// A LiDAR's beam pattern (lidar_odometry options): elevations evenly spaced over
+/// [elevation_min, elevation_max], azimuths evenly spaced over the full turn.
+struct LidarBeamPattern {
+  int azimuth_count = 0;
+  int elevation_count = 0;
+  double elevation_min_rad = 0.0;
+  double elevation_max_rad = 0.0;
+  double min_range_m = 0.0;
+  double max_range_m = 0.0;
+};
+
+struct RunCalibration {
+  bool present = false;  ///< false: no calibration.yaml (the fields are empty)
+  std::string file;      ///< named in error messages
+  std::map<std::string, Eigen::Isometry3d> mounts;
+  std::map<std::string, SensorCalibration> sensors;
+
+  /// sensors.<sensor>.options.<key> as a number; nullopt when the sensor, its options or
+  /// the key is absent. Throws core::InputError at the value's line when it is not a number.
+  std::optional<double> OptionNumber(const std::string& sensor, const std::string& key) const;
+
+  /// The beam pattern of a lidar_odometry sensor; nullopt for another type or when its
+  /// options do not state all six numbers. Throws core::InputError on a malformed one.
+  std::optional<LidarBeamPattern> LidarBeams(const std::string& sensor) const;
+};
+
+/// Parses calibration.yaml's text; `file` names it in messages. Throws core::InputError
+/// (file:line:column, key, expected form) on anything malformed.
+RunCalibration ParseRunCalibration(const std::string& text, const std::string& file);
+
+/// Reads `path` (bounded like every configuration file); a missing file gives
+/// `present == false`, not an error.
+RunCalibration ReadRunCalibration(const std::filesystem::path& path);
+
+}  // namespace tofu::replay

@@ -1,0 +1,29 @@
+#pragma once
+// Strict YAML field readers shared by the run directory's YAML files (calibration.yaml,
+// EuRoC's sensor.yaml, scenario.yaml as the renderer reads it): every failure is a
+// core::InputError naming file, line, column, key and the expected form.
+
+#include <string>
+
+#include <Eigen/Geometry>
+#include <yaml-cpp/yaml.h>
+
+#include "core/error.h"
+
+namespace tofu::replay {
+
+/// An InputError at `mark` (1-based line and column; 0 when the mark is unknown).
+core::InputError YamlError(const std::string& file, const YAML::Mark& mark, const std::string& key,
+                           const std::string& message);
+
+/// A YAML text's root; a syntax error is an InputError at its line and column.
+YAML::Node LoadYamlText(const std::string& text, const std::string& file);
+
+/// A scalar that parses as a number (not necessarily finite).
+double YamlNumber(const YAML::Node& node, const std::string& file, const std::string& key);
+
+/// {p_m: [x, y, z], q_wxyz: [w, x, y, z]} as an isometry (the quaternion normalised; one
+/// farther than 0.5 from unit norm is refused).
+Eigen::Isometry3d YamlPose(const YAML::Node& node, const std::string& file, const std::string& key);
+
+}  // namespace tofu::replay
