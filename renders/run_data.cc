@@ -119,41 +119,28 @@ void ReadGroundTruth(RunData& run) {
   }
 }
 
-// calibration.yaml through the one reader of the run-directory schema: mounts, the IMU's
-// nominal mount, and the geometry of the sensors that have one to draw.
-replay::RunCalibration ReadCalibration(RunData& run) {
+// calibration.yaml through the one reader of the run-directory schema: mounts and the
+// IMU's nominal mount now, the sensors' geometry when a layer asks for it.
+void ReadCalibration(RunData& run) {
   const fs::path path = run.directory / "calibration.yaml";
   if (!fs::is_regular_file(path)) {
     throw InputError({path.string()}, "", "missing: expected the file of a tofu run directory");
   }
-  replay::RunCalibration calibration = replay::ReadRunCalibration(path);
-  run.mounts = calibration.mounts;
+  run.calibration = replay::ReadRunCalibration(path);
+  run.mounts = run.calibration.mounts;
   // The estimates are of the IMU frame I: its nominal mount (what the estimator is given).
   bool imu_found = false;
-  for (const auto& [name, c] : calibration.sensors) {
+  for (const auto& [name, c] : run.calibration.sensors) {
     if (c.type != "imu" || !c.T_Bs) continue;
     run.T_BI = *c.T_Bs;
     imu_found = true;
     break;
   }
   if (!imu_found && run.mounts.count("imu") != 0) run.T_BI = run.mounts.at("imu");
-  for (const auto& [name, c] : calibration.sensors) {
-    if (const std::optional<replay::LidarBeamPattern> beams = calibration.LidarBeams(name)) {
-      run.lidars.push_back({c.site, *beams});
-    }
-    if (!c.sky_directions_S.empty()) {
-      SkyGeometry sky;
-      sky.site = c.site;
-      sky.T_WS = c.true_T_WS.value_or(Eigen::Isometry3d::Identity());
-      sky.directions_S = c.sky_directions_S;
-      sky.ray_length_m = calibration.OptionNumber(name, "sky_ray_length_m").value_or(200.0);
-      run.skies.push_back(std::move(sky));
-    }
-  }
-  return calibration;
 }
 
-void ReadSensors(RunData& run, const replay::RunCalibration& calibration) {
+void ReadSensors(RunData& run) {
+  const replay::RunCalibration& calibration = run.calibration;
   for (const fs::path& file : SensorCsvFiles(run.directory)) {
     const std::string name = file.stem().string();
     const auto cal = calibration.sensors.find(name);
@@ -559,6 +546,36 @@ std::vector<fs::path> ClosedLoopFlightDirs(const fs::path& run_dir) {
   return flights;
 }
 
+std::vector<LidarGeometry> LidarGeometries(const RunData& run) {
+  std::vector<LidarGeometry> lidars;
+  for (const auto& [name, c] : run.calibration.sensors) {
+    if (const std::optional<replay::LidarBeamPattern> beams = run.calibration.LidarBeams(name)) {
+      lidars.push_back({c.site, *beams});
+    }
+  }
+  return lidars;
+}
+
+std::vector<SkyGeometry> SkyGeometries(const RunData& run) {
+  std::vector<SkyGeometry> skies;
+  for (const auto& [name, c] : run.calibration.sensors) {
+    if (c.type != "gnss") continue;
+    if (c.sky_directions_S.empty()) {
+      throw InputError({run.calibration.file}, "sensors." + name + ".sky_directions_S",
+                       "missing: this run directory predates the GNSS sky in calibration.yaml; "
+                       "run the scenario again to draw its sky");
+    }
+    SkyGeometry sky;
+    sky.site = c.site;
+    sky.T_WS = c.true_T_WS.value_or(Eigen::Isometry3d::Identity());
+    sky.directions_S = c.sky_directions_S;
+    sky.ray_length_m =
+        run.calibration.OptionNumber(name, "sky_ray_length_m").value_or(sky.ray_length_m);
+    skies.push_back(std::move(sky));
+  }
+  return skies;
+}
+
 RunData ReadRunData(const fs::path& directory) {
   if (!fs::is_directory(directory)) {
     throw InputError({directory.string()}, "",
@@ -569,8 +586,8 @@ RunData ReadRunData(const fs::path& directory) {
   run.directory = directory;
   ReadScenario(run);
   ReadGroundTruth(run);
-  const auto calibration = ReadCalibration(run);
-  ReadSensors(run, calibration);
+  ReadCalibration(run);
+  ReadSensors(run);
   ReadLabels(run);
   ReadSummary(run);
   ReadEstimates(run);

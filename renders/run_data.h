@@ -121,9 +121,9 @@ struct RunData {
   /// The IMU's nominal mount T_BI (the frame the estimates are of).
   Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
   std::vector<SensorTrack> sensors;  ///< sorted by name; IMU streams excluded
-  /// Sensor geometry of calibration.yaml, by sensor name order.
-  std::vector<LidarGeometry> lidars;
-  std::vector<SkyGeometry> skies;
+  /// calibration.yaml as replay reads it: the sensors' geometry is drawn from it on demand
+  /// (LidarGeometries, SkyGeometries), so a layer not asked for is never read.
+  replay::RunCalibration calibration;
   std::vector<LabelRow> labels;
   std::vector<CollisionRow> collisions;
   /// Sorted by method name, then the closed-loop flights' true paths ("flown on <m>").
@@ -147,6 +147,15 @@ struct RunData {
     return ActiveLabels(sensor, "fault", t_ns);
   }
 };
+
+/// The LiDARs' beam patterns (sensors of type lidar_odometry), in sensor name order.
+/// Throws core::InputError at the option's line for a malformed pattern.
+std::vector<LidarGeometry> LidarGeometries(const RunData& run);
+
+/// The GNSS antennas' skies, in sensor name order. Throws core::InputError for a GNSS
+/// sensor without `sky_directions_S` (a run directory written before runs recorded it:
+/// run the scenario again to draw its sky).
+std::vector<SkyGeometry> SkyGeometries(const RunData& run);
 
 /// Reads a run directory. Required: scenario.yaml (keys name, world, robot),
 /// groundtruth.csv, calibration.yaml. Optional: sensors/*.csv, labels.csv, summary.json,

@@ -131,6 +131,9 @@ struct SceneRenderer::Impl {
   std::vector<Eigen::Vector3d> overview_targets;  // points the overview must show
   std::vector<Eigen::Vector3d> cutaway_targets;   // of the current frame's camera
   CameraView view;
+  // Sensor layers, read from the run directory when asked for.
+  std::vector<LidarGeometry> lidars;
+  std::vector<SkyGeometry> skies;
 
   Impl(const RunData& r, const RenderOptions& o) : run(r), options(o) {
     mjv_defaultScene(&scene);
@@ -148,6 +151,8 @@ struct SceneRenderer::Impl {
 
   void Build() {
     options.Validate();
+    if (options.lidar_hits) lidars = LidarGeometries(run);
+    if (options.gnss_sky) skies = SkyGeometries(run);
     // EGL first: without it nothing else is worth doing, and the error names the fix.
     egl = std::make_unique<EglContext>(options.egl);
 
@@ -526,7 +531,7 @@ struct SceneRenderer::Impl {
   }
 
   void AddLidarHits(const Eigen::Isometry3d& T_WB) {
-    for (const LidarGeometry& lidar : run.lidars) {
+    for (const LidarGeometry& lidar : lidars) {
       const Eigen::Isometry3d T_Ws = T_WB * Mount(lidar.site);
       const replay::LidarBeamPattern& o = lidar.beams;
       for (int e = 0; e < o.elevation_count; ++e) {
@@ -548,7 +553,7 @@ struct SceneRenderer::Impl {
 
   void AddSkyRays(const Eigen::Isometry3d& T_WB) {
     constexpr double kDrawnLength_m = 6.0;
-    for (const SkyGeometry& sky : run.skies) {
+    for (const SkyGeometry& sky : skies) {
       const Eigen::Vector3d antenna_W = T_WB * Mount(sky.site).translation();
       for (const Eigen::Vector3d& d_S : sky.directions_S) {
         const Eigen::Vector3d d_W = sky.T_WS.linear() * d_S;

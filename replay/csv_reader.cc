@@ -182,10 +182,6 @@ double CsvReader::Number(int column) const {
   return *value;
 }
 
-double CsvReader::NumberOrNaN(int column) const {
-  return Empty(column) ? std::numeric_limits<double>::quiet_NaN() : Number(column);
-}
-
 InputError CsvReader::Error(int column, const std::string& message) const {
   return InputError({name_, line_, fields_[column].column}, "",
                     fmt::format("column '{}': {}", raw_names_[column], message));

@@ -74,8 +74,6 @@ class CsvReader {
   int64_t Integer(int column, std::string_view what = "timestamp in ns") const;
   /// A number; "nan"/"inf" parse (and pass through), an empty or other field throws.
   double Number(int column) const;
-  /// As Number, but an empty field is NaN (an optional value such as a NEES).
-  double NumberOrNaN(int column) const;
   /// An InputError at the current row and `column`: "column '<header field>': message".
   core::InputError Error(int column, const std::string& message) const;
 

@@ -589,7 +589,8 @@ namespace {
 double TiltErrorDeg(const Eigen::Quaterniond& q_LI, const Eigen::Quaterniond& q_WI) {
   const Eigen::Vector3d down_I_est = q_LI.conjugate() * -Eigen::Vector3d::UnitZ();
   const Eigen::Vector3d down_I_true = q_WI.conjugate() * -Eigen::Vector3d::UnitZ();
-  return std::atan2(down_I_est.cross(down_I_true).norm(), down_I_est.dot(down_I_true)) * 180.0 / core::kPi;
+  return core::DegFromRad(
+      std::atan2(down_I_est.cross(down_I_true).norm(), down_I_est.dot(down_I_true)));
 }
 
 // The ground truth nearest in time (200 Hz and more: within half a period).

@@ -56,9 +56,13 @@ SensorCalibration ParseSensor(const YAML::Node& node, const std::string& file,
   if (const YAML::Node options = node["options"]; options && options.IsMap()) {
     s.has_options = true;
     for (const auto& entry : options) {
-      if (!entry.first.IsScalar() || !entry.second.IsScalar()) continue;
-      const YAML::Mark mark = entry.second.Mark();
-      s.options[entry.first.Scalar()] = {entry.second.Scalar(), mark.is_null() ? 0 : mark.line + 1,
+      if (!entry.first.IsScalar()) continue;
+      // A value-less key has no mark of its own: its key's line is where to look.
+      const YAML::Mark mark =
+          entry.second.Mark().is_null() ? entry.first.Mark() : entry.second.Mark();
+      const bool scalar = entry.second.IsScalar();
+      s.options[entry.first.Scalar()] = {scalar, scalar ? entry.second.Scalar() : "",
+                                         mark.is_null() ? 0 : mark.line + 1,
                                          mark.is_null() ? 0 : mark.column + 1};
     }
   }
@@ -73,6 +77,10 @@ std::optional<double> RunCalibration::OptionNumber(const std::string& sensor,
   if (s == sensors.end()) return std::nullopt;
   const auto v = s->second.options.find(key);
   if (v == s->second.options.end()) return std::nullopt;
+  if (!v->second.scalar) {
+    throw core::InputError({file, v->second.line, v->second.column},
+                           fmt::format("sensors.{}.options.{}", sensor, key), "expected a number");
+  }
   // The scalar again as YAML: the same number syntax (and message) as every other field.
   YAML::Node scalar(v->second.text);
   try {
@@ -98,12 +106,14 @@ std::optional<LidarBeamPattern> RunCalibration::LidarBeams(const std::string& se
   }
   // The limits of the scenario's own reader (harness/sensor_config_lidar_odometry.cc): a
   // pattern outside them was not written by a run.
+  const auto fail = [&](const char* key, const std::string& expected) {
+    const CalibrationScalar& at = s->second.options.at(key);
+    throw core::InputError({file, at.line, at.column},
+                           fmt::format("sensors.{}.options.{}", sensor, key), expected);
+  };
   const auto count = [&](double v, int max, const char* key) {
     if (!(v >= 1 && v <= max && v == std::floor(v))) {
-      const CalibrationScalar& at = s->second.options.at(key);
-      throw core::InputError({file, at.line, at.column},
-                             fmt::format("sensors.{}.options.{}", sensor, key),
-                             fmt::format("expected an integer in [1, {}]", max));
+      fail(key, fmt::format("expected an integer in [1, {}]", max));
     }
     return static_cast<int>(v);
   };
@@ -114,12 +124,15 @@ std::optional<LidarBeamPattern> RunCalibration::LidarBeams(const std::string& se
   beams.elevation_max_rad = *max_deg * core::kRadPerDeg;
   beams.min_range_m = *min_range;
   beams.max_range_m = *max_range;
-  if (!(std::abs(*min_deg) <= 90.0 && std::abs(*max_deg) <= 90.0 && *min_deg <= *max_deg &&
-        beams.min_range_m >= 0.0 && beams.max_range_m > beams.min_range_m)) {
-    const CalibrationScalar& at = s->second.options.at("elevation_min_deg");
-    throw core::InputError({file, at.line, at.column}, fmt::format("sensors.{}.options", sensor),
-                           "expected -90 <= elevation_min_deg <= elevation_max_deg <= 90 and "
-                           "0 <= min_range_m < max_range_m");
+  if (!(std::abs(*min_deg) <= 90.0)) fail("elevation_min_deg", "expected a number in [-90, 90]");
+  if (!(std::abs(*max_deg) <= 90.0 && *max_deg >= *min_deg)) {
+    fail("elevation_max_deg", "expected a number in [elevation_min_deg, 90]");
+  }
+  if (!(beams.min_range_m >= 0.0 && std::isfinite(beams.min_range_m))) {
+    fail("min_range_m", "expected a finite number >= 0");
+  }
+  if (!(beams.max_range_m > beams.min_range_m && std::isfinite(beams.max_range_m))) {
+    fail("max_range_m", "expected a finite number above min_range_m");
   }
   return beams;
 }

@@ -3,14 +3,17 @@
 // it; a user may write one beside a recorded log). Simulator-free: `tofu estimate`,
 // `tofu consistency` and the renderer read mounts, extrinsics, sensor options and the
 // geometry a picture needs from the run directory itself, never from the scenario.
+// Strict as every reader of tofu's: a malformed field (a mount, a pose with a NaN, a sky
+// direction that is not a unit vector, a root that is not a map) is an InputError at its
+// line, also where an older reader ignored it.
 //
 // Schema (every key optional unless named; poses {p_m: [x, y, z], q_wxyz: [w, x, y, z]}):
-//   mounts:  {<site>: T_Bs}                  mount frame s in body frame B (true)
+//   mounts:  {<site>: pose}                   mount frame s in body frame B, T_Bs (true)
 //   sensors: {<name>: {                       one per stream sensors/<name>.csv
 //     type: imu|vio|lidar_odometry|total_station|gnss
 //     site: <site>
-//     T_Bs: pose                             nominal mount: what an estimator is given
-//     true_T_Bs: pose                        the truth, only where the two differ
+//     T_B_s: pose                             nominal mount T_Bs: what an estimator is given
+//     true_T_B_s: pose                        the truth, only where the two differ
 //     true_T_WS: pose                         the stream's reference frame S in W (scoring)
 //     sky_directions_S: [[x, y, z], ...]      GNSS: unit satellite directions in S
 //     options: {<key>: <scalar>, ...}}}       the sensor's options, units in the key names
@@ -25,8 +28,9 @@
 
 namespace tofu::replay {
 
-/// One scalar of a sensor's `options:` block, as written, with where it sits.
+/// One entry of a sensor's `options:` block, as written, with where it sits.
 struct CalibrationScalar {
+  bool scalar = true;  ///< false: a list, a map or nothing (not a number, when one is asked)
   std::string text;
   int line = 0;    ///< 1-based
   int column = 0;  ///< 1-based
@@ -38,8 +42,8 @@ struct SensorCalibration {
   std::optional<Eigen::Isometry3d> T_Bs;       ///< nominal mount
   std::optional<Eigen::Isometry3d> true_T_Bs;  ///< only where a calibration error was set
   std::optional<Eigen::Isometry3d> true_T_WS;   ///< the true reference frame (scoring only)
-  /// Whether an `options:` map is present; its scalar entries by key (nested maps such
-  /// as a GNSS fix class's error model are not kept).
+  /// Whether an `options:` map is present; its entries by key (a nested map, such as a
+  /// GNSS fix class's error model, is kept as a non-scalar entry, not parsed).
   bool has_options = false;
   std::map<std::string, CalibrationScalar> options;
   std::vector<Eigen::Vector3d> sky_directions_S;  ///< GNSS only

@@ -16,6 +16,7 @@
 #include "core/file_io.h"
 #include "core/lie.h"
 #include "core/units.h"
+#include "replay/csv_reader.h"
 #include "replay/file_io.h"
 
 namespace tofu::replay {
@@ -34,12 +35,6 @@ constexpr int kTumFields = 8;
 constexpr std::array<std::string_view, kTumFields> kTumColumns = {
     "t [s]", "x [m]", "y [m]", "z [m]", "qx", "qy", "qz", "qw"};
 
-std::string Quoted(std::string_view s) {
-  constexpr size_t kMax = 60;
-  if (s.size() <= kMax) return fmt::format("'{}'", s);
-  return fmt::format("'{}...'", s.substr(0, kMax));
-}
-
 bool IsBlank(char c) { return c == ' ' || c == '\t' || c == '\r'; }
 
 double ParseTumNumber(std::string_view field, const std::string& file, int line, int column,
@@ -52,12 +47,12 @@ double ParseTumNumber(std::string_view field, const std::string& file, int line,
   if (ec == std::errc::result_out_of_range) {
     throw InputError({file, line, column}, "",
                      fmt::format("column {} ({}): {} is out of the range of a double", index + 1,
-                                 kTumColumns[index], Quoted(field)));
+                                 kTumColumns[index], CsvQuoted(field)));
   }
   if (ec != std::errc() || end != last) {
     throw InputError({file, line, column}, "",
                      fmt::format("column {} ({}): expected a number, got {}", index + 1,
-                                 kTumColumns[index], Quoted(field)));
+                                 kTumColumns[index], CsvQuoted(field)));
   }
   return value;
 }
@@ -324,7 +319,7 @@ std::vector<PoseSample> ReadTumTrajectory(const fs::path& file) {
                        fmt::format("column 1 ({}): expected a time in seconds (decimal or "
                                    "scientific notation, finite, within the int64 ns range), "
                                    "got {}",
-                                   kTumColumns[0], Quoted(fields[0])));
+                                   kTumColumns[0], CsvQuoted(fields[0])));
     }
     s.t_ns = *t;
     std::array<double, 7> v{};

@@ -1,7 +1,7 @@
 #pragma once
-// Strict YAML field readers shared by the run directory's YAML files (calibration.yaml,
-// EuRoC's sensor.yaml, scenario.yaml as the renderer reads it): every failure is a
-// core::InputError naming file, line, column, key and the expected form.
+// Strict YAML field readers of the logs' YAML files (a run's calibration.yaml, EuRoC's
+// sensor.yaml): every failure is a core::InputError naming file, line, column, key and
+// the expected form.
 
 #include <string>
 

@@ -1,6 +1,5 @@
 #include "sim/allocation.h"
 
-
 #include <algorithm>
 #include <cmath>
 

@@ -1,6 +1,5 @@
 #include "sim/gnss.h"
 
-
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>

@@ -662,7 +662,7 @@ TEST(RunCalibration, MalformedFieldsNameTheirLineAndKey) {
       "sensors:\n"
       "  vio:\n"
       "    type: vio\n"
-      "    options: {position_noise_m: abc}\n"
+      "    options: {position_noise_m: abc, rotation_noise_deg: [1, 2]}\n"
       "  lidar:\n"
       "    type: lidar_odometry\n"
       "    options:\n"
@@ -676,6 +676,9 @@ TEST(RunCalibration, MalformedFieldsNameTheirLineAndKey) {
   const core::InputError not_a_number = error_of([&] { cal.OptionNumber("vio", "position_noise_m"); });
   EXPECT_EQ(not_a_number.location().line, 4) << not_a_number.what();
   EXPECT_EQ(not_a_number.key_path(), "sensors.vio.options.position_noise_m");
+  const core::InputError a_list = error_of([&] { cal.OptionNumber("vio", "rotation_noise_deg"); });
+  EXPECT_EQ(a_list.location().line, 4) << a_list.what();
+  EXPECT_NE(std::string(a_list.what()).find("expected a number"), std::string::npos);
   const core::InputError zero_azimuths = error_of([&] { cal.LidarBeams("lidar"); });
   EXPECT_EQ(zero_azimuths.location().line, 8) << zero_azimuths.what();
   EXPECT_EQ(zero_azimuths.key_path(), "sensors.lidar.options.azimuth_count");

@@ -514,17 +514,19 @@ TEST(RenderRunData, SensorGeometryComesFromTheRunDirectory) {
   const RunDirectory dir("geometry");
   Write(dir / "calibration.yaml", Read(dir / "calibration.yaml") + kGeometrySensors);
   const RunData run = ReadRunData(dir);
-  ASSERT_EQ(run.skies.size(), 1u);
-  EXPECT_EQ(run.skies[0].site, "prism");
-  EXPECT_EQ(run.skies[0].ray_length_m, 150.0);
-  ASSERT_EQ(run.skies[0].directions_S.size(), 3u);
-  EXPECT_EQ(run.skies[0].directions_S[1], Eigen::Vector3d(0.6, 0.0, 0.8));
-  ASSERT_EQ(run.lidars.size(), 1u);
-  EXPECT_EQ(run.lidars[0].beams.azimuth_count, 36);
-  EXPECT_EQ(run.lidars[0].beams.elevation_count, 3);
-  EXPECT_DOUBLE_EQ(run.lidars[0].beams.elevation_min_rad, -10.0 * M_PI / 180.0);
-  EXPECT_DOUBLE_EQ(run.lidars[0].beams.elevation_max_rad, 20.0 * M_PI / 180.0);
-  EXPECT_EQ(run.lidars[0].beams.max_range_m, 30.0);
+  const std::vector<SkyGeometry> skies = SkyGeometries(run);
+  ASSERT_EQ(skies.size(), 1u);
+  EXPECT_EQ(skies[0].site, "prism");
+  EXPECT_EQ(skies[0].ray_length_m, 150.0);
+  ASSERT_EQ(skies[0].directions_S.size(), 3u);
+  EXPECT_EQ(skies[0].directions_S[1], Eigen::Vector3d(0.6, 0.0, 0.8));
+  const std::vector<LidarGeometry> lidars = LidarGeometries(run);
+  ASSERT_EQ(lidars.size(), 1u);
+  EXPECT_EQ(lidars[0].beams.azimuth_count, 36);
+  EXPECT_EQ(lidars[0].beams.elevation_count, 3);
+  EXPECT_DOUBLE_EQ(lidars[0].beams.elevation_min_rad, -10.0 * M_PI / 180.0);
+  EXPECT_DOUBLE_EQ(lidars[0].beams.elevation_max_rad, 20.0 * M_PI / 180.0);
+  EXPECT_EQ(lidars[0].beams.max_range_m, 30.0);
 
   RenderOptions plain = SmallOptions();
   RenderOptions layered = plain;
@@ -551,6 +553,34 @@ TEST(RenderRunData, MalformedSensorGeometryNamesFileLineAndKey) {
     EXPECT_EQ(e.location().line, line) << e.what();
     EXPECT_NE(std::string(e.what()).find("calibration.yaml"), std::string::npos) << e.what();
     EXPECT_EQ(e.key_path(), "sensors.gnss.sky_directions_S[1]") << e.what();
+  }
+}
+
+// A layer is read when it is asked for: a malformed LiDAR option does not stop a render
+// without --lidar, and fails one with it at the option's line; a GNSS sensor of a run
+// directory written before runs recorded the sky fails --sky with the fix named.
+TEST(RenderRunData, SensorLayersAreReadWhenAskedFor) {
+  const RunDirectory dir("layers_on_demand");
+  std::string sensors = kGeometrySensors;
+  sensors.replace(sensors.find("azimuth_count: 36"), 17, "azimuth_count: 0 ");
+  sensors.erase(sensors.find("    sky_directions_S"), sensors.find("    options: {site: prism, sky") -
+                                                          sensors.find("    sky_directions_S"));
+  Write(dir / "calibration.yaml", Read(dir / "calibration.yaml") + sensors);
+  const RunData run = ReadRunData(dir);
+  (void)SceneRenderer(run, SmallOptions()).Render(1'000'000'000, "chase");
+  try {
+    (void)LidarGeometries(run);
+    FAIL() << "expected an InputError";
+  } catch (const core::InputError& e) {
+    EXPECT_EQ(e.key_path(), "sensors.lidar.options.azimuth_count") << e.what();
+    EXPECT_GT(e.location().line, 1) << e.what();
+  }
+  try {
+    (void)SkyGeometries(run);
+    FAIL() << "expected an InputError";
+  } catch (const core::InputError& e) {
+    EXPECT_EQ(e.key_path(), "sensors.gnss.sky_directions_S") << e.what();
+    EXPECT_NE(std::string(e.what()).find("run the scenario again"), std::string::npos) << e.what();
   }
 }
 
