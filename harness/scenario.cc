@@ -22,6 +22,7 @@
 #include "harness/config_io.h"
 #include "harness/fault_config.h"
 #include "harness/metrics.h"
+#include "harness/option_fields_yaml.h"
 #include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 #include "replay/replay.h"
@@ -302,50 +303,29 @@ PhysicsOptions ReadPhysics(const YamlValue& value, std::optional<YamlValue>* rat
 }
 
 sim::ControllerOptions ReadController(const YamlValue& value, double physics_rate_hz) {
+  const auto fields = sim::ControllerOptions::Fields();
+  YamlMap map = value.Map(OptionKeys(fields));
+  // The controller runs on physics steps: its rate is at most the physics rate, which the
+  // options struct does not know.
+  if (const auto rate = map.Optional("rate_hz")) {
+    (void)rate->Number(NumberRule::Between(1.0, physics_rate_hz, "Hz, at most physics.rate_hz"));
+  }
   sim::ControllerOptions controller;
-  YamlMap map = value.Map({"rate_hz", "position_gain_per_s2", "velocity_gain_per_s",
-                           "position_integral_gain_per_s3", "integral_limit_mps2",
-                           "attitude_gain_per_s2", "angular_rate_gain_per_s",
-                           "attitude_integral_gain_per_s3", "attitude_integral_limit_radps2",
-                           "integral_error_band_m", "attitude_integral_error_band_rad"});
-  ReadNumber(map, "rate_hz",
-             NumberRule::Between(1.0, physics_rate_hz, "Hz, at most physics.rate_hz"),
-             &controller.rate_hz);
-  ReadVector(map, "position_gain_per_s2", NumberRule::NonNegative("1/s^2"), true,
-             &controller.position_gain_per_s2);
-  ReadVector(map, "velocity_gain_per_s", NumberRule::NonNegative("1/s"), true,
-             &controller.velocity_gain_per_s);
-  ReadVector(map, "position_integral_gain_per_s3", NumberRule::NonNegative("1/s^3"), true,
-             &controller.position_integral_gain_per_s3);
-  ReadNumber(map, "integral_limit_mps2", NumberRule::NonNegative("m/s^2"),
-             &controller.integral_limit_mps2);
-  ReadVector(map, "attitude_gain_per_s2", NumberRule::NonNegative("1/s^2"), true,
-             &controller.attitude_gain_per_s2);
-  ReadVector(map, "angular_rate_gain_per_s", NumberRule::NonNegative("1/s"), true,
-             &controller.angular_rate_gain_per_s);
-  ReadVector(map, "attitude_integral_gain_per_s3", NumberRule::NonNegative("1/s^3"), true,
-             &controller.attitude_integral_gain_per_s3);
-  ReadNumber(map, "attitude_integral_limit_radps2", NumberRule::NonNegative("rad/s^2"),
-             &controller.attitude_integral_limit_radps2);
-  ReadNumber(map, "integral_error_band_m", NumberRule::NonNegative("m"),
-             &controller.integral_error_band_m);
-  ReadNumber(map, "attitude_integral_error_band_rad", NumberRule::NonNegative("rad"),
-             &controller.attitude_integral_error_band_rad);
+  ReadOptionFields(map, fields, &controller);
   map.Finish();
+  std::string why;
+  if (!controller.IsValid(&why)) FailInvalidOptions(map, why);
   return controller;
 }
 
 sim::WindOptions ReadWind(const YamlValue& value) {
+  const auto fields = sim::WindOptions::Fields();
+  YamlMap map = value.Map(OptionKeys(fields));
   sim::WindOptions wind;
-  YamlMap map = value.Map({"mean_velocity_mps", "gust_std_mps", "gust_correlation_time_s",
-                           "drag_area_m2", "air_density_kgpm3"});
-  ReadVector(map, "mean_velocity_mps", NumberRule::Any("m/s"), false, &wind.mean_velocity_W_mps);
-  ReadNumber(map, "gust_std_mps", NumberRule::NonNegative("m/s"), &wind.gust_std_mps);
-  ReadNumber(map, "gust_correlation_time_s", NumberRule::Positive("s"),
-             &wind.gust_correlation_time_s);
-  ReadNumber(map, "drag_area_m2", NumberRule::NonNegative("m^2"), &wind.drag_area_m2);
-  ReadNumber(map, "air_density_kgpm3", NumberRule::Positive("kg/m^3"), &wind.air_density_kgpm3);
+  ReadOptionFields(map, fields, &wind);
   map.Finish();
+  std::string why;
+  if (!wind.IsValid(&why)) FailInvalidOptions(map, why);
   return wind;
 }
 
@@ -858,28 +838,12 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   EmitNumber(out, "rate_hz", scenario.physics.rate_hz);
   out << YAML::EndMap;
 
-  const sim::ControllerOptions& c = scenario.controller;
   out << YAML::Key << "controller" << YAML::Value << YAML::BeginMap;
-  EmitNumber(out, "rate_hz", c.rate_hz);
-  EmitVector(out, "position_gain_per_s2", c.position_gain_per_s2);
-  EmitVector(out, "velocity_gain_per_s", c.velocity_gain_per_s);
-  EmitVector(out, "position_integral_gain_per_s3", c.position_integral_gain_per_s3);
-  EmitNumber(out, "integral_limit_mps2", c.integral_limit_mps2);
-  EmitVector(out, "attitude_gain_per_s2", c.attitude_gain_per_s2);
-  EmitVector(out, "angular_rate_gain_per_s", c.angular_rate_gain_per_s);
-  EmitVector(out, "attitude_integral_gain_per_s3", c.attitude_integral_gain_per_s3);
-  EmitNumber(out, "attitude_integral_limit_radps2", c.attitude_integral_limit_radps2);
-  EmitNumber(out, "integral_error_band_m", c.integral_error_band_m);
-  EmitNumber(out, "attitude_integral_error_band_rad", c.attitude_integral_error_band_rad);
+  EmitOptionFields(out, sim::ControllerOptions::Fields(), scenario.controller);
   out << YAML::EndMap;
 
-  const sim::WindOptions& w = scenario.wind;
   out << YAML::Key << "wind" << YAML::Value << YAML::BeginMap;
-  EmitVector(out, "mean_velocity_mps", w.mean_velocity_W_mps);
-  EmitNumber(out, "gust_std_mps", w.gust_std_mps);
-  EmitNumber(out, "gust_correlation_time_s", w.gust_correlation_time_s);
-  EmitNumber(out, "drag_area_m2", w.drag_area_m2);
-  EmitNumber(out, "air_density_kgpm3", w.air_density_kgpm3);
+  EmitOptionFields(out, sim::WindOptions::Fields(), scenario.wind);
   out << YAML::EndMap;
 
   out << YAML::Key << "output" << YAML::Value << YAML::BeginMap;

@@ -1,41 +1,79 @@
 #include "harness/sensor_config.h"
 
+#include <string>
 #include <type_traits>
 
 #include "harness/config_io.h"
-#include "harness/sensor_config_gnss.h"
-#include "harness/sensor_config_imu.h"
-#include "harness/sensor_config_lidar_odometry.h"
-#include "harness/sensor_config_total_station.h"
-#include "harness/sensor_config_vio.h"
+#include "harness/option_fields_yaml.h"
 
 namespace tofu::harness::internal {
 
 using namespace config;
 
+namespace {
+
+// GNSS: one map per fix type (rtk_fixed:, rtk_float:, single:) after the flat options.
+constexpr std::string_view kGnssFixKeys[] = {"rtk_fixed", "rtk_float", "single"};
+
+// The fix type's options in a (const) sim::GnssOptions.
+template <typename Gnss>
+auto& GnssFix(Gnss& o, std::string_view key) {
+  return key == "rtk_fixed" ? o.rtk_fixed : key == "rtk_float" ? o.rtk_float : o.single;
+}
+
+}  // namespace
+
+template <typename Options>
+Options ReadSensorOptions(const YamlValue& value) {
+  constexpr bool kGnss = std::is_same_v<Options, sim::GnssOptions>;
+  const auto fields = Options::Fields();
+  std::vector<std::string_view> keys = OptionKeys(fields, {"type"});
+  if constexpr (kGnss) keys.insert(keys.end(), std::begin(kGnssFixKeys), std::end(kGnssFixKeys));
+  YamlMap map = value.Map(keys);
+  (void)map.Optional("type");  // the caller's key (which model this map configures)
+  Options o;
+  ReadOptionFields(map, fields, &o);
+  if constexpr (kGnss) {
+    const auto fix_fields = sim::GnssFixErrorOptions::Fields();
+    for (const std::string_view key : kGnssFixKeys) {
+      if (const auto fix = map.Optional(key)) {
+        YamlMap fix_map = fix->Map(OptionKeys(fix_fields));
+        ReadOptionFields(fix_map, fix_fields, &GnssFix(o, key));
+        fix_map.Finish();
+      }
+    }
+  }
+  map.Finish();
+  std::string why;
+  if (!o.IsValid(&why)) FailInvalidOptions(map, why);
+  return o;
+}
+
+template sim::ImuOptions ReadSensorOptions<sim::ImuOptions>(const YamlValue&);
+template sim::VioOptions ReadSensorOptions<sim::VioOptions>(const YamlValue&);
+template sim::LidarOdometryOptions ReadSensorOptions<sim::LidarOdometryOptions>(const YamlValue&);
+template sim::TotalStationOptions ReadSensorOptions<sim::TotalStationOptions>(const YamlValue&);
+template sim::GnssOptions ReadSensorOptions<sim::GnssOptions>(const YamlValue&);
+
 SensorOptions ReadSensorOptions(std::string_view type, const YamlValue& value) {
-  if (type == "imu") return ReadImuOptions(value);
-  if (type == "vio") return ReadVioOptions(value);
-  if (type == "lidar_odometry") return ReadLidarOdometryOptions(value);
-  if (type == "total_station") return ReadTotalStationOptions(value);
-  return ReadGnssOptions(value);
+  if (type == "imu") return ReadSensorOptions<sim::ImuOptions>(value);
+  if (type == "vio") return ReadSensorOptions<sim::VioOptions>(value);
+  if (type == "lidar_odometry") return ReadSensorOptions<sim::LidarOdometryOptions>(value);
+  if (type == "total_station") return ReadSensorOptions<sim::TotalStationOptions>(value);
+  return ReadSensorOptions<sim::GnssOptions>(value);
 }
 
 void EmitSensorOptions(YAML::Emitter& out, const SensorOptions& options) {
   std::visit(
       [&out](const auto& o) {
         using Options = std::decay_t<decltype(o)>;
-        if constexpr (std::is_same_v<Options, sim::ImuOptions>) {
-          EmitImuOptions(out, o);
-        } else if constexpr (std::is_same_v<Options, sim::VioOptions>) {
-          EmitVioOptions(out, o);
-        } else if constexpr (std::is_same_v<Options, sim::LidarOdometryOptions>) {
-          EmitLidarOdometryOptions(out, o);
-        } else if constexpr (std::is_same_v<Options, sim::TotalStationOptions>) {
-          EmitTotalStationOptions(out, o);
-        } else {
-          static_assert(std::is_same_v<Options, sim::GnssOptions>);
-          EmitGnssOptions(out, o);
+        EmitOptionFields(out, Options::Fields(), o);
+        if constexpr (std::is_same_v<Options, sim::GnssOptions>) {
+          for (const std::string_view key : kGnssFixKeys) {
+            out << YAML::Key << std::string(key) << YAML::Value << YAML::BeginMap;
+            EmitOptionFields(out, sim::GnssFixErrorOptions::Fields(), GnssFix(o, key));
+            out << YAML::EndMap;
+          }
         }
       },
       options);

@@ -1,7 +1,9 @@
 #pragma once
-// Private to harness: the sensor options of every type behind one dispatch, for the
-// scenario loader and for the run directory's calibration.yaml. Each type's own reader
-// and writer live in sensor_config_<type>.cc.
+// Private to harness: the sensor options of every type in YAML, for the scenario loader
+// and for the run directory's calibration.yaml. Each type's keys, units, limits and
+// writer come from its options struct's field table (sim::ImuOptions::Fields(), ...,
+// through harness/option_fields_yaml.h); the rules between fields are the struct's
+// IsValid.
 
 #include <string_view>
 
@@ -13,10 +15,17 @@
 
 namespace tofu::harness::internal {
 
-/// Reads the options of a sensor of `type` (one of kSensorTypeNames).
+/// Reads the options of a sensor of `type` (one of kSensorTypeNames). Strict: unknown
+/// keys and out-of-range values are InputErrors naming line and key path; absent keys
+/// keep the defaults; `type` itself is the caller's key, accepted and ignored here.
 SensorOptions ReadSensorOptions(std::string_view type, const YamlValue& value);
 
-/// Writes the options' keys into the current map.
+/// The same for one type known at compile time (Options: sim::ImuOptions, sim::VioOptions,
+/// sim::LidarOdometryOptions, sim::TotalStationOptions, sim::GnssOptions).
+template <typename Options>
+Options ReadSensorOptions(const YamlValue& value);
+
+/// Writes every option's key into the current map (round-trip formatting).
 void EmitSensorOptions(YAML::Emitter& out, const SensorOptions& options);
 
 /// `calibration_error: {translation_m: [x, y, z], rpy_deg: [r, p, y]}`: the error of the

@@ -107,70 +107,6 @@ std::string ChildPath(const std::string& parent, std::string_view key) {
 
 }  // namespace
 
-// ---- NumberRule ----
-
-NumberRule NumberRule::Any(std::string_view unit) {
-  NumberRule rule;
-  rule.unit = unit;
-  return rule;
-}
-
-NumberRule NumberRule::Positive(std::string_view unit) {
-  NumberRule rule;
-  rule.min = 0.0;
-  rule.min_exclusive = true;
-  rule.unit = unit;
-  return rule;
-}
-
-NumberRule NumberRule::NonNegative(std::string_view unit) {
-  NumberRule rule;
-  rule.min = 0.0;
-  rule.unit = unit;
-  return rule;
-}
-
-NumberRule NumberRule::Between(double lo, double hi, std::string_view unit) {
-  NumberRule rule;
-  rule.min = lo;
-  rule.max = hi;
-  rule.unit = unit;
-  return rule;
-}
-
-NumberRule NumberRule::PositiveAtMost(double hi, std::string_view unit) {
-  NumberRule rule = Positive(unit);
-  rule.max = hi;
-  return rule;
-}
-
-bool NumberRule::Accepts(double value) const {
-  if (min && (min_exclusive ? !(value > *min) : !(value >= *min))) return false;
-  if (max && (max_exclusive ? !(value < *max) : !(value <= *max))) return false;
-  return true;
-}
-
-std::string NumberRule::Describe() const {
-  std::string bounds;
-  if (min && max) {
-    bounds = fmt::format(" in {}{}, {}{}", min_exclusive ? "(" : "[", FormatDouble(*min),
-                         FormatDouble(*max), max_exclusive ? ")" : "]");
-  } else if (min) {
-    bounds = fmt::format(" {} {}", min_exclusive ? ">" : ">=", FormatDouble(*min));
-  } else if (max) {
-    bounds = fmt::format(" {} {}", max_exclusive ? "<" : "<=", FormatDouble(*max));
-  }
-  if (!unit.empty()) bounds += fmt::format(" ({})", unit);
-  return bounds;
-}
-
-std::string FormatDouble(double value) {
-  char buffer[64];
-  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), value);
-  assert(result.ec == std::errc());
-  return std::string(buffer, result.ptr);
-}
-
 std::string ClosestMatch(std::string_view word, const std::vector<std::string>& candidates) {
   std::string best;
   size_t best_distance = std::max<size_t>(2, word.size() / 3) + 1;
@@ -340,6 +276,10 @@ std::string YamlValue::Identifier() const {
 }
 
 YamlMap YamlValue::Map(std::initializer_list<std::string_view> allowed) const {
+  return Map(std::span<const std::string_view>(allowed.begin(), allowed.size()));
+}
+
+YamlMap YamlValue::Map(std::span<const std::string_view> allowed) const {
   std::vector<std::string> allowed_keys(allowed.begin(), allowed.end());
   std::vector<YamlValue> values;
   std::vector<std::string> keys;

@@ -14,42 +14,20 @@
 #include <initializer_list>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <utility>
 #include <vector>
 
 #include "core/error.h"
+#include "core/option_fields.h"
 
 namespace tofu::harness::internal {
 
-/// Allowed range of a number and its unit, for checks and for the "expected ..." text.
-struct NumberRule {
-  std::optional<double> min;
-  bool min_exclusive = false;
-  std::optional<double> max;
-  bool max_exclusive = false;
-  std::string_view unit;  ///< e.g. "m", "Hz"; empty for unitless
-
-  /// Any finite number.
-  static NumberRule Any(std::string_view unit);
-  /// A number > 0.
-  static NumberRule Positive(std::string_view unit);
-  /// A number >= 0.
-  static NumberRule NonNegative(std::string_view unit);
-  /// A number in [lo, hi].
-  static NumberRule Between(double lo, double hi, std::string_view unit);
-  /// A number in (0, hi].
-  static NumberRule PositiveAtMost(double hi, std::string_view unit);
-
-  /// True if the (finite) value satisfies the bounds.
-  bool Accepts(double value) const;
-  /// "a number > 0 (m)", "a number in [100, 10000] (Hz)", "a number (m)".
-  std::string Describe() const;
-};
-
-/// Shortest decimal text that parses back to exactly `value` (std::to_chars).
-std::string FormatDouble(double value);
+// The number rule and the round-trip formatting of option tables (core/option_fields.h).
+using core::FormatDouble;
+using core::NumberRule;
 
 /// Closest candidate to `word` if its edit distance is small, else empty.
 std::string ClosestMatch(std::string_view word, const std::vector<std::string>& candidates);
@@ -100,6 +78,8 @@ class YamlValue {
   /// This value as a map whose keys must be among `allowed`; a null value is an empty
   /// map. Throws on a non-map, a non-scalar key, a duplicate or unknown key.
   YamlMap Map(std::initializer_list<std::string_view> allowed) const;
+  /// The same with the allowed keys of an option table (harness/option_fields_yaml.h).
+  YamlMap Map(std::span<const std::string_view> allowed) const;
   /// The value of `key` if this is a map that has it (no unknown-key checks; for a
   /// selector such as `type` read before the map itself).
   std::optional<YamlValue> Peek(std::string_view key) const;

@@ -3,6 +3,39 @@
 #include "core/lie.h"
 
 namespace tofu::sim {
+
+// ---- options ----
+
+std::span<const core::OptionField<ControllerOptions>> ControllerOptions::Fields() {
+  using F = core::OptionField<ControllerOptions>;
+  using R = core::NumberRule;
+  using O = ControllerOptions;
+  // Gains may be written as one number for all three axes.
+  static const F kFields[] = {
+      // At most the physics rate, which the scenario checks (the struct does not know it).
+      F::Number("rate_hz", &O::rate_hz, R::Between(1.0, 10000.0, "Hz")),
+      F::Vector("position_gain_per_s2", &O::position_gain_per_s2, R::NonNegative("1/s^2"), true),
+      F::Vector("velocity_gain_per_s", &O::velocity_gain_per_s, R::NonNegative("1/s"), true),
+      F::Vector("position_integral_gain_per_s3", &O::position_integral_gain_per_s3,
+                R::NonNegative("1/s^3"), true),
+      F::Number("integral_limit_mps2", &O::integral_limit_mps2, R::NonNegative("m/s^2")),
+      F::Vector("attitude_gain_per_s2", &O::attitude_gain_per_s2, R::NonNegative("1/s^2"), true),
+      F::Vector("angular_rate_gain_per_s", &O::angular_rate_gain_per_s, R::NonNegative("1/s"),
+                true),
+      F::Vector("attitude_integral_gain_per_s3", &O::attitude_integral_gain_per_s3,
+                R::NonNegative("1/s^3"), true),
+      F::Number("attitude_integral_limit_radps2", &O::attitude_integral_limit_radps2,
+                R::NonNegative("rad/s^2")),
+      F::Number("integral_error_band_m", &O::integral_error_band_m, R::NonNegative("m")),
+      F::Number("attitude_integral_error_band_rad", &O::attitude_integral_error_band_rad,
+                R::NonNegative("rad")),
+  };
+  return kFields;
+}
+
+bool ControllerOptions::IsValid(std::string* why) const {
+  return core::CheckOptionFields<ControllerOptions>(*this, Fields(), why);
+}
 namespace {
 
 Eigen::Vector3d ClampNorm(const Eigen::Vector3d& v, double limit) {
@@ -28,7 +61,7 @@ Eigen::Vector3d UpdateIntegral(const Eigen::Vector3d& error, const Eigen::Vector
 
 GeometricController::GeometricController(const ControllerOptions& options,
                                          const RigidBodyParams& params)
-    : options_(options), params_(params) {}
+    : options_(core::ValidOptions(options, "controller")), params_(params) {}
 
 void GeometricController::Reset() {
   position_integral_.setZero();

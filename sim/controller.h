@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "core/option_fields.h"
 #include "core/time.h"
 #include "sim/rigid_body.h"
 #include "sim/trajectory.h"
@@ -47,6 +48,14 @@ struct ControllerOptions {
   Eigen::Vector3d attitude_integral_gain_per_s3 = Eigen::Vector3d(5.0, 5.0, 4.0);
   double attitude_integral_limit_radps2 = 3.0;
   double attitude_integral_error_band_rad = 0.02;  ///< as integral_error_band_m
+
+  /// The field table (core/option_fields.h): the YAML key, unit and limits of every
+  /// option, which the reader, the writer and IsValid share.
+  static std::span<const core::OptionField<ControllerOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside
+  /// its limits.
+  /// GeometricController's constructor throws std::invalid_argument then.
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 

@@ -5,9 +5,76 @@
 #include <stdexcept>
 #include <utility>
 
+#include <fmt/format.h>
+
 #include "core/units.h"
 
 namespace tofu::sim {
+
+// ---- options ----
+
+std::span<const core::OptionField<GnssFixErrorOptions>> GnssFixErrorOptions::Fields() {
+  using F = core::OptionField<GnssFixErrorOptions>;
+  using R = core::NumberRule;
+  using O = GnssFixErrorOptions;
+  static const F kFields[] = {
+      F::Number("std_horizontal_m", &O::std_horizontal_m, R::Positive("m")),
+      F::Number("std_vertical_m", &O::std_vertical_m, R::Positive("m")),
+      F::Number("correlated_fraction", &O::correlated_fraction, R::Between(0.0, 1.0, "")),
+      F::Number("correlation_time_s", &O::correlation_time_s, R::Positive("s")),
+      F::Number("multipath_std_m", &O::multipath_std_m, R::NonNegative("m")),
+  };
+  return kFields;
+}
+
+std::span<const core::OptionField<GnssOptions>> GnssOptions::Fields() {
+  using F = core::OptionField<GnssOptions>;
+  using R = core::NumberRule;
+  using O = GnssOptions;
+  static const F kFields[] = {
+      F::Name("site", &O::site),
+      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(100.0, "Hz")),
+      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s")),
+      F::Vector("enu_origin_m", &O::enu_origin_W_m, R::Any("m")),
+      F::Degrees("enu_yaw_deg", &O::enu_yaw_rad, R::Between(-360.0, 360.0, "deg")),
+      F::Integer("satellite_count", &O::satellite_count, 0, 200),
+      F::Degrees("elevation_mask_deg", &O::elevation_mask_rad, R::Between(0.0, 89.0, "deg")),
+      F::Number("sky_ray_length_m", &O::sky_ray_length_m, R::Positive("m")),
+      // A position fix needs 4 satellites; the order single <= float <= fixed is IsValid's.
+      F::Integer("min_satellites_single", &O::min_satellites_single, 4, 200),
+      F::Integer("min_satellites_float", &O::min_satellites_float, 4, 200),
+      F::Integer("min_satellites_fixed", &O::min_satellites_fixed, 4, 200),
+      F::Number("time_to_fix_s", &O::time_to_fix_s, R::NonNegative("s")),
+      F::Flag("fixed_at_start", &O::fixed_at_start),
+      F::Number("multipath_min_blocked_fraction", &O::multipath_min_blocked_fraction,
+                R::Between(0.0, 1.0, "")),
+      F::Number("multipath_correlation_time_s", &O::multipath_correlation_time_s,
+                R::Positive("s")),
+  };
+  return kFields;
+}
+
+bool GnssOptions::IsValid(std::string* why) const {
+  if (!core::CheckOptionFields<GnssOptions>(*this, Fields(), why)) return false;
+  auto fail = [why](std::string message) {
+    if (why != nullptr) *why = std::move(message);
+    return false;
+  };
+  if (min_satellites_float < min_satellites_single) {
+    return fail(fmt::format("min_satellites_float: expected min_satellites_single ({}) <= "
+                            "min_satellites_float ({})",
+                            min_satellites_single, min_satellites_float));
+  }
+  if (min_satellites_fixed < min_satellites_float) {
+    return fail(fmt::format("min_satellites_fixed: expected min_satellites_float ({}) <= "
+                            "min_satellites_fixed ({})",
+                            min_satellites_float, min_satellites_fixed));
+  }
+  const auto fields = GnssFixErrorOptions::Fields();
+  return core::CheckOptionFields(rtk_fixed, fields, why, "rtk_fixed.") &&
+         core::CheckOptionFields(rtk_float, fields, why, "rtk_float.") &&
+         core::CheckOptionFields(single, fields, why, "single.");
+}
 namespace {
 
 // Position in W of a point fixed in B at p_Bs, at t + tau (rigid-body kinematics,
@@ -40,7 +107,7 @@ constexpr GnssFix kFixTypes[3] = {GnssFix::kSingle, GnssFix::kFloat, GnssFix::kF
 GnssModel::GnssModel(std::string name, const GnssOptions& options, const World& world,
                      uint64_t seed)
     : name_(std::move(name)),
-      options_(options),
+      options_(core::ValidOptions(options, "gnss '" + name_ + "'")),
       stream_(seed, "sensor/" + name_),
       period_ns_(core::PeriodFromRate(options.rate_hz)),
       latency_ns_(core::SecondsToTime(options.latency_s)),
@@ -51,15 +118,6 @@ GnssModel::GnssModel(std::string name, const GnssOptions& options, const World& 
     throw std::invalid_argument(who + "robot has no site '" + options_.site + "'");
   }
   p_B_s_ = mount->p_Bs;
-  if (!(period_ns_ > 0)) throw std::invalid_argument(who + "rate_hz must be positive");
-  if (!(options_.min_satellites_single >= 4 &&
-        options_.min_satellites_single <= options_.min_satellites_float &&
-        options_.min_satellites_float <= options_.min_satellites_fixed)) {
-    throw std::invalid_argument(
-        who + "expected 4 <= min_satellites_single <= min_satellites_float <= "
-              "min_satellites_fixed");
-  }
-  if (options_.satellite_count < 0) throw std::invalid_argument(who + "satellite_count < 0");
 
   T_WS_ = Eigen::Isometry3d::Identity();
   T_WS_.translation() = options_.enu_origin_W_m;

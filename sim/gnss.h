@@ -3,6 +3,7 @@
 // local ENU frame, with the fix type set by how much of the sky the scene leaves open.
 
 #include <array>
+#include <span>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -12,6 +13,7 @@
 #include <Eigen/Geometry>
 
 #include "core/random.h"
+#include "core/option_fields.h"
 #include "core/time.h"
 #include "core/units.h"
 #include "sim/sensor.h"
@@ -30,6 +32,9 @@ struct GnssFixErrorOptions {
   /// Multipath: a Gauss-Markov error per axis with std = multipath_std_m * blocked sky
   /// fraction (blocked = satellites above the mask hidden by the scene).
   double multipath_std_m = 0.08;
+
+  /// The field table of one fix type's map (rtk_fixed:, rtk_float:, single:).
+  static std::span<const core::OptionField<GnssFixErrorOptions>> Fields();
 };
 
 /// Fix types, best last.
@@ -73,6 +78,14 @@ struct GnssOptions {
   GnssFixErrorOptions rtk_fixed{0.01, 0.02, 0.5, 30.0, 0.08};
   GnssFixErrorOptions rtk_float{0.3, 0.5, 0.8, 30.0, 0.8};
   GnssFixErrorOptions single{1.5, 3.0, 0.9, 60.0, 3.0};
+
+  /// The field table (core/option_fields.h): the YAML key, unit and limits of every
+  /// option, which the reader, the writer and IsValid share.
+  static std::span<const core::OptionField<GnssOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside
+  /// its limits or the satellite thresholds are not in order.
+  /// The model's constructor throws std::invalid_argument then.
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// GNSS RTK: the antenna site s in the ENU frame S.

@@ -10,6 +10,62 @@
 #include "core/units.h"
 
 namespace tofu::sim {
+
+// ---- options ----
+
+std::span<const core::OptionField<ImuOptions>> ImuOptions::Fields() {
+  using F = core::OptionField<ImuOptions>;
+  using R = core::NumberRule;
+  static const F kFields[] = {
+      F::Name("site", &ImuOptions::site),
+      F::Number("rate_hz", &ImuOptions::rate_hz, R::Between(200.0, 1000.0, "Hz")),
+      F::Number("latency_s", &ImuOptions::latency_s, R::Between(0.0, 1.0, "s")),
+      F::Flag("enable_noise", &ImuOptions::enable_noise),
+      F::Number("gyro_noise_density_radps_per_sqrthz",
+                &ImuOptions::gyro_noise_density_radps_per_sqrthz, R::NonNegative("rad/s/sqrt(Hz)")),
+      F::Number("gyro_random_walk_radps2_per_sqrthz",
+                &ImuOptions::gyro_random_walk_radps2_per_sqrthz,
+                R::NonNegative("rad/s^2/sqrt(Hz)")),
+      F::Number("accel_noise_density_mps2_per_sqrthz",
+                &ImuOptions::accel_noise_density_mps2_per_sqrthz,
+                R::NonNegative("m/s^2/sqrt(Hz)")),
+      F::Number("accel_random_walk_mps3_per_sqrthz", &ImuOptions::accel_random_walk_mps3_per_sqrthz,
+                R::NonNegative("m/s^3/sqrt(Hz)")),
+      F::Number("gyro_turn_on_bias_std_radps", &ImuOptions::gyro_turn_on_bias_std_radps,
+                R::NonNegative("rad/s")),
+      F::Number("accel_turn_on_bias_std_mps2", &ImuOptions::accel_turn_on_bias_std_mps2,
+                R::NonNegative("m/s^2")),
+      F::Number("gyro_scale_factor_std", &ImuOptions::gyro_scale_factor_std,
+                R::Between(0.0, 0.1, "")),
+      F::Number("accel_scale_factor_std", &ImuOptions::accel_scale_factor_std,
+                R::Between(0.0, 0.1, "")),
+      // Small-angle model: a few degrees at most.
+      F::Degrees("gyro_misalignment_std_deg", &ImuOptions::gyro_misalignment_std_rad,
+                 R::Between(0.0, 5.0, "deg")),
+      F::Degrees("accel_misalignment_std_deg", &ImuOptions::accel_misalignment_std_rad,
+                 R::Between(0.0, 5.0, "deg")),
+      F::Number("gyro_range_radps", &ImuOptions::gyro_range_radps, R::Positive("rad/s")),
+      F::Number("accel_range_mps2", &ImuOptions::accel_range_mps2, R::Positive("m/s^2")),
+      F::Number("rotor_thrust_coefficient_N_per_radps2",
+                &ImuOptions::rotor_thrust_coefficient_N_per_radps2, R::Positive("N/(rad/s)^2")),
+      F::Number("vibration_reference_thrust_N", &ImuOptions::vibration_reference_thrust_N,
+                R::Positive("N")),
+      F::Number("vibration_accel_mps2", &ImuOptions::vibration_accel_mps2,
+                R::NonNegative("m/s^2")),
+      F::Number("vibration_gyro_radps", &ImuOptions::vibration_gyro_radps,
+                R::NonNegative("rad/s")),
+      F::Pair("vibration_harmonic_gains", &ImuOptions::vibration_harmonic_gains,
+              R::NonNegative("")),
+      // > 1: a mount resonating near the rotor frequency amplifies the vibration.
+      F::Number("mount_transmissibility", &ImuOptions::mount_transmissibility,
+                R::Between(0.0, 10.0, "")),
+  };
+  return kFields;
+}
+
+bool ImuOptions::IsValid(std::string* why) const {
+  return core::CheckOptionFields<ImuOptions>(*this, Fields(), why);
+}
 namespace {
 
 using core::kTwoPi;
@@ -51,11 +107,8 @@ bool Clip(double range, Eigen::Vector3d* v) {
 ImuModel::ImuModel(std::string name, const ImuOptions& options, const World& world,
                    uint64_t seed)
     : name_(std::move(name)),
-      options_(options),
+      options_(core::ValidOptions(options, "IMU '" + name_ + "'")),
       noise_stream_(seed, "sensor/" + name_) {
-  if (!(options_.rate_hz > 0.0)) {
-    throw std::invalid_argument("IMU '" + name_ + "': rate_hz must be positive");
-  }
   const MountSite* site = world.robot().FindSite(options_.site);
   if (site == nullptr) {
     throw std::invalid_argument("IMU '" + name_ + "': the robot has no site '" + options_.site +

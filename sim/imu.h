@@ -5,6 +5,7 @@
 // rotor vibration that a (poorly) damped mount passes on to the sensor.
 
 #include <array>
+#include <span>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -13,6 +14,7 @@
 #include <Eigen/Geometry>
 
 #include "core/random.h"
+#include "core/option_fields.h"
 #include "core/time.h"
 #include "core/units.h"
 #include "sim/allocation.h"
@@ -68,6 +70,14 @@ struct ImuOptions {
   /// > 1 a mount resonating near the rotor frequency. 0.15 gives ~0.16 m/s^2 RMS per axis
   /// at hover (12 rotors, random phases and directions; white noise alone 0.04 m/s^2).
   double mount_transmissibility = 0.15;
+
+  /// The field table (core/option_fields.h): the YAML key, unit and limits of every
+  /// option, which the reader, the writer and IsValid share.
+  static std::span<const core::OptionField<ImuOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside
+  /// its limits.
+  /// The model's constructor throws std::invalid_argument then.
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// Inertial measurement unit at a mount site I (p_BI, R_BI from the robot model).

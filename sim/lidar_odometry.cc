@@ -12,6 +12,65 @@
 #include "sim/mount_motion.h"
 
 namespace tofu::sim {
+
+// ---- options ----
+
+std::span<const core::OptionField<LidarOdometryOptions>> LidarOdometryOptions::Fields() {
+  using F = core::OptionField<LidarOdometryOptions>;
+  using R = core::NumberRule;
+  using O = LidarOdometryOptions;
+  static const F kFields[] = {
+      F::Name("site", &O::site),
+      F::OptionalVector("frame_position_m", &O::p_WS_m, R::Any("m")),
+      F::OptionalAttitude("frame_rpy_deg", &O::q_WS),
+      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(1000.0, "Hz")),
+      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s")),
+      F::Integer("azimuth_count", &O::azimuth_count, 1, 3600),
+      F::Integer("elevation_count", &O::elevation_count, 1, 256),
+      F::Degrees("elevation_min_deg", &O::elevation_min_rad, R::Between(-90.0, 90.0, "deg")),
+      F::Degrees("elevation_max_deg", &O::elevation_max_rad, R::Between(-90.0, 90.0, "deg")),
+      F::Number("min_range_m", &O::min_range_m, R::NonNegative("m")),
+      F::Number("max_range_m", &O::max_range_m, R::Positive("m")),
+      F::Number("range_noise_m", &O::range_noise_m, R::NonNegative("m")),
+      F::Number("degenerate_translation_threshold", &O::degenerate_translation_threshold,
+                R::NonNegative("returns")),
+      F::Number("degenerate_rotation_threshold_m2", &O::degenerate_rotation_threshold_m2,
+                R::NonNegative("m^2")),
+      F::Integer("min_returns", &O::min_returns, 0, 1000000),
+      F::Number("position_random_walk_m_per_sqrtm", &O::position_random_walk_m_per_sqrtm,
+                R::NonNegative("m/sqrt(m)")),
+      F::Number("degenerate_position_random_walk_m_per_sqrtm",
+                &O::degenerate_position_random_walk_m_per_sqrtm, R::NonNegative("m/sqrt(m)")),
+      F::Degrees("rotation_random_walk_deg_per_sqrtm", &O::rotation_random_walk_rad_per_sqrtm,
+                 R::NonNegative("deg/sqrt(m)")),
+      F::Number("degenerate_rotation_random_walk_rad_per_sqrtrad",
+                &O::degenerate_rotation_random_walk_rad_per_sqrtrad,
+                R::NonNegative("rad/sqrt(rad)")),
+      F::Number("divergence_velocity_mps", &O::divergence_velocity_mps, R::NonNegative("m/s")),
+      F::Number("divergence_time_constant_s", &O::divergence_time_constant_s, R::Positive("s")),
+      F::Number("velocity_noise_mps", &O::velocity_noise_mps, R::NonNegative("m/s")),
+      F::Degrees("angular_rate_noise_degps", &O::angular_rate_noise_radps,
+                 R::NonNegative("deg/s")),
+      F::Number("max_reported_position_std_m", &O::max_reported_position_std_m,
+                R::Positive("m")),
+      F::Degrees("max_reported_rotation_std_deg", &O::max_reported_rotation_std_rad,
+                 R::Positive("deg")),
+  };
+  return kFields;
+}
+
+bool LidarOdometryOptions::IsValid(std::string* why) const {
+  if (!core::CheckOptionFields<LidarOdometryOptions>(*this, Fields(), why)) return false;
+  auto fail = [why](const char* message) {
+    if (why != nullptr) *why = message;
+    return false;
+  };
+  if (!(min_range_m < max_range_m)) return fail("max_range_m: must be greater than min_range_m");
+  if (!(elevation_min_rad <= elevation_max_rad)) {
+    return fail("elevation_max_deg: must not be less than elevation_min_deg");
+  }
+  return true;
+}
 namespace {
 
 using core::kPi;
@@ -27,32 +86,15 @@ void Require(bool ok, const std::string& name, const std::string& what) {
 LidarOdometryModel::LidarOdometryModel(std::string name, const LidarOdometryOptions& options,
                                        const World& world, uint64_t seed)
     : name_(std::move(name)),
-      options_(options),
+      options_(core::ValidOptions(options, "lidar odometry '" + name_ + "'")),
       stream_(seed, "sensor/" + name_),
-      period_ns_(options.rate_hz > 0.0 ? core::PeriodFromRate(options.rate_hz) : 0),
+      period_ns_(core::PeriodFromRate(options.rate_hz)),
       latency_ns_(core::SecondsToTime(options.latency_s)) {
   const MountSite* mount = world.robot().FindSite(options_.site);
   Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
   T_B_s_ = Eigen::Isometry3d::Identity();
   T_B_s_.translation() = mount->p_Bs;
   T_B_s_.linear() = mount->q_Bs.normalized().toRotationMatrix();
-
-  Require(period_ns_ > 0, name_, "rate_hz must be positive");
-  Require(options_.latency_s >= 0.0, name_, "latency_s must be >= 0");
-  Require(options_.azimuth_count >= 1 && options_.elevation_count >= 1, name_,
-          "the scan needs at least one azimuth and one elevation");
-  Require(options_.elevation_min_rad >= -0.5 * kPi &&
-              options_.elevation_min_rad <= options_.elevation_max_rad &&
-              options_.elevation_max_rad <= 0.5 * kPi,
-          name_, "elevations must satisfy -90 <= min <= max <= 90 deg");
-  Require(options_.min_range_m >= 0.0 && options_.min_range_m < options_.max_range_m, name_,
-          "ranges must satisfy 0 <= min < max");
-  Require(options_.range_noise_m >= 0.0, name_, "range_noise_m must be >= 0");
-  Require(options_.divergence_time_constant_s > 0.0, name_,
-          "divergence_time_constant_s must be positive");
-  Require(options_.max_reported_position_std_m > 0.0 &&
-              options_.max_reported_rotation_std_rad > 0.0,
-          name_, "the largest reported standard deviations must be positive");
 
   if (options_.p_WS_m) T_WS_.translation() = *options_.p_WS_m;
   if (options_.q_WS) T_WS_.linear() = options_.q_WS->normalized().toRotationMatrix();

@@ -5,6 +5,7 @@
 // a corridor) or everywhere when too few returns come back (open sky).
 
 #include <array>
+#include <span>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -14,6 +15,7 @@
 #include <Eigen/Geometry>
 
 #include "core/random.h"
+#include "core/option_fields.h"
 #include "core/time.h"
 #include "core/units.h"
 #include "sim/sensor.h"
@@ -81,6 +83,14 @@ struct LidarOdometryOptions {
   /// playing the part of FAST-LIO's IMU-propagated covariance.
   double max_reported_position_std_m = 1.0;
   double max_reported_rotation_std_rad = 0.1;
+
+  /// The field table (core/option_fields.h): the YAML key, unit and limits of every
+  /// option, which the reader, the writer and IsValid share.
+  static std::span<const core::OptionField<LidarOdometryOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside
+  /// its limits or the ranges or elevations are not in order.
+  /// The model's constructor throws std::invalid_argument then.
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// What one scan tells the registration: the point-to-plane information about the

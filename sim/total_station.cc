@@ -5,6 +5,36 @@
 #include <utility>
 
 namespace tofu::sim {
+
+// ---- options ----
+
+std::span<const core::OptionField<TotalStationOptions>> TotalStationOptions::Fields() {
+  using F = core::OptionField<TotalStationOptions>;
+  using R = core::NumberRule;
+  using O = TotalStationOptions;
+  static const F kFields[] = {
+      F::Name("site", &O::site),
+      F::Name("station_site", &O::station_site),
+      F::OptionalVector("station_position_m", &O::p_WS_m, R::Any("m")),
+      F::OptionalAttitude("station_rpy_deg", &O::q_WS),
+      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(1000.0, "Hz")),
+      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s")),
+      F::Degrees("horizontal_angle_std_deg", &O::horizontal_angle_std_rad,
+                 R::Between(0.0, 1.0, "deg")),
+      F::Degrees("vertical_angle_std_deg", &O::vertical_angle_std_rad,
+                 R::Between(0.0, 1.0, "deg")),
+      F::Number("distance_std_m", &O::distance_std_m, R::Between(0.0, 1.0, "m")),
+      F::Number("distance_std_ppm", &O::distance_std_ppm, R::Between(0.0, 1000.0, "ppm")),
+      F::Degrees("max_angular_rate_degps", &O::max_angular_rate_radps, R::Positive("deg/s")),
+      F::Number("search_delay_s", &O::search_delay_s, R::NonNegative("s")),
+      F::Number("prism_clearance_m", &O::prism_clearance_m, R::Between(0.0, 1.0, "m")),
+  };
+  return kFields;
+}
+
+bool TotalStationOptions::IsValid(std::string* why) const {
+  return core::CheckOptionFields<TotalStationOptions>(*this, Fields(), why);
+}
 namespace {
 
 // Position and velocity in W of a point fixed in B at p_Bs, at t + tau (rigid-body
@@ -30,7 +60,7 @@ PointMotion MountPointMotion(const TruthState& x, const Eigen::Vector3d& r, doub
 TotalStationModel::TotalStationModel(std::string name, const TotalStationOptions& options,
                                      const World& world, uint64_t seed)
     : name_(std::move(name)),
-      options_(options),
+      options_(core::ValidOptions(options, "total station '" + name_ + "'")),
       stream_(seed, "sensor/" + name_),
       period_ns_(core::PeriodFromRate(options.rate_hz)),
       latency_ns_(core::SecondsToTime(options.latency_s)),
@@ -41,9 +71,6 @@ TotalStationModel::TotalStationModel(std::string name, const TotalStationOptions
                                 options_.site + "'");
   }
   p_B_s_ = mount->p_Bs;
-  if (!(period_ns_ > 0)) {
-    throw std::invalid_argument("total station '" + name_ + "': rate_hz must be positive");
-  }
 
   // Station pose: the world site, with the optional overrides.
   T_WS_ = Eigen::Isometry3d::Identity();

@@ -4,6 +4,7 @@
 // tracker has (line of sight blocked, lock lost on fast motion, search before re-lock).
 
 #include <cstdint>
+#include <span>
 #include <optional>
 #include <string>
 #include <vector>
@@ -12,6 +13,7 @@
 #include <Eigen/Geometry>
 
 #include "core/random.h"
+#include "core/option_fields.h"
 #include "core/time.h"
 #include "core/units.h"
 #include "sim/sensor.h"
@@ -52,6 +54,14 @@ struct TotalStationOptions {
   /// A ray hit within this distance of the prism centre is the prism itself (GRZ101
   /// radius ~2.5 cm plus mount) [m].
   double prism_clearance_m = 0.05;
+
+  /// The field table (core/option_fields.h): the YAML key, unit and limits of every
+  /// option, which the reader, the writer and IsValid share.
+  static std::span<const core::OptionField<TotalStationOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside
+  /// its limits.
+  /// The model's constructor throws std::invalid_argument then.
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// Total station: the position of the prism site s in the station frame S.

@@ -9,6 +9,67 @@
 #include "sim/mount_motion.h"
 
 namespace tofu::sim {
+
+// ---- options ----
+
+std::span<const core::OptionField<VioOptions>> VioOptions::Fields() {
+  using F = core::OptionField<VioOptions>;
+  using R = core::NumberRule;
+  static const F kFields[] = {
+      F::Name("site", &VioOptions::site),
+      F::OptionalVector("frame_position_m", &VioOptions::p_WS_m, R::Any("m")),
+      F::OptionalAttitude("frame_rpy_deg", &VioOptions::q_WS),
+      F::Number("rate_hz", &VioOptions::rate_hz, R::PositiveAtMost(10000.0, "Hz")),
+      F::Number("latency_s", &VioOptions::latency_s, R::Between(0.0, 10.0, "s")),
+      F::Number("position_random_walk_m_per_sqrtm", &VioOptions::position_random_walk_m_per_sqrtm,
+                R::NonNegative("m/sqrt(m)")),
+      F::Degrees("yaw_random_walk_deg_per_sqrtm", &VioOptions::yaw_random_walk_rad_per_sqrtm,
+                 R::NonNegative("deg/sqrt(m)")),
+      F::Degrees("tilt_random_walk_deg_per_sqrtm", &VioOptions::tilt_random_walk_rad_per_sqrtm,
+                 R::NonNegative("deg/sqrt(m)")),
+      F::Number("position_noise_m", &VioOptions::position_noise_m, R::NonNegative("m")),
+      F::Degrees("rotation_noise_deg", &VioOptions::rotation_noise_rad, R::NonNegative("deg")),
+      F::Number("velocity_noise_mps", &VioOptions::velocity_noise_mps, R::NonNegative("m/s")),
+      F::Degrees("angular_rate_noise_degps", &VioOptions::angular_rate_noise_radps,
+                 R::NonNegative("deg/s")),
+      F::Number("feature_check_rate_hz", &VioOptions::feature_check_rate_hz,
+                R::PositiveAtMost(1000.0, "Hz")),
+      F::Integer("feature_grid_columns", &VioOptions::feature_grid_columns, 1, 64),
+      F::Integer("feature_grid_rows", &VioOptions::feature_grid_rows, 1, 64),
+      F::Degrees("feature_fov_horizontal_deg", &VioOptions::feature_fov_horizontal_rad,
+                 R::Between(1.0, 179.0, "deg")),
+      F::Degrees("feature_fov_vertical_deg", &VioOptions::feature_fov_vertical_rad,
+                 R::Between(1.0, 179.0, "deg")),
+      F::Number("feature_min_depth_m", &VioOptions::feature_min_depth_m, R::NonNegative("m")),
+      F::Number("feature_max_depth_m", &VioOptions::feature_max_depth_m, R::Positive("m")),
+      F::Number("starved_score_threshold", &VioOptions::starved_score_threshold,
+                R::Between(0.0, 1.0, "")),
+      F::Number("starved_drift_factor", &VioOptions::starved_drift_factor,
+                R::Between(1.0, 1000.0, "")),
+      F::Degrees("blur_angular_rate_degps", &VioOptions::blur_angular_rate_radps,
+                 R::Positive("deg/s")),
+      F::Number("blur_drift_factor", &VioOptions::blur_drift_factor, R::Between(1.0, 1000.0, "")),
+      F::Number("lost_velocity_random_walk_mps_per_sqrts",
+                &VioOptions::lost_velocity_random_walk_mps_per_sqrts, R::NonNegative("m/s/sqrt(s)")),
+      F::Number("reset_after_s", &VioOptions::reset_after_s, R::NonNegative("s")),
+      F::Number("reset_jump_position_m", &VioOptions::reset_jump_position_m, R::NonNegative("m")),
+      F::Degrees("reset_jump_yaw_deg", &VioOptions::reset_jump_yaw_rad, R::NonNegative("deg")),
+      F::Number("reported_pose_variance_base", &VioOptions::reported_pose_variance_base,
+                R::Positive("m^2 or rad^2")),
+      F::Number("reported_twist_variance_base", &VioOptions::reported_twist_variance_base,
+                R::Positive("(m/s)^2 or (rad/s)^2")),
+  };
+  return kFields;
+}
+
+bool VioOptions::IsValid(std::string* why) const {
+  if (!core::CheckOptionFields<VioOptions>(*this, Fields(), why)) return false;
+  if (!(feature_min_depth_m < feature_max_depth_m)) {
+    if (why != nullptr) *why = "feature_max_depth_m: must be greater than feature_min_depth_m";
+    return false;
+  }
+  return true;
+}
 namespace {
 
 using core::kPi;
@@ -22,32 +83,17 @@ void Require(bool ok, const std::string& name, const std::string& what) {
 VioModel::VioModel(std::string name, const VioOptions& options, const World& world,
                    uint64_t seed)
     : name_(std::move(name)),
-      options_(options),
+      options_(core::ValidOptions(options, "vio '" + name_ + "'")),
       stream_(seed, "sensor/" + name_),
-      period_ns_(options.rate_hz > 0.0 ? core::PeriodFromRate(options.rate_hz) : 0),
+      period_ns_(core::PeriodFromRate(options.rate_hz)),
       latency_ns_(core::SecondsToTime(options.latency_s)),
-      feature_period_ns_(options.feature_check_rate_hz > 0.0
-                             ? core::PeriodFromRate(options.feature_check_rate_hz)
-                             : 0),
+      feature_period_ns_(core::PeriodFromRate(options.feature_check_rate_hz)),
       reset_after_ns_(core::SecondsToTime(options.reset_after_s)) {
   const MountSite* mount = world.robot().FindSite(options_.site);
   Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
   T_B_s_ = Eigen::Isometry3d::Identity();
   T_B_s_.translation() = mount->p_Bs;
   T_B_s_.linear() = mount->q_Bs.normalized().toRotationMatrix();
-
-  Require(period_ns_ > 0, name_, "rate_hz must be positive");
-  Require(feature_period_ns_ > 0, name_, "feature_check_rate_hz must be positive");
-  Require(options_.latency_s >= 0.0, name_, "latency_s must be >= 0");
-  Require(options_.feature_grid_columns >= 1 && options_.feature_grid_rows >= 1, name_,
-          "the feature grid needs at least one column and one row");
-  Require(options_.feature_fov_horizontal_rad > 0.0 && options_.feature_fov_horizontal_rad < kPi &&
-              options_.feature_fov_vertical_rad > 0.0 && options_.feature_fov_vertical_rad < kPi,
-          name_, "the usable field of view must lie in (0, 180) deg");
-  Require(options_.feature_min_depth_m >= 0.0 &&
-              options_.feature_min_depth_m < options_.feature_max_depth_m,
-          name_, "feature depth band must satisfy 0 <= min < max");
-  Require(options_.reset_after_s >= 0.0, name_, "reset_after_s must be >= 0");
 
   // Equiangular grid over the usable FOV, cell centres: azimuth a about y (image right
   // positive), elevation e about x (image down positive), u = [sin a cos e, sin e, cos a cos e].

@@ -5,6 +5,7 @@
 // or close-up scenes and fast rotations cause.
 
 #include <cstdint>
+#include <span>
 #include <optional>
 #include <string>
 #include <vector>
@@ -13,6 +14,7 @@
 #include <Eigen/Geometry>
 
 #include "core/random.h"
+#include "core/option_fields.h"
 #include "core/time.h"
 #include "core/units.h"
 #include "sim/sensor.h"
@@ -86,6 +88,14 @@ struct VioOptions {
   double reported_pose_variance_base = 0.01;
   /// Twist covariance diag = this * 10^(1 - c) (realsense-ros angular_velocity_cov).
   double reported_twist_variance_base = 0.01;
+
+  /// The field table (core/option_fields.h): the YAML key, unit and limits of every
+  /// option, which the reader, the writer and IsValid share.
+  static std::span<const core::OptionField<VioOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside
+  /// its limits or feature_min_depth_m >= feature_max_depth_m.
+  /// The model's constructor throws std::invalid_argument then.
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// VIO (T265-like): pose T_Ss and body twist of the camera site s in the odometry frame S.

@@ -4,8 +4,28 @@
 
 namespace tofu::sim {
 
+// ---- options ----
+
+std::span<const core::OptionField<WindOptions>> WindOptions::Fields() {
+  using F = core::OptionField<WindOptions>;
+  using R = core::NumberRule;
+  using O = WindOptions;
+  static const F kFields[] = {
+      F::Vector("mean_velocity_mps", &O::mean_velocity_W_mps, R::Any("m/s")),
+      F::Number("gust_std_mps", &O::gust_std_mps, R::NonNegative("m/s")),
+      F::Number("gust_correlation_time_s", &O::gust_correlation_time_s, R::Positive("s")),
+      F::Number("drag_area_m2", &O::drag_area_m2, R::NonNegative("m^2")),
+      F::Number("air_density_kgpm3", &O::air_density_kgpm3, R::Positive("kg/m^3")),
+  };
+  return kFields;
+}
+
+bool WindOptions::IsValid(std::string* why) const {
+  return core::CheckOptionFields<WindOptions>(*this, Fields(), why);
+}
+
 Wind::Wind(const WindOptions& options, core::RandomStream stream)
-    : options_(options), stream_(std::move(stream)) {
+    : options_(core::ValidOptions(options, "wind")), stream_(std::move(stream)) {
   // Start the gust process in its stationary distribution, so no warm-up transient.
   for (int k = 0; k < 3; ++k) gust_W_(k) = options_.gust_std_mps * stream_.Normal();
 }

@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 
+#include "core/option_fields.h"
 #include "core/random.h"
 
 namespace tofu::sim {
@@ -15,6 +16,14 @@ struct WindOptions {
   double gust_correlation_time_s = 2.0;  ///< Gauss-Markov time constant
   double drag_area_m2 = 0.25;            ///< drag coefficient times frontal area, Cd*A
   double air_density_kgpm3 = 1.225;
+
+  /// The field table (core/option_fields.h): the YAML key, unit and limits of every
+  /// option, which the reader, the writer and IsValid share.
+  static std::span<const core::OptionField<WindOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside
+  /// its limits.
+  /// Wind's constructor throws std::invalid_argument then.
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 class Wind {

@@ -18,7 +18,7 @@
 #include <vector>
 
 #include "core/error.h"
-#include "harness/sensor_config_gnss.h"
+#include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 
 namespace tofu::sim {
@@ -295,7 +295,7 @@ harness::internal::YamlValue SensorValue(const std::string& yaml) {
 
 core::InputError ReadError(const std::string& yaml) {
   try {
-    harness::internal::ReadGnssOptions(SensorValue(yaml));
+    harness::internal::ReadSensorOptions<sim::GnssOptions>(SensorValue(yaml));
   } catch (const core::InputError& e) {
     return e;
   }
@@ -304,7 +304,7 @@ core::InputError ReadError(const std::string& yaml) {
 }
 
 TEST(GnssYaml, ReadsEveryKeyAndRoundTrips) {
-  const GnssOptions o = harness::internal::ReadGnssOptions(SensorValue(R"yaml(sensors:
+  const GnssOptions o = harness::internal::ReadSensorOptions<sim::GnssOptions>(SensorValue(R"yaml(sensors:
   rtk:
     type: gnss
     site: gnss_antenna
@@ -351,9 +351,9 @@ TEST(GnssYaml, ReadsEveryKeyAndRoundTrips) {
   out << YAML::BeginMap << YAML::Key << "sensors" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "rtk" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "type" << YAML::Value << "gnss";
-  harness::internal::EmitGnssOptions(out, o);
+  harness::internal::EmitSensorOptions(out, o);
   out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
-  const GnssOptions again = harness::internal::ReadGnssOptions(SensorValue(out.c_str()));
+  const GnssOptions again = harness::internal::ReadSensorOptions<sim::GnssOptions>(SensorValue(out.c_str()));
   EXPECT_EQ(again.rate_hz, o.rate_hz);
   EXPECT_EQ(again.enu_origin_W_m, o.enu_origin_W_m);
   EXPECT_NEAR(again.enu_yaw_rad, o.enu_yaw_rad, 1e-15);

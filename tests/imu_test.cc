@@ -21,7 +21,7 @@
 
 #include "core/error.h"
 #include "core/lie.h"
-#include "harness/sensor_config_imu.h"
+#include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 #include "sim/world.h"
 #include "tests/test_support.h"
@@ -600,7 +600,7 @@ ImuOptions ReadAt(const std::string& yaml) {
   const harness::internal::YamlValue root = harness::internal::ParseDocument(yaml, kLabel);
   harness::internal::YamlMap sensors = root.Map({"sensors"});
   harness::internal::YamlMap imu = sensors.Required("sensors").Map({"imu"});
-  return harness::internal::ReadImuOptions(imu.Required("imu"));
+  return harness::internal::ReadSensorOptions<sim::ImuOptions>(imu.Required("imu"));
 }
 
 core::InputError ReadError(const std::string& yaml) {
@@ -668,7 +668,7 @@ TEST(ImuConfig, ReadsEveryKey) {
   YAML::Emitter out;
   out << YAML::BeginMap << YAML::Key << "sensors" << YAML::Value << YAML::BeginMap << YAML::Key
       << "imu" << YAML::Value << YAML::BeginMap << YAML::Key << "type" << YAML::Value << "imu";
-  harness::internal::EmitImuOptions(out, o);
+  harness::internal::EmitSensorOptions(out, o);
   out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
   ASSERT_TRUE(out.good()) << out.GetLastError();
   const ImuOptions back = ReadAt(out.c_str());

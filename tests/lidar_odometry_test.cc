@@ -22,7 +22,7 @@
 
 #include "core/error.h"
 #include "core/lie.h"
-#include "harness/sensor_config_lidar_odometry.h"
+#include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 #include "sim/world.h"
 #include "tests/sensor_model_test_support.h"
@@ -248,7 +248,7 @@ harness::internal::YamlValue Root(const std::string& yaml) {
 }
 
 TEST(LidarOdometryOptionsReader, ReadsAGoodMapAndRoundTrips) {
-  const LidarOdometryOptions o = harness::internal::ReadLidarOdometryOptions(Root(R"yaml(type: lidar_odometry
+  const LidarOdometryOptions o = harness::internal::ReadSensorOptions<sim::LidarOdometryOptions>(Root(R"yaml(type: lidar_odometry
 site: lidar
 frame_position_m: [0, 1, 2]
 frame_rpy_deg: [0, 10, 0]
@@ -290,9 +290,9 @@ max_reported_rotation_std_deg: 10
 
   YAML::Emitter out;
   out << YAML::BeginMap;
-  harness::internal::EmitLidarOdometryOptions(out, o);
+  harness::internal::EmitSensorOptions(out, o);
   out << YAML::EndMap;
-  const LidarOdometryOptions back = harness::internal::ReadLidarOdometryOptions(Root(out.c_str()));
+  const LidarOdometryOptions back = harness::internal::ReadSensorOptions<sim::LidarOdometryOptions>(Root(out.c_str()));
   EXPECT_EQ(back.site, o.site);
   ASSERT_TRUE(back.p_WS_m && back.q_WS);
   EXPECT_EQ(*back.p_WS_m, *o.p_WS_m);
@@ -321,7 +321,7 @@ max_reported_rotation_std_deg: 10
 
 core::InputError ReadError(const std::string& yaml) {
   try {
-    harness::internal::ReadLidarOdometryOptions(Root(yaml));
+    harness::internal::ReadSensorOptions<sim::LidarOdometryOptions>(Root(yaml));
   } catch (const core::InputError& e) {
     return e;
   }

@@ -22,7 +22,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "core/error.h"
-#include "harness/sensor_config_total_station.h"
+#include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 
 namespace tofu::sim {
@@ -300,7 +300,7 @@ harness::internal::YamlValue SensorValue(const std::string& yaml) {
 }
 
 TEST(TotalStationYaml, ReadsEveryKeyAndRoundTrips) {
-  const auto options = harness::internal::ReadTotalStationOptions(SensorValue(R"yaml(sensors:
+  const auto options = harness::internal::ReadSensorOptions<sim::TotalStationOptions>(SensorValue(R"yaml(sensors:
   station:
     type: total_station
     site: prism
@@ -339,9 +339,9 @@ TEST(TotalStationYaml, ReadsEveryKeyAndRoundTrips) {
   out << YAML::BeginMap << YAML::Key << "sensors" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "station" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "type" << YAML::Value << "total_station";
-  harness::internal::EmitTotalStationOptions(out, options);
+  harness::internal::EmitSensorOptions(out, options);
   out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
-  const auto again = harness::internal::ReadTotalStationOptions(SensorValue(out.c_str()));
+  const auto again = harness::internal::ReadSensorOptions<sim::TotalStationOptions>(SensorValue(out.c_str()));
   EXPECT_EQ(again.site, options.site);
   EXPECT_TRUE(again.p_WS_m->isApprox(*options.p_WS_m, 1e-15));
   EXPECT_NEAR(again.q_WS->angularDistance(*options.q_WS), 0.0, 1e-12);
@@ -351,7 +351,7 @@ TEST(TotalStationYaml, ReadsEveryKeyAndRoundTrips) {
   EXPECT_EQ(again.search_delay_s, options.search_delay_s);
 
   // Defaults: an empty map keeps every default and emits no station override.
-  const auto defaults = harness::internal::ReadTotalStationOptions(
+  const auto defaults = harness::internal::ReadSensorOptions<sim::TotalStationOptions>(
       SensorValue("sensors:\n  station:\n    type: total_station\n"));
   EXPECT_FALSE(defaults.p_WS_m.has_value());
   EXPECT_EQ(defaults.rate_hz, 20.0);
@@ -360,7 +360,7 @@ TEST(TotalStationYaml, ReadsEveryKeyAndRoundTrips) {
 
 TEST(TotalStationYaml, RejectsUnknownKeysAndOutOfRangeValues) {
   try {
-    harness::internal::ReadTotalStationOptions(SensorValue(
+    harness::internal::ReadSensorOptions<sim::TotalStationOptions>(SensorValue(
         "sensors:\n  station:\n    type: total_station\n    rate_hx: 10\n"));
     ADD_FAILURE() << "unknown key accepted";
   } catch (const core::InputError& e) {
@@ -369,7 +369,7 @@ TEST(TotalStationYaml, RejectsUnknownKeysAndOutOfRangeValues) {
     EXPECT_NE(std::string(e.what()).find("did you mean 'rate_hz'"), std::string::npos) << e.what();
   }
   try {
-    harness::internal::ReadTotalStationOptions(SensorValue(
+    harness::internal::ReadSensorOptions<sim::TotalStationOptions>(SensorValue(
         "sensors:\n  station:\n    type: total_station\n    latency_s: 0.01\n"
         "    distance_std_m: -0.003\n"));
     ADD_FAILURE() << "negative distance noise accepted";
@@ -379,7 +379,7 @@ TEST(TotalStationYaml, RejectsUnknownKeysAndOutOfRangeValues) {
     EXPECT_NE(std::string(e.what()).find("ts.yaml:5:"), std::string::npos) << e.what();
   }
   try {
-    harness::internal::ReadTotalStationOptions(SensorValue(
+    harness::internal::ReadSensorOptions<sim::TotalStationOptions>(SensorValue(
         "sensors:\n  station:\n    station_position_m: [1, 2]\n"));
     ADD_FAILURE() << "two-element position accepted";
   } catch (const core::InputError& e) {

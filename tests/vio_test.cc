@@ -21,7 +21,7 @@
 
 #include "core/error.h"
 #include "core/lie.h"
-#include "harness/sensor_config_vio.h"
+#include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 #include "sim/world.h"
 #include "tests/sensor_model_test_support.h"
@@ -368,7 +368,7 @@ harness::internal::YamlValue Root(const std::string& yaml) {
 }
 
 TEST(VioOptionsReader, ReadsAGoodMapAndRoundTrips) {
-  const VioOptions o = harness::internal::ReadVioOptions(Root(R"yaml(type: vio
+  const VioOptions o = harness::internal::ReadSensorOptions<sim::VioOptions>(Root(R"yaml(type: vio
 site: vio_camera
 frame_position_m: [1, 2, 3]
 frame_rpy_deg: [0, 0, 90]
@@ -420,9 +420,9 @@ reported_twist_variance_base: 0.03
   // Emit and read back: the same options.
   YAML::Emitter out;
   out << YAML::BeginMap;
-  harness::internal::EmitVioOptions(out, o);
+  harness::internal::EmitSensorOptions(out, o);
   out << YAML::EndMap;
-  const VioOptions back = harness::internal::ReadVioOptions(Root(out.c_str()));
+  const VioOptions back = harness::internal::ReadSensorOptions<sim::VioOptions>(Root(out.c_str()));
   EXPECT_EQ(back.site, o.site);
   ASSERT_TRUE(back.p_WS_m && back.q_WS);
   EXPECT_EQ(*back.p_WS_m, *o.p_WS_m);
@@ -449,18 +449,18 @@ reported_twist_variance_base: 0.03
   EXPECT_EQ(back.reported_pose_variance_base, o.reported_pose_variance_base);
 
   // Defaults: absent frame keys stay absent (the frame is the start pose).
-  const VioOptions defaults = harness::internal::ReadVioOptions(Root("rate_hz: 200\n"));
+  const VioOptions defaults = harness::internal::ReadSensorOptions<sim::VioOptions>(Root("rate_hz: 200\n"));
   EXPECT_FALSE(defaults.p_WS_m || defaults.q_WS);
   YAML::Emitter d;
   d << YAML::BeginMap;
-  harness::internal::EmitVioOptions(d, defaults);
+  harness::internal::EmitSensorOptions(d, defaults);
   d << YAML::EndMap;
   EXPECT_EQ(std::string(d.c_str()).find("frame_"), std::string::npos);
 }
 
 core::InputError ReadError(const std::string& yaml) {
   try {
-    harness::internal::ReadVioOptions(Root(yaml));
+    harness::internal::ReadSensorOptions<sim::VioOptions>(Root(yaml));
   } catch (const core::InputError& e) {
     return e;
   }

@@ -1,0 +1,159 @@
+#pragma once
+// An options struct's own description of its fields: the key it is written under in
+// files (with the unit suffix of the file's value), the member, and the allowed range.
+// One table per struct (a static `Fields()` next to the struct) drives its validation
+// (`IsValid`, CheckOptionFields below), its YAML reader and writer and its list of keys
+// (harness/option_fields_yaml.h): an option is declared in one line, once.
+
+#include <array>
+#include <optional>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <variant>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace tofu::core {
+
+/// Allowed range of a number and its unit, for checks and for the "expected ..." text.
+struct NumberRule {
+  std::optional<double> min;
+  bool min_exclusive = false;
+  std::optional<double> max;
+  bool max_exclusive = false;
+  std::string_view unit;  ///< e.g. "m", "Hz"; empty for unitless
+
+  /// Any finite number.
+  static NumberRule Any(std::string_view unit);
+  /// A number > 0.
+  static NumberRule Positive(std::string_view unit);
+  /// A number >= 0.
+  static NumberRule NonNegative(std::string_view unit);
+  /// A number in [lo, hi].
+  static NumberRule Between(double lo, double hi, std::string_view unit);
+  /// A number in (0, hi].
+  static NumberRule PositiveAtMost(double hi, std::string_view unit);
+
+  /// The same rule on a value multiplied by factor > 0 (a bound in degrees applied to a
+  /// value stored in radians: the bound is converted as the value was, so a value read at
+  /// the bound is still accepted).
+  NumberRule Scaled(double factor) const;
+  /// True if the (finite) value satisfies the bounds.
+  bool Accepts(double value) const;
+  /// " in [100, 10000] (Hz)", " > 0 (m)", " (m)": the text after "a number".
+  std::string Describe() const;
+};
+
+/// Shortest decimal text that parses back to exactly `value` (std::to_chars).
+std::string FormatDouble(double value);
+
+/// What the file holds for a field, beyond its member's type.
+struct FieldFormat {
+  std::string_view key;  ///< as written in files, with the unit suffix of the file's value
+  NumberRule rule = NumberRule::Any("");  ///< numbers and each element of vectors, in file units
+  /// The file holds degrees (key ..._deg, ..._degps), the member radians.
+  bool degrees = false;
+  /// A vector field may be written as one number meaning all three components.
+  bool scalar_for_vector = false;
+  /// Integers: the inclusive range.
+  int min_integer = 0;
+  int max_integer = 0;
+};
+
+/// One field of `Options`: its file format and its member.
+template <typename Options>
+struct OptionField {
+  /// The member kinds options structs hold. std::optional members are written only when
+  /// set; an attitude is written as roll, pitch, yaw in degrees (harness/config_io.h).
+  using Member = std::variant<double Options::*, int Options::*, bool Options::*,
+                              std::string Options::*, Eigen::Vector3d Options::*,
+                              std::array<double, 2> Options::*,
+                              std::optional<Eigen::Vector3d> Options::*,
+                              std::optional<Eigen::Quaterniond> Options::*>;
+  FieldFormat format;
+  Member member;
+
+  static OptionField Number(std::string_view key, double Options::*m, NumberRule rule) {
+    return {FieldFormat{key, rule}, m};
+  }
+  /// A member in radians (or rad/s, rad/sqrt(m)) written in degrees; `rule` in degrees.
+  static OptionField Degrees(std::string_view key, double Options::*m, NumberRule rule) {
+    FieldFormat format{key, rule};
+    format.degrees = true;
+    return {format, m};
+  }
+  static OptionField Integer(std::string_view key, int Options::*m, int lo, int hi) {
+    FieldFormat format{key};
+    format.min_integer = lo;
+    format.max_integer = hi;
+    return {format, m};
+  }
+  static OptionField Flag(std::string_view key, bool Options::*m) { return {FieldFormat{key}, m}; }
+  /// A name of [a-z0-9_] (a model site).
+  static OptionField Name(std::string_view key, std::string Options::*m) {
+    return {FieldFormat{key}, m};
+  }
+  static OptionField Vector(std::string_view key, Eigen::Vector3d Options::*m, NumberRule rule,
+                            bool scalar_for_all_three = false) {
+    FieldFormat format{key, rule};
+    format.scalar_for_vector = scalar_for_all_three;
+    return {format, m};
+  }
+  static OptionField Pair(std::string_view key, std::array<double, 2> Options::*m,
+                          NumberRule rule) {
+    return {FieldFormat{key, rule}, m};
+  }
+  static OptionField OptionalVector(std::string_view key,
+                                    std::optional<Eigen::Vector3d> Options::*m, NumberRule rule) {
+    return {FieldFormat{key, rule}, m};
+  }
+  /// An optional attitude, written as [roll, pitch, yaw] in degrees.
+  static OptionField OptionalAttitude(std::string_view key,
+                                      std::optional<Eigen::Quaterniond> Options::*m) {
+    FieldFormat format{key, NumberRule::Any("deg")};
+    format.degrees = true;
+    return {format, m};
+  }
+};
+
+// Checks of one value against its field's format: empty when valid, else what is wrong
+// ("expected a number in [0, 1], got 2"), with numbers in the file's units.
+std::string CheckField(const FieldFormat& format, double value);
+std::string CheckField(const FieldFormat& format, int value);
+std::string CheckField(const FieldFormat& format, bool value);
+std::string CheckField(const FieldFormat& format, const std::string& value);
+std::string CheckField(const FieldFormat& format, const Eigen::Vector3d& value);
+std::string CheckField(const FieldFormat& format, const std::array<double, 2>& value);
+std::string CheckField(const FieldFormat& format, const std::optional<Eigen::Vector3d>& value);
+std::string CheckField(const FieldFormat& format, const std::optional<Eigen::Quaterniond>& value);
+
+/// Checks every field of `options` against its table; on the first violation sets *why
+/// to "<prefix><key>: <what is wrong>" and returns false (Ceres' IsValid convention).
+template <typename Options>
+bool CheckOptionFields(const Options& options, std::span<const OptionField<Options>> fields,
+                       std::string* why, std::string_view prefix = {}) {
+  for (const OptionField<Options>& field : fields) {
+    const std::string problem = std::visit(
+        [&](auto member) { return CheckField(field.format, options.*member); }, field.member);
+    if (!problem.empty()) {
+      if (why != nullptr) *why = std::string(prefix) + std::string(field.format.key) + ": " + problem;
+      return false;
+    }
+  }
+  return true;
+}
+
+/// `options` if options.IsValid(), else std::invalid_argument "<who>: <key>: <problem>".
+/// Called in a model's member initializers, before anything (periods, noise scales) is
+/// derived from the options.
+template <typename Options>
+const Options& ValidOptions(const Options& options, const std::string& who) {
+  std::string why;
+  if (!options.IsValid(&why)) throw std::invalid_argument(who + ": " + why);
+  return options;
+}
+
+}  // namespace tofu::core
