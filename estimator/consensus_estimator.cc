@@ -4,6 +4,8 @@
 #include <cmath>
 #include <deque>
 #include <stdexcept>
+#include <string>
+#include <utility>
 #include <variant>
 
 #include "estimator/velocity.h"
@@ -63,7 +65,39 @@ struct LocalSample {
 // Samples used to measure a stream's period before its half window is fixed.
 constexpr std::size_t kPeriodSamples = 9;
 
+// Checked before the estimator, selector and matrix are built from them: the error then
+// names the field as the caller set it (e.g. "selection.threshold").
+ConsensusEstimatorOptions Validated(ConsensusEstimatorOptions options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw std::invalid_argument("ConsensusEstimatorOptions: " + why);
+  return options;
+}
+
 }  // namespace
+
+bool ConsensusEstimatorOptions::IsValid(std::string* why) const {
+  auto fail = [why](std::string message) {
+    if (why != nullptr) *why = std::move(message);
+    return false;
+  };
+  std::string nested;
+  if (!selection.IsValid(&nested)) return fail("selection." + nested);
+  if (!consistency.IsValid(&nested)) return fail("consistency." + nested);
+  if (evaluation_period_ns <= 0) return fail("evaluation_period_ns must be positive");
+  // It is the differentiation's half window (DifferentiationOptions::half_window_ns > 0)
+  // until a stream's period is known.
+  if (min_differentiation_half_window_ns <= 0) {
+    return fail("min_differentiation_half_window_ns must be positive");
+  }
+  if (evaluation_margin_ns < 0) return fail("evaluation_margin_ns must not be negative");
+  // The grid's period, core::PeriodFromRate(grid_rate_hz): at least 1 ns, and small enough
+  // for a core::Time.
+  if (!(grid_rate_hz >= 1e-9 && grid_rate_hz <= 1e9)) {
+    return fail("grid_rate_hz must be in [1e-9, 1e9]");
+  }
+  if (max_interpolation_gap_ns <= 0) return fail("max_interpolation_gap_ns must be positive");
+  return true;
+}
 
 struct ConsensusEstimator::Impl {
   struct Sensor {
@@ -84,18 +118,11 @@ struct ConsensusEstimator::Impl {
 
   Impl(std::string imu, std::vector<SensorSpec> specs, MultiGraphEstimatorOptions estimator_options,
        ConsensusEstimatorOptions opts)
-      : options(std::move(opts)),
+      : options(Validated(std::move(opts))),
         estimator(imu, specs, std::move(estimator_options)),
         selector(Names(specs), options.selection),
         matrix(StreamNames(specs), options.consistency),
         imu_name(std::move(imu)) {
-    if (options.evaluation_period_ns <= 0) {
-      throw std::invalid_argument("ConsensusEstimatorOptions: evaluation_period_ns must be positive");
-    }
-    if (!(options.grid_rate_hz > 0.0) || options.max_interpolation_gap_ns <= 0) {
-      throw std::invalid_argument(
-          "ConsensusEstimatorOptions: grid_rate_hz and max_interpolation_gap_ns must be positive");
-    }
     const core::Time grid_period = core::PeriodFromRate(options.grid_rate_hz);
     for (std::size_t i = 0; i < specs.size(); ++i) {
       Sensor s;

@@ -57,6 +57,10 @@ struct ConsensusEstimatorOptions {
   double grid_rate_hz = 50.0;
   /// No interpolation across a gap longer than this (a dropout stays a dropout).
   core::Time max_interpolation_gap_ns = 250'000'000;
+
+  /// True when the options (the nested ones too) are usable; otherwise false with the
+  /// broken constraint in *why (if why is not null).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// One evaluation: the decision and the matrix values behind it.
@@ -72,7 +76,8 @@ struct ConsensusRecord {
 
 class ConsensusEstimator {
  public:
-  /// Throws std::invalid_argument for invalid options (from the selector or the matrix).
+  /// Throws std::invalid_argument when options.IsValid() or estimator_options.IsValid() is
+  /// false, or for sensor names the selector or the matrix refuse.
   ConsensusEstimator(std::string imu_name, std::vector<SensorSpec> sensors,
                      MultiGraphEstimatorOptions estimator_options = {},
                      ConsensusEstimatorOptions options = {});

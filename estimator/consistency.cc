@@ -30,6 +30,20 @@ std::optional<ConsistencyMetric> MetricFromName(std::string_view name) {
   return std::nullopt;
 }
 
+bool ConsistencyOptions::IsValid(std::string* why) const {
+  auto fail = [why](const char* message) {
+    if (why != nullptr) *why = message;
+    return false;
+  };
+  if (window_ns <= 0) return fail("window_ns must be positive");
+  if (!(kl_bandwidth_scale > 0.0) || !std::isfinite(kl_bandwidth_scale)) {
+    return fail("kl_bandwidth_scale must be positive and finite");
+  }
+  // No metric is defined on an empty sample.
+  if (min_samples < 1) return fail("min_samples must be at least 1");
+  return true;
+}
+
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();

@@ -7,6 +7,7 @@
 
 #include <optional>
 #include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -32,6 +33,10 @@ struct ConsistencyOptions {
   double kl_bandwidth_scale = 1.0;
   /// Fewer samples than this in a window (either stream) makes the pair unavailable.
   int min_samples = 3;
+
+  /// True when the options are usable; otherwise false with the broken constraint in
+  /// *why (if why is not null).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 // ---- one-dimensional distances between two samples ----
@@ -64,7 +69,9 @@ struct VelocitySeries {
 /// The metric between streams a and b over the window ending at t_eval_ns, per axis and
 /// summed over x, y, z. MAE and PCC pair each sample of a with b linearly interpolated at
 /// its time (samples of a outside b's span in the window are skipped). nullopt means
-/// "unavailable": a stream has fewer than min_samples samples in the window.
+/// "unavailable": a stream has fewer than min_samples samples in the window. options must
+/// be IsValid(): this function never throws, so it does not check them (ConsistencyMatrix
+/// does, at construction).
 std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocitySeries& b,
                                         core::Time t_eval_ns, ConsistencyMetric metric,
                                         const ConsistencyOptions& options = {});

@@ -8,18 +8,19 @@
 namespace tofu::estimator {
 
 bool ConsistencyMatrixOptions::IsValid(std::string* why) const {
-  auto fail = [why](const char* message) {
-    if (why != nullptr) *why = message;
+  auto fail = [why](std::string message) {
+    if (why != nullptr) *why = std::move(message);
     return false;
   };
-  if (consistency.window_ns <= 0) return fail("consistency.window_ns must be positive");
+  if (metric != ConsistencyMetric::kMae && metric != ConsistencyMetric::kPcc &&
+      metric != ConsistencyMetric::kKl && metric != ConsistencyMetric::kCm) {
+    return fail("metric is not a known ConsistencyMetric");
+  }
+  if (std::string nested; !consistency.IsValid(&nested)) return fail("consistency." + nested);
   if (history_ns < consistency.window_ns) {
     return fail("history_ns must be at least consistency.window_ns");
   }
   if (max_samples_per_stream < 2) return fail("max_samples_per_stream must be at least 2");
-  if (!(consistency.kl_bandwidth_scale > 0.0)) {
-    return fail("consistency.kl_bandwidth_scale must be positive");
-  }
   return true;
 }
 

@@ -16,6 +16,29 @@ constexpr double kMinTrustRegionRadius = 1e-32;
 
 }  // namespace
 
+bool LmOptions::IsValid(std::string* why) const {
+  auto fail = [why](const char* message) {
+    if (why != nullptr) *why = message;
+    return false;
+  };
+  if (max_iterations < 1) return fail("max_iterations must be at least 1");
+  // Infinity is allowed: no time cap (a deterministic solve, as the alignment graph's).
+  if (!(max_time_s > 0.0)) return fail("max_time_s must be positive");
+  if (!(function_tolerance >= 0.0) || !std::isfinite(function_tolerance)) {
+    return fail("function_tolerance must be >= 0 and finite");
+  }
+  if (!(parameter_tolerance >= 0.0) || !std::isfinite(parameter_tolerance)) {
+    return fail("parameter_tolerance must be >= 0 and finite");
+  }
+  if (!(gradient_tolerance >= 0.0) || !std::isfinite(gradient_tolerance)) {
+    return fail("gradient_tolerance must be >= 0 and finite");
+  }
+  if (!(initial_trust_region_radius > 0.0) || !std::isfinite(initial_trust_region_radius)) {
+    return fail("initial_trust_region_radius must be positive and finite");
+  }
+  return true;
+}
+
 LmSummary MinimizeLm(LmProblem& problem, const LmOptions& options) {
   using Clock = std::chrono::steady_clock;
   const Clock::time_point start = Clock::now();

@@ -15,6 +15,8 @@
 // Robust losses are the problem's business (Triggs et al. 1999's correction, as Ceres).
 // Library code: no dependencies beyond the standard library.
 
+#include <string>
+
 namespace tofu::estimator {
 
 struct LmOptions {
@@ -30,6 +32,10 @@ struct LmOptions {
   /// 1/λ of the first step (D = diag(H)); Ceres's default. A warm-started problem can
   /// start almost as Gauss-Newton (the local smoother uses 1e8).
   double initial_trust_region_radius = 1e4;
+
+  /// True when the options are usable; otherwise false with the broken constraint in
+  /// *why (if why is not null).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 enum class LmTermination {
@@ -71,7 +77,9 @@ class LmProblem {
   virtual bool EvaluateCost(double* cost) = 0;
 };
 
-/// Minimises the problem's cost from its current x (in place).
+/// Minimises the problem's cost from its current x (in place). options must be IsValid():
+/// this driver never throws, so it does not check them (WindowSolver::Solve does; the
+/// alignment graph builds them from its own checked options).
 LmSummary MinimizeLm(LmProblem& problem, const LmOptions& options);
 
 }  // namespace tofu::estimator

@@ -6,6 +6,9 @@
 #include <deque>
 #include <map>
 #include <optional>
+#include <stdexcept>
+#include <string>
+#include <utility>
 
 #include <ceres/loss_function.h>
 
@@ -498,8 +501,70 @@ struct LocalSmoother::Impl {
   }
 };
 
+bool LocalSmootherOptions::IsValid(std::string* why) const {
+  auto fail = [why](std::string message) {
+    if (why != nullptr) *why = std::move(message);
+    return false;
+  };
+  // The estimator turns the rate into a period (core::PeriodFromRate): at least 1 ns, and
+  // small enough for a core::Time.
+  if (!(keyframe_rate_hz >= 1e-9 && keyframe_rate_hz <= 1e9)) {
+    return fail("keyframe_rate_hz must be in [1e-9, 1e9]");
+  }
+  if (window_ns <= 0) return fail("window_ns must be positive");
+  if (!(gravity_mps2 > 0.0) || !std::isfinite(gravity_mps2)) {
+    return fail("gravity_mps2 must be positive and finite");
+  }
+  // Zero noise makes the IMU and bias factors' information infinite (their constructors
+  // refuse it mid-run).
+  const std::pair<const char*, double> densities[] = {
+      {"gyro_noise_density_radps_per_sqrthz", imu_noise.gyro_noise_density_radps_per_sqrthz},
+      {"accel_noise_density_mps2_per_sqrthz", imu_noise.accel_noise_density_mps2_per_sqrthz},
+      {"gyro_random_walk_radps2_per_sqrthz", imu_noise.gyro_random_walk_radps2_per_sqrthz},
+      {"accel_random_walk_mps3_per_sqrthz", imu_noise.accel_random_walk_mps3_per_sqrthz}};
+  for (const auto& [name, value] : densities) {
+    if (!(value > 0.0) || !std::isfinite(value)) {
+      return fail(std::string("imu_noise.") + name + " must be positive and finite");
+    }
+  }
+  if (imu_only_keyframe_period_ns <= 0) {
+    return fail("imu_only_keyframe_period_ns must be positive");
+  }
+  if (keyframe_merge_tolerance_ns < 0) {
+    return fail("keyframe_merge_tolerance_ns must not be negative");
+  }
+  if (pre_init_imu_buffer_ns < 0) return fail("pre_init_imu_buffer_ns must not be negative");
+  if (min_imu_history_ns < 0) return fail("min_imu_history_ns must not be negative");
+  // The solver budget is LmOptions' (levenberg_marquardt.h), under this struct's names.
+  if (max_iterations < 1) return fail("max_iterations must be at least 1");
+  // Infinity is allowed: no wall-time cap.
+  if (!(max_solver_time_s > 0.0)) return fail("max_solver_time_s must be positive");
+  if (!(function_tolerance >= 0.0) || !std::isfinite(function_tolerance)) {
+    return fail("function_tolerance must be >= 0 and finite");
+  }
+  if (!(initial_trust_region_radius > 0.0) || !std::isfinite(initial_trust_region_radius)) {
+    return fail("initial_trust_region_radius must be positive and finite");
+  }
+  if (!(huber_delta >= 0.0) || !std::isfinite(huber_delta)) {
+    return fail("huber_delta must be >= 0 and finite");
+  }
+  if (!(max_speed_mps > 0.0) || !std::isfinite(max_speed_mps)) {
+    return fail("max_speed_mps must be positive and finite");
+  }
+  if (!(max_accel_bias_mps2 > 0.0) || !std::isfinite(max_accel_bias_mps2)) {
+    return fail("max_accel_bias_mps2 must be positive and finite");
+  }
+  if (!(max_gyro_bias_radps > 0.0) || !std::isfinite(max_gyro_bias_radps)) {
+    return fail("max_gyro_bias_radps must be positive and finite");
+  }
+  return true;
+}
+
 LocalSmoother::LocalSmoother(LocalSmootherOptions options)
-    : options_(options), impl_(std::make_unique<Impl>(options_, &stats_)) {}
+    : options_(options), impl_(std::make_unique<Impl>(options_, &stats_)) {
+  std::string why;
+  if (!options_.IsValid(&why)) throw std::invalid_argument("LocalSmootherOptions: " + why);
+}
 
 LocalSmoother::~LocalSmoother() = default;
 

@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -74,6 +75,10 @@ struct LocalSmootherOptions {
   double max_speed_mps = 50.0;
   double max_accel_bias_mps2 = 3.0;
   double max_gyro_bias_radps = 0.5;
+
+  /// True when the options are usable; otherwise false with the broken constraint in
+  /// *why (if why is not null).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// One keyframe state of the local graph.
@@ -125,6 +130,7 @@ enum class MeasurementUse {
 
 class LocalSmoother {
  public:
+  /// Throws std::invalid_argument when options.IsValid() is false.
   explicit LocalSmoother(LocalSmootherOptions options = {});
   ~LocalSmoother();
   LocalSmoother(const LocalSmoother&) = delete;

@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <deque>
+#include <stdexcept>
+#include <string>
+#include <utility>
 
 #include <Eigen/Eigenvalues>
 
@@ -79,6 +82,21 @@ bool Finite(const core::Measurement& value) {
         }
       },
       value);
+}
+
+// The first std of a prior that is not positive and finite (its information is 1/std²),
+// or nullptr.
+const char* BadPriorStd(const InitialStatePrior& prior) {
+  const auto good = [](double sigma) { return sigma > 0.0 && std::isfinite(sigma); };
+  const auto good3 = [&](const Eigen::Vector3d& sigma) {
+    return good(sigma.x()) && good(sigma.y()) && good(sigma.z());
+  };
+  if (!good3(prior.position_std_m)) return "position_std_m";
+  if (!good3(prior.rotation_std_rad)) return "rotation_std_rad";
+  if (!good(prior.velocity_std_mps)) return "velocity_std_mps";
+  if (!good(prior.accel_bias_std_mps2)) return "accel_bias_std_mps2";
+  if (!good(prior.gyro_bias_std_radps)) return "gyro_bias_std_radps";
+  return nullptr;
 }
 
 // A stream whose noise is measured against the IMU needs the IMU of its window kept.
@@ -751,9 +769,72 @@ struct MultiGraphEstimator::Impl {
   }
 };
 
+bool MultiGraphEstimatorOptions::IsValid(std::string* why) const {
+  auto fail = [why](std::string message) {
+    if (why != nullptr) *why = std::move(message);
+    return false;
+  };
+  std::string nested;
+  if (!local.IsValid(&nested)) return fail("local." + nested);
+  if (!alignment.IsValid(&nested)) return fail("alignment." + nested);
+  // Its gravity_mps2 is replaced by local.gravity_mps2 when used.
+  if (!visual_inertial.IsValid(&nested)) return fail("visual_inertial." + nested);
+  if (output_period_ns <= 0) return fail("output_period_ns must be positive");
+  // 0 would restart the local window at every fused measurement.
+  if (max_unfused_ns <= 0) return fail("max_unfused_ns must be positive");
+  if (covariance_period_ns < 0) return fail("covariance_period_ns must not be negative");
+  if (static_window_ns <= 0) return fail("static_window_ns must be positive");
+  if (!(static_max_gyro_std_radps > 0.0) || !std::isfinite(static_max_gyro_std_radps)) {
+    return fail("static_max_gyro_std_radps must be positive and finite");
+  }
+  if (!(static_max_accel_std_mps2 > 0.0) || !std::isfinite(static_max_accel_std_mps2)) {
+    return fail("static_max_accel_std_mps2 must be positive and finite");
+  }
+  if (max_rest_age_ns < 0) return fail("max_rest_age_ns must not be negative");
+  if (const char* bad = BadPriorStd(prior_from_rest)) {
+    return fail(std::string("prior_from_rest.") + bad + " must be positive and finite");
+  }
+  // A window shorter than the alignment's minimum would never align.
+  if (max_alignment_window_ns <= 0 ||
+      core::TimeToSeconds(max_alignment_window_ns) < visual_inertial.min_window_s) {
+    return fail(
+        "max_alignment_window_ns must be positive and at least visual_inertial.min_window_s");
+  }
+  if (max_initialisation_wait_ns < 0) {
+    return fail("max_initialisation_wait_ns must not be negative");
+  }
+  // The noise is measured over a window of at most max_alignment_window_ns.
+  if (min_noise_window_ns < 0 || min_noise_window_ns > max_alignment_window_ns) {
+    return fail("min_noise_window_ns must be in [0, max_alignment_window_ns]");
+  }
+  // A gap is longer than the usual period: at 1 period or less, a sample merely late by
+  // jitter would be one (unless min_imu_gap_ns covers it).
+  if (!(imu_gap_periods > 1.0) || !std::isfinite(imu_gap_periods)) {
+    return fail("imu_gap_periods must be > 1 and finite");
+  }
+  if (min_imu_gap_ns < 0) return fail("min_imu_gap_ns must not be negative");
+  if (const char* bad = BadPriorStd(prior_in_motion)) {
+    return fail(std::string("prior_in_motion.") + bad + " must be positive and finite");
+  }
+  if (!(max_alignment_rotation_std_rad > 0.0) || !std::isfinite(max_alignment_rotation_std_rad)) {
+    return fail("max_alignment_rotation_std_rad must be positive and finite");
+  }
+  if (!(max_alignment_rms_m > 0.0) || !std::isfinite(max_alignment_rms_m)) {
+    return fail("max_alignment_rms_m must be positive and finite");
+  }
+  if (!(alignment_local_position_std_m >= 0.0) || !std::isfinite(alignment_local_position_std_m)) {
+    return fail("alignment_local_position_std_m must be >= 0 and finite");
+  }
+  if (max_consecutive_bad_solves < 1) return fail("max_consecutive_bad_solves must be at least 1");
+  return true;
+}
+
 MultiGraphEstimator::MultiGraphEstimator(std::string imu_name, std::vector<SensorSpec> sensors,
-                                         MultiGraphEstimatorOptions options)
-    : impl_(std::make_unique<Impl>(std::move(imu_name), std::move(sensors), options)) {}
+                                         MultiGraphEstimatorOptions options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw std::invalid_argument("MultiGraphEstimatorOptions: " + why);
+  impl_ = std::make_unique<Impl>(std::move(imu_name), std::move(sensors), options);
+}
 
 MultiGraphEstimator::~MultiGraphEstimator() = default;
 

@@ -121,6 +121,10 @@ struct MultiGraphEstimatorOptions {
   /// Consecutive bad solves after which the local graph is re-initialised from the
   /// propagated state.
   int max_consecutive_bad_solves = 3;
+
+  /// True when the options (the nested ones too) are usable; otherwise false with the
+  /// broken constraint in *why (if why is not null).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// One output sample (200 Hz): the newest state propagated with the IMU.
@@ -189,6 +193,7 @@ struct EstimatorCounters {
 
 class MultiGraphEstimator {
  public:
+  /// Throws std::invalid_argument when options.IsValid() is false.
   MultiGraphEstimator(std::string imu_name, std::vector<SensorSpec> sensors,
                       MultiGraphEstimatorOptions options = {});
   ~MultiGraphEstimator();

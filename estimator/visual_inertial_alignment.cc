@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
+#include <utility>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -196,6 +198,48 @@ std::optional<LinearSolution> SolveVelocitiesGravity(
 }
 
 }  // namespace
+
+bool VisualInertialAlignmentOptions::IsValid(std::string* why) const {
+  auto fail = [why](std::string message) {
+    if (why != nullptr) *why = std::move(message);
+    return false;
+  };
+  if (!(gravity_mps2 > 0.0) || !std::isfinite(gravity_mps2)) {
+    return fail("gravity_mps2 must be positive and finite");
+  }
+  if (!(min_window_s >= 0.0) || !std::isfinite(min_window_s)) {
+    return fail("min_window_s must be >= 0 and finite");
+  }
+  // The equations tie consecutive samples: two intervals at least.
+  if (min_samples < 3) return fail("min_samples must be at least 3");
+  if (!(max_gravity_direction_std_rad > 0.0) || !std::isfinite(max_gravity_direction_std_rad)) {
+    return fail("max_gravity_direction_std_rad must be positive and finite");
+  }
+  if (!(max_gravity_norm_error > 0.0) || !std::isfinite(max_gravity_norm_error)) {
+    return fail("max_gravity_norm_error must be positive and finite");
+  }
+  if (known_gyro_bias_radps && !known_gyro_bias_radps->allFinite()) {
+    return fail("known_gyro_bias_radps must be finite");
+  }
+  if (!(accel_bias_prior_std_mps2 > 0.0) || !std::isfinite(accel_bias_prior_std_mps2)) {
+    return fail("accel_bias_prior_std_mps2 must be positive and finite");
+  }
+  if (!(nominal_relative_position_std_m > 0.0) || !std::isfinite(nominal_relative_position_std_m)) {
+    return fail("nominal_relative_position_std_m must be positive and finite");
+  }
+  if (!(nominal_relative_rotation_std_rad > 0.0) ||
+      !std::isfinite(nominal_relative_rotation_std_rad)) {
+    return fail("nominal_relative_rotation_std_rad must be positive and finite");
+  }
+  // The constrained solution (and the residuals measuring the stream) comes from these.
+  if (gravity_refinement_iterations < 1) {
+    return fail("gravity_refinement_iterations must be at least 1");
+  }
+  if (!(outlier_sigmas > 0.0) || !std::isfinite(outlier_sigmas)) {
+    return fail("outlier_sigmas must be positive and finite");
+  }
+  return true;
+}
 
 std::optional<VisualInertialAlignment> AlignVisualInertial(
     const std::vector<ImuPoseInA>& poses, const ImuPreintegrator& preintegrate,

@@ -20,6 +20,7 @@
 
 #include <functional>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -64,6 +65,10 @@ struct VisualInertialAlignmentOptions {
   /// An interval whose residual exceeds this many robust standard deviations (from the
   /// median of the window's residuals) makes the window inconsistent.
   double outlier_sigmas = 6.0;
+
+  /// True when the options are usable; otherwise false with the broken constraint in
+  /// *why (if why is not null).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 struct VisualInertialAlignment {
@@ -91,7 +96,9 @@ using ImuPreintegrator =
 
 /// Aligns the window `poses` (time order, distinct stamps) with the IMU. nullopt when the
 /// window is too short or the IMU does not cover it; otherwise the solution, with
-/// `observable` telling whether it may initialise an estimator.
+/// `observable` telling whether it may initialise an estimator. options must be
+/// IsValid(): this function never throws, so it does not check them (MultiGraphEstimator
+/// checks the ones it holds, at construction).
 std::optional<VisualInertialAlignment> AlignVisualInertial(
     const std::vector<ImuPoseInA>& poses, const ImuPreintegrator& preintegrate,
     const VisualInertialAlignmentOptions& options = {});

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <string>
 
 #include <Eigen/Cholesky>
 
@@ -411,6 +412,8 @@ WindowSolver::~WindowSolver() = default;
 WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
                                        const std::vector<WindowFactor>& factors,
                                        const WindowSolverOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw std::invalid_argument("LmOptions: " + why);
   Impl& s = *impl_;
   s.Setup(states, factors);
   if (s.n == 0) {

@@ -73,8 +73,8 @@ class WindowSolver {
   WindowSolver& operator=(const WindowSolver&) = delete;
 
   /// Minimises ½ Σ ρ(‖r_f‖²) over the states (in place). Factors must only name states of
-  /// `states`; a factor whose blocks do not match its cost's parameter sizes is a
-  /// programming error (std::invalid_argument).
+  /// `states`; a factor whose blocks do not match its cost's parameter sizes, or options
+  /// that are not IsValid(), are a programming error (std::invalid_argument).
   WindowSolveSummary Solve(const std::vector<WindowState>& states,
                            const std::vector<WindowFactor>& factors,
                            const WindowSolverOptions& options);

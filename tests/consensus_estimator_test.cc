@@ -3,16 +3,21 @@
 // estimator must fuse the healthy sensors, exclude the diverging one within a second
 // (taking its recent factors out of the local graph), and `tofu run` must score every
 // method on the same samples, write decisions.csv / errors.csv / consistency_<m>.csv
-// deterministically, and reject malformed `estimation:` blocks with file:line.
+// deterministically, and reject malformed `estimation:` blocks with file:line. The
+// estimator's options (the nested ones too) refuse each broken limit by name, and so does
+// its constructor.
 
 #include <unistd.h>
 
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <sstream>
+#include <stdexcept>
 #include <string>
+#include <utility>
 #include <variant>
 #include <vector>
 
@@ -22,6 +27,7 @@
 #include "core/error.h"
 #include "estimator/consensus_estimator.h"
 #include "harness/scenario.h"
+#include "replay/estimation_config.h"
 #include "replay/recorded_log.h"
 #include "replay/replay.h"
 
@@ -295,6 +301,83 @@ TEST(EstimationScenario, ExpectationsMustNameListedMethodsAndKnownRelativeMetric
   EXPECT_NE(error.find("relative_to"), std::string::npos) << error;
   error = ErrorOf(With("relative_to: methods.naive.ate_m", "relative_to: methods.consensus.switches"));
   EXPECT_NE(error.find("same unit"), std::string::npos) << error;
+}
+
+// ---- options ----
+
+TEST(ConsensusEstimatorOptions, DefaultsAndTheScenarioRangesAreValid) {
+  std::string why;
+  EXPECT_TRUE(estimator::ConsensusEstimatorOptions{}.IsValid(&why)) << why;
+  // A scenario's estimation.consensus at the ends of its ranges (harness/scenario.cc).
+  for (const double window_s : {0.1, 60.0}) {
+    for (const double rate_hz : {0.5, 100.0}) {
+      replay::EstimationConfig config;
+      config.consensus.window_s = window_s;
+      config.consensus.rate_hz = rate_hz;
+      config.consensus.threshold = 1e-6;
+      config.consensus.leave_threshold = 100.0;
+      config.consensus.min_dwell_s = 3600.0;
+      config.consensus.policy = estimator::ConsensusPolicy::kConsistentSet;
+      config.consensus.priority = {"vio", "lio"};
+      config.huber_delta = 100.0;
+      const replay::EstimationSetup setup =
+          replay::MakeEstimationSetup(replay::RecordedLog{}, config);
+      EXPECT_TRUE(setup.consensus.IsValid(&why)) << why;
+      EXPECT_TRUE(setup.estimator.IsValid(&why)) << why;
+    }
+  }
+}
+
+TEST(ConsensusEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
+  using Options = estimator::ConsensusEstimatorOptions;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<std::pair<std::string, std::function<void(Options&)>>> broken;
+  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  // The nested options: their own limits, under the field's path.
+  add("selection.threshold", [nan](Options& o) { o.selection.threshold = nan; });
+  add("selection.min_dwell_ns", [](Options& o) { o.selection.min_dwell_ns = -1; });
+  add("consistency.history_ns", [](Options& o) { o.consistency.history_ns = 1; });
+  add("consistency.consistency.window_ns",
+      [](Options& o) { o.consistency.consistency.window_ns = 0; });
+  add("consistency.consistency.min_samples",
+      [](Options& o) { o.consistency.consistency.min_samples = 0; });
+  // Those its constructor refused before they were options' limits, and the others.
+  add("evaluation_period_ns", [](Options& o) { o.evaluation_period_ns = 0; });
+  add("evaluation_period_ns", [](Options& o) { o.evaluation_period_ns = -1; });
+  for (const double bad : {0.0, -1.0, nan, inf, 1e-10, 2e9}) {
+    add("grid_rate_hz", [bad](Options& o) { o.grid_rate_hz = bad; });
+  }
+  add("max_interpolation_gap_ns", [](Options& o) { o.max_interpolation_gap_ns = 0; });
+  add("min_differentiation_half_window_ns",
+      [](Options& o) { o.min_differentiation_half_window_ns = 0; });
+  add("evaluation_margin_ns", [](Options& o) { o.evaluation_margin_ns = -1; });
+
+  estimator::SensorSpec vio, lio;
+  vio.name = "vio";
+  lio.name = "lio";
+  for (const auto& [field, set] : broken) {
+    Options options;
+    set(options);
+    std::string why;
+    EXPECT_FALSE(options.IsValid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+    try {
+      estimator::ConsensusEstimator consensus("imu", {vio, lio}, {}, options);
+      ADD_FAILURE() << field << ": expected std::invalid_argument";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_EQ(std::string(e.what()), "ConsensusEstimatorOptions: " + why);
+    }
+  }
+  // Boundaries that are allowed; and the estimator's own options are checked too.
+  Options options;
+  options.evaluation_margin_ns = 0;
+  options.grid_rate_hz = 1e9;
+  EXPECT_NO_THROW(estimator::ConsensusEstimator("imu", {vio, lio}, {}, options));
+  estimator::MultiGraphEstimatorOptions estimator_options;
+  estimator_options.local.huber_delta = -1.0;
+  EXPECT_THROW(estimator::ConsensusEstimator("imu", {vio, lio}, estimator_options, {}),
+               std::invalid_argument);
 }
 
 }  // namespace

@@ -1,5 +1,6 @@
 // The consistency metrics of Lanegger et al. (eq. 2-5), their window selection and the
-// consistency matrix. Hand-computed values and an independent brute-force integral.
+// consistency matrix. Hand-computed values and an independent brute-force integral; the
+// options' limits.
 
 #include <algorithm>
 #include <cmath>
@@ -9,6 +10,7 @@
 #include <random>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -615,6 +617,51 @@ TEST(ConsistencyMatrix, InvalidOptionsAndNamesThrow) {
   EXPECT_THROW(ConsistencyMatrix({"a", "b"}, options), std::invalid_argument);
   EXPECT_THROW(ConsistencyMatrix({"a", "a"}), std::invalid_argument);
   EXPECT_THROW(ConsistencyMatrix({"a", ""}), std::invalid_argument);
+}
+
+TEST(ConsistencyOptions, EachBrokenLimitIsNamedAlsoThroughTheMatrixOptions) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  std::string why;
+  EXPECT_TRUE(ConsistencyOptions{}.IsValid(&why)) << why;
+  EXPECT_TRUE(ConsistencyMatrixOptions{}.IsValid(&why)) << why;
+  ConsistencyOptions one_sample;
+  one_sample.min_samples = 1;
+  EXPECT_TRUE(one_sample.IsValid(&why)) << why;
+
+  std::vector<std::pair<std::string, ConsistencyOptions>> broken;
+  ConsistencyOptions o;
+  o.window_ns = 0;
+  broken.emplace_back("window_ns", o);
+  o.window_ns = -1;
+  broken.emplace_back("window_ns", o);
+  for (const double bad : {0.0, -1.0, nan, inf}) {
+    o = {};
+    o.kl_bandwidth_scale = bad;
+    broken.emplace_back("kl_bandwidth_scale", o);
+  }
+  o = {};
+  o.min_samples = 0;
+  broken.emplace_back("min_samples", o);
+  for (const auto& [field, options] : broken) {
+    EXPECT_FALSE(options.IsValid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+    // The matrix's options hold them: the same limit, under the field's path.
+    ConsistencyMatrixOptions matrix_options;
+    matrix_options.consistency = options;
+    matrix_options.history_ns = 10'000'000'000;
+    EXPECT_FALSE(matrix_options.IsValid(&why)) << field;
+    EXPECT_NE(why.find("consistency." + field), std::string::npos) << field << ": " << why;
+    EXPECT_THROW(ConsistencyMatrix({"a", "b"}, matrix_options), std::invalid_argument) << field;
+  }
+  ConsistencyMatrixOptions unknown_metric;
+  unknown_metric.metric = static_cast<ConsistencyMetric>(17);
+  EXPECT_FALSE(unknown_metric.IsValid(&why));
+  EXPECT_NE(why.find("metric"), std::string::npos) << why;
+  ConsistencyMatrixOptions few;
+  few.max_samples_per_stream = 1;
+  EXPECT_FALSE(few.IsValid(&why));
+  EXPECT_NE(why.find("max_samples_per_stream"), std::string::npos) << why;
 }
 
 }  // namespace

@@ -11,7 +11,9 @@
 //  - IMU-only keyframes keep the graph running through a 2 s gap, the covariance grows,
 //    and shrinks again when poses resume;
 //  - NewestCovariance is symmetric positive definite and consistent (NEES over 20 seeds);
-//  - a wild but finite pose (1e6 m jump) is caught as a bad solve; non-finite input rejected.
+//  - a wild but finite pose (1e6 m jump) is caught as a bad solve; non-finite input rejected;
+//  - LocalSmootherOptions::IsValid refuses each broken limit by name, and so does the
+//    constructor.
 // Deterministic: own mt19937_64 + Box-Muller, fixed seeds; every solver time cap is lifted
 // so that wall time (a loaded machine) cannot change a result.
 
@@ -27,6 +29,9 @@
 #include <limits>
 #include <optional>
 #include <random>
+#include <stdexcept>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Dense>
@@ -844,6 +849,96 @@ TEST(LocalSmoother, RejectsNonFinitePoseInput) {
   EXPECT_FALSE(smoother.Update());
   EXPECT_EQ(smoother.stats().keyframes, keyframes);
   EXPECT_EQ(TangentDifference(*smoother.NewestKeyframe(), before).norm(), 0.0);
+}
+
+// ---- options ----
+
+TEST(LocalSmootherOptions, DefaultsAndTheValuesInUseAreValid) {
+  std::string why;
+  EXPECT_TRUE(LocalSmootherOptions{}.IsValid(&why)) << why;
+  // This file's batch smoother (100 s window, tight convergence), and a solve without a
+  // wall-time cap.
+  EXPECT_TRUE(Options(100.0, false, ImuNoiseParams{}, true).IsValid(&why)) << why;
+  LocalSmootherOptions uncapped;
+  uncapped.max_solver_time_s = std::numeric_limits<double>::infinity();
+  EXPECT_TRUE(uncapped.IsValid(&why)) << why;
+  // tofu estimate's CLI bounds (--keyframe-rate [0.1, 1000] Hz, --huber [0, 100]).
+  LocalSmootherOptions cli;
+  cli.keyframe_rate_hz = 0.1;
+  cli.huber_delta = 0.0;
+  EXPECT_TRUE(cli.IsValid(&why)) << why;
+  cli.keyframe_rate_hz = 1000.0;
+  cli.huber_delta = 100.0;
+  EXPECT_TRUE(cli.IsValid(&why)) << why;
+}
+
+TEST(LocalSmootherOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<std::pair<std::string, std::function<void(LocalSmootherOptions&)>>> broken;
+  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  // Positive and finite.
+  const std::pair<const char*, double LocalSmootherOptions::*> positive[] = {
+      {"gravity_mps2", &LocalSmootherOptions::gravity_mps2},
+      {"initial_trust_region_radius", &LocalSmootherOptions::initial_trust_region_radius},
+      {"max_speed_mps", &LocalSmootherOptions::max_speed_mps},
+      {"max_accel_bias_mps2", &LocalSmootherOptions::max_accel_bias_mps2},
+      {"max_gyro_bias_radps", &LocalSmootherOptions::max_gyro_bias_radps}};
+  for (const auto& [field, member] : positive) {
+    for (const double bad : {0.0, -1.0, nan, inf}) {
+      add(field, [member = member, bad](LocalSmootherOptions& o) { o.*member = bad; });
+    }
+  }
+  const std::pair<const char*, double ImuNoiseParams::*> densities[] = {
+      {"imu_noise.gyro_noise_density_radps_per_sqrthz",
+       &ImuNoiseParams::gyro_noise_density_radps_per_sqrthz},
+      {"imu_noise.accel_noise_density_mps2_per_sqrthz",
+       &ImuNoiseParams::accel_noise_density_mps2_per_sqrthz},
+      {"imu_noise.gyro_random_walk_radps2_per_sqrthz",
+       &ImuNoiseParams::gyro_random_walk_radps2_per_sqrthz},
+      {"imu_noise.accel_random_walk_mps3_per_sqrthz",
+       &ImuNoiseParams::accel_random_walk_mps3_per_sqrthz}};
+  for (const auto& [field, member] : densities) {
+    for (const double bad : {0.0, nan, inf}) {
+      add(field, [member = member, bad](LocalSmootherOptions& o) { o.imu_noise.*member = bad; });
+    }
+  }
+  // >= 0 and finite.
+  for (const double bad : {-1e-6, nan, inf}) {
+    add("function_tolerance", [bad](LocalSmootherOptions& o) { o.function_tolerance = bad; });
+    add("huber_delta", [bad](LocalSmootherOptions& o) { o.huber_delta = bad; });
+  }
+  for (const double bad : {0.0, nan, 1e-10, 2e9, inf}) {
+    add("keyframe_rate_hz", [bad](LocalSmootherOptions& o) { o.keyframe_rate_hz = bad; });
+  }
+  for (const double bad : {0.0, -1.0, nan}) {
+    add("max_solver_time_s", [bad](LocalSmootherOptions& o) { o.max_solver_time_s = bad; });
+  }
+  add("window_ns", [](LocalSmootherOptions& o) { o.window_ns = 0; });
+  add("imu_only_keyframe_period_ns",
+      [](LocalSmootherOptions& o) { o.imu_only_keyframe_period_ns = 0; });
+  add("keyframe_merge_tolerance_ns",
+      [](LocalSmootherOptions& o) { o.keyframe_merge_tolerance_ns = -1; });
+  add("pre_init_imu_buffer_ns", [](LocalSmootherOptions& o) { o.pre_init_imu_buffer_ns = -1; });
+  add("min_imu_history_ns", [](LocalSmootherOptions& o) { o.min_imu_history_ns = -1; });
+  add("max_iterations", [](LocalSmootherOptions& o) { o.max_iterations = 0; });
+
+  for (const auto& [field, set] : broken) {
+    LocalSmootherOptions options;
+    set(options);
+    std::string why;
+    EXPECT_FALSE(options.IsValid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+    EXPECT_THROW(LocalSmoother{options}, std::invalid_argument) << field;
+  }
+  LocalSmootherOptions options;
+  options.window_ns = -1;
+  try {
+    LocalSmoother smoother(options);
+    ADD_FAILURE() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()), "LocalSmootherOptions: window_ns must be positive");
+  }
 }
 
 }  // namespace

@@ -1,15 +1,19 @@
 // The multi-graph estimator as a whole (estimator/multi_graph_estimator.h) on a simulated
 // no-fault flight: initialisation in motion, switching the fused sensor at run time, the
 // alignment graph of a sensor that is not fused, the gate for streams it does not know and
-// for stamps out of range, and a method left with nothing to fuse.
+// for stamps out of range, and a method left with nothing to fuse. Its options (the nested
+// ones too) refuse each broken limit by name, and so does the constructor.
 
 #include <unistd.h>
 
 #include <algorithm>
 #include <cstdlib>
 #include <filesystem>
+#include <functional>
 #include <limits>
+#include <stdexcept>
 #include <string>
+#include <utility>
 #include <variant>
 #include <vector>
 
@@ -266,6 +270,131 @@ TEST_F(MultiGraphEstimatorTest, AMethodWhoseEverySampleWasRejectedHasNothingToFu
       replay::Replay(log, replay::ParseReplayMethod("imu_only", log),
                       replay::DefaultEstimatorOptions(log), replay::SensorSpecsOf(log));
   EXPECT_FALSE(replay::NothingToFuse(imu_only, log.imu_stream).has_value());
+}
+
+// ---- options ----
+
+// The options a replay uses (tofu estimate, tofu run), at the ends of the CLI's ranges.
+void ExpectTheReplayOptionsValid(const replay::RecordedLog& log) {
+  std::string why;
+  estimator::MultiGraphEstimatorOptions options = replay::DefaultEstimatorOptions(log);
+  EXPECT_TRUE(options.IsValid(&why)) << why;
+  for (const double window_s : {1e-3, 60.0}) {
+    for (const double keyframe_rate_hz : {0.1, 1000.0}) {
+      for (const double huber_delta : {0.0, 100.0}) {
+        for (const double noise_scale : {1e-3, 1000.0}) {
+          estimator::MultiGraphEstimatorOptions o = options;
+          o.local.window_ns = core::SecondsToTime(window_s);
+          o.local.keyframe_rate_hz = keyframe_rate_hz;
+          o.local.huber_delta = huber_delta;
+          o.local.imu_noise.gyro_noise_density_radps_per_sqrthz *= noise_scale;
+          o.local.imu_noise.accel_noise_density_mps2_per_sqrthz *= noise_scale;
+          EXPECT_TRUE(o.IsValid(&why)) << why;
+        }
+      }
+    }
+  }
+}
+
+TEST(MultiGraphEstimatorOptions, DefaultsAndTheReplayOptionsAreValid) {
+  std::string why;
+  EXPECT_TRUE(estimator::MultiGraphEstimatorOptions{}.IsValid(&why)) << why;
+  ExpectTheReplayOptionsValid(replay::RecordedLog{});  // no calibration: default IMU noise
+}
+
+TEST_F(MultiGraphEstimatorTest, TheReplayOptionsOfTheFlightAreValid) {
+  ExpectTheReplayOptionsValid(*log_);  // the IMU noise of its calibration.yaml
+}
+
+TEST(MultiGraphEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
+  using Options = estimator::MultiGraphEstimatorOptions;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<std::pair<std::string, std::function<void(Options&)>>> broken;
+  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  // The nested options: their own limits, under the field's path.
+  add("local.window_ns", [](Options& o) { o.local.window_ns = 0; });
+  add("local.imu_noise.accel_random_walk_mps3_per_sqrthz",
+      [](Options& o) { o.local.imu_noise.accel_random_walk_mps3_per_sqrthz = 0.0; });
+  add("alignment.min_pairs", [](Options& o) { o.alignment.min_pairs = 2; });
+  add("visual_inertial.gravity_refinement_iterations",
+      [](Options& o) { o.visual_inertial.gravity_refinement_iterations = 0; });
+  add("prior_from_rest.position_std_m",
+      [](Options& o) { o.prior_from_rest.position_std_m.y() = 0.0; });
+  add("prior_from_rest.gyro_bias_std_radps",
+      [nan](Options& o) { o.prior_from_rest.gyro_bias_std_radps = nan; });
+  add("prior_in_motion.rotation_std_rad",
+      [inf](Options& o) { o.prior_in_motion.rotation_std_rad.z() = inf; });
+  add("prior_in_motion.velocity_std_mps",
+      [](Options& o) { o.prior_in_motion.velocity_std_mps = -1.0; });
+  add("prior_in_motion.accel_bias_std_mps2",
+      [](Options& o) { o.prior_in_motion.accel_bias_std_mps2 = 0.0; });
+  // Positive and finite.
+  const std::pair<const char*, double Options::*> positive[] = {
+      {"static_max_gyro_std_radps", &Options::static_max_gyro_std_radps},
+      {"static_max_accel_std_mps2", &Options::static_max_accel_std_mps2},
+      {"max_alignment_rotation_std_rad", &Options::max_alignment_rotation_std_rad},
+      {"max_alignment_rms_m", &Options::max_alignment_rms_m}};
+  for (const auto& [field, member] : positive) {
+    for (const double bad : {0.0, -1.0, nan, inf}) {
+      add(field, [member = member, bad](Options& o) { o.*member = bad; });
+    }
+  }
+  for (const double bad : {-1e-3, nan, inf}) {
+    add("alignment_local_position_std_m",
+        [bad](Options& o) { o.alignment_local_position_std_m = bad; });
+  }
+  for (const double bad : {1.0, 0.0, nan, inf}) {
+    add("imu_gap_periods", [bad](Options& o) { o.imu_gap_periods = bad; });
+  }
+  add("output_period_ns", [](Options& o) { o.output_period_ns = 0; });
+  add("max_unfused_ns", [](Options& o) { o.max_unfused_ns = 0; });
+  add("covariance_period_ns", [](Options& o) { o.covariance_period_ns = -1; });
+  add("static_window_ns", [](Options& o) { o.static_window_ns = 0; });
+  add("max_rest_age_ns", [](Options& o) { o.max_rest_age_ns = -1; });
+  add("max_alignment_window_ns", [](Options& o) { o.max_alignment_window_ns = 0; });
+  // Shorter than the alignment's own minimum window (1 s): it would never align.
+  add("max_alignment_window_ns", [](Options& o) {
+    o.max_alignment_window_ns = 900'000'000;
+    o.min_noise_window_ns = 0;
+  });
+  add("max_initialisation_wait_ns", [](Options& o) { o.max_initialisation_wait_ns = -1; });
+  add("min_noise_window_ns", [](Options& o) { o.min_noise_window_ns = -1; });
+  add("min_noise_window_ns", [](Options& o) { o.min_noise_window_ns = 4'000'000'000; });
+  add("min_imu_gap_ns", [](Options& o) { o.min_imu_gap_ns = -1; });
+  add("max_consecutive_bad_solves", [](Options& o) { o.max_consecutive_bad_solves = 0; });
+
+  estimator::SensorSpec vio;
+  vio.name = "vio";
+  for (const auto& [field, set] : broken) {
+    Options options;
+    set(options);
+    std::string why;
+    EXPECT_FALSE(options.IsValid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+    EXPECT_THROW(estimator::MultiGraphEstimator("imu", {vio}, options), std::invalid_argument)
+        << field;
+  }
+  Options options;
+  options.local.window_ns = 0;
+  try {
+    estimator::MultiGraphEstimator graph("imu", {vio}, options);
+    ADD_FAILURE() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "MultiGraphEstimatorOptions: local.window_ns must be positive");
+  }
+  // Boundaries that are allowed.
+  options = {};
+  options.covariance_period_ns = 0;  // never
+  options.max_rest_age_ns = 0;
+  options.max_initialisation_wait_ns = 0;
+  options.min_noise_window_ns = options.max_alignment_window_ns;
+  options.min_imu_gap_ns = 0;
+  options.alignment_local_position_std_m = 0.0;
+  std::string why;
+  EXPECT_TRUE(options.IsValid(&why)) << why;
+  EXPECT_NO_THROW(estimator::MultiGraphEstimator("imu", {vio}, options));
 }
 
 }  // namespace

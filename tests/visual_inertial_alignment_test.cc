@@ -4,13 +4,17 @@
 // yawed against the world. The alignment must recover gravity in A, the velocities and the
 // gyro bias; measure the stream's noise when noise is added (within the sampling error of
 // a median-based estimate); flag a jump in the stream as an outlier to drop; and refuse
-// windows too short to solve.
+// windows too short to solve. Its options refuse each broken limit by name.
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
+#include <limits>
 #include <optional>
 #include <random>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "core/lie.h"
@@ -217,6 +221,57 @@ TEST(VisualInertialAlignment, AStreamAtTheWrongScaleShowsItAsScatter) {
   ASSERT_TRUE(exact && scaled);
   EXPECT_GT(scaled->relative_position_std_m, 20 * exact->relative_position_std_m);
   EXPECT_GT(scaled->relative_position_std_m, 1e-3);
+}
+
+// ---- options ----
+
+TEST(VisualInertialAlignmentOptions, DefaultsAndTheValuesInUseAreValid) {
+  std::string why;
+  EXPECT_TRUE(VisualInertialAlignmentOptions{}.IsValid(&why)) << why;
+  VisualInertialAlignmentOptions known;
+  known.known_gyro_bias_radps = Eigen::Vector3d(0.004, -0.003, 0.005);
+  known.min_samples = 100;
+  known.min_window_s = 0.0;
+  EXPECT_TRUE(known.IsValid(&why)) << why;
+}
+
+TEST(VisualInertialAlignmentOptions, EachBrokenLimitIsNamed) {
+  using Options = VisualInertialAlignmentOptions;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<std::pair<std::string, std::function<void(Options&)>>> broken;
+  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  const std::pair<const char*, double Options::*> positive[] = {
+      {"gravity_mps2", &Options::gravity_mps2},
+      {"max_gravity_direction_std_rad", &Options::max_gravity_direction_std_rad},
+      {"max_gravity_norm_error", &Options::max_gravity_norm_error},
+      {"accel_bias_prior_std_mps2", &Options::accel_bias_prior_std_mps2},
+      {"nominal_relative_position_std_m", &Options::nominal_relative_position_std_m},
+      {"nominal_relative_rotation_std_rad", &Options::nominal_relative_rotation_std_rad},
+      {"outlier_sigmas", &Options::outlier_sigmas}};
+  for (const auto& [field, member] : positive) {
+    for (const double bad : {0.0, -1.0, nan, inf}) {
+      add(field, [member = member, bad](Options& o) { o.*member = bad; });
+    }
+  }
+  for (const double bad : {-1e-3, nan, inf}) {
+    add("min_window_s", [bad](Options& o) { o.min_window_s = bad; });
+  }
+  add("min_samples", [](Options& o) { o.min_samples = 2; });
+  add("known_gyro_bias_radps",
+      [nan](Options& o) { o.known_gyro_bias_radps = Eigen::Vector3d(0.0, nan, 0.0); });
+  add("known_gyro_bias_radps",
+      [inf](Options& o) { o.known_gyro_bias_radps = Eigen::Vector3d(0.0, 0.0, inf); });
+  // Without a refinement there is no constrained solution to read the result from.
+  add("gravity_refinement_iterations", [](Options& o) { o.gravity_refinement_iterations = 0; });
+
+  for (const auto& [field, set] : broken) {
+    Options options;
+    set(options);
+    std::string why;
+    EXPECT_FALSE(options.IsValid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+  }
 }
 
 }  // namespace

@@ -8,14 +8,20 @@
 //    dense inverse of the information matrix Ceres evaluates;
 //  - a constant pose stays put and the rest matches Ceres with that block held constant;
 //  - one step only: the iteration cap is reported and the cost decreased;
-//  - a non-finite state: failure, states untouched.
+//  - a non-finite state: failure, states untouched;
+//  - LmOptions::IsValid refuses each broken limit by name, and Solve throws for it.
 
 #include "estimator/window_solver.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
+#include <limits>
 #include <memory>
+#include <stdexcept>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Dense>
@@ -356,6 +362,61 @@ TEST(WindowSolver, NonFiniteStateFailsAndLeavesStatesUntouched) {
     for (int k = 0; k < kPoseSize; ++k) EXPECT_EQ(window.states()[i].pose[k], before[i].pose[k]);
   }
   EXPECT_FALSE(solver.LastStateCovariance(window.WindowStates(), window.WindowFactors()));
+}
+
+// ---- options ----
+
+TEST(LmOptions, DefaultsAndTheValuesInUseAreValid) {
+  std::string why;
+  EXPECT_TRUE(LmOptions{}.IsValid(&why)) << why;
+  EXPECT_TRUE(TightWindow().IsValid(&why)) << why;
+  // The alignment graph's solve: no time cap.
+  LmOptions uncapped;
+  uncapped.max_time_s = std::numeric_limits<double>::infinity();
+  EXPECT_TRUE(uncapped.IsValid(&why)) << why;
+  LmOptions zero_tolerances;
+  zero_tolerances.function_tolerance = 0.0;
+  zero_tolerances.parameter_tolerance = 0.0;
+  zero_tolerances.gradient_tolerance = 0.0;
+  EXPECT_TRUE(zero_tolerances.IsValid(&why)) << why;
+}
+
+TEST(LmOptions, EachBrokenLimitIsNamedAndSolveThrows) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  std::vector<std::pair<std::string, std::function<void(LmOptions&)>>> broken;
+  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  add("max_iterations", [](LmOptions& o) { o.max_iterations = 0; });
+  for (const double bad : {0.0, -1.0, nan}) {
+    add("max_time_s", [bad](LmOptions& o) { o.max_time_s = bad; });
+  }
+  for (const double bad : {-1e-9, nan, inf}) {
+    add("function_tolerance", [bad](LmOptions& o) { o.function_tolerance = bad; });
+    add("parameter_tolerance", [bad](LmOptions& o) { o.parameter_tolerance = bad; });
+    add("gradient_tolerance", [bad](LmOptions& o) { o.gradient_tolerance = bad; });
+  }
+  for (const double bad : {0.0, -1.0, nan, inf}) {
+    add("initial_trust_region_radius",
+        [bad](LmOptions& o) { o.initial_trust_region_radius = bad; });
+  }
+
+  Window window;
+  const std::vector<State> before = window.states();
+  WindowSolver solver;
+  for (const auto& [field, set] : broken) {
+    LmOptions options = TightWindow();
+    set(options);
+    std::string why;
+    EXPECT_FALSE(options.IsValid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+    EXPECT_THROW(solver.Solve(window.WindowStates(), window.WindowFactors(), options),
+                 std::invalid_argument)
+        << field;
+  }
+  // Nothing was solved.
+  for (int i = 0; i < kStates; ++i) {
+    for (int k = 0; k < kPoseSize; ++k) EXPECT_EQ(window.states()[i].pose[k], before[i].pose[k]);
+  }
 }
 
 }  // namespace
