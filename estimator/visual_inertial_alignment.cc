@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 #include <string>
 #include <utility>
 
@@ -227,10 +228,6 @@ bool VisualInertialAlignmentOptions::IsValid(std::string* why) const {
   if (!(nominal_relative_position_std_m > 0.0) || !std::isfinite(nominal_relative_position_std_m)) {
     return fail("nominal_relative_position_std_m must be positive and finite");
   }
-  if (!(nominal_relative_rotation_std_rad > 0.0) ||
-      !std::isfinite(nominal_relative_rotation_std_rad)) {
-    return fail("nominal_relative_rotation_std_rad must be positive and finite");
-  }
   // The constrained solution (and the residuals measuring the stream) comes from these.
   if (gravity_refinement_iterations < 1) {
     return fail("gravity_refinement_iterations must be at least 1");
@@ -244,6 +241,9 @@ bool VisualInertialAlignmentOptions::IsValid(std::string* why) const {
 std::optional<VisualInertialAlignment> AlignVisualInertial(
     const std::vector<ImuPoseInA>& poses, const ImuPreintegrator& preintegrate,
     const VisualInertialAlignmentOptions& options) {
+  if (std::string why; !options.IsValid(&why)) {
+    throw std::invalid_argument("AlignVisualInertial: " + why);
+  }
   if (poses.size() < 3 || static_cast<int>(poses.size()) < options.min_samples) return std::nullopt;
   const double window_s = core::TimeToSeconds(poses.back().t_ns - poses.front().t_ns);
   if (window_s < options.min_window_s) return std::nullopt;

@@ -58,9 +58,9 @@ struct VisualInertialAlignmentOptions {
   std::optional<Eigen::Vector3d> known_gyro_bias_radps;
   /// Prior on the accelerometer bias (weakly observable over a short window).
   double accel_bias_prior_std_mps2 = 0.1;
-  /// Before the stream's noise is known, the weights of the two equations.
+  /// Before the stream's noise is known, the weight of the position equation (the
+  /// rotation equation is weighted by the window's own gyro-bias residuals from the start).
   double nominal_relative_position_std_m = 0.01;
-  double nominal_relative_rotation_std_rad = 0.01;
   int gravity_refinement_iterations = 4;
   /// An interval whose residual exceeds this many robust standard deviations (from the
   /// median of the window's residuals) makes the window inconsistent.
@@ -96,9 +96,9 @@ using ImuPreintegrator =
 
 /// Aligns the window `poses` (time order, distinct stamps) with the IMU. nullopt when the
 /// window is too short or the IMU does not cover it; otherwise the solution, with
-/// `observable` telling whether it may initialise an estimator. options must be
-/// IsValid(): this function never throws, so it does not check them (MultiGraphEstimator
-/// checks the ones it holds, at construction).
+/// `observable` telling whether it may initialise an estimator. Throws
+/// std::invalid_argument when !options.IsValid() (MultiGraphEstimator checks the options
+/// it holds at construction, so it never sees the throw).
 std::optional<VisualInertialAlignment> AlignVisualInertial(
     const std::vector<ImuPoseInA>& poses, const ImuPreintegrator& preintegrate,
     const VisualInertialAlignmentOptions& options = {});

@@ -36,8 +36,12 @@ using replay::EstimationConfig;
 
 namespace {
 
+using internal::EmitOptionFields;
+using internal::FailInvalidOptions;
 using internal::FormatDouble;
 using internal::NumberRule;
+using internal::OptionKeys;
+using internal::ReadOptionFields;
 using internal::YamlMap;
 using internal::YamlValue;
 using namespace internal::config;

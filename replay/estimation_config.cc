@@ -1,5 +1,6 @@
 #include "replay/estimation_config.h"
 
+#include "core/error.h"
 #include "core/time.h"
 #include "replay/recorded_log.h"
 #include "replay/replay.h"
@@ -17,6 +18,18 @@ estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config) {
   return options;
 }
 
+void RequireValidOptions(const estimator::MultiGraphEstimatorOptions& estimator,
+                         const estimator::ConsensusEstimatorOptions& consensus,
+                         const core::SourceLocation& where, const std::string& key_path) {
+  std::string why;
+  if (!estimator.IsValid(&why)) {
+    throw core::InputError(where, key_path, "the estimator's options are invalid: " + why);
+  }
+  if (!consensus.IsValid(&why)) {
+    throw core::InputError(where, key_path, "the consensus options are invalid: " + why);
+  }
+}
+
 EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config) {
   EstimationSetup setup;
   setup.estimator = DefaultEstimatorOptions(log);
@@ -31,6 +44,7 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
   setup.consensus.consistency.history_ns =
       setup.consensus.consistency.consistency.window_ns + 2'000'000'000;
   setup.consensus.evaluation_period_ns = core::PeriodFromRate(config.consensus.rate_hz);
+  RequireValidOptions(setup.estimator, setup.consensus, {}, "estimation");
   return setup;
 }
 

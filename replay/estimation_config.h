@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "core/error.h"
 #include "estimator/consensus_estimator.h"
 #include "estimator/consensus_selector.h"
 #include "estimator/multi_graph_estimator.h"
@@ -56,6 +57,17 @@ struct EstimationSetup {
   std::vector<estimator::SensorSpec> sensors;
   estimator::ConsensusEstimatorOptions consensus;
 };
+/// Throws core::InputError when the options are outside their limits
+/// (MultiGraphEstimatorOptions::IsValid, ConsensusEstimatorOptions::IsValid). Checked where
+/// user values become options (a scenario's estimation: block, `tofu estimate` flags), so a
+/// bad value is bad input (exit 2) before anything is written, not an estimator's
+/// std::invalid_argument halfway through a run. `where` and `key_path` name where the
+/// values came from.
+void RequireValidOptions(const estimator::MultiGraphEstimatorOptions& estimator,
+                         const estimator::ConsensusEstimatorOptions& consensus,
+                         const core::SourceLocation& where, const std::string& key_path);
+
+/// Validated (RequireValidOptions, key path "estimation").
 EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConfig& config);
 
 /// The options of the consensus estimator from a scenario's configuration.

@@ -892,8 +892,6 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   } else {
     for (const std::string& m : options.methods) methods.push_back(ParseReplayMethod(m, log));
   }
-  const std::filesystem::path out_dir = options.out_dir.value_or(options.log_dir);
-  std::filesystem::create_directories(out_dir);
   // A tofu run directory says how its methods were configured (its scenario's
   // estimation: block): the same configuration reproduces what ran in the flight.
   EstimationConfig run_config;
@@ -949,6 +947,12 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   std::string decisions_csv = kDecisionsCsvHeader;
   estimator::ConsensusEstimatorOptions consensus_options = setup.consensus;
   if (options.consensus_threshold) consensus_options.selection.threshold = *options.consensus_threshold;
+  RequireValidOptions(estimator_options, consensus_options,
+                      {"tofu estimate (--window, --keyframe-rate, --huber, --imu-noise-scale, "
+                       "--consensus-threshold)"},
+                      "");
+  const std::filesystem::path out_dir = options.out_dir.value_or(options.log_dir);
+  std::filesystem::create_directories(out_dir);
   core::Time first_output_ns = std::numeric_limits<core::Time>::max();
   core::Time last_output_ns = std::numeric_limits<core::Time>::min();
   bool failed = false;

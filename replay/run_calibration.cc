@@ -104,8 +104,9 @@ std::optional<LidarBeamPattern> RunCalibration::LidarBeams(const std::string& se
   if (!azimuths || !elevations || !min_deg || !max_deg || !min_range || !max_range) {
     return std::nullopt;
   }
-  // The limits of the scenario's own reader (harness/sensor_config_lidar_odometry.cc): a
-  // pattern outside them was not written by a run.
+  // The limits of the beam fields of sim::LidarOdometryOptions::Fields() (sim/lidar_odometry.cc;
+  // replay/ may not include sim/, so they are repeated here): a pattern outside them was
+  // not written by a run.
   const auto fail = [&](const char* key, const std::string& expected) {
     const CalibrationScalar& at = s->second.options.at(key);
     throw core::InputError({file, at.line, at.column},

@@ -27,6 +27,10 @@ std::span<const core::OptionField<GnssFixErrorOptions>> GnssFixErrorOptions::Fie
   return kFields;
 }
 
+bool GnssFixErrorOptions::IsValid(std::string* why) const {
+  return core::CheckOptionFields<GnssFixErrorOptions>(*this, Fields(), why);
+}
+
 std::span<const core::OptionField<GnssOptions>> GnssOptions::Fields() {
   using F = core::OptionField<GnssOptions>;
   using R = core::NumberRule;

@@ -35,6 +35,9 @@ struct GnssFixErrorOptions {
 
   /// The field table of one fix type's map (rtk_fixed:, rtk_float:, single:).
   static std::span<const core::OptionField<GnssFixErrorOptions>> Fields();
+  /// Ceres style: false, with "<key>: <problem>" in *why, when an option is outside its
+  /// limits (GnssOptions::IsValid checks its three maps so, with their prefix).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// Fix types, best last.

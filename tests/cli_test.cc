@@ -421,6 +421,20 @@ TEST_F(CliTest, OutOfRangeNumericOptionsExitTwoNamingTheOptionAndItsRange) {
   EXPECT_EQ(ok.err.find("expected a number"), std::string::npos) << ok.err;
 }
 
+// A flag value inside its own range can still make the estimator's options invalid
+// (--window 1e-12 s is 0 ns of fixed lag): that is bad input too, exit 2 naming the
+// options and the limit, before anything is written (before: the estimator's
+// std::invalid_argument, exit 3, after the output directory was made).
+TEST_F(CliTest, EstimatorOptionsOutsideTheirLimitsExitTwoBeforeWriting) {
+  const fs::path euroc = fs::path(TOFU_SOURCE_DIR) / ".." / "shared" / "data" / "euroc_v1_02";
+  if (!fs::is_directory(euroc)) GTEST_SKIP() << "no EuRoC excerpt at " << euroc;
+  const Result r = Tofu("estimate " + Quote(euroc.string()) + " --window 1e-12 --out est --quiet");
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_CONTAINS(r.err, "tofu estimate (--window");
+  EXPECT_CONTAINS(r.err, "the estimator's options are invalid: local.window_ns");
+  EXPECT_TRUE(WorkEntries().empty());
+}
+
 // ---- everything `tofu validate` can know without simulating (issue 19, finding 8) ----
 
 // Each passed validate before, and failed only in `tofu run` (the estimation without an

@@ -247,7 +247,6 @@ TEST(VisualInertialAlignmentOptions, EachBrokenLimitIsNamed) {
       {"max_gravity_norm_error", &Options::max_gravity_norm_error},
       {"accel_bias_prior_std_mps2", &Options::accel_bias_prior_std_mps2},
       {"nominal_relative_position_std_m", &Options::nominal_relative_position_std_m},
-      {"nominal_relative_rotation_std_rad", &Options::nominal_relative_rotation_std_rad},
       {"outlier_sigmas", &Options::outlier_sigmas}};
   for (const auto& [field, member] : positive) {
     for (const double bad : {0.0, -1.0, nan, inf}) {
@@ -272,6 +271,18 @@ TEST(VisualInertialAlignmentOptions, EachBrokenLimitIsNamed) {
     EXPECT_FALSE(options.IsValid(&why)) << field;
     EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
   }
+}
+
+// Without the check, 0 refinement iterations dereferenced an empty solution (UB) in a
+// direct call; the estimator checks its options at construction, a direct caller here.
+TEST(VisualInertialAlignmentOptions, AlignmentRefusesInvalidOptions) {
+  VisualInertialAlignmentOptions options;
+  options.gravity_refinement_iterations = 0;
+  const ImuPreintegrator no_imu = [](core::Time, core::Time, const ImuBias&) {
+    return std::optional<ImuPreintegration>();
+  };
+  EXPECT_THROW(AlignVisualInertial({}, no_imu, options), std::invalid_argument);
+  EXPECT_FALSE(AlignVisualInertial({}, no_imu, VisualInertialAlignmentOptions{}).has_value());
 }
 
 }  // namespace
