@@ -146,7 +146,7 @@ Eigen::Vector3d PositionAlignmentCost::Residual(const Eigen::Isometry3d& T_AL) c
 
 // ---- the graph's least squares ----
 
-// Eq. (9) over the window's pairs, ½ Σ ρ(‖S_i (p_A_i − T_AL p_Ls_i)‖²), on the six
+// Eq. (9) over the window's pairs, ½ Σ ρ(‖S_i (p_Ai − T_AL p_Ls_i)‖²), on the six
 // tangent dimensions of T_AL: a 6x6 normal equation, where ceres::Solve spent most of an
 // update building its program for 200-400 residual blocks. The Huber loss enters as
 // Ceres's Corrector applies it: Huber's ρ'' ≤ 0, so Triggs's correction reduces to the

@@ -21,12 +21,12 @@ Eigen::Vector3d TransferVelocity(const Eigen::Matrix3d& R_Aa, const Eigen::Matri
 
 Eigen::Vector3d TransferVelocityFromReference(const Eigen::Matrix3d& R_Aa,
                                               const Eigen::Matrix3d& R_AB,
-                                              const Eigen::Vector3d& v_B_b,
+                                              const Eigen::Vector3d& v_Bb,
                                               const Eigen::Matrix3d& R_Bb,
                                               const Eigen::Vector3d& omega_b_b,
                                               const Eigen::Vector3d& p_ba) {
-  const Eigen::Vector3d v_B_a = v_B_b + R_Bb * omega_b_b.cross(p_ba);
-  return R_Aa.transpose() * (R_AB * v_B_a);
+  const Eigen::Vector3d v_Ba = v_Bb + R_Bb * omega_b_b.cross(p_ba);
+  return R_Aa.transpose() * (R_AB * v_Ba);
 }
 
 bool DifferentiationOptions::IsValid(std::string* why) const {

@@ -37,15 +37,15 @@ Eigen::Vector3d TransferVelocity(const Eigen::Matrix3d& R_Aa, const Eigen::Matri
                                  const Eigen::Vector3d& p_ba);
 
 /// Eq. (1) for a position-only sensor b (total station, GNSS): its velocity is known in
-/// its reference frame B (v_B_b, e.g. from DifferentiatePositions), not in b, so
-///   v_a_a = R_Aa^T R_AB (v_B_b + R_Bb (omega_b_b × p_ba)).
+/// its reference frame B (v_Bb, e.g. from DifferentiatePositions), not in b, so
+///   v_a_a = R_Aa^T R_AB (v_Bb + R_Bb (omega_b_b × p_ba)).
 /// Such a sensor measures no attitude: R_Bb (and omega_b_b) must come from elsewhere,
 /// e.g. R_Bb = R_BL R_LI R_Ib from the local estimate's attitude R_LI, the frame
 /// alignment R_BL and the mount extrinsics R_Ib, and omega_b_b = R_Ib^T omega_I from the
 /// gyroscope. Errors in R_Bb only enter through the lever-arm term.
 Eigen::Vector3d TransferVelocityFromReference(const Eigen::Matrix3d& R_Aa,
                                               const Eigen::Matrix3d& R_AB,
-                                              const Eigen::Vector3d& v_B_b,
+                                              const Eigen::Vector3d& v_Bb,
                                               const Eigen::Matrix3d& R_Bb,
                                               const Eigen::Vector3d& omega_b_b,
                                               const Eigen::Vector3d& p_ba);
@@ -90,7 +90,7 @@ struct DifferentiationStats {
   int64_t without_output = 0;         ///< accepted samples that got no derivative
 };
 
-/// Linear velocity v_S_s (m/s, in the stream's frame S) of the positions p_Ss (m) stamped
+/// Linear velocity v_Ss (m/s, in the stream's frame S) of the positions p_Ss (m) stamped
 /// t_ns, by DifferentiationOptions. Non-finite and non-increasing samples are rejected
 /// (counted in *stats); output timestamps are a subset of the accepted input stamps.
 /// Returns an empty series (and stats with everything rejected) if the options are

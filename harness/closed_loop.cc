@@ -26,7 +26,7 @@ const char* FlightModeName(FlightMode mode) {
 }
 
 ClosedLoopPilot::ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_BI)
-    : failsafe_(failsafe), T_B_I_(T_BI) {}
+    : failsafe_(failsafe), T_BI_(T_BI) {}
 
 bool ClosedLoopPilot::TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest,
                                   const Eigen::Isometry3d& T_WB_true) {
@@ -35,7 +35,7 @@ bool ClosedLoopPilot::TryHandover(core::Time t_ns, const estimator::EstimatorOut
   Eigen::Isometry3d T_LI = Eigen::Isometry3d::Identity();
   T_LI.linear() = newest->state.q_LI.normalized().toRotationMatrix();
   T_LI.translation() = newest->state.p_LI;
-  const Eigen::Isometry3d T_LB = T_LI * T_B_I_.inverse();
+  const Eigen::Isometry3d T_LB = T_LI * T_BI_.inverse();
   const Eigen::Matrix3d R = T_WB_true.linear() * T_LB.linear().transpose();
   const double yaw = std::atan2(R(1, 0) - R(0, 1), R(0, 0) + R(1, 1));
   T_WL_ = Eigen::Isometry3d::Identity();
@@ -57,8 +57,8 @@ sim::RobotState ClosedLoopPilot::StateOf(core::Time t_ns,
       (o.state.q_LI.normalized() * core::ExpQuat(o.omega_I_radps * dt_s)).normalized();
   const Eigen::Vector3d p_LI = o.state.p_LI + o.state.v_L_mps * dt_s;
   const Eigen::Matrix3d R_LI = q_LI.toRotationMatrix();
-  const Eigen::Matrix3d R_IB = T_B_I_.linear().transpose();
-  const Eigen::Vector3d p_IB = -R_IB * T_B_I_.translation();
+  const Eigen::Matrix3d R_IB = T_BI_.linear().transpose();
+  const Eigen::Vector3d p_IB = -R_IB * T_BI_.translation();
   // p_LB = p_LI + R_LI p_IB, v_LB = v_LI + R_LI (ω_I × p_IB), ω_B = R_BI ω_I.
   const Eigen::Vector3d p_LB = p_LI + R_LI * p_IB;
   const Eigen::Vector3d v_LB = o.state.v_L_mps + R_LI * o.omega_I_radps.cross(p_IB);
@@ -68,7 +68,7 @@ sim::RobotState ClosedLoopPilot::StateOf(core::Time t_ns,
   state.p_WB = T_WL_ * p_LB;
   state.q_WB = Eigen::Quaterniond(R_WL * R_LI * R_IB).normalized();
   state.v_WB_W = R_WL * v_LB;
-  state.omega_WB_B = T_B_I_.linear() * o.omega_I_radps;
+  state.omega_WB_B = T_BI_.linear() * o.omega_I_radps;
   return state;
 }
 

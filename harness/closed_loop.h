@@ -107,7 +107,7 @@ class ClosedLoopPilot {
   sim::RobotState StateOf(core::Time t_ns, const estimator::EstimatorOutput& o) const;
 
   FailsafeConfig failsafe_;
-  Eigen::Isometry3d T_B_I_;
+  Eigen::Isometry3d T_BI_;
   Eigen::Isometry3d T_WL_ = Eigen::Isometry3d::Identity();
   bool handed_over_ = false;
   FlightMode mode_ = FlightMode::kTruth;

@@ -217,8 +217,8 @@ RunRecorder::RunRecorder(const fs::path& dir, RecorderLayout layout) : layout_(s
     if (stream.type != "imu" || euroc_imu_) continue;
     euroc_imu_ = i;
     if (const sim::MountSite* site = layout_.robot.FindSite(stream.site)) {
-      p_B_I_ = site->p_Bs;
-      q_B_I_ = site->q_Bs;
+      p_BI_ = site->p_Bs;
+      q_BI_ = site->q_Bs;
     }
     euroc_imu_csv_ = std::make_unique<replay::AtomicFileWriter>(dir / "mav0" / "imu0" / "data.csv");
     euroc_imu_csv_->Format("#timestamp [ns],w_RS_S_x [rad s-1],w_RS_S_y [rad s-1],w_RS_S_z [rad s-1],"
@@ -284,9 +284,9 @@ void RunRecorder::AddGroundTruth(const sim::TruthState& s, const sim::Reference&
 
 void RunRecorder::EmitEurocGroundTruth(const sim::TruthState& s, const ImuBias& bias) {
   const Eigen::Matrix3d R_WB = s.q_WB.toRotationMatrix();
-  const Eigen::Vector3d p_WI = s.p_WB + R_WB * p_B_I_;
-  const Eigen::Vector3d v_WI = s.v_WB_W + R_WB * s.omega_WB_B.cross(p_B_I_);
-  const Eigen::Quaterniond q_WI = core::CanonicalQuat(s.q_WB * q_B_I_);
+  const Eigen::Vector3d p_WI = s.p_WB + R_WB * p_BI_;
+  const Eigen::Vector3d v_WI = s.v_WB_W + R_WB * s.omega_WB_B.cross(p_BI_);
+  const Eigen::Quaterniond q_WI = core::CanonicalQuat(s.q_WB * q_BI_);
   const Eigen::Vector3d& bw = bias.first;
   const Eigen::Vector3d& ba = bias.second;
   euroc_groundtruth_csv_->Format("{},{:.6f},{:.6f},{:.6f},{:.9f},{:.9f},{:.9f},{:.9f},{:.6f},{:.6f},{:.6f},"

@@ -95,8 +95,8 @@ class RunRecorder {
   std::unique_ptr<replay::AtomicFileWriter> euroc_groundtruth_csv_;
   std::vector<sim::TruthState> pending_truth_;
   std::optional<ImuBias> latest_bias_;
-  Eigen::Vector3d p_B_I_ = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond q_B_I_ = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d p_BI_ = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond q_BI_ = Eigen::Quaterniond::Identity();
 };
 
 /// A sample's value as its row in sensors/<name>.csv holds it (the writer's precision,

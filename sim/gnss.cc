@@ -121,7 +121,7 @@ GnssModel::GnssModel(std::string name, const GnssOptions& options, const World& 
   if (mount == nullptr) {
     throw std::invalid_argument(who + "robot has no site '" + options_.site + "'");
   }
-  p_B_s_ = mount->p_Bs;
+  p_Bs_ = mount->p_Bs;
 
   T_WS_ = Eigen::Isometry3d::Identity();
   T_WS_.translation() = options_.enu_origin_W_m;
@@ -185,7 +185,7 @@ void GnssModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
   while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
   for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
     const core::Time ts_ns = next_sample_ns_;
-    const Eigen::Vector3d p_Ws = MountPointPosition(x, p_B_s_, core::TimeToSeconds(ts_ns - t_ns));
+    const Eigen::Vector3d p_Ws = MountPointPosition(x, p_Bs_, core::TimeToSeconds(ts_ns - t_ns));
 
     // Sky visibility: one ray per satellite against structure and ground.
     int visible = 0;

@@ -133,7 +133,7 @@ class GnssModel final : public SensorModel {
   std::string name_;
   GnssOptions options_;
   core::RandomStream stream_;
-  Eigen::Vector3d p_B_s_;
+  Eigen::Vector3d p_Bs_;
   Eigen::Isometry3d T_WS_;
   core::Time period_ns_;
   core::Time latency_ns_;

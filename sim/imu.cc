@@ -114,7 +114,7 @@ ImuModel::ImuModel(std::string name, const ImuOptions& options, const World& wor
     throw std::invalid_argument("IMU '" + name_ + "': the robot has no site '" + options_.site +
                                 "'");
   }
-  p_B_I_ = site->p_Bs;
+  p_BI_ = site->p_Bs;
   R_BI_ = site->q_Bs.normalized().toRotationMatrix();
   g_W_ = Eigen::Vector3d(0.0, 0.0, -world.robot().rigid_body.gravity_mps2);
   period_ns_ = core::PeriodFromRate(options_.rate_hz);
@@ -168,7 +168,7 @@ void ImuModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
   const Eigen::Matrix3d R_WB =
       x.q_WB.toRotationMatrix() *
       core::ExpSO3(0.5 * dt_s * x.omega_WB_B + 0.125 * dt_s * dt_s * x.alpha_WB_B);
-  const Eigen::Vector3d& r = p_B_I_;
+  const Eigen::Vector3d& r = p_BI_;
   const Eigen::Vector3d f_B = R_WB.transpose() * (x.a_WB_W - g_W_) +
                               x.alpha_WB_B.cross(r) + omega_B.cross(omega_B.cross(r));
   step_acc_I_ = R_BI_.transpose() * f_B;

@@ -152,7 +152,7 @@ class ImuModel final : public SensorModel {
   double period_s_ = 0.0;  ///< period_ns_ in seconds (the discretisation's dt)
 
   // ---- static: mount and constants drawn once ----
-  Eigen::Vector3d p_B_I_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d p_BI_ = Eigen::Vector3d::Zero();
   Eigen::Matrix3d R_BI_ = Eigen::Matrix3d::Identity();
   Eigen::Vector3d g_W_ = Eigen::Vector3d::Zero();
   Eigen::Matrix3d gyro_K_ = Eigen::Matrix3d::Identity();   ///< I + S + M

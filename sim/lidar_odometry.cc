@@ -92,9 +92,9 @@ LidarOdometryModel::LidarOdometryModel(std::string name, const LidarOdometryOpti
       latency_ns_(core::SecondsToTime(options.latency_s)) {
   const MountSite* mount = world.robot().FindSite(options_.site);
   Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
-  T_B_s_ = Eigen::Isometry3d::Identity();
-  T_B_s_.translation() = mount->p_Bs;
-  T_B_s_.linear() = mount->q_Bs.normalized().toRotationMatrix();
+  T_Bs_ = Eigen::Isometry3d::Identity();
+  T_Bs_.translation() = mount->p_Bs;
+  T_Bs_.linear() = mount->q_Bs.normalized().toRotationMatrix();
 
   if (options_.p_WS_m) T_WS_.translation() = *options_.p_WS_m;
   if (options_.q_WS) T_WS_.linear() = options_.q_WS->normalized().toRotationMatrix();
@@ -177,7 +177,7 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
   const core::Time t_ns = x.t_ns;
   const core::Time dt_ns = input.world.timestep_ns();
   const double dt_s = core::TimeToSeconds(dt_ns);
-  const MountMotion now = MountMotionAt(x, T_B_s_, 0.0);
+  const MountMotion now = MountMotionAt(x, T_Bs_, 0.0);
 
   // The odometry frame starts where the LiDAR boots (unless configured).
   if (!started_) {
@@ -212,7 +212,7 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
   while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
   for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
     const core::Time ts_ns = next_sample_ns_;
-    const MountMotion at = MountMotionAt(x, T_B_s_, core::TimeToSeconds(ts_ns - t_ns));
+    const MountMotion at = MountMotionAt(x, T_Bs_, core::TimeToSeconds(ts_ns - t_ns));
     Eigen::Isometry3d T_Ws = Eigen::Isometry3d::Identity();
     T_Ws.linear() = at.R_Ws;
     T_Ws.translation() = at.p_Ws;

@@ -175,7 +175,7 @@ class LidarOdometryModel final : public SensorModel {
   std::string name_;
   LidarOdometryOptions options_;
   core::RandomStream stream_;
-  Eigen::Isometry3d T_B_s_;
+  Eigen::Isometry3d T_Bs_;
   core::Time period_ns_;
   core::Time latency_ns_;
 

@@ -70,7 +70,7 @@ TotalStationModel::TotalStationModel(std::string name, const TotalStationOptions
     throw std::invalid_argument("total station '" + name_ + "': robot has no site '" +
                                 options_.site + "'");
   }
-  p_B_s_ = mount->p_Bs;
+  p_Bs_ = mount->p_Bs;
 
   // Station pose: the world site, with the optional overrides.
   T_WS_ = Eigen::Isometry3d::Identity();
@@ -110,7 +110,7 @@ void TotalStationModel::Step(const SensorInput& input, std::vector<SensorSample>
 
   // Angular rate of the prism seen from the station, every physics step (cheap):
   // omega_los = |v_perp| / d.
-  const PointMotion now = MountPointMotion(x, p_B_s_, 0.0);
+  const PointMotion now = MountPointMotion(x, p_Bs_, 0.0);
   const Eigen::Vector3d los_W = now.p_W - p_WS;
   const double d_now = los_W.norm();
   bool too_fast = false;
@@ -125,7 +125,7 @@ void TotalStationModel::Step(const SensorInput& input, std::vector<SensorSample>
   while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
   for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
     const core::Time ts_ns = next_sample_ns_;
-    const PointMotion at = MountPointMotion(x, p_B_s_, core::TimeToSeconds(ts_ns - t_ns));
+    const PointMotion at = MountPointMotion(x, p_Bs_, core::TimeToSeconds(ts_ns - t_ns));
     const Eigen::Vector3d ray_W = at.p_W - p_WS;
     const double d_true = ray_W.norm();
 

@@ -107,7 +107,7 @@ class TotalStationModel final : public SensorModel {
   std::string name_;
   TotalStationOptions options_;
   core::RandomStream stream_;
-  Eigen::Vector3d p_B_s_;
+  Eigen::Vector3d p_Bs_;
   Eigen::Isometry3d T_WS_;
   core::Time period_ns_;
   core::Time latency_ns_;

@@ -91,9 +91,9 @@ VioModel::VioModel(std::string name, const VioOptions& options, const World& wor
       reset_after_ns_(core::SecondsToTime(options.reset_after_s)) {
   const MountSite* mount = world.robot().FindSite(options_.site);
   Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
-  T_B_s_ = Eigen::Isometry3d::Identity();
-  T_B_s_.translation() = mount->p_Bs;
-  T_B_s_.linear() = mount->q_Bs.normalized().toRotationMatrix();
+  T_Bs_ = Eigen::Isometry3d::Identity();
+  T_Bs_.translation() = mount->p_Bs;
+  T_Bs_.linear() = mount->q_Bs.normalized().toRotationMatrix();
 
   // Equiangular grid over the usable FOV, cell centres: azimuth a about y (image right
   // positive), elevation e about x (image down positive), u = [sin a cos e, sin e, cos a cos e].
@@ -135,7 +135,7 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
   const core::Time t_ns = x.t_ns;
   const core::Time dt_ns = input.world.timestep_ns();
   const double dt_s = core::TimeToSeconds(dt_ns);
-  const MountMotion now = MountMotionAt(x, T_B_s_, 0.0);
+  const MountMotion now = MountMotionAt(x, T_Bs_, 0.0);
 
   // The odometry frame starts where the camera boots (unless configured).
   const bool first_step = !started_;
@@ -243,7 +243,7 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
   while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
   for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
     const core::Time ts_ns = next_sample_ns_;
-    const MountMotion at = MountMotionAt(x, T_B_s_, core::TimeToSeconds(ts_ns - t_ns));
+    const MountMotion at = MountMotionAt(x, T_Bs_, core::TimeToSeconds(ts_ns - t_ns));
 
     const core::PoseMeasurement truth = TruePose(at, R_WS, p_WS);
     const Eigen::Matrix3d R_Ss = R_WS.transpose() * at.R_Ws;

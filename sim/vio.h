@@ -147,7 +147,7 @@ class VioModel final : public SensorModel {
   std::string name_;
   VioOptions options_;
   core::RandomStream stream_;
-  Eigen::Isometry3d T_B_s_;
+  Eigen::Isometry3d T_Bs_;
   std::vector<Eigen::Vector3d> ray_directions_s_;  ///< unit, feature grid
   core::Time period_ns_;
   core::Time latency_ns_;
