@@ -7,8 +7,10 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <optional>
 #include <string>
@@ -301,120 +303,235 @@ int ValidateCommand(const std::vector<std::string>& paths) {
   return status;
 }
 
-}  // namespace
+// ---- sub-commands ----
+// Each Add*Command declares one sub-command's arguments on `parent` and returns what runs
+// it once parsed; the options live in the returned closure.
 
-int main(int argc, char** argv) {
-  CLI::App app{"tofu: simulation-in-the-loop test harness for multi-sensor state estimation"};
-  app.require_subcommand(1);
+struct Command {
+  CLI::App* app = nullptr;
+  /// Writes outputs: stops cleanly on SIGINT, SIGTERM and SIGHUP (replay/interrupt.h).
+  bool interruptible = false;
+  std::function<int()> run;
+};
 
-  CLI::App* run = app.add_subcommand("run", "Fly a scenario and write its run directory");
-  std::string scenario_path;
-  std::optional<std::string> out_dir;
-  std::optional<uint64_t> seed;
-  bool quiet = false;
-  run->add_option("scenario", scenario_path, "Scenario YAML file")->required();
-  run->add_option("--out", out_dir, "Run directory (default: runs/<scenario name>)");
-  run->add_option("--seed", seed, "Seed overriding the scenario's")
+Command AddRunCommand(CLI::App& parent) {
+  struct Options {
+    std::string scenario_path;
+    std::optional<std::string> out_dir;
+    std::optional<uint64_t> seed;
+    bool quiet = false;
+    bool force = false;
+    std::optional<std::string> mcap;
+  };
+  auto o = std::make_shared<Options>();
+  CLI::App* run = parent.add_subcommand("run", "Fly a scenario and write its run directory");
+  run->add_option("scenario", o->scenario_path, "Scenario YAML file")->required();
+  run->add_option("--out", o->out_dir, "Run directory (default: runs/<scenario name>)");
+  run->add_option("--seed", o->seed, "Seed overriding the scenario's")
       ->check(WholeNumber(0, std::numeric_limits<std::uint64_t>::max()));
-  run->add_flag("--quiet", quiet, "No progress bar and no report");
-  bool force = false;
-  run->add_flag("--force", force,
+  run->add_flag("--quiet", o->quiet, "No progress bar and no report");
+  run->add_flag("--force", o->force,
                 "Replace an earlier run directory at --out (never a directory of other files)");
+  run->add_option("--mcap", o->mcap, "Also write the run as an MCAP file (Foxglove Studio)");
+  return {run, true, [o] {
+            return RunCommand(o->scenario_path, o->out_dir, o->seed, o->quiet, o->force, o->mcap);
+          }};
+}
 
-  std::optional<std::string> run_mcap;
-  run->add_option("--mcap", run_mcap, "Also write the run as an MCAP file (Foxglove Studio)");
+Command AddExportCommand(CLI::App& parent) {
+  struct Options {
+    std::string run_dir;
+    std::string mcap;
+    bool uncompressed = false;
+    bool quiet = false;
+  };
+  auto o = std::make_shared<Options>();
+  CLI::App* cmd =
+      parent.add_subcommand("export", "Write a run directory as one MCAP file (Foxglove Studio)");
+  cmd->add_option("run", o->run_dir, "Run directory")->required()->check(CLI::ExistingDirectory);
+  cmd->add_option("--mcap", o->mcap, "MCAP file to write (replaced atomically)")->required();
+  cmd->add_flag("--uncompressed", o->uncompressed, "Store chunks without zstd");
+  cmd->add_flag("--quiet", o->quiet, "No summary line");
+  cmd->footer("Topics and schemas: docs/MCAP.md. Layout for Foxglove: docs/foxglove_layout.json.");
+  return {cmd, false, [o] {
+            ExportMcap(o->run_dir, o->mcap, !o->uncompressed, o->quiet);
+            return static_cast<int>(tofu::core::kExitOk);
+          }};
+}
 
-  CLI::App* export_cmd =
-      app.add_subcommand("export", "Write a run directory as one MCAP file (Foxglove Studio)");
-  std::string export_run;
-  std::string export_mcap;
-  bool export_uncompressed = false;
-  bool export_quiet = false;
-  export_cmd->add_option("run", export_run, "Run directory")->required()->check(CLI::ExistingDirectory);
-  export_cmd->add_option("--mcap", export_mcap, "MCAP file to write (replaced atomically)")->required();
-  export_cmd->add_flag("--uncompressed", export_uncompressed, "Store chunks without zstd");
-  export_cmd->add_flag("--quiet", export_quiet, "No summary line");
-  export_cmd->footer("Topics and schemas: docs/MCAP.md. Layout for Foxglove: docs/foxglove_layout.json.");
-
-  CLI::App* corpus = app.add_subcommand(
+// `tofu corpus plan|generate|verify`: three commands under one parent.
+std::vector<Command> AddCorpusCommands(CLI::App& parent) {
+  struct Options {
+    std::string spec;
+    std::string out;
+    bool quiet = false;
+    std::optional<std::string> shard;
+    std::optional<std::uint64_t> shard_count;
+  };
+  auto o = std::make_shared<Options>();
+  CLI::App* corpus = parent.add_subcommand(
       "corpus", "Failure corpora: sampled scenarios into labelled HDF5 shards (docs/CORPUS.md)");
   corpus->require_subcommand(1);
-  CLI::App* corpus_plan = corpus->add_subcommand("plan", "Write each episode's scenario and the planned label counts");
-  std::string corpus_spec;
-  std::string corpus_out;
-  bool corpus_quiet = false;
-  corpus_plan->add_option("spec", corpus_spec, "Corpus spec (corpora/*.yaml)")->required();
-  corpus_plan->add_option("--out", corpus_out, "Plan directory")->required();
-  corpus_plan->add_flag("--quiet", corpus_quiet, "No listing");
-  CLI::App* corpus_generate = corpus->add_subcommand(
+  CLI::App* plan =
+      corpus->add_subcommand("plan", "Write each episode's scenario and the planned label counts");
+  plan->add_option("spec", o->spec, "Corpus spec (corpora/*.yaml)")->required();
+  plan->add_option("--out", o->out, "Plan directory")->required();
+  plan->add_flag("--quiet", o->quiet, "No listing");
+  CLI::App* generate = corpus->add_subcommand(
       "generate", "Fly one shard's episodes into <out>/shard_<I>_of_<N>.h5 (resumes a killed shard)");
-  std::optional<std::string> corpus_shard;
-  std::optional<std::uint64_t> corpus_shard_count;
-  corpus_generate->add_option("spec", corpus_spec, "Corpus spec (corpora/*.yaml)")->required();
-  corpus_generate->add_option("--out", corpus_out, "Corpus directory")->required();
-  corpus_generate->add_option("--shard", corpus_shard,
-                              "I/N: this process generates episodes i with i % N == I (default: from "
-                              "SLURM_ARRAY_TASK_ID/COUNT or JOB_COMPLETION_INDEX, else 0/1)");
-  corpus_generate->add_option("--shard-count", corpus_shard_count,
-                              "N, with JOB_COMPLETION_INDEX (a Kubernetes Indexed Job's completions)")
+  generate->add_option("spec", o->spec, "Corpus spec (corpora/*.yaml)")->required();
+  generate->add_option("--out", o->out, "Corpus directory")->required();
+  generate->add_option("--shard", o->shard,
+                       "I/N: this process generates episodes i with i % N == I (default: from "
+                       "SLURM_ARRAY_TASK_ID/COUNT or JOB_COMPLETION_INDEX, else 0/1)");
+  generate->add_option("--shard-count", o->shard_count,
+                       "N, with JOB_COMPLETION_INDEX (a Kubernetes Indexed Job's completions)")
       ->check(WholeNumber(1, 1000000));
-  corpus_generate->add_flag("--quiet", corpus_quiet, "No per-episode lines");
-  CLI::App* corpus_verify = corpus->add_subcommand(
+  generate->add_flag("--quiet", o->quiet, "No per-episode lines");
+  CLI::App* verify = corpus->add_subcommand(
       "verify", "Check a corpus directory; write manifest.csv/.json and CARD.md (exit 1 on a problem)");
-  corpus_verify->add_option("dir", corpus_out, "Corpus directory")->required();
-  corpus_verify->add_flag("--quiet", corpus_quiet, "Only problems");
+  verify->add_option("dir", o->out, "Corpus directory")->required();
+  verify->add_flag("--quiet", o->quiet, "Only problems");
 
-  CLI::App* validate = app.add_subcommand("validate", "Check scenario files without running");
-  std::vector<std::string> validate_paths;
-  validate->add_option("scenarios", validate_paths, "Scenario YAML files")->required();
+  // generate keeps the default signal actions: a killed shard resumes by design.
+  return {
+      {plan, false, [o] { return tofu::corpus::RunCorpusPlan(o->spec, o->out, o->quiet); }},
+      {generate, false,
+       [o] {
+         tofu::corpus::GenerateOptions options;
+         options.spec = o->spec;
+         options.out_dir = o->out;
+         options.shard = tofu::corpus::ResolveShard(o->shard, o->shard_count);
+         options.quiet = o->quiet;
+         std::optional<ProgressBar> bar;
+         if (!o->quiet && ::isatty(STDERR_FILENO)) {
+           bar.emplace("corpus");
+           options.progress = [&bar](std::uint64_t done, std::uint64_t total, double) {
+             (*bar)(static_cast<double>(done) /
+                    static_cast<double>(std::max<std::uint64_t>(total, 1)));
+           };
+         }
+         return tofu::corpus::RunCorpusGenerate(options);
+       }},
+      {verify, false, [o] { return tofu::corpus::RunCorpusVerify(o->out, o->quiet); }},
+  };
+}
 
-  CLI::App* metrics = app.add_subcommand("metrics", "List the metrics expectations can use");
+Command AddValidateCommand(CLI::App& parent) {
+  auto paths = std::make_shared<std::vector<std::string>>();
+  CLI::App* validate = parent.add_subcommand("validate", "Check scenario files without running");
+  validate->add_option("scenarios", *paths, "Scenario YAML files")->required();
+  return {validate, false, [paths] { return ValidateCommand(*paths); }};
+}
 
-  CLI::App* check = app.add_subcommand(
+Command AddMetricsCommand(CLI::App& parent) {
+  CLI::App* metrics = parent.add_subcommand("metrics", "List the metrics expectations can use");
+  return {metrics, false, [] {
+            for (const auto& m : tofu::harness::MetricCatalog()) {
+              fmt::print("{:<36} [{}]{} {}\n", m.name, m.unit, m.windowable ? " (window_s)" : "",
+                         m.description);
+            }
+            return static_cast<int>(tofu::core::kExitOk);
+          }};
+}
+
+// `tofu check ... --report DIR`: the check, then the HTML report of this check's runs.
+int CheckWithReport(const tofu::harness::CheckCommandOptions& options,
+                    const std::string& report_dir) {
+  // A bad --report is bad input found before anything runs, like every other option.
+  tofu::report::CheckReportOutputDirectory(report_dir);
+  const int status = tofu::harness::RunCheckCommand(options);
+  // The report covers this check's scenarios only (the directory may hold older ones).
+  std::vector<std::string> names;
+  try {
+    for (const std::string& path : tofu::harness::ExpandScenarioInputs(
+             options.inputs.empty() ? std::vector<std::string>{"scenarios"} : options.inputs)) {
+      names.push_back(tofu::harness::LoadScenario(path).name);
+    }
+    if (tofu::report::DetectReportInput(options.out_dir) != tofu::report::ReportInputKind::kCheck) {
+      throw tofu::core::InputError({options.out_dir}, "--out", "holds no runs");
+    }
+  } catch (const tofu::core::InputError& e) {
+    // The check refused its input (already said why) and ran nothing: no report.
+    fmt::print(stderr, "tofu: no report: the check ran nothing ({})\n", e.what());
+    return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
+  }
+  try {
+    tofu::replay::SweepStaleStaging(report_dir);
+    const auto page = tofu::report::WriteCheckReport(options.out_dir, report_dir, names);
+    if (!options.quiet) fmt::print("HTML report: {}\n", page.string());
+  } catch (const tofu::core::InputError& e) {
+    fmt::print(stderr, "tofu: error: report: {}\n", e.what());
+    return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
+  }
+  return status;
+}
+
+Command AddCheckCommand(CLI::App& parent) {
+  struct Options {
+    tofu::harness::CheckCommandOptions check;
+    std::optional<std::string> report;
+  };
+  auto o = std::make_shared<Options>();
+  CLI::App* check = parent.add_subcommand(
       "check", "Run scenarios over seeds as CI: table, JUnit XML, exit code");
-  tofu::harness::CheckCommandOptions check_options;
-  check->add_option("scenarios", check_options.inputs,
+  check->add_option("scenarios", o->check.inputs,
                     "Scenario files or directories of *.yaml (default: scenarios)");
-  check->add_option("--junit", check_options.junit_path, "Write JUnit XML to this file");
-  check->add_option("--jobs", check_options.jobs, "Parallel runs (default: number of cores)")
+  check->add_option("--junit", o->check.junit_path, "Write JUnit XML to this file");
+  check->add_option("--jobs", o->check.jobs, "Parallel runs (default: number of cores)")
       ->check(WholeNumber(0, 256));
-  check->add_option("--seeds", check_options.seeds,
+  check->add_option("--seeds", o->check.seeds,
                     "Seeds per scenario: its seed + 0..N-1 (pass_fraction applies)")
       ->capture_default_str()
       ->check(WholeNumber(1, 100000));
-  check->add_option("--out", check_options.out_dir, "Output directory: <out>/<scenario>/seed_<s>")
+  check->add_option("--out", o->check.out_dir, "Output directory: <out>/<scenario>/seed_<s>")
       ->capture_default_str();
-  check->add_flag("--quiet", check_options.quiet, "No progress and no table (failures still)");
-  std::optional<std::string> check_report;
-  check->add_option("--report", check_report,
+  check->add_flag("--quiet", o->check.quiet, "No progress and no table (failures still)");
+  check->add_option("--report", o->report,
                     "After the check, write its HTML report (tofu report) to this directory");
+  return {check, true, [o] {
+            if (o->report) return CheckWithReport(o->check, *o->report);
+            return tofu::harness::RunCheckCommand(o->check);
+          }};
+}
 
-  CLI::App* consistency = app.add_subcommand(
+Command AddConsistencyCommand(CLI::App& parent) {
+  auto o = std::make_shared<tofu::replay::ConsistencyCommandOptions>();
+  CLI::App* consistency = parent.add_subcommand(
       "consistency", "Consistency metric between two velocity CSVs over a sliding window");
-  tofu::replay::ConsistencyCommandOptions cons;
-  consistency->add_option("--metric", cons.metric, "mae, pcc, kl or cm")->required();
-  consistency->add_option("--window", cons.window_s, "Window length [s]")
+  consistency->add_option("--metric", o->metric, "mae, pcc, kl or cm")->required();
+  consistency->add_option("--window", o->window_s, "Window length [s]")
       ->capture_default_str()
       ->check(FiniteIn(0.0, 3600.0, "s", true));
   // Velocity streams come at most at a few kHz: a faster evaluation only repeats windows
   // (1e6 Hz ran for minutes, 1e7 Hz ran out of memory).
-  consistency->add_option("--rate", cons.rate_hz, "Evaluation rate [Hz]")
+  consistency->add_option("--rate", o->rate_hz, "Evaluation rate [Hz]")
       ->capture_default_str()
       ->check(FiniteIn(0.0, 1000.0, "Hz", true));
-  consistency->add_flag("--standardize", cons.standardize, "Pooled standardization per axis");
-  consistency->add_option("--kl-bandwidth-scale", cons.kl_bandwidth_scale,
+  consistency->add_flag("--standardize", o->standardize, "Pooled standardization per axis");
+  consistency->add_option("--kl-bandwidth-scale", o->kl_bandwidth_scale,
                           "KL only: factor on the Silverman bandwidth")
       ->capture_default_str()
       ->check(FiniteIn(0.0, 100.0, "", true));
-  consistency->add_option("A", cons.path_a, "Velocity CSV of stream A")->required();
-  consistency->add_option("B", cons.path_b, "Velocity CSV of stream B")->required();
-  consistency->add_option("--out", cons.out_path, "Output CSV (default: stdout)");
+  consistency->add_option("A", o->path_a, "Velocity CSV of stream A")->required();
+  consistency->add_option("B", o->path_b, "Velocity CSV of stream B")->required();
+  consistency->add_option("--out", o->out_path, "Output CSV (default: stdout)");
   consistency->footer(tofu::replay::kConsistencyHelp);
+  return {consistency, false, [o] {
+            tofu::replay::RunConsistencyCommand(*o);
+            return static_cast<int>(tofu::core::kExitOk);
+          }};
+}
 
-  CLI::App* estimate = app.add_subcommand(
+Command AddEstimateCommand(CLI::App& parent) {
+  struct Options {
+    tofu::replay::EstimateCommandOptions est;
+    std::optional<std::string> out;
+  };
+  auto o = std::make_shared<Options>();
+  tofu::replay::EstimateCommandOptions& est = o->est;
+  CLI::App* estimate = parent.add_subcommand(
       "estimate", "Run the multi-graph estimator on recorded streams (run directory or real log)");
-  tofu::replay::EstimateCommandOptions est;
-  std::optional<std::string> est_out;
   estimate->add_option("log", est.log_dir,
                        "A tofu run directory (sensors/, calibration.yaml) or a real log "
                        "(mav0/imu0/data.csv + *.tum pose streams)")
@@ -422,7 +539,7 @@ int main(int argc, char** argv) {
   estimate->add_option("--method", est.methods,
                        "single:<sensor>, fuse:<a>+<b> or imu_only; repeatable "
                        "(default: single:<s> for every sensor)");
-  estimate->add_option("--out", est_out, "Output directory (default: the log's)");
+  estimate->add_option("--out", o->out, "Output directory (default: the log's)");
   estimate->add_flag("--clean", est.use_clean_streams,
                      "Replay the un-faulted streams (sensors/clean/) of a run directory");
   estimate->add_flag("--quiet", est.quiet, "No progress bar and no table");
@@ -448,10 +565,35 @@ int main(int argc, char** argv) {
       ->check(FiniteIn(0.0, 100.0, "m/s", true));
   estimate->add_option("--position-in-reference", est.between_position_in_reference,
                        "Pose sensors: relative position in the sensor's frame (true/false)");
+  return {estimate, true, [o] {
+            tofu::replay::EstimateCommandOptions& options = o->est;
+            if (o->out) options.out_dir = *o->out;
+            std::optional<ProgressBar> bar;
+            std::string bar_method;
+            const bool draw = !options.quiet && isatty(STDERR_FILENO);
+            // Set even when nothing is drawn: the check point of interruption of the replay.
+            options.progress = [&](const std::string& method, double f) {
+              tofu::replay::ThrowIfInterrupted();
+              if (!draw) return;
+              if (method != bar_method) {
+                bar.emplace("estimate " + method);
+                bar_method = method;
+              }
+              (*bar)(f);
+            };
+            // A tofu run directory's own scenario configures the methods as in its flight.
+            options.read_estimation_config = [](const std::filesystem::path& scenario_yaml) {
+              return tofu::harness::LoadScenario(scenario_yaml.string()).estimation;
+            };
+            return tofu::replay::RunEstimateCommand(options);
+          }};
+}
 
-  CLI::App* render = app.add_subcommand(
+Command AddRenderCommand(CLI::App& parent) {
+  auto o = std::make_shared<tofu::renders::RenderCommandOptions>();
+  tofu::renders::RenderCommandOptions& rend = *o;
+  CLI::App* render = parent.add_subcommand(
       "render", "Render a run off-screen (EGL): its failure events, or one instant");
-  tofu::renders::RenderCommandOptions rend;
   render->add_option("run_dir", rend.run_dir, "A tofu run directory")->required();
   CLI::Option* render_events =
       render->add_flag("--events", rend.events, "Keyframe + clip of every failure event (default)");
@@ -477,142 +619,51 @@ int main(int argc, char** argv) {
   render->add_option("--egl-platform", rend.egl_platform, "auto, surfaceless or device");
   render->add_flag("--quiet", rend.quiet, "No progress and no listing");
   render->footer(tofu::renders::kRenderHelp);
+  return {render, false, [o] {
+            std::optional<ProgressBar> bar;
+            if (!o->quiet && isatty(STDERR_FILENO)) {
+              bar.emplace("render");
+              o->progress = [&bar](double f) { (*bar)(f); };
+            }
+            try {
+              return tofu::renders::RunRenderCommand(*o);
+            } catch (const tofu::renders::RenderUnavailableError& e) {
+              // Not the user's files but the machine: still bad input to fix, not a failed run.
+              fmt::print(stderr, "tofu: error: {}\n", e.what());
+              return static_cast<int>(tofu::core::kExitBadInput);
+            }
+          }};
+}
 
-  CLI::App* report = app.add_subcommand(
+Command AddReportCommand(CLI::App& parent) {
+  struct Options {
+    std::string input;
+    std::string out;
+  };
+  auto o = std::make_shared<Options>();
+  CLI::App* report = parent.add_subcommand(
       "report", "A self-contained HTML report of a run or a check directory");
-  std::string report_input;
-  std::string report_out;
-  report->add_option("input", report_input,
+  report->add_option("input", o->input,
                      "A run directory (tofu run --out) or a check directory (tofu check --out)")
       ->required();
-  report->add_option("--out", report_out,
+  report->add_option("--out", o->out,
                      "Report directory: index.html (+ media/; a check: <scenario>/seed_<s>/ "
                      "pages); new, empty or an earlier report, which is replaced")
       ->required();
+  return {report, true, [o] {
+            // The report directory is staged as <out>.tmp-<pid> too: sweep what killed
+            // reports left.
+            if (!o->out.empty()) tofu::replay::SweepStaleStaging(o->out);
+            const auto page = tofu::report::WriteReport(o->input, o->out);
+            fmt::print("report: {}\n", page.string());
+            return static_cast<int>(tofu::core::kExitOk);
+          }};
+}
 
+// Runs the parsed command, mapping what it throws to an exit code (core::ExitCode).
+int RunMapped(const Command& command) {
   try {
-    app.parse(argc, argv);
-  } catch (const CLI::CallForHelp& e) {
-    return app.exit(e);
-  } catch (const CLI::ParseError& e) {
-    app.exit(e);
-    return tofu::core::kExitBadInput;
-  }
-
-  // The commands that write outputs stop cleanly on SIGINT, SIGTERM and SIGHUP: staging
-  // removed, children stopped, exit 128 + signal (replay/interrupt.h). The others keep
-  // the default action (`tofu corpus generate` resumes a killed shard by design).
-  if (*run || *check || *estimate || *report) tofu::replay::InstallInterruptHandlers();
-
-  try {
-    if (*run) return RunCommand(scenario_path, out_dir, seed, quiet, force, run_mcap);
-    if (*corpus_plan) return tofu::corpus::RunCorpusPlan(corpus_spec, corpus_out, corpus_quiet);
-    if (*corpus_generate) {
-      tofu::corpus::GenerateOptions options;
-      options.spec = corpus_spec;
-      options.out_dir = corpus_out;
-      options.shard = tofu::corpus::ResolveShard(corpus_shard, corpus_shard_count);
-      options.quiet = corpus_quiet;
-      std::optional<ProgressBar> bar;
-      if (!corpus_quiet && ::isatty(STDERR_FILENO)) {
-        bar.emplace("corpus");
-        options.progress = [&bar](std::uint64_t done, std::uint64_t total, double) {
-          (*bar)(static_cast<double>(done) / static_cast<double>(std::max<std::uint64_t>(total, 1)));
-        };
-      }
-      return tofu::corpus::RunCorpusGenerate(options);
-    }
-    if (*corpus_verify) return tofu::corpus::RunCorpusVerify(corpus_out, corpus_quiet);
-    if (*export_cmd) {
-      ExportMcap(export_run, export_mcap, !export_uncompressed, export_quiet);
-      return tofu::core::kExitOk;
-    }
-    if (*validate) return ValidateCommand(validate_paths);
-    if (*check && check_report) {
-      // A bad --report is bad input found before anything runs, like every other option.
-      tofu::report::CheckReportOutputDirectory(*check_report);
-      const int status = tofu::harness::RunCheckCommand(check_options);
-      // The report covers this check's scenarios only (the directory may hold older ones).
-      std::vector<std::string> names;
-      try {
-        for (const std::string& path : tofu::harness::ExpandScenarioInputs(
-                 check_options.inputs.empty() ? std::vector<std::string>{"scenarios"}
-                                              : check_options.inputs)) {
-          names.push_back(tofu::harness::LoadScenario(path).name);
-        }
-        if (tofu::report::DetectReportInput(check_options.out_dir) !=
-            tofu::report::ReportInputKind::kCheck) {
-          throw tofu::core::InputError({check_options.out_dir}, "--out", "holds no runs");
-        }
-      } catch (const tofu::core::InputError& e) {
-        // The check refused its input (already said why) and ran nothing: no report.
-        fmt::print(stderr, "tofu: no report: the check ran nothing ({})\n", e.what());
-        return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
-      }
-      try {
-        tofu::replay::SweepStaleStaging(*check_report);
-        const auto page = tofu::report::WriteCheckReport(check_options.out_dir, *check_report, names);
-        if (!check_options.quiet) fmt::print("HTML report: {}\n", page.string());
-      } catch (const tofu::core::InputError& e) {
-        fmt::print(stderr, "tofu: error: report: {}\n", e.what());
-        return status != tofu::core::kExitOk ? status : tofu::core::kExitBadInput;
-      }
-      return status;
-    }
-    if (*check) return tofu::harness::RunCheckCommand(check_options);
-    if (*consistency) {
-      tofu::replay::RunConsistencyCommand(cons);
-      return tofu::core::kExitOk;
-    }
-    if (*estimate) {
-      if (est_out) est.out_dir = *est_out;
-      std::optional<ProgressBar> bar;
-      std::string bar_method;
-      const bool draw = !est.quiet && isatty(STDERR_FILENO);
-      // Set even when nothing is drawn: the check point of interruption of the replay.
-      est.progress = [&](const std::string& method, double f) {
-        tofu::replay::ThrowIfInterrupted();
-        if (!draw) return;
-        if (method != bar_method) {
-          bar.emplace("estimate " + method);
-          bar_method = method;
-        }
-        (*bar)(f);
-      };
-      // A tofu run directory's own scenario configures the methods as in its flight.
-      est.read_estimation_config = [](const std::filesystem::path& scenario_yaml) {
-        return tofu::harness::LoadScenario(scenario_yaml.string()).estimation;
-      };
-      return tofu::replay::RunEstimateCommand(est);
-    }
-    if (*report) {
-      // The report directory is staged as <out>.tmp-<pid> too: sweep what killed reports left.
-      if (!report_out.empty()) tofu::replay::SweepStaleStaging(report_out);
-      const auto page = tofu::report::WriteReport(report_input, report_out);
-      fmt::print("report: {}\n", page.string());
-      return tofu::core::kExitOk;
-    }
-    if (*render) {
-      std::optional<ProgressBar> bar;
-      if (!rend.quiet && isatty(STDERR_FILENO)) {
-        bar.emplace("render");
-        rend.progress = [&bar](double f) { (*bar)(f); };
-      }
-      try {
-        return tofu::renders::RunRenderCommand(rend);
-      } catch (const tofu::renders::RenderUnavailableError& e) {
-        // Not the user's files but the machine: still bad input to fix, not a failed run.
-        fmt::print(stderr, "tofu: error: {}\n", e.what());
-        return tofu::core::kExitBadInput;
-      }
-    }
-    if (*metrics) {
-      for (const auto& m : tofu::harness::MetricCatalog()) {
-        fmt::print("{:<36} [{}]{} {}\n", m.name, m.unit, m.windowable ? " (window_s)" : "",
-                   m.description);
-      }
-      return tofu::core::kExitOk;
-    }
+    return command.run();
   } catch (const tofu::replay::Interrupted& e) {
     // Unwinding removed the staging directories and waited for the children.
     fmt::print(stderr, "tofu: interrupted by {}: stopped, temporary files removed\n",
@@ -631,6 +682,43 @@ int main(int argc, char** argv) {
   } catch (const std::exception& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return tofu::core::kExitSimulationError;
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"tofu: simulation-in-the-loop test harness for multi-sensor state estimation"};
+  app.require_subcommand(1);
+  // In the order of `tofu --help`.
+  std::vector<Command> commands;
+  commands.push_back(AddRunCommand(app));
+  commands.push_back(AddExportCommand(app));
+  for (Command& c : AddCorpusCommands(app)) commands.push_back(std::move(c));
+  commands.push_back(AddValidateCommand(app));
+  commands.push_back(AddMetricsCommand(app));
+  commands.push_back(AddCheckCommand(app));
+  commands.push_back(AddConsistencyCommand(app));
+  commands.push_back(AddEstimateCommand(app));
+  commands.push_back(AddRenderCommand(app));
+  commands.push_back(AddReportCommand(app));
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    app.exit(e);
+    return tofu::core::kExitBadInput;
+  }
+
+  for (const Command& command : commands) {
+    if (!command.app->parsed()) continue;
+    // The commands that write outputs stop cleanly on SIGINT, SIGTERM and SIGHUP: staging
+    // removed, children stopped, exit 128 + signal (replay/interrupt.h). The others keep
+    // the default action (`tofu corpus generate` resumes a killed shard by design).
+    if (command.interruptible) tofu::replay::InstallInterruptHandlers();
+    return RunMapped(command);
   }
   return tofu::core::kExitOk;
 }
