@@ -12,6 +12,7 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "replay/csv_reader.h"
+#include "replay/yaml_fields.h"
 
 namespace tofu::renders {
 namespace {
@@ -19,34 +20,6 @@ namespace {
 namespace fs = std::filesystem;
 using core::InputError;
 using replay::CsvTable;
-
-// ---- YAML ----
-
-YAML::Node LoadYaml(const fs::path& path) {
-  if (!fs::is_regular_file(path)) {
-    throw InputError({path.string()}, "", "missing: expected the file of a tofu run directory");
-  }
-  try {
-    return YAML::LoadFile(path.string());
-  } catch (const YAML::Exception& e) {
-    throw InputError({path.string(), e.mark.line + 1, e.mark.column + 1}, "", e.msg);
-  }
-}
-
-[[noreturn]] void FailYaml(const fs::path& path, const YAML::Node& node, const std::string& key,
-                           const std::string& message) {
-  const YAML::Mark mark = node.Mark();
-  throw InputError({path.string(), mark.line >= 0 ? mark.line + 1 : 0,
-                    mark.column >= 0 ? mark.column + 1 : 0},
-                   key, message);
-}
-
-std::string YamlString(const fs::path& path, const YAML::Node& node, const std::string& key) {
-  if (!node || !node.IsScalar()) {
-    FailYaml(path, node ? node : YAML::Node(), key, "expected a string");
-  }
-  return node.as<std::string>();
-}
 
 // ---- text ----
 
@@ -87,11 +60,18 @@ Eigen::Quaterniond ReadQuaternion(const CsvTable& csv, size_t row, const int (&c
 
 void ReadScenario(RunData& run) {
   const fs::path path = run.directory / "scenario.yaml";
-  const YAML::Node root = LoadYaml(path);
-  if (!root.IsMap()) FailYaml(path, root, "", "expected a mapping (the resolved scenario)");
-  run.scenario_name = YamlString(path, root["name"], "name");
-  run.world = YamlString(path, root["world"], "world");
-  if (root["robot"]) run.robot = YamlString(path, root["robot"], "robot");
+  if (!fs::is_regular_file(path)) {
+    throw InputError({path.string()}, "", "missing: expected the file of a tofu run directory");
+  }
+  const std::string file = path.string();
+  const YAML::Node root = replay::LoadYamlText(
+      core::ReadWholeFile(path, "scenario.yaml", core::kMaxConfigFileBytes), file);
+  if (!root.IsMap()) {
+    throw replay::YamlError(file, root.Mark(), "", "expected a mapping (the resolved scenario)");
+  }
+  run.scenario_name = replay::YamlString(root["name"], file, "name");
+  run.world = replay::YamlString(root["world"], file, "world");
+  if (root["robot"]) run.robot = replay::YamlString(root["robot"], file, "robot");
 }
 
 void ReadGroundTruth(RunData& run) {

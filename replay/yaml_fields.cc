@@ -22,6 +22,13 @@ YAML::Node LoadYamlText(const std::string& text, const std::string& file) {
   }
 }
 
+std::string YamlString(const YAML::Node& node, const std::string& file, const std::string& key) {
+  if (!node || !node.IsScalar()) {
+    throw YamlError(file, node ? node.Mark() : YAML::Mark::null_mark(), key, "expected a string");
+  }
+  return node.Scalar();
+}
+
 double YamlNumber(const YAML::Node& node, const std::string& file, const std::string& key) {
   if (!node.IsScalar()) throw YamlError(file, node.Mark(), key, "expected a number");
   try {

@@ -19,6 +19,9 @@ core::InputError YamlError(const std::string& file, const YAML::Mark& mark, cons
 /// A YAML text's root; a syntax error is an InputError at its line and column.
 YAML::Node LoadYamlText(const std::string& text, const std::string& file);
 
+/// A scalar's text (a missing node or a map or list is an InputError: "expected a string").
+std::string YamlString(const YAML::Node& node, const std::string& file, const std::string& key);
+
 /// A scalar that parses as a number (not necessarily finite).
 double YamlNumber(const YAML::Node& node, const std::string& file, const std::string& key);
 
