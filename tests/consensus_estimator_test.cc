@@ -30,6 +30,7 @@
 #include "replay/estimation_config.h"
 #include "replay/recorded_log.h"
 #include "replay/replay.h"
+#include "tests/broken_options_test_support.h"
 
 namespace tofu {
 namespace {
@@ -332,8 +333,8 @@ TEST(ConsensusEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
   using Options = estimator::ConsensusEstimatorOptions;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
-  std::vector<std::pair<std::string, std::function<void(Options&)>>> broken;
-  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  test::BrokenOptions<Options> broken;
+  const auto add = [&](std::string field, auto set) { broken.Add(std::move(field), set); };
   // The nested options: their own limits, under the field's path.
   add("selection.threshold", [nan](Options& o) { o.selection.threshold = nan; });
   add("selection.min_dwell_ns", [](Options& o) { o.selection.min_dwell_ns = -1; });
@@ -356,19 +357,15 @@ TEST(ConsensusEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
   estimator::SensorSpec vio, lio;
   vio.name = "vio";
   lio.name = "lio";
-  for (const auto& [field, set] : broken) {
-    Options options;
-    set(options);
-    std::string why;
-    EXPECT_FALSE(options.IsValid(&why)) << field;
-    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+  broken.ExpectEachRejected([&](const std::string& field, const Options& options,
+                                 [[maybe_unused]] const std::string& why) {
     try {
       estimator::ConsensusEstimator consensus("imu", {vio, lio}, {}, options);
       ADD_FAILURE() << field << ": expected std::invalid_argument";
     } catch (const std::invalid_argument& e) {
       EXPECT_EQ(std::string(e.what()), "ConsensusEstimatorOptions: " + why);
     }
-  }
+  });
   // Boundaries that are allowed; and the estimator's own options are checked too.
   Options options;
   options.evaluation_margin_ns = 0;

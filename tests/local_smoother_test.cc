@@ -38,6 +38,7 @@
 
 #include "core/lie.h"
 #include "core/time.h"
+#include "tests/broken_options_test_support.h"
 
 namespace tofu::estimator {
 namespace {
@@ -875,8 +876,8 @@ TEST(LocalSmootherOptions, DefaultsAndTheValuesInUseAreValid) {
 TEST(LocalSmootherOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
-  std::vector<std::pair<std::string, std::function<void(LocalSmootherOptions&)>>> broken;
-  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  test::BrokenOptions<LocalSmootherOptions> broken;
+  const auto add = [&](std::string field, auto set) { broken.Add(std::move(field), set); };
   // Positive and finite.
   const std::pair<const char*, double LocalSmootherOptions::*> positive[] = {
       {"gravity_mps2", &LocalSmootherOptions::gravity_mps2},
@@ -884,11 +885,7 @@ TEST(LocalSmootherOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
       {"max_speed_mps", &LocalSmootherOptions::max_speed_mps},
       {"max_accel_bias_mps2", &LocalSmootherOptions::max_accel_bias_mps2},
       {"max_gyro_bias_radps", &LocalSmootherOptions::max_gyro_bias_radps}};
-  for (const auto& [field, member] : positive) {
-    for (const double bad : {0.0, -1.0, nan, inf}) {
-      add(field, [member = member, bad](LocalSmootherOptions& o) { o.*member = bad; });
-    }
-  }
+  for (const auto& [field, member] : positive) broken.AddNotPositiveFinite(field, member);
   const std::pair<const char*, double ImuNoiseParams::*> densities[] = {
       {"imu_noise.gyro_noise_density_radps_per_sqrthz",
        &ImuNoiseParams::gyro_noise_density_radps_per_sqrthz},
@@ -923,14 +920,10 @@ TEST(LocalSmootherOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) {
   add("min_imu_history_ns", [](LocalSmootherOptions& o) { o.min_imu_history_ns = -1; });
   add("max_iterations", [](LocalSmootherOptions& o) { o.max_iterations = 0; });
 
-  for (const auto& [field, set] : broken) {
-    LocalSmootherOptions options;
-    set(options);
-    std::string why;
-    EXPECT_FALSE(options.IsValid(&why)) << field;
-    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+  broken.ExpectEachRejected([&](const std::string& field, const LocalSmootherOptions& options,
+                                 [[maybe_unused]] const std::string& why) {
     EXPECT_THROW(LocalSmoother{options}, std::invalid_argument) << field;
-  }
+  });
   LocalSmootherOptions options;
   options.window_ns = -1;
   try {

@@ -25,6 +25,7 @@
 #include "replay/recorded_log.h"
 #include "replay/replay.h"
 #include "replay/trajectory_metrics.h"
+#include "tests/broken_options_test_support.h"
 
 namespace tofu {
 namespace {
@@ -310,8 +311,8 @@ TEST(MultiGraphEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) 
   using Options = estimator::MultiGraphEstimatorOptions;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
-  std::vector<std::pair<std::string, std::function<void(Options&)>>> broken;
-  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  test::BrokenOptions<Options> broken;
+  const auto add = [&](std::string field, auto set) { broken.Add(std::move(field), set); };
   // The nested options: their own limits, under the field's path.
   add("local.window_ns", [](Options& o) { o.local.window_ns = 0; });
   add("local.imu_noise.accel_random_walk_mps3_per_sqrthz",
@@ -335,11 +336,7 @@ TEST(MultiGraphEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) 
       {"static_max_accel_std_mps2", &Options::static_max_accel_std_mps2},
       {"max_alignment_rotation_std_rad", &Options::max_alignment_rotation_std_rad},
       {"max_alignment_rms_m", &Options::max_alignment_rms_m}};
-  for (const auto& [field, member] : positive) {
-    for (const double bad : {0.0, -1.0, nan, inf}) {
-      add(field, [member = member, bad](Options& o) { o.*member = bad; });
-    }
-  }
+  for (const auto& [field, member] : positive) broken.AddNotPositiveFinite(field, member);
   for (const double bad : {-1e-3, nan, inf}) {
     add("alignment_local_position_std_m",
         [bad](Options& o) { o.alignment_local_position_std_m = bad; });
@@ -366,15 +363,11 @@ TEST(MultiGraphEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) 
 
   estimator::SensorSpec vio;
   vio.name = "vio";
-  for (const auto& [field, set] : broken) {
-    Options options;
-    set(options);
-    std::string why;
-    EXPECT_FALSE(options.IsValid(&why)) << field;
-    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+  broken.ExpectEachRejected([&](const std::string& field, const Options& options,
+                                 [[maybe_unused]] const std::string& why) {
     EXPECT_THROW(estimator::MultiGraphEstimator("imu", {vio}, options), std::invalid_argument)
         << field;
-  }
+  });
   Options options;
   options.local.window_ns = 0;
   try {

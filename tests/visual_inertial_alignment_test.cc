@@ -21,6 +21,7 @@
 #include "core/time.h"
 #include "estimator/imu_preintegration.h"
 #include "estimator/visual_inertial_alignment.h"
+#include "tests/broken_options_test_support.h"
 
 namespace tofu::estimator {
 namespace {
@@ -239,8 +240,8 @@ TEST(VisualInertialAlignmentOptions, EachBrokenLimitIsNamed) {
   using Options = VisualInertialAlignmentOptions;
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
-  std::vector<std::pair<std::string, std::function<void(Options&)>>> broken;
-  const auto add = [&](std::string field, auto set) { broken.emplace_back(std::move(field), set); };
+  test::BrokenOptions<Options> broken;
+  const auto add = [&](std::string field, auto set) { broken.Add(std::move(field), set); };
   const std::pair<const char*, double Options::*> positive[] = {
       {"gravity_mps2", &Options::gravity_mps2},
       {"max_gravity_direction_std_rad", &Options::max_gravity_direction_std_rad},
@@ -248,11 +249,7 @@ TEST(VisualInertialAlignmentOptions, EachBrokenLimitIsNamed) {
       {"accel_bias_prior_std_mps2", &Options::accel_bias_prior_std_mps2},
       {"nominal_relative_position_std_m", &Options::nominal_relative_position_std_m},
       {"outlier_sigmas", &Options::outlier_sigmas}};
-  for (const auto& [field, member] : positive) {
-    for (const double bad : {0.0, -1.0, nan, inf}) {
-      add(field, [member = member, bad](Options& o) { o.*member = bad; });
-    }
-  }
+  for (const auto& [field, member] : positive) broken.AddNotPositiveFinite(field, member);
   for (const double bad : {-1e-3, nan, inf}) {
     add("min_window_s", [bad](Options& o) { o.min_window_s = bad; });
   }
@@ -264,13 +261,7 @@ TEST(VisualInertialAlignmentOptions, EachBrokenLimitIsNamed) {
   // Without a refinement there is no constrained solution to read the result from.
   add("gravity_refinement_iterations", [](Options& o) { o.gravity_refinement_iterations = 0; });
 
-  for (const auto& [field, set] : broken) {
-    Options options;
-    set(options);
-    std::string why;
-    EXPECT_FALSE(options.IsValid(&why)) << field;
-    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
-  }
+  broken.ExpectEachRejected();
 }
 
 // Without the check, 0 refinement iterations dereferenced an empty solution (UB) in a
