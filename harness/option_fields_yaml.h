@@ -85,4 +85,13 @@ void EmitOptionFields(YAML::Emitter& out, std::span<const core::OptionField<Opti
 /// has the key, else at the map itself.
 [[noreturn]] void FailInvalidOptions(YamlMap& map, const std::string& why);
 
+/// Ends the reading of an options map: unknown keys refused (YamlMap::Finish), then the
+/// struct's own IsValid, whose verdict is reported at the offending key.
+template <typename Options>
+void FinishOptionsMap(YamlMap& map, const Options& options) {
+  map.Finish();
+  std::string why;
+  if (!options.IsValid(&why)) FailInvalidOptions(map, why);
+}
+
 }  // namespace tofu::harness::internal

@@ -37,7 +37,7 @@ using replay::EstimationConfig;
 namespace {
 
 using internal::EmitOptionFields;
-using internal::FailInvalidOptions;
+using internal::FinishOptionsMap;
 using internal::FormatDouble;
 using internal::NumberRule;
 using internal::OptionKeys;
@@ -316,9 +316,7 @@ sim::ControllerOptions ReadController(const YamlValue& value, double physics_rat
   }
   sim::ControllerOptions controller;
   ReadOptionFields(map, fields, &controller);
-  map.Finish();
-  std::string why;
-  if (!controller.IsValid(&why)) FailInvalidOptions(map, why);
+  FinishOptionsMap(map, controller);
   return controller;
 }
 
@@ -327,9 +325,7 @@ sim::WindOptions ReadWind(const YamlValue& value) {
   YamlMap map = value.Map(OptionKeys(fields));
   sim::WindOptions wind;
   ReadOptionFields(map, fields, &wind);
-  map.Finish();
-  std::string why;
-  if (!wind.IsValid(&why)) FailInvalidOptions(map, why);
+  FinishOptionsMap(map, wind);
   return wind;
 }
 

@@ -39,13 +39,11 @@ Options ReadSensorOptions(const YamlValue& value) {
       if (const auto fix = map.Optional(key)) {
         YamlMap fix_map = fix->Map(OptionKeys(fix_fields));
         ReadOptionFields(fix_map, fix_fields, &GnssFix(o, key));
-        fix_map.Finish();
+        FinishOptionsMap(fix_map, GnssFix(o, key));
       }
     }
   }
-  map.Finish();
-  std::string why;
-  if (!o.IsValid(&why)) FailInvalidOptions(map, why);
+  FinishOptionsMap(map, o);
   return o;
 }
 
