@@ -81,7 +81,16 @@ void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
     }
     return;
   }
-  if (fs::exists(dir) && !fs::is_empty(dir)) {
+  // The shards of one array job start together: another may be writing corpus.yaml right
+  // now (its corpus.yaml.partial<pid>, WriteAtomically), which is no foreign content.
+  const std::string spec_partial = std::string(kSpecFile) + ".partial";
+  const auto holds_foreign_files = [&] {
+    for (const fs::directory_entry& entry : fs::directory_iterator(dir)) {
+      if (!entry.path().filename().string().starts_with(spec_partial)) return true;
+    }
+    return false;
+  };
+  if (fs::exists(dir) && holds_foreign_files()) {
     throw core::InputError({dir.string()}, "--out",
                            "is not empty and not a corpus directory (no corpus.yaml): refused, untouched");
   }
