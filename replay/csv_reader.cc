@@ -15,6 +15,8 @@ namespace {
 
 using core::InputError;
 
+constexpr std::string_view kByteOrderMark = "\xEF\xBB\xBF";
+
 bool IsBlank(char c) { return c == ' ' || c == '\t'; }
 
 std::string_view Trim(std::string_view s) {
@@ -87,17 +89,34 @@ CsvReader::CsvReader(const std::filesystem::path& path, std::string expected_hea
                      CsvOptions options)
     : name_(path.string()),
       expected_header_(std::move(expected_header)),
-      options_(options),
-      reader_(path) {
+      options_(std::move(options)) {
+  file_.emplace(path);
+  ReadHeader();
+}
+
+CsvReader::CsvReader(const CsvText& text, std::string expected_header, CsvOptions options)
+    : name_(text.name),
+      expected_header_(std::move(expected_header)),
+      options_(std::move(options)),
+      text_(text.text) {
+  ReadHeader();
+}
+
+void CsvReader::ReadHeader() {
+  if (!options_.columns.empty()) {
+    for (const std::string& column : options_.columns) {
+      raw_names_.push_back(column);
+      keys_.emplace_back(CsvColumnKey(column));
+    }
+    return;
+  }
   std::string_view line;
   bool had_newline = false;
   const bool any = NextLine(line, &had_newline);
-  // A UTF-8 byte-order mark (spreadsheet exports) is not part of the header.
-  if (any && line.starts_with("\xEF\xBB\xBF")) line.remove_prefix(3);
   if (!any || Trim(line).empty()) {
     // Nothing but a byte-order mark is an empty file too.
     const bool empty =
-        !any || (!had_newline && (line_text_.empty() || line_text_ == "\xEF\xBB\xBF"));
+        !any || (!had_newline && (line_text_.empty() || line_text_ == kByteOrderMark));
     throw InputError({name_, 1, 0}, "",
                      fmt::format("missing header: {}, expected a header line like '{}'",
                                  empty ? "the file is empty" : "line 1 is blank",
@@ -107,6 +126,10 @@ CsvReader::CsvReader(const std::filesystem::path& path, std::string expected_hea
   for (const Field& f : fields_) {
     raw_names_.emplace_back(Trim(f.text));
     keys_.emplace_back(CsvColumnKey(f.text));
+  }
+  if (options_.header_must_match) {
+    CheckHeaderMatches();
+    return;
   }
   const bool has_timestamp = std::find(keys_.begin(), keys_.end(), "timestamp") != keys_.end();
   if (Trim(line).front() != '#' && !has_timestamp) {
@@ -123,7 +146,44 @@ CsvReader::CsvReader(const std::filesystem::path& path, std::string expected_hea
   }
 }
 
-std::size_t CsvReader::RowsUpperBound() { return reader_.CountRemainingLines() + 1; }
+void CsvReader::CheckHeaderMatches() const {
+  std::vector<std::string_view> expected;
+  for (size_t start = 0;;) {
+    const size_t comma = expected_header_.find(',', start);
+    expected.push_back(Trim(std::string_view(expected_header_).substr(
+        start, comma == std::string::npos ? std::string::npos : comma - start)));
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  // The EuRoC/ASL files spell the first column without its unit (always ns there).
+  constexpr std::string_view kEurocTimestamp = "#timestamp";
+  const std::string what =
+      fmt::format("expected the header '{}' (the EuRoC spelling '{}' is accepted for the "
+                  "first column)",
+                  expected_header_, kEurocTimestamp);
+  if (raw_names_.size() != expected.size()) {
+    throw InputError({name_, 1, 1}, "",
+                     fmt::format("{}, got {} ({} comma-separated columns, not {})", what,
+                                 CsvQuoted(line_text_), raw_names_.size(), expected.size()));
+  }
+  for (size_t i = 0; i < expected.size(); ++i) {
+    const bool euroc_timestamp = i == 0 && raw_names_[i] == kEurocTimestamp &&
+                                 expected[i].starts_with(kEurocTimestamp);
+    if (raw_names_[i] != expected[i] && !euroc_timestamp) {
+      throw InputError({name_, 1, fields_[i].column}, "",
+                       fmt::format("{}: column {} should be '{}', got {}", what, i + 1,
+                                   expected[i], CsvQuoted(raw_names_[i])));
+    }
+  }
+}
+
+std::size_t CsvReader::RowsUpperBound() {
+  if (file_) return file_->CountRemainingLines() + 1;
+  return static_cast<std::size_t>(std::count(text_.begin() + static_cast<std::ptrdiff_t>(
+                                                 std::min(text_pos_, text_.size())),
+                                             text_.end(), '\n')) +
+         1;
+}
 
 int CsvReader::Find(std::string_view key) const { return FindKey(keys_, key); }
 
@@ -142,7 +202,17 @@ int CsvReader::Require(std::string_view key, std::string_view what) const {
 bool CsvReader::Next() {
   std::string_view line;
   while (NextLine(line)) {
-    if (Trim(line).empty()) continue;
+    if (Trim(line).empty()) {
+      if (options_.blank_lines_only_at_end && first_blank_line_ == 0) first_blank_line_ = line_;
+      continue;
+    }
+    if (IsComment(line)) continue;
+    if (first_blank_line_ != 0) {
+      throw InputError({name_, first_blank_line_, 0}, "",
+                       fmt::format("blank line inside the data (line {} has another row); "
+                                   "blank lines are allowed only at the end of the file",
+                                   line_));
+    }
     Split(line);
     if (options_.last_column_takes_rest && fields_.size() > keys_.size()) {
       const size_t offset = static_cast<size_t>(fields_[keys_.size() - 1].column - 1);
@@ -153,8 +223,10 @@ bool CsvReader::Next() {
       const size_t n = fields_.size();
       throw InputError(
           {name_, line_, 0}, "",
-          fmt::format("expected {} comma-separated fields as in the header, got {} ({})",
-                      keys_.size(), n,
+          fmt::format("expected {} {}-separated fields as in the {}, got {} ({})",
+                      keys_.size(), options_.whitespace_separated ? "whitespace" : "comma",
+                      options_.columns.empty() ? "header" : fmt::format("form '{}'", expected_header_),
+                      n,
                       n < keys_.size()
                           ? fmt::format("column {} '{}' and later are missing", n + 1,
                                         raw_names_[n])
@@ -188,15 +260,40 @@ InputError CsvReader::Error(int column, const std::string& message) const {
 }
 
 bool CsvReader::NextLine(std::string_view& line, bool* had_newline) {
-  if (!reader_.Next(line_text_, had_newline)) return false;
+  if (file_) {
+    if (!file_->Next(line_text_, had_newline)) return false;
+  } else {
+    if (text_pos_ >= text_.size()) return false;
+    const size_t end = std::min(text_.find('\n', text_pos_), text_.size());
+    line_text_.assign(text_.substr(text_pos_, end - text_pos_));
+    if (had_newline != nullptr) *had_newline = end < text_.size();
+    text_pos_ = end + 1;
+  }
   line = line_text_;
   if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
   ++line_;
+  // A UTF-8 byte-order mark (spreadsheet exports) is not part of the first line.
+  if (line_ == 1 && line.starts_with(kByteOrderMark)) line.remove_prefix(kByteOrderMark.size());
   return true;
+}
+
+bool CsvReader::IsComment(std::string_view line) const {
+  line = Trim(line);
+  return options_.whitespace_separated && !line.empty() && line.front() == '#';
 }
 
 void CsvReader::Split(std::string_view line) {
   fields_.clear();
+  if (options_.whitespace_separated) {
+    const auto blank = [](char c) { return IsBlank(c) || c == '\r'; };
+    for (size_t k = 0;;) {
+      while (k < line.size() && blank(line[k])) ++k;
+      if (k >= line.size()) return;
+      const size_t start = k;
+      while (k < line.size() && !blank(line[k])) ++k;
+      fields_.push_back({line.substr(start, k - start), static_cast<int>(start) + 1});
+    }
+  }
   size_t start = 0;
   while (true) {
     const size_t comma = line.find(',', start);
@@ -212,7 +309,7 @@ void CsvReader::Split(std::string_view line) {
 CsvTable::CsvTable(const std::filesystem::path& path, std::string expected_header,
                    CsvOptions options)
     : file_(path.string()), expected_header_(expected_header) {
-  CsvReader reader(path, std::move(expected_header), options);
+  CsvReader reader(path, std::move(expected_header), std::move(options));
   keys_ = reader.keys();
   raw_names_ = reader.header_fields();
   const int columns = static_cast<int>(keys_.size());

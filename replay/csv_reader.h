@@ -7,6 +7,11 @@
 // CR before the newline and a UTF-8 byte-order mark are tolerated, spaces and tabs around
 // a field are not part of it.
 //
+// The same reader takes the two neighbours of that form (CsvOptions): a velocity CSV of
+// `tofu consistency` (a fixed header, no blank line inside the data) and a TUM trajectory
+// ("t x y z qx qy qz qw": no header line, fields separated by spaces or tabs, '#' comment
+// lines).
+//
 // Two ways to visit the rows: CsvReader streams them (an hour of IMU is 250 MB of text,
 // never held whole); CsvTable holds the rows of a small file (summaries, decisions,
 // estimates drawn by the renderer and the reports) for access by index. Both parse and
@@ -15,6 +20,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -34,6 +40,25 @@ struct CsvOptions {
   /// A row with more fields than the header joins the surplus into its last column (free
   /// text, such as a decision's reason, may contain commas).
   bool last_column_takes_rest = false;
+  /// The header must name exactly the columns of the expected header, in order (spaces
+  /// around a field aside; the EuRoC spelling '#timestamp', without its unit, is accepted
+  /// for a first column '#timestamp [ns]'). Otherwise columns are found by key.
+  bool header_must_match = false;
+  /// A blank line may be followed only by blank lines: one inside the data is an error (a
+  /// file cut and pasted together), not skipped.
+  bool blank_lines_only_at_end = false;
+  /// A file without a header line: these are its columns, as messages name them ("x [m]").
+  /// The 'timestamp' column is then not required.
+  std::vector<std::string> columns = {};
+  /// Fields are separated by runs of spaces and tabs instead of commas (TUM), and a line
+  /// whose first field starts with '#' is a comment.
+  bool whitespace_separated = false;
+};
+
+/// Text to read as a file (a fuzzer's input); `name` names it in messages.
+struct CsvText {
+  std::string_view text;
+  std::string name;
 };
 
 class CsvReader {
@@ -43,6 +68,8 @@ class CsvReader {
   /// `expected_header` is quoted in the messages as the form the file should have.
   CsvReader(const std::filesystem::path& path, std::string expected_header,
             CsvOptions options = {});
+  /// The same over text held in memory (which must outlive the reader).
+  CsvReader(const CsvText& text, std::string expected_header, CsvOptions options = {});
   CsvReader(const CsvReader&) = delete;
   CsvReader& operator=(const CsvReader&) = delete;
 
@@ -82,18 +109,25 @@ class CsvReader {
     std::string_view text;
     int column = 0;  // 1-based character column in the line
   };
+  void ReadHeader();
+  void CheckHeaderMatches() const;
   bool NextLine(std::string_view& line, bool* had_newline = nullptr);
+  bool IsComment(std::string_view line) const;
   void Split(std::string_view line);
 
   std::string name_;
   std::string expected_header_;
   CsvOptions options_;
-  core::LineReader reader_;
+  // The source: a file read line by line, or text in memory from text_pos_ on.
+  std::optional<core::LineReader> file_;
+  std::string_view text_;
+  std::size_t text_pos_ = 0;
   std::string line_text_;
   std::vector<std::string> raw_names_;
   std::vector<std::string> keys_;
   std::vector<Field> fields_;
   int line_ = 0;
+  int first_blank_line_ = 0;  // blank_lines_only_at_end: the first blank line after a row
 };
 
 /// The rows of a small file, held for access by index; read and checked by CsvReader.

@@ -31,31 +31,9 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 // ---- TUM text ----
 
-constexpr int kTumFields = 8;
-constexpr std::array<std::string_view, kTumFields> kTumColumns = {
-    "t [s]", "x [m]", "y [m]", "z [m]", "qx", "qy", "qz", "qw"};
-
-bool IsBlank(char c) { return c == ' ' || c == '\t' || c == '\r'; }
-
-double ParseTumNumber(std::string_view field, const std::string& file, int line, int column,
-                      int index) {
-  double value = 0.0;
-  const char* first = field.data();
-  const char* last = first + field.size();
-  if (first != last && *first == '+') ++first;  // from_chars rejects a leading '+'
-  const auto [end, ec] = std::from_chars(first, last, value);
-  if (ec == std::errc::result_out_of_range) {
-    throw InputError({file, line, column}, "",
-                     fmt::format("column {} ({}): {} is out of the range of a double", index + 1,
-                                 kTumColumns[index], CsvQuoted(field)));
-  }
-  if (ec != std::errc() || end != last) {
-    throw InputError({file, line, column}, "",
-                     fmt::format("column {} ({}): expected a number, got {}", index + 1,
-                                 kTumColumns[index], CsvQuoted(field)));
-  }
-  return value;
-}
+// The columns of a TUM line, as messages name them.
+const std::vector<std::string> kTumColumns = {"t [s]", "x [m]", "y [m]",  "z [m]",
+                                              "qx",    "qy",    "qz",     "qw"};
 
 // ---- evaluation helpers ----
 
@@ -268,64 +246,21 @@ std::string FormatNanosecondsAsSeconds(Time t_ns) {
 }
 
 std::vector<PoseSample> ReadTumTrajectory(const fs::path& file) {
-  const std::string name = file.string();
-  const std::string text =
-      core::ReadWholeFile(file, "TUM trajectory ('t[s] x y z qx qy qz qw' per line)");
+  CsvReader reader(file, "t[s] x y z qx qy qz qw per line",
+                   CsvOptions{.columns = kTumColumns, .whitespace_separated = true});
   std::vector<PoseSample> poses;
-  poses.reserve(static_cast<size_t>(std::count(text.begin(), text.end(), '\n')) + 1);
-
-  std::array<std::string_view, kTumFields> fields;
-  std::array<int, kTumFields> columns{};
-  // A UTF-8 byte-order mark (spreadsheet exports) is not part of the first line.
-  size_t pos = text.compare(0, 3, "\xEF\xBB\xBF") == 0 ? 3 : 0;
-  int line_number = 0;
-  while (pos < text.size()) {
-    const size_t end = std::min(text.find('\n', pos), text.size());
-    const std::string_view line(text.data() + pos, end - pos);
-    pos = end + 1;
-    ++line_number;
-
-    // Whitespace-separated fields; '#' starts a comment line.
-    int count = 0;
-    size_t k = 0;
-    while (k < line.size()) {
-      while (k < line.size() && IsBlank(line[k])) ++k;
-      if (k >= line.size()) break;
-      if (count == 0 && line[k] == '#') break;
-      const size_t start = k;
-      while (k < line.size() && !IsBlank(line[k])) ++k;
-      if (count < kTumFields) {
-        fields[count] = line.substr(start, k - start);
-        columns[count] = static_cast<int>(start) + 1;
-      }
-      ++count;
-    }
-    if (count == 0) continue;  // blank or comment
-    if (count != kTumFields) {
-      throw InputError(
-          {name, line_number, 0}, "",
-          fmt::format("expected {} whitespace-separated fields 't[s] x y z qx qy qz qw', got "
-                      "{}{}",
-                      kTumFields, count,
-                      count < kTumFields
-                          ? fmt::format(" (column {} '{}' is missing)", count + 1,
-                                        kTumColumns[count])
-                          : std::string(" (extra fields after column 8 'qw')")));
-    }
+  poses.reserve(reader.RowsUpperBound());
+  while (reader.Next()) {
     PoseSample s;
-    const std::optional<Time> t = ParseSecondsAsNanoseconds(fields[0]);
+    const std::optional<Time> t = ParseSecondsAsNanoseconds(reader.Text(0));
     if (!t) {
-      throw InputError({name, line_number, columns[0]}, "",
-                       fmt::format("column 1 ({}): expected a time in seconds (decimal or "
-                                   "scientific notation, finite, within the int64 ns range), "
-                                   "got {}",
-                                   kTumColumns[0], CsvQuoted(fields[0])));
+      throw reader.Error(0, fmt::format("expected a time in seconds (decimal or scientific "
+                                        "notation, finite, within the int64 ns range), got {}",
+                                        CsvQuoted(reader.Text(0))));
     }
     s.t_ns = *t;
     std::array<double, 7> v{};
-    for (int f = 1; f < kTumFields; ++f) {
-      v[f - 1] = ParseTumNumber(fields[f], name, line_number, columns[f], f);
-    }
+    for (int f = 1; f < static_cast<int>(kTumColumns.size()); ++f) v[f - 1] = reader.Number(f);
     s.p = Eigen::Vector3d(v[0], v[1], v[2]);
     s.q = Eigen::Quaterniond(v[6], v[3], v[4], v[5]);  // w, x, y, z
     const double norm = s.q.norm();

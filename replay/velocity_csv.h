@@ -20,12 +20,12 @@ namespace tofu::replay {
 inline constexpr std::string_view kVelocityCsvHeader =
     "#timestamp [ns],v_x [m/s],v_y [m/s],v_z [m/s]";
 
-/// Reads the velocity CSV at `path`: the header line (kVelocityCsvHeader; the EuRoC
-/// spelling "#timestamp" without the unit is accepted for the first column, spaces
-/// around header fields are ignored), then one sample per line: an integer timestamp in
-/// ns and three finite velocities in m/s, comma separated (spaces/tabs around a field
-/// and a CR before the newline are allowed). A UTF-8 byte-order mark and blank lines at
-/// the end of the file are ignored.
+/// Reads the velocity CSV at `path` with the run directory's reader (replay/csv_reader.h):
+/// the header line (kVelocityCsvHeader; the EuRoC spelling "#timestamp" without the unit is
+/// accepted for the first column, spaces around header fields are ignored), then one
+/// sample per line: an integer timestamp in ns and three finite velocities in m/s, comma
+/// separated (spaces/tabs around a field and a CR before the newline are allowed). A UTF-8
+/// byte-order mark and blank lines at the end of the file are ignored.
 ///
 /// Throws core::InputError (file, 1-based line and column, what was expected) for a
 /// missing or unreadable file, an empty file, another header, a line without exactly 4

@@ -323,7 +323,8 @@ TEST_F(ConsistencyCliTest, WrongFieldCountIsBadInput) {
   std::string b = VelocityCsv(Sampled(kStartB, kPeriodB, 5));  // lines 1..6
   b += "1300000000,0.1,0.2\n";                                 // line 7
   const Result r = ExpectBadB(b, "b.csv:7:");
-  EXPECT_CONTAINS(r.err, "expected 4 comma-separated numbers (t_ns, v_x, v_y, v_z), got 3 fields");
+  EXPECT_CONTAINS(r.err, "expected 4 comma-separated fields as in the header, got 3");
+  EXPECT_CONTAINS(r.err, "column 4 'v_z [m/s]' and later are missing");
 }
 
 TEST_F(ConsistencyCliTest, UnparsableNumberIsBadInput) {
