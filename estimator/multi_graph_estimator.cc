@@ -395,7 +395,6 @@ struct MultiGraphEstimator::Impl {
       const std::vector<ImuPoseInA>& window,
       const std::optional<Eigen::Vector3d>& known_gyro_bias_radps = std::nullopt) const {
     VisualInertialAlignmentOptions vi = options.visual_inertial;
-    vi.gravity_mps2 = options.local.gravity_mps2;
     vi.known_gyro_bias_radps = known_gyro_bias_radps;
     const core::Time newest_imu_ns = smoother.newest_imu_ns();
     const auto covered = std::find_if(window.begin(), window.end(), [&](const ImuPoseInA& p) {
@@ -777,8 +776,12 @@ bool MultiGraphEstimatorOptions::IsValid(std::string* why) const {
   std::string nested;
   if (!local.IsValid(&nested)) return fail("local." + nested);
   if (!alignment.IsValid(&nested)) return fail("alignment." + nested);
-  // Its gravity_mps2 is replaced by local.gravity_mps2 when used.
   if (!visual_inertial.IsValid(&nested)) return fail("visual_inertial." + nested);
+  // One gravity for the whole estimator: the alignment's must be the local graph's.
+  if (visual_inertial.gravity_mps2 != local.gravity_mps2) {
+    return fail("visual_inertial.gravity_mps2 must equal local.gravity_mps2 (the estimator has "
+                "one gravity)");
+  }
   if (output_period_ns <= 0) return fail("output_period_ns must be positive");
   // 0 would restart the local window at every fused measurement.
   if (max_unfused_ns <= 0) return fail("max_unfused_ns must be positive");

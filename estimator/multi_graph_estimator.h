@@ -95,8 +95,8 @@ struct MultiGraphEstimatorOptions {
   /// (outputs before that are not produced). The window keeps at most
   /// max_alignment_window_ns; after max_initialisation_wait_ns without an observable
   /// alignment the estimator falls back to gravity from the mean specific force.
-  /// visual_inertial.gravity_mps2 is not used: the estimator has one gravity,
-  /// local.gravity_mps2, which the alignment is given.
+  /// visual_inertial.gravity_mps2 must equal local.gravity_mps2 (IsValid): the
+  /// estimator has one gravity.
   VisualInertialAlignmentOptions visual_inertial;
   core::Time max_alignment_window_ns = 3'000'000'000;
   core::Time max_initialisation_wait_ns = 5'000'000'000;

@@ -320,6 +320,9 @@ TEST(MultiGraphEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) 
   add("alignment.min_pairs", [](Options& o) { o.alignment.min_pairs = 2; });
   add("visual_inertial.gravity_refinement_iterations",
       [](Options& o) { o.visual_inertial.gravity_refinement_iterations = 0; });
+  // Each gravity valid on its own, but two of them.
+  add("visual_inertial.gravity_mps2", [](Options& o) { o.visual_inertial.gravity_mps2 = 9.80; });
+  add("visual_inertial.gravity_mps2", [](Options& o) { o.local.gravity_mps2 = 9.80; });
   add("prior_from_rest.position_std_m",
       [](Options& o) { o.prior_from_rest.position_std_m.y() = 0.0; });
   add("prior_from_rest.gyro_bias_std_radps",
