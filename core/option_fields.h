@@ -11,6 +11,7 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <variant>
 
 #include <Eigen/Core>
@@ -62,6 +63,16 @@ struct FieldFormat {
   int min_integer = 0;
   int max_integer = 0;
 };
+
+/// The value type of a pointer to data member: MemberValue<int Options::*> is int.
+template <typename Pointer>
+struct MemberValueOf;
+template <typename Value, typename Class>
+struct MemberValueOf<Value Class::*> {
+  using type = Value;
+};
+template <typename Pointer>
+using MemberValue = typename MemberValueOf<Pointer>::type;
 
 /// One field of `Options`: its file format and its member.
 template <typename Options>
@@ -118,6 +129,20 @@ struct OptionField {
     return {format, m};
   }
 };
+
+/// A field of a base struct as a field of a struct derived from it: the same key, unit and
+/// limits (an options struct that extends a shared one, such as LiDAR odometry's options
+/// the beam pattern, lists the base's fields without writing them again).
+template <typename Derived, typename Base>
+OptionField<Derived> DerivedField(const OptionField<Base>& field) {
+  static_assert(std::is_base_of_v<Base, Derived>);
+  return {field.format,
+          std::visit(
+              [](auto member) -> typename OptionField<Derived>::Member {
+                return static_cast<MemberValue<decltype(member)> Derived::*>(member);
+              },
+              field.member)};
+}
 
 // Checks of one value against its field's format: empty when valid, else what is wrong
 // ("expected a number in [0, 1], got 2"), with numbers in the file's units.

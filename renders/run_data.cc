@@ -529,7 +529,7 @@ std::vector<fs::path> ClosedLoopFlightDirs(const fs::path& run_dir) {
 std::vector<LidarGeometry> LidarGeometries(const RunData& run) {
   std::vector<LidarGeometry> lidars;
   for (const auto& [name, c] : run.calibration.sensors) {
-    if (const std::optional<replay::LidarBeamPattern> beams = run.calibration.LidarBeams(name)) {
+    if (const std::optional<core::LidarBeamPattern> beams = run.calibration.LidarBeams(name)) {
       lidars.push_back({c.site, *beams});
     }
   }

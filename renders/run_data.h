@@ -99,7 +99,7 @@ struct ErrorRow {
 /// A LiDAR's beams, to draw where they hit.
 struct LidarGeometry {
   std::string site;
-  replay::LidarBeamPattern beams;
+  core::LidarBeamPattern beams;
 };
 
 /// A GNSS antenna's sky: the satellites' directions, to draw which are blocked.

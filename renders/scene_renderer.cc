@@ -446,18 +446,12 @@ struct SceneRenderer::Impl {
   void AddLidarHits(const Eigen::Isometry3d& T_WB) {
     for (const LidarGeometry& lidar : lidars) {
       const Eigen::Isometry3d T_Ws = T_WB * Mount(lidar.site);
-      const replay::LidarBeamPattern& o = lidar.beams;
-      for (int e = 0; e < o.elevation_count; ++e) {
-        const double el = o.elevation_count > 1
-                              ? o.elevation_min_rad + (o.elevation_max_rad - o.elevation_min_rad) *
-                                                          e / (o.elevation_count - 1)
-                              : o.elevation_min_rad;
-        for (int a = 0; a < o.azimuth_count; ++a) {
-          const double az = 2.0 * kPi * a / o.azimuth_count;
-          const Eigen::Vector3d d_s(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
-                                    std::sin(el));
+      const core::LidarBeamPattern& beams = lidar.beams;
+      for (int row = 0; row < beams.elevation_count; ++row) {
+        for (int column = 0; column < beams.azimuth_count; ++column) {
+          const Eigen::Vector3d d_s = beams.Direction_s(row, column);
           const auto hit = world->CastRay(T_Ws.translation(), T_Ws.linear() * d_s, sim::kRayScene);
-          if (!hit || hit->distance_m < o.min_range_m || hit->distance_m > o.max_range_m) continue;
+          if (!hit || !beams.InRange(hit->distance_m)) continue;
           AddSphere(hit->point_W, 0.02, {1.0f, 0.45f, 0.0f, 1.0f});
         }
       }

@@ -1,11 +1,13 @@
 #include "replay/run_calibration.h"
 
+#include <algorithm>
 #include <cmath>
 #include <system_error>
 
 #include <fmt/format.h>
 
 #include "core/file_io.h"
+#include "core/lidar_beam_pattern.h"
 #include "core/units.h"
 #include "replay/yaml_fields.h"
 
@@ -92,48 +94,47 @@ std::optional<double> RunCalibration::OptionNumber(const std::string& sensor,
   }
 }
 
-std::optional<LidarBeamPattern> RunCalibration::LidarBeams(const std::string& sensor) const {
+std::optional<core::LidarBeamPattern> RunCalibration::LidarBeams(
+    const std::string& sensor) const {
   const auto s = sensors.find(sensor);
   if (s == sensors.end() || s->second.type != "lidar_odometry") return std::nullopt;
-  const auto azimuths = OptionNumber(sensor, "azimuth_count");
-  const auto elevations = OptionNumber(sensor, "elevation_count");
-  const auto min_deg = OptionNumber(sensor, "elevation_min_deg");
-  const auto max_deg = OptionNumber(sensor, "elevation_max_deg");
-  const auto min_range = OptionNumber(sensor, "min_range_m");
-  const auto max_range = OptionNumber(sensor, "max_range_m");
-  if (!azimuths || !elevations || !min_deg || !max_deg || !min_range || !max_range) {
-    return std::nullopt;
-  }
-  // The limits of the beam fields of sim::LidarOdometryOptions::Fields() (sim/lidar_odometry.cc;
-  // replay/ may not include sim/, so they are repeated here): a pattern outside them was
-  // not written by a run.
-  const auto fail = [&](const char* key, const std::string& expected) {
-    const CalibrationScalar& at = s->second.options.at(key);
+  const auto fail = [&](std::string_view key, const std::string& expected) {
+    const CalibrationScalar& at = s->second.options.at(std::string(key));
     throw core::InputError({file, at.line, at.column},
                            fmt::format("sensors.{}.options.{}", sensor, key), expected);
   };
-  const auto count = [&](double v, int max, const char* key) {
-    if (!(v >= 1 && v <= max && v == std::floor(v))) {
-      fail(key, fmt::format("expected an integer in [1, {}]", max));
+  // Every field of the pattern's table, converted and checked as the scenario reader does:
+  // a pattern outside the limits was not written by a run.
+  const auto fields = core::LidarBeamPattern::Fields();
+  std::vector<double> values;
+  for (const core::OptionField<core::LidarBeamPattern>& field : fields) {
+    const std::optional<double> value = OptionNumber(sensor, std::string(field.format.key));
+    if (!value) return std::nullopt;
+    values.push_back(*value);
+  }
+  core::LidarBeamPattern beams;
+  for (size_t i = 0; i < fields.size(); ++i) {
+    const core::OptionField<core::LidarBeamPattern>& field = fields[i];
+    const core::FieldFormat& format = field.format;
+    const double* value = &values[i];
+    if (const auto* integer = std::get_if<int core::LidarBeamPattern::*>(&field.member)) {
+      if (!(*value >= format.min_integer && *value <= format.max_integer &&
+            *value == std::floor(*value))) {
+        fail(format.key, fmt::format("expected an integer in [{}, {}], got {}",
+                                     format.min_integer, format.max_integer, *value));
+      }
+      beams.**integer = static_cast<int>(*value);
+    } else {
+      const double stored = format.degrees ? *value * core::kRadPerDeg : *value;
+      const std::string problem = core::CheckField(format, stored);
+      if (!problem.empty()) fail(format.key, problem);
+      beams.*std::get<double core::LidarBeamPattern::*>(field.member) = stored;
     }
-    return static_cast<int>(v);
-  };
-  LidarBeamPattern beams;
-  beams.azimuth_count = count(*azimuths, 3600, "azimuth_count");
-  beams.elevation_count = count(*elevations, 256, "elevation_count");
-  beams.elevation_min_rad = *min_deg * core::kRadPerDeg;
-  beams.elevation_max_rad = *max_deg * core::kRadPerDeg;
-  beams.min_range_m = *min_range;
-  beams.max_range_m = *max_range;
-  if (!(std::abs(*min_deg) <= 90.0)) fail("elevation_min_deg", "expected a number in [-90, 90]");
-  if (!(std::abs(*max_deg) <= 90.0 && *max_deg >= *min_deg)) {
-    fail("elevation_max_deg", "expected a number in [elevation_min_deg, 90]");
   }
-  if (!(beams.min_range_m >= 0.0 && std::isfinite(beams.min_range_m))) {
-    fail("min_range_m", "expected a finite number >= 0");
-  }
-  if (!(beams.max_range_m > beams.min_range_m && std::isfinite(beams.max_range_m))) {
-    fail("max_range_m", "expected a finite number above min_range_m");
+  std::string why;
+  if (!beams.IsValid(&why)) {
+    const size_t colon = why.find(':');
+    fail(why.substr(0, colon), why.substr(std::min(why.size(), colon + 2)));
   }
   return beams;
 }

@@ -26,6 +26,8 @@
 
 #include <Eigen/Geometry>
 
+#include "core/lidar_beam_pattern.h"
+
 namespace tofu::replay {
 
 /// One entry of a sensor's `options:` block, as written, with where it sits.
@@ -49,17 +51,6 @@ struct SensorCalibration {
   std::vector<Eigen::Vector3d> sky_directions_S;  ///< GNSS only
 };
 
-/// A LiDAR's beam pattern (lidar_odometry options): elevations evenly spaced over
-/// [elevation_min, elevation_max], azimuths evenly spaced over the full turn.
-struct LidarBeamPattern {
-  int azimuth_count = 0;
-  int elevation_count = 0;
-  double elevation_min_rad = 0.0;
-  double elevation_max_rad = 0.0;
-  double min_range_m = 0.0;
-  double max_range_m = 0.0;
-};
-
 struct RunCalibration {
   bool present = false;  ///< false: no calibration.yaml (the fields are empty)
   std::string file;      ///< named in error messages
@@ -70,9 +61,11 @@ struct RunCalibration {
   /// the key is absent. Throws core::InputError at the value's line when it is not a number.
   std::optional<double> OptionNumber(const std::string& sensor, const std::string& key) const;
 
-  /// The beam pattern of a lidar_odometry sensor; nullopt for another type or when its
-  /// options do not state all six numbers. Throws core::InputError on a malformed one.
-  std::optional<LidarBeamPattern> LidarBeams(const std::string& sensor) const;
+  /// The beam pattern of a lidar_odometry sensor, read by its field table; nullopt for
+  /// another type or when its options do not state all six numbers. Throws
+  /// core::InputError at the offending key on a malformed one (outside its limits, ranges
+  /// or elevations out of order).
+  std::optional<core::LidarBeamPattern> LidarBeams(const std::string& sensor) const;
 };
 
 /// Parses calibration.yaml's text; `file` names it in messages. Throws core::InputError

@@ -116,12 +116,7 @@ GnssModel::GnssModel(std::string name, const GnssOptions& options, const World& 
       period_ns_(core::PeriodFromRate(options.rate_hz)),
       latency_ns_(core::SecondsToTime(options.latency_s)),
       time_to_fix_ns_(core::SecondsToTime(options.time_to_fix_s)) {
-  const std::string who = "gnss '" + name_ + "': ";
-  const MountSite* mount = world.robot().FindSite(options_.site);
-  if (mount == nullptr) {
-    throw std::invalid_argument(who + "robot has no site '" + options_.site + "'");
-  }
-  p_Bs_ = mount->p_Bs;
+  p_Bs_ = world.robot().Site(options_.site, "gnss '" + name_ + "'").p_Bs;
 
   T_WS_ = Eigen::Isometry3d::Identity();
   T_WS_.translation() = options_.enu_origin_W_m;
@@ -254,13 +249,7 @@ void GnssModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
     truth.p_Ss = p_Ss;
     truth.covariance = Eigen::Matrix3d::Zero();
 
-    SensorSample sample;
-    sample.t_ns = ts_ns;
-    sample.arrival_ns = ts_ns + latency_ns_;
-    sample.measured = measured;
-    sample.truth = truth;
-    sample.conditions = conditions;
-    out->push_back(std::move(sample));
+    out->push_back({ts_ns, ts_ns + latency_ns_, measured, truth, conditions});
   }
 }
 

@@ -109,13 +109,9 @@ ImuModel::ImuModel(std::string name, const ImuOptions& options, const World& wor
     : name_(std::move(name)),
       options_(core::ValidOptions(options, "IMU '" + name_ + "'")),
       noise_stream_(seed, "sensor/" + name_) {
-  const MountSite* site = world.robot().FindSite(options_.site);
-  if (site == nullptr) {
-    throw std::invalid_argument("IMU '" + name_ + "': the robot has no site '" + options_.site +
-                                "'");
-  }
-  p_BI_ = site->p_Bs;
-  R_BI_ = site->q_Bs.normalized().toRotationMatrix();
+  const MountSite& site = world.robot().Site(options_.site, "IMU '" + name_ + "'");
+  p_BI_ = site.p_Bs;
+  R_BI_ = site.q_Bs.normalized().toRotationMatrix();
   g_W_ = Eigen::Vector3d(0.0, 0.0, -world.robot().rigid_body.gravity_mps2);
   period_ns_ = core::PeriodFromRate(options_.rate_hz);
   period_s_ = core::TimeToSeconds(period_ns_);

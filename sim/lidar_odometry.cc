@@ -19,18 +19,16 @@ std::span<const core::OptionField<LidarOdometryOptions>> LidarOdometryOptions::F
   using F = core::OptionField<LidarOdometryOptions>;
   using R = core::NumberRule;
   using O = LidarOdometryOptions;
-  static const F kFields[] = {
+  // The beam pattern's fields (core::LidarBeamPattern::Fields()) stand after the latency,
+  // where the files have always written them.
+  static const F kLeading[] = {
       F::Name("site", &O::site),
       F::OptionalVector("frame_position_m", &O::p_WS_m, R::Any("m")),
       F::OptionalAttitude("frame_rpy_deg", &O::q_WS),
       F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(1000.0, "Hz")),
       F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s")),
-      F::Integer("azimuth_count", &O::azimuth_count, 1, 3600),
-      F::Integer("elevation_count", &O::elevation_count, 1, 256),
-      F::Degrees("elevation_min_deg", &O::elevation_min_rad, R::Between(-90.0, 90.0, "deg")),
-      F::Degrees("elevation_max_deg", &O::elevation_max_rad, R::Between(-90.0, 90.0, "deg")),
-      F::Number("min_range_m", &O::min_range_m, R::NonNegative("m")),
-      F::Number("max_range_m", &O::max_range_m, R::Positive("m")),
+  };
+  static const F kTrailing[] = {
       F::Number("range_noise_m", &O::range_noise_m, R::NonNegative("m")),
       F::Number("degenerate_translation_threshold", &O::degenerate_translation_threshold,
                 R::NonNegative("returns")),
@@ -56,30 +54,27 @@ std::span<const core::OptionField<LidarOdometryOptions>> LidarOdometryOptions::F
       F::Degrees("max_reported_rotation_std_deg", &O::max_reported_rotation_std_rad,
                  R::Positive("deg")),
   };
+  static const std::vector<F> kFields = [] {
+    std::vector<F> fields(std::begin(kLeading), std::end(kLeading));
+    for (const auto& beam_field : core::LidarBeamPattern::Fields()) {
+      fields.push_back(core::DerivedField<O>(beam_field));
+    }
+    fields.insert(fields.end(), std::begin(kTrailing), std::end(kTrailing));
+    return fields;
+  }();
   return kFields;
 }
 
 bool LidarOdometryOptions::IsValid(std::string* why) const {
-  if (!core::CheckOptionFields<LidarOdometryOptions>(*this, Fields(), why)) return false;
-  auto fail = [why](const char* message) {
-    if (why != nullptr) *why = message;
-    return false;
-  };
-  if (!(min_range_m < max_range_m)) return fail("max_range_m: must be greater than min_range_m");
-  if (!(elevation_min_rad <= elevation_max_rad)) {
-    return fail("elevation_max_deg: must not be less than elevation_min_deg");
-  }
-  return true;
+  // The beam pattern's own check adds the order of its ranges and elevations.
+  return core::CheckOptionFields<LidarOdometryOptions>(*this, Fields(), why) &&
+         core::LidarBeamPattern::IsValid(why);
 }
 namespace {
 
 using core::kPi;
 /// Fractional part of the golden ratio: successive multiples fill [0, 1) evenly.
 constexpr double kGoldenFraction = 0.6180339887498949;
-
-void Require(bool ok, const std::string& name, const std::string& what) {
-  if (!ok) throw std::invalid_argument("lidar odometry '" + name + "': " + what);
-}
 
 }  // namespace
 
@@ -88,48 +83,31 @@ LidarOdometryModel::LidarOdometryModel(std::string name, const LidarOdometryOpti
     : name_(std::move(name)),
       options_(core::ValidOptions(options, "lidar odometry '" + name_ + "'")),
       stream_(seed, "sensor/" + name_),
+      T_Bs_(world.robot().Site(options_.site, "lidar odometry '" + name_ + "'").T_Bs()),
       period_ns_(core::PeriodFromRate(options.rate_hz)),
-      latency_ns_(core::SecondsToTime(options.latency_s)) {
-  const MountSite* mount = world.robot().FindSite(options_.site);
-  Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
-  T_Bs_ = Eigen::Isometry3d::Identity();
-  T_Bs_.translation() = mount->p_Bs;
-  T_Bs_.linear() = mount->q_Bs.normalized().toRotationMatrix();
-
-  if (options_.p_WS_m) T_WS_.translation() = *options_.p_WS_m;
-  if (options_.q_WS) T_WS_.linear() = options_.q_WS->normalized().toRotationMatrix();
-}
+      latency_ns_(core::SecondsToTime(options.latency_s)),
+      frame_(options_.p_WS_m, options_.q_WS) {}
 
 LidarScanGeometry LidarOdometryModel::AnalyseScan(const World& world,
                                                   const Eigen::Isometry3d& T_Ws,
                                                   int64_t scan_index) const {
-  const int azimuths = options_.azimuth_count;
-  const int elevations = options_.elevation_count;
+  const core::LidarBeamPattern& beams = options_;
   const Eigen::Vector3d origin_W = T_Ws.translation();
   const Eigen::Matrix3d R_Ws = T_Ws.linear();
-  const double azimuth_step = 2.0 * kPi / azimuths;
+  // The azimuths turn by the golden fraction of a step from scan to scan: successive scans
+  // sample between each other's rays, as a non-repetitive scan pattern does.
   const double phase = kGoldenFraction * static_cast<double>(scan_index % 1000003);
-  const double azimuth_offset = (phase - std::floor(phase)) * azimuth_step;
+  const double azimuth_offset = (phase - std::floor(phase)) * (2.0 * kPi / beams.azimuth_count);
 
   // Unscaled information S = sum J^T J, J = [(p x n)^T, n^T] (H = S / sigma^2).
   LidarScanGeometry g;
-  g.ray_count = azimuths * elevations;
+  g.ray_count = beams.azimuth_count * beams.elevation_count;
   Eigen::Matrix<double, 6, 6> S = Eigen::Matrix<double, 6, 6>::Zero();
-  for (int j = 0; j < elevations; ++j) {
-    const double e = elevations == 1
-                         ? 0.5 * (options_.elevation_min_rad + options_.elevation_max_rad)
-                         : options_.elevation_min_rad +
-                               (options_.elevation_max_rad - options_.elevation_min_rad) * j /
-                                   (elevations - 1);
-    const double ce = std::cos(e), se = std::sin(e);
-    for (int i = 0; i < azimuths; ++i) {
-      const double a = azimuth_offset + azimuth_step * i;
-      const Eigen::Vector3d u_s(ce * std::cos(a), ce * std::sin(a), se);
+  for (int j = 0; j < beams.elevation_count; ++j) {
+    for (int i = 0; i < beams.azimuth_count; ++i) {
+      const Eigen::Vector3d u_s = beams.Direction_s(j, i, azimuth_offset);
       const std::optional<RayHit> hit = world.CastRay(origin_W, R_Ws * u_s, kRayScene);
-      if (!hit || hit->distance_m < options_.min_range_m ||
-          hit->distance_m > options_.max_range_m) {
-        continue;
-      }
+      if (!hit || !beams.InRange(hit->distance_m)) continue;
       ++g.return_count;
       const Eigen::Vector3d p = hit->point_W - origin_W;
       Eigen::Matrix<double, 6, 1> J;
@@ -176,19 +154,30 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
   const TruthState& x = input.truth;
   const core::Time t_ns = x.t_ns;
   const core::Time dt_ns = input.world.timestep_ns();
-  const double dt_s = core::TimeToSeconds(dt_ns);
   const MountMotion now = MountMotionAt(x, T_Bs_, 0.0);
 
-  // The odometry frame starts where the LiDAR boots (unless configured).
-  if (!started_) {
-    if (!options_.p_WS_m) T_WS_.translation() = now.p_Ws;
-    if (!options_.q_WS) T_WS_.linear() = now.R_Ws;
-    started_ = true;
-    previous_p_Ws_ = now.p_Ws;
-  }
-  const Eigen::Matrix3d R_WS = T_WS_.linear();
-  const Eigen::Vector3d p_WS = T_WS_.translation();
+  if (frame_.Boot(now)) previous_p_Ws_ = now.p_Ws;
+  const Eigen::Matrix3d R_WS = frame_.T_WS().linear();
+  FollowPath(now, R_WS, core::TimeToSeconds(dt_ns));
 
+  // Scans whose time of validity falls in [t, t + dt).
+  while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
+  for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
+    const core::Time ts_ns = next_sample_ns_;
+    const MountMotion at = MountMotionAt(x, T_Bs_, core::TimeToSeconds(ts_ns - t_ns));
+    DrawDriftSinceLastScan(R_WS);
+    Scan(input.world, at);
+    const core::PoseMeasurement truth = frame_.TruePose(at);
+    const core::PoseMeasurement measured = MeasuredScan(at, truth, R_WS);
+    conditions_ = kConditionNone;
+    if (geometry_.degenerate) conditions_ |= kDegenerate;
+    if (geometry_.few_returns) conditions_ |= kFewReturns;
+    out->push_back({ts_ns, ts_ns + latency_ns_, measured, truth, conditions_});
+  }
+}
+
+void LidarOdometryModel::FollowPath(const MountMotion& now, const Eigen::Matrix3d& R_WS,
+                                    double dt_s) {
   // Motion since the last step along the latest scan's eigen-directions.
   const Eigen::Vector3d step_W = now.p_Ws - previous_p_Ws_;
   previous_p_Ws_ = now.p_Ws;
@@ -200,141 +189,125 @@ void LidarOdometryModel::Step(const SensorInput& input, std::vector<SensorSample
       rotation_path_rad_[k] += std::abs(geometry_.rotation_axes_W.col(k).dot(rotation_W));
     }
   }
-  // The path is integrated with the drifted attitude: dp += (R_err - I) dp_Ss.
-  dp_S_ += (R_err_ - Eigen::Matrix3d::Identity()) * (R_WS.transpose() * step_W);
+  frame_.IntegratePath(R_WS.transpose() * step_W);
   // Too few returns: the filter diverges exponentially.
   if (diverging_) {
     v_div_S_ *= std::exp(dt_s / options_.divergence_time_constant_s);
-    dp_S_ += v_div_S_ * dt_s;
+    frame_.AddPositionError(v_div_S_ * dt_s);
   }
+}
 
-  // Scans whose time of validity falls in [t, t + dt).
-  while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
-  for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
-    const core::Time ts_ns = next_sample_ns_;
-    const MountMotion at = MountMotionAt(x, T_Bs_, core::TimeToSeconds(ts_ns - t_ns));
-    Eigen::Isometry3d T_Ws = Eigen::Isometry3d::Identity();
-    T_Ws.linear() = at.R_Ws;
-    T_Ws.translation() = at.p_Ws;
-
-    // Drift accumulated since the previous scan, along that scan's directions. Draws
-    // depend on the options only (not on the geometry or the motion), so a seed gives the
-    // same noise sequence whatever the robot does.
-    const bool translation_walk = options_.position_random_walk_m_per_sqrtm > 0.0 ||
-                                  options_.degenerate_position_random_walk_m_per_sqrtm > 0.0;
-    const bool rotation_walk = options_.rotation_random_walk_rad_per_sqrtm > 0.0 ||
-                               options_.degenerate_rotation_random_walk_rad_per_sqrtrad > 0.0;
-    if (have_geometry_) {
-      Eigen::Vector3d drift_W = Eigen::Vector3d::Zero();
-      Eigen::Vector3d theta_W = Eigen::Vector3d::Zero();
-      for (int k = 0; k < 3; ++k) {
-        if (translation_walk) {
-          const double sigma_p = (geometry_.translation_degenerate[k]
-                                      ? options_.degenerate_position_random_walk_m_per_sqrtm
-                                      : options_.position_random_walk_m_per_sqrtm) *
-                                 std::sqrt(translation_path_m_[k]);
-          drift_W += geometry_.translation_directions_W.col(k) * sigma_p * stream_.Normal();
-        }
-        if (rotation_walk) {
-          const double sigma_r =
-              geometry_.rotation_degenerate[k]
-                  ? options_.degenerate_rotation_random_walk_rad_per_sqrtrad *
-                        std::sqrt(rotation_path_rad_[k])
-                  : options_.rotation_random_walk_rad_per_sqrtm * std::sqrt(distance_m_);
-          theta_W += geometry_.rotation_axes_W.col(k) * sigma_r * stream_.Normal();
-        }
+void LidarOdometryModel::DrawDriftSinceLastScan(const Eigen::Matrix3d& R_WS) {
+  // Drift accumulated since the previous scan, along that scan's directions. Draws depend
+  // on the options only (not on the geometry or the motion), so a seed gives the same
+  // noise sequence whatever the robot does.
+  const bool translation_walk = options_.position_random_walk_m_per_sqrtm > 0.0 ||
+                                options_.degenerate_position_random_walk_m_per_sqrtm > 0.0;
+  const bool rotation_walk = options_.rotation_random_walk_rad_per_sqrtm > 0.0 ||
+                             options_.degenerate_rotation_random_walk_rad_per_sqrtrad > 0.0;
+  if (have_geometry_) {
+    Eigen::Vector3d drift_W = Eigen::Vector3d::Zero();
+    Eigen::Vector3d theta_W = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 3; ++k) {
+      if (translation_walk) {
+        const double sigma_p = (geometry_.translation_degenerate[k]
+                                    ? options_.degenerate_position_random_walk_m_per_sqrtm
+                                    : options_.position_random_walk_m_per_sqrtm) *
+                               std::sqrt(translation_path_m_[k]);
+        drift_W += geometry_.translation_directions_W.col(k) * sigma_p * stream_.Normal();
       }
-      dp_S_ += R_WS.transpose() * drift_W;
-      R_err_ = core::ExpSO3(R_WS.transpose() * theta_W) * R_err_;
-    }
-    translation_path_m_.setZero();
-    rotation_path_rad_.setZero();
-    distance_m_ = 0.0;
-
-    geometry_ = AnalyseScan(input.world, T_Ws, scan_index_++);
-    have_geometry_ = true;
-    if (geometry_.few_returns && !diverging_) {
-      diverging_ = true;
-      const double sigma = options_.divergence_velocity_mps;
-      v_div_S_ = sigma * stream_.Normal3();
-    } else if (!geometry_.few_returns) {
-      diverging_ = false;
-      v_div_S_.setZero();
-    }
-
-    // Truth of the scan instant.
-    const core::PoseMeasurement truth = TruePose(at, R_WS, p_WS);
-    const Eigen::Matrix3d R_Ss = R_WS.transpose() * at.R_Ws;
-
-    // White registration noise N(0, H^-1) along the constrained eigen-directions of each
-    // block: sigma_r sum_k u_k n_k / sqrt(lambda_k sigma_r^2).
-    const double sigma_range = options_.range_noise_m;
-    Eigen::Vector3d noise_p_W = Eigen::Vector3d::Zero();
-    Eigen::Vector3d noise_theta_W = Eigen::Vector3d::Zero();
-    if (sigma_range > 0.0) {
-      for (int k = 0; k < 3; ++k) {
-        const double n_p = stream_.Normal();
-        const double n_r = stream_.Normal();
-        if (!geometry_.translation_degenerate[k]) {
-          noise_p_W += geometry_.translation_directions_W.col(k) * n_p /
-                       std::sqrt(geometry_.translation_eigenvalues[k]);
-        }
-        if (!geometry_.rotation_degenerate[k]) {
-          noise_theta_W += geometry_.rotation_axes_W.col(k) * n_r /
-                           std::sqrt(geometry_.rotation_eigenvalues[k]);
-        }
+      if (rotation_walk) {
+        const double sigma_r =
+            geometry_.rotation_degenerate[k]
+                ? options_.degenerate_rotation_random_walk_rad_per_sqrtrad *
+                      std::sqrt(rotation_path_rad_[k])
+                : options_.rotation_random_walk_rad_per_sqrtm * std::sqrt(distance_m_);
+        theta_W += geometry_.rotation_axes_W.col(k) * sigma_r * stream_.Normal();
       }
     }
-
-    core::PoseMeasurement measured;
-    measured.p_Ss = truth.p_Ss + dp_S_ + R_WS.transpose() * noise_p_W;
-    const Eigen::Matrix3d R_hat = R_err_ * R_Ss;
-    Eigen::Matrix3d R_meas = R_hat;
-    if (sigma_range > 0.0) R_meas = R_hat * core::ExpSO3(at.R_Ws.transpose() * noise_theta_W);
-    measured.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_meas));
-
-    // Reported covariance: regularised inverse information, mapped from W axes to
-    // [dtheta in s (right perturbation); dp in S].
-    Eigen::Matrix<double, 6, 1> prior_information;
-    const double s_rot = options_.max_reported_rotation_std_rad;
-    const double s_pos = options_.max_reported_position_std_m;
-    prior_information << Eigen::Vector3d::Constant(1.0 / (s_rot * s_rot)),
-        Eigen::Vector3d::Constant(1.0 / (s_pos * s_pos));
-    Eigen::Matrix<double, 6, 6> information = geometry_.information_W;
-    information.diagonal() += prior_information;
-    const Eigen::Matrix<double, 6, 6> covariance_W =
-        information.selfadjointView<Eigen::Lower>().ldlt().solve(
-            Eigen::Matrix<double, 6, 6>::Identity());
-    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
-    A.topLeftCorner<3, 3>() = at.R_Ws.transpose();
-    A.bottomRightCorner<3, 3>() = R_WS.transpose();
-    measured.covariance = A * covariance_W * A.transpose();
-    measured.covariance = 0.5 * (measured.covariance + measured.covariance.transpose());
-
-    measured.has_twist = true;
-    measured.v_s_s_mps = truth.v_s_s_mps + R_hat.transpose() * v_div_S_;
-    measured.omega_s_s_radps = truth.omega_s_s_radps;
-    AddTwistWhiteNoise(options_.velocity_noise_mps, options_.angular_rate_noise_radps, stream_,
-                       &measured);
-    Eigen::Matrix<double, 6, 1> twist_variance;
-    twist_variance << Eigen::Vector3d::Constant(options_.velocity_noise_mps *
-                                                options_.velocity_noise_mps),
-        Eigen::Vector3d::Constant(options_.angular_rate_noise_radps *
-                                  options_.angular_rate_noise_radps);
-    measured.twist_covariance = twist_variance.asDiagonal();
-
-    conditions_ = kConditionNone;
-    if (geometry_.degenerate) conditions_ |= kDegenerate;
-    if (geometry_.few_returns) conditions_ |= kFewReturns;
-
-    SensorSample sample;
-    sample.t_ns = ts_ns;
-    sample.arrival_ns = ts_ns + latency_ns_;
-    sample.measured = measured;
-    sample.truth = truth;
-    sample.conditions = conditions_;
-    out->push_back(std::move(sample));
+    frame_.AddPositionError(R_WS.transpose() * drift_W);
+    frame_.RotateError(R_WS.transpose() * theta_W);
   }
+  translation_path_m_.setZero();
+  rotation_path_rad_.setZero();
+  distance_m_ = 0.0;
+}
+
+void LidarOdometryModel::Scan(const World& world, const MountMotion& at) {
+  Eigen::Isometry3d T_Ws = Eigen::Isometry3d::Identity();
+  T_Ws.linear() = at.R_Ws;
+  T_Ws.translation() = at.p_Ws;
+  geometry_ = AnalyseScan(world, T_Ws, scan_index_++);
+  have_geometry_ = true;
+  if (geometry_.few_returns && !diverging_) {
+    diverging_ = true;
+    const double sigma = options_.divergence_velocity_mps;
+    v_div_S_ = sigma * stream_.Normal3();
+  } else if (!geometry_.few_returns) {
+    diverging_ = false;
+    v_div_S_.setZero();
+  }
+}
+
+core::PoseMeasurement LidarOdometryModel::MeasuredScan(const MountMotion& at,
+                                                       const core::PoseMeasurement& truth,
+                                                       const Eigen::Matrix3d& R_WS) {
+  // White registration noise N(0, H^-1) along the constrained eigen-directions of each
+  // block: sigma_r sum_k u_k n_k / sqrt(lambda_k sigma_r^2).
+  const double sigma_range = options_.range_noise_m;
+  Eigen::Vector3d noise_p_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d noise_theta_W = Eigen::Vector3d::Zero();
+  if (sigma_range > 0.0) {
+    for (int k = 0; k < 3; ++k) {
+      const double n_p = stream_.Normal();
+      const double n_r = stream_.Normal();
+      if (!geometry_.translation_degenerate[k]) {
+        noise_p_W += geometry_.translation_directions_W.col(k) * n_p /
+                     std::sqrt(geometry_.translation_eigenvalues[k]);
+      }
+      if (!geometry_.rotation_degenerate[k]) {
+        noise_theta_W += geometry_.rotation_axes_W.col(k) * n_r /
+                         std::sqrt(geometry_.rotation_eigenvalues[k]);
+      }
+    }
+  }
+  core::PoseMeasurement measured = frame_.Measured(
+      at, truth, Eigen::Vector3d(R_WS.transpose() * noise_p_W),
+      sigma_range > 0.0 ? std::optional<Eigen::Vector3d>(at.R_Ws.transpose() * noise_theta_W)
+                        : std::nullopt,
+      v_div_S_);
+  measured.covariance = ReportedCovariance(at, R_WS);
+  AddTwistWhiteNoise(options_.velocity_noise_mps, options_.angular_rate_noise_radps, stream_,
+                     &measured);
+  Eigen::Matrix<double, 6, 1> twist_variance;
+  twist_variance << Eigen::Vector3d::Constant(options_.velocity_noise_mps *
+                                              options_.velocity_noise_mps),
+      Eigen::Vector3d::Constant(options_.angular_rate_noise_radps *
+                                options_.angular_rate_noise_radps);
+  measured.twist_covariance = twist_variance.asDiagonal();
+  return measured;
+}
+
+Eigen::Matrix<double, 6, 6> LidarOdometryModel::ReportedCovariance(
+    const MountMotion& at, const Eigen::Matrix3d& R_WS) const {
+  // Regularised inverse information, mapped from W axes to [dtheta in s (right
+  // perturbation); dp in S].
+  Eigen::Matrix<double, 6, 1> prior_information;
+  const double s_rot = options_.max_reported_rotation_std_rad;
+  const double s_pos = options_.max_reported_position_std_m;
+  prior_information << Eigen::Vector3d::Constant(1.0 / (s_rot * s_rot)),
+      Eigen::Vector3d::Constant(1.0 / (s_pos * s_pos));
+  Eigen::Matrix<double, 6, 6> information = geometry_.information_W;
+  information.diagonal() += prior_information;
+  const Eigen::Matrix<double, 6, 6> covariance_W =
+      information.selfadjointView<Eigen::Lower>().ldlt().solve(
+          Eigen::Matrix<double, 6, 6>::Identity());
+  Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+  A.topLeftCorner<3, 3>() = at.R_Ws.transpose();
+  A.bottomRightCorner<3, 3>() = R_WS.transpose();
+  Eigen::Matrix<double, 6, 6> covariance = A * covariance_W * A.transpose();
+  covariance = 0.5 * (covariance + covariance.transpose());
+  return covariance;
 }
 
 }  // namespace tofu::sim

@@ -14,16 +14,21 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "core/lidar_beam_pattern.h"
 #include "core/random.h"
 #include "core/option_fields.h"
 #include "core/time.h"
 #include "core/units.h"
+#include "sim/mount_motion.h"
+#include "sim/odometry_frame.h"
 #include "sim/sensor.h"
 #include "sim/world.h"
 
 namespace tofu::sim {
 
-struct LidarOdometryOptions {
+/// The beam pattern (scan rows and columns, ranges: core/lidar_beam_pattern.h, Mid-360
+/// defaults) and the odometry built on it.
+struct LidarOdometryOptions : core::LidarBeamPattern {
   std::string site = "lidar";  ///< robot mount site of the LiDAR (z = scanner axis)
   /// Odometry frame S in W (YAML frame_position_m, frame_rpy_deg). Each unset part is taken
   /// from the LiDAR pose at the first step (t = 0): FAST-LIO starts where it boots.
@@ -33,15 +38,6 @@ struct LidarOdometryOptions {
   double rate_hz = 10.0;     ///< Mid-360 frame rate 10 Hz = FAST-LIO output rate
   double latency_s = 0.02;   ///< scan end to odometry out [s] (FAST-LIO ~10-20 ms, assumed)
 
-  // ---- scan pattern (Mid-360: 360 deg x [-7, 52] deg) ----
-  int azimuth_count = 72;    ///< rays per elevation row (the real 200 kpts/s thinned)
-  int elevation_count = 12;  ///< rows, evenly spaced from min to max
-  double elevation_min_rad = core::RadFromDeg(-7.0);
-  double elevation_max_rad = core::RadFromDeg(52.0);
-  double min_range_m = 0.1;   ///< Mid-360 close blind zone 0.1 m
-  /// Mid-360 spec: 40 m at 10 % reflectivity, 70 m at 80 %; 40 m (dark, weathered
-  /// concrete and grass are ~10-30 %) is the default.
-  double max_range_m = 40.0;
   /// 1-sigma range precision (Mid-360: <= 2 cm at 10 m); weights the information
   /// H = sum J^T J / sigma^2. 0 switches the registration noise off (H is then reported
   /// with unit weight).
@@ -161,7 +157,7 @@ class LidarOdometryModel final : public SensorModel {
   void Step(const SensorInput& input, std::vector<SensorSample>* out) override;
   uint32_t conditions() const override { return conditions_; }
   /// The odometry frame in W; with the default (start pose) valid after the first Step.
-  Eigen::Isometry3d T_WS() const override { return T_WS_; }
+  Eigen::Isometry3d T_WS() const override { return frame_.T_WS(); }
   const std::string& site() const override { return options_.site; }
 
   /// Casts one scan from a LiDAR at T_Ws (scan_index sets the azimuth shift) and analyses
@@ -172,6 +168,20 @@ class LidarOdometryModel final : public SensorModel {
   const LidarScanGeometry& last_scan() const { return geometry_; }
 
  private:
+  /// The motion since the last step: the path along the latest scan's directions, the
+  /// position error it carries, the divergence with too few returns.
+  void FollowPath(const MountMotion& now, const Eigen::Matrix3d& R_WS, double dt_s);
+  /// The random walks of the pose over the path since the previous scan.
+  void DrawDriftSinceLastScan(const Eigen::Matrix3d& R_WS);
+  /// Casts the scan at `at` and starts or ends the divergence.
+  void Scan(const World& world, const MountMotion& at);
+  /// The reported pose and twist of the latest scan.
+  core::PoseMeasurement MeasuredScan(const MountMotion& at, const core::PoseMeasurement& truth,
+                                     const Eigen::Matrix3d& R_WS);
+  /// Its pose covariance: the regularised inverse of the scan's information.
+  Eigen::Matrix<double, 6, 6> ReportedCovariance(const MountMotion& at,
+                                                 const Eigen::Matrix3d& R_WS) const;
+
   std::string name_;
   LidarOdometryOptions options_;
   core::RandomStream stream_;
@@ -179,12 +189,10 @@ class LidarOdometryModel final : public SensorModel {
   core::Time period_ns_;
   core::Time latency_ns_;
 
-  bool started_ = false;
-  Eigen::Isometry3d T_WS_ = Eigen::Isometry3d::Identity();
+  DriftingOdometryFrame frame_;  ///< S, and the pose error: R_hat = R_err R_Ss, dp_S
   core::Time next_sample_ns_ = 0;
   int64_t scan_index_ = 0;
   Eigen::Vector3d previous_p_Ws_ = Eigen::Vector3d::Zero();
-  Eigen::Vector3d previous_p_Ss_ = Eigen::Vector3d::Zero();
 
   // Geometry of the latest scan and the motion since, along its eigen-directions.
   LidarScanGeometry geometry_;
@@ -194,9 +202,6 @@ class LidarOdometryModel final : public SensorModel {
   double distance_m_ = 0.0;
   bool diverging_ = false;  ///< too few returns: the output is diverging
 
-  // Error state.
-  Eigen::Matrix3d R_err_ = Eigen::Matrix3d::Identity();  ///< R_hat = R_err R_Ss
-  Eigen::Vector3d dp_S_ = Eigen::Vector3d::Zero();         ///< p_hat - p_Ss [m]
   Eigen::Vector3d v_div_S_ = Eigen::Vector3d::Zero();      ///< diverging velocity error
 
   uint32_t conditions_ = kConditionNone;

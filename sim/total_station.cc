@@ -65,12 +65,7 @@ TotalStationModel::TotalStationModel(std::string name, const TotalStationOptions
       period_ns_(core::PeriodFromRate(options.rate_hz)),
       latency_ns_(core::SecondsToTime(options.latency_s)),
       search_delay_ns_(core::SecondsToTime(options.search_delay_s)) {
-  const MountSite* mount = world.robot().FindSite(options_.site);
-  if (mount == nullptr) {
-    throw std::invalid_argument("total station '" + name_ + "': robot has no site '" +
-                                options_.site + "'");
-  }
-  p_Bs_ = mount->p_Bs;
+  p_Bs_ = world.robot().Site(options_.site, "total station '" + name_ + "'").p_Bs;
 
   // Station pose: the world site, with the optional overrides.
   T_WS_ = Eigen::Isometry3d::Identity();
@@ -171,13 +166,7 @@ void TotalStationModel::Step(const SensorInput& input, std::vector<SensorSample>
     truth.p_Ss = p_Ss;
     truth.covariance = Eigen::Matrix3d::Zero();
 
-    SensorSample sample;
-    sample.t_ns = ts_ns;
-    sample.arrival_ns = ts_ns + latency_ns_;
-    sample.measured = measured;
-    sample.truth = truth;
-    sample.conditions = kConditionNone;
-    out->push_back(std::move(sample));
+    out->push_back({ts_ns, ts_ns + latency_ns_, measured, truth, kConditionNone});
   }
 
   switch (track_) {

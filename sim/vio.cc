@@ -7,6 +7,7 @@
 #include "core/lie.h"
 #include "core/units.h"
 #include "sim/mount_motion.h"
+#include "sim/odometry_frame.h"
 
 namespace tofu::sim {
 
@@ -70,30 +71,18 @@ bool VioOptions::IsValid(std::string* why) const {
   }
   return true;
 }
-namespace {
-
-using core::kPi;
-
-void Require(bool ok, const std::string& name, const std::string& what) {
-  if (!ok) throw std::invalid_argument("vio '" + name + "': " + what);
-}
-
-}  // namespace
 
 VioModel::VioModel(std::string name, const VioOptions& options, const World& world,
                    uint64_t seed)
     : name_(std::move(name)),
       options_(core::ValidOptions(options, "vio '" + name_ + "'")),
       stream_(seed, "sensor/" + name_),
+      T_Bs_(world.robot().Site(options_.site, "vio '" + name_ + "'").T_Bs()),
       period_ns_(core::PeriodFromRate(options.rate_hz)),
       latency_ns_(core::SecondsToTime(options.latency_s)),
       feature_period_ns_(core::PeriodFromRate(options.feature_check_rate_hz)),
-      reset_after_ns_(core::SecondsToTime(options.reset_after_s)) {
-  const MountSite* mount = world.robot().FindSite(options_.site);
-  Require(mount != nullptr, name_, "robot has no site '" + options_.site + "'");
-  T_Bs_ = Eigen::Isometry3d::Identity();
-  T_Bs_.translation() = mount->p_Bs;
-  T_Bs_.linear() = mount->q_Bs.normalized().toRotationMatrix();
+      reset_after_ns_(core::SecondsToTime(options.reset_after_s)),
+      frame_(options_.p_WS_m, options_.q_WS) {
 
   // Equiangular grid over the usable FOV, cell centres: azimuth a about y (image right
   // positive), elevation e about x (image down positive), u = [sin a cos e, sin e, cos a cos e].
@@ -110,10 +99,6 @@ VioModel::VioModel(std::string name, const VioOptions& options, const World& wor
                                      std::cos(a) * std::cos(e));
     }
   }
-
-  // A configured frame is known now; an unconfigured part is latched at the first step.
-  if (options_.p_WS_m) T_WS_.translation() = *options_.p_WS_m;
-  if (options_.q_WS) T_WS_.linear() = options_.q_WS->normalized().toRotationMatrix();
 }
 
 double VioModel::FeatureScore(const World& world, const Eigen::Isometry3d& T_Ws) const {
@@ -134,18 +119,11 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
   const TruthState& x = input.truth;
   const core::Time t_ns = x.t_ns;
   const core::Time dt_ns = input.world.timestep_ns();
-  const double dt_s = core::TimeToSeconds(dt_ns);
   const MountMotion now = MountMotionAt(x, T_Bs_, 0.0);
 
-  // The odometry frame starts where the camera boots (unless configured).
-  const bool first_step = !started_;
-  if (first_step) {
-    if (!options_.p_WS_m) T_WS_.translation() = now.p_Ws;
-    if (!options_.q_WS) T_WS_.linear() = now.R_Ws;
-    started_ = true;
-  }
-  const Eigen::Matrix3d R_WS = T_WS_.linear();
-  const Eigen::Vector3d p_WS = T_WS_.translation();
+  const bool first_step = frame_.Boot(now);
+  const Eigen::Matrix3d R_WS = frame_.T_WS().linear();
+  const Eigen::Vector3d p_WS = frame_.T_WS().translation();
   const Eigen::Vector3d p_Ss = R_WS.transpose() * (now.p_Ws - p_WS);
   if (first_step) previous_p_Ss_ = p_Ss;
 
@@ -155,130 +133,128 @@ void VioModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
     reset_reported_ = false;
   }
 
-  // Feature check at its own rate (ray casts are the expensive part).
-  if (next_feature_check_ns_ < t_ns + dt_ns) {
-    Eigen::Isometry3d T_Ws = Eigen::Isometry3d::Identity();
-    T_Ws.linear() = now.R_Ws;
-    T_Ws.translation() = now.p_Ws;
-    feature_score_ = FeatureScore(input.world, T_Ws);
-    while (next_feature_check_ns_ < t_ns + dt_ns) next_feature_check_ns_ += feature_period_ns_;
-  }
-  const bool starved = feature_score_ < options_.starved_score_threshold;
-  const bool blurred = now.omega_s_s.norm() > options_.blur_angular_rate_radps;
-  const bool lost_now = feature_score_ <= 0.0;
-  if (lost_now && !lost_) lost_since_ns_ = t_ns;
-  if (!lost_now) b_v_S_.setZero();  // tracking resumed: the velocity is observed again
-  lost_ = lost_now;
-
-  // Distance-driven drift, inflated by the active degradations.
-  double factor = 1.0;
-  if (starved) factor *= options_.starved_drift_factor;
-  if (blurred) factor *= options_.blur_drift_factor;
-  const Eigen::Vector3d step_S = p_Ss - previous_p_Ss_;
-  previous_p_Ss_ = p_Ss;
-  const double step_m = step_S.norm();
-  // The path is integrated with the drifted attitude: dp += (R_err - I) dp_Ss.
-  dp_S_ += (R_err_ - Eigen::Matrix3d::Identity()) * step_S;
-  // Random walks in distance. Draws depend on the options only (not on the motion), so a
-  // seed gives the same noise sequence whatever the robot does.
-  {
-    const double root = factor * std::sqrt(step_m);
-    if (options_.position_random_walk_m_per_sqrtm > 0.0) {
-      dp_S_ += options_.position_random_walk_m_per_sqrtm * root *
-               stream_.Normal3();
-    }
-    const double sigma_yaw = options_.yaw_random_walk_rad_per_sqrtm * root;
-    const double sigma_tilt = options_.tilt_random_walk_rad_per_sqrtm * root;
-    if (options_.yaw_random_walk_rad_per_sqrtm > 0.0 ||
-        options_.tilt_random_walk_rad_per_sqrtm > 0.0) {
-      // Gravity axis and two horizontal axes of S.
-      const Eigen::Vector3d g_S = R_WS.transpose() * Eigen::Vector3d::UnitZ();
-      const Eigen::Vector3d h1_S = R_WS.transpose() * Eigen::Vector3d::UnitX();
-      const Eigen::Vector3d h2_S = R_WS.transpose() * Eigen::Vector3d::UnitY();
-      const Eigen::Vector3d dtheta_S = sigma_yaw * stream_.Normal() * g_S +
-                                       sigma_tilt * stream_.Normal() * h1_S +
-                                       sigma_tilt * stream_.Normal() * h2_S;
-      R_err_ = core::ExpSO3(dtheta_S) * R_err_;
-    }
-  }
-
-  // No feature at all: IMU-only dead reckoning, the velocity error walks away; after
-  // reset_after_s the tracker relocalises with a pose jump.
-  if (lost_) {
-    const double sigma_b = options_.lost_velocity_random_walk_mps_per_sqrts * std::sqrt(dt_s);
-    if (sigma_b > 0.0) {
-      b_v_S_ += sigma_b * stream_.Normal3();
-    }
-    dp_S_ += b_v_S_ * dt_s;
-    if (t_ns - lost_since_ns_ >= reset_after_ns_) {
-      const double jump_p = options_.reset_jump_position_m;
-      const double jump_yaw = options_.reset_jump_yaw_rad;
-      if (jump_p > 0.0) {
-        dp_S_ += jump_p * stream_.Normal3();
-      }
-      if (jump_yaw > 0.0) {
-        const Eigen::Vector3d g_S = R_WS.transpose() * Eigen::Vector3d::UnitZ();
-        R_err_ = core::ExpSO3(jump_yaw * stream_.Normal() * g_S) * R_err_;
-      }
-      b_v_S_.setZero();
-      lost_since_ns_ = t_ns;  // still no features: diverges again, resets again
-      reset_pending_ = true;
-    }
-  }
+  const Tracking tracking = UpdateTracking(input.world, now, t_ns, dt_ns);
+  WalkWithDistance(p_Ss, R_WS, tracking);
+  if (lost_) DeadReckonWhileLost(t_ns, core::TimeToSeconds(dt_ns), R_WS);
 
   conditions_ = kConditionNone;
-  if (starved) conditions_ |= kFeatureStarved;
+  if (tracking.starved) conditions_ |= kFeatureStarved;
   if (lost_) conditions_ |= kLockLost;
-  if (blurred) conditions_ |= kMotionBlur;
+  if (tracking.blurred) conditions_ |= kMotionBlur;
   if (reset_pending_) conditions_ |= kTrackerReset;
 
   // Tracker confidence as the T265 reports it: 3 high, 2 medium, 1 low, 0 failed.
-  const int confidence = lost_ ? 0 : (starved ? 1 : (blurred ? 2 : 3));
-  const double pose_variance =
-      options_.reported_pose_variance_base * std::pow(10.0, 3 - confidence);
-  const double twist_variance =
-      options_.reported_twist_variance_base * std::pow(10.0, 1 - confidence);
+  const int confidence = lost_ ? 0 : (tracking.starved ? 1 : (tracking.blurred ? 2 : 3));
 
   // Samples whose time of validity falls in [t, t + dt).
   while (next_sample_ns_ < t_ns) next_sample_ns_ += period_ns_;
   for (; next_sample_ns_ < t_ns + dt_ns; next_sample_ns_ += period_ns_) {
     const core::Time ts_ns = next_sample_ns_;
     const MountMotion at = MountMotionAt(x, T_Bs_, core::TimeToSeconds(ts_ns - t_ns));
-
-    const core::PoseMeasurement truth = TruePose(at, R_WS, p_WS);
-    const Eigen::Matrix3d R_Ss = R_WS.transpose() * at.R_Ws;
-
-    core::PoseMeasurement measured;
-    const Eigen::Matrix3d R_hat = R_err_ * R_Ss;
-    measured.p_Ss = truth.p_Ss + dp_S_;
-    Eigen::Matrix3d R_meas = R_hat;
-    if (options_.position_noise_m > 0.0) {
-      measured.p_Ss += options_.position_noise_m *
-                       stream_.Normal3();
-    }
-    if (options_.rotation_noise_rad > 0.0) {
-      R_meas = R_hat * core::ExpSO3(options_.rotation_noise_rad *
-                                    stream_.Normal3());
-    }
-    measured.q_Ss = core::CanonicalQuat(Eigen::Quaterniond(R_meas));
-    measured.covariance = pose_variance * Eigen::Matrix<double, 6, 6>::Identity();
-    measured.has_twist = true;
-    measured.v_s_s_mps = truth.v_s_s_mps;
-    if (lost_) measured.v_s_s_mps += R_hat.transpose() * b_v_S_;
-    measured.omega_s_s_radps = truth.omega_s_s_radps;
-    AddTwistWhiteNoise(options_.velocity_noise_mps, options_.angular_rate_noise_radps, stream_,
-                       &measured);
-    measured.twist_covariance = twist_variance * Eigen::Matrix<double, 6, 6>::Identity();
-
-    SensorSample sample;
-    sample.t_ns = ts_ns;
-    sample.arrival_ns = ts_ns + latency_ns_;
-    sample.measured = measured;
-    sample.truth = truth;
-    sample.conditions = conditions_;
-    out->push_back(std::move(sample));
+    const core::PoseMeasurement truth = frame_.TruePose(at);
+    out->push_back({ts_ns, ts_ns + latency_ns_, MeasuredPose(at, truth, confidence), truth,
+                    conditions_});
     if (reset_pending_) reset_reported_ = true;
   }
+}
+
+VioModel::Tracking VioModel::UpdateTracking(const World& world, const MountMotion& now,
+                                            core::Time t_ns, core::Time dt_ns) {
+  // Feature check at its own rate (ray casts are the expensive part).
+  if (next_feature_check_ns_ < t_ns + dt_ns) {
+    Eigen::Isometry3d T_Ws = Eigen::Isometry3d::Identity();
+    T_Ws.linear() = now.R_Ws;
+    T_Ws.translation() = now.p_Ws;
+    feature_score_ = FeatureScore(world, T_Ws);
+    while (next_feature_check_ns_ < t_ns + dt_ns) next_feature_check_ns_ += feature_period_ns_;
+  }
+  Tracking tracking;
+  tracking.starved = feature_score_ < options_.starved_score_threshold;
+  tracking.blurred = now.omega_s_s.norm() > options_.blur_angular_rate_radps;
+  const bool lost_now = feature_score_ <= 0.0;
+  if (lost_now && !lost_) lost_since_ns_ = t_ns;
+  if (!lost_now) b_v_S_.setZero();  // tracking resumed: the velocity is observed again
+  lost_ = lost_now;
+  return tracking;
+}
+
+void VioModel::WalkWithDistance(const Eigen::Vector3d& p_Ss, const Eigen::Matrix3d& R_WS,
+                                const Tracking& tracking) {
+  // Distance-driven drift, inflated by the active degradations.
+  double factor = 1.0;
+  if (tracking.starved) factor *= options_.starved_drift_factor;
+  if (tracking.blurred) factor *= options_.blur_drift_factor;
+  const Eigen::Vector3d step_S = p_Ss - previous_p_Ss_;
+  previous_p_Ss_ = p_Ss;
+  const double step_m = step_S.norm();
+  frame_.IntegratePath(step_S);
+  // Random walks in distance. Draws depend on the options only (not on the motion), so a
+  // seed gives the same noise sequence whatever the robot does.
+  const double root = factor * std::sqrt(step_m);
+  if (options_.position_random_walk_m_per_sqrtm > 0.0) {
+    frame_.AddPositionError(options_.position_random_walk_m_per_sqrtm * root * stream_.Normal3());
+  }
+  const double sigma_yaw = options_.yaw_random_walk_rad_per_sqrtm * root;
+  const double sigma_tilt = options_.tilt_random_walk_rad_per_sqrtm * root;
+  if (options_.yaw_random_walk_rad_per_sqrtm > 0.0 ||
+      options_.tilt_random_walk_rad_per_sqrtm > 0.0) {
+    // Gravity axis and two horizontal axes of S.
+    const Eigen::Vector3d g_S = R_WS.transpose() * Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d h1_S = R_WS.transpose() * Eigen::Vector3d::UnitX();
+    const Eigen::Vector3d h2_S = R_WS.transpose() * Eigen::Vector3d::UnitY();
+    const Eigen::Vector3d dtheta_S = sigma_yaw * stream_.Normal() * g_S +
+                                     sigma_tilt * stream_.Normal() * h1_S +
+                                     sigma_tilt * stream_.Normal() * h2_S;
+    frame_.RotateError(dtheta_S);
+  }
+}
+
+void VioModel::DeadReckonWhileLost(core::Time t_ns, double dt_s, const Eigen::Matrix3d& R_WS) {
+  // No feature at all: IMU-only dead reckoning, the velocity error walks away; after
+  // reset_after_s the tracker relocalises with a pose jump.
+  const double sigma_b = options_.lost_velocity_random_walk_mps_per_sqrts * std::sqrt(dt_s);
+  if (sigma_b > 0.0) {
+    b_v_S_ += sigma_b * stream_.Normal3();
+  }
+  frame_.AddPositionError(b_v_S_ * dt_s);
+  if (t_ns - lost_since_ns_ < reset_after_ns_) return;
+  const double jump_p = options_.reset_jump_position_m;
+  const double jump_yaw = options_.reset_jump_yaw_rad;
+  if (jump_p > 0.0) {
+    frame_.AddPositionError(jump_p * stream_.Normal3());
+  }
+  if (jump_yaw > 0.0) {
+    const Eigen::Vector3d g_S = R_WS.transpose() * Eigen::Vector3d::UnitZ();
+    frame_.RotateError(jump_yaw * stream_.Normal() * g_S);
+  }
+  b_v_S_.setZero();
+  lost_since_ns_ = t_ns;  // still no features: diverges again, resets again
+  reset_pending_ = true;
+}
+
+core::PoseMeasurement VioModel::MeasuredPose(const MountMotion& at,
+                                             const core::PoseMeasurement& truth,
+                                             int confidence) {
+  std::optional<Eigen::Vector3d> position_noise_S;
+  if (options_.position_noise_m > 0.0) {
+    position_noise_S = options_.position_noise_m * stream_.Normal3();
+  }
+  std::optional<Eigen::Vector3d> rotation_noise_s;
+  if (options_.rotation_noise_rad > 0.0) {
+    rotation_noise_s = options_.rotation_noise_rad * stream_.Normal3();
+  }
+  core::PoseMeasurement measured =
+      frame_.Measured(at, truth, position_noise_S, rotation_noise_s,
+                      lost_ ? std::optional<Eigen::Vector3d>(b_v_S_) : std::nullopt);
+  AddTwistWhiteNoise(options_.velocity_noise_mps, options_.angular_rate_noise_radps, stream_,
+                     &measured);
+  // The covariance a T265 reports: a confidence level, not an error bound.
+  measured.covariance = options_.reported_pose_variance_base * std::pow(10.0, 3 - confidence) *
+                        Eigen::Matrix<double, 6, 6>::Identity();
+  measured.twist_covariance = options_.reported_twist_variance_base *
+                              std::pow(10.0, 1 - confidence) *
+                              Eigen::Matrix<double, 6, 6>::Identity();
+  return measured;
 }
 
 }  // namespace tofu::sim

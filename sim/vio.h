@@ -17,6 +17,8 @@
 #include "core/option_fields.h"
 #include "core/time.h"
 #include "core/units.h"
+#include "sim/mount_motion.h"
+#include "sim/odometry_frame.h"
 #include "sim/sensor.h"
 #include "sim/world.h"
 
@@ -134,7 +136,7 @@ class VioModel final : public SensorModel {
   void Step(const SensorInput& input, std::vector<SensorSample>* out) override;
   uint32_t conditions() const override { return conditions_; }
   /// The odometry frame in W; with the default (start pose) valid after the first Step.
-  Eigen::Isometry3d T_WS() const override { return T_WS_; }
+  Eigen::Isometry3d T_WS() const override { return frame_.T_WS(); }
   const std::string& site() const override { return options_.site; }
 
   /// Feature score in [0, 1] of a camera at T_Ws (s optical frame) in `world`: the
@@ -144,6 +146,23 @@ class VioModel final : public SensorModel {
   double feature_score() const { return feature_score_; }
 
  private:
+  // The degradations of this step's tracking.
+  struct Tracking {
+    bool starved = false;  ///< feature score below starved_score_threshold
+    bool blurred = false;  ///< angular rate above blur_angular_rate_radps
+  };
+  /// Feature check (at its own rate) and the tracking state it sets.
+  Tracking UpdateTracking(const World& world, const MountMotion& now, core::Time t_ns,
+                          core::Time dt_ns);
+  /// The random walks of the pose with the distance moved since the last step.
+  void WalkWithDistance(const Eigen::Vector3d& p_Ss, const Eigen::Matrix3d& R_WS,
+                        const Tracking& tracking);
+  /// No feature: the velocity error walks, and after reset_after_s the pose jumps.
+  void DeadReckonWhileLost(core::Time t_ns, double dt_s, const Eigen::Matrix3d& R_WS);
+  /// The reported pose and twist of one sample, with the covariances of `confidence`.
+  core::PoseMeasurement MeasuredPose(const MountMotion& at, const core::PoseMeasurement& truth,
+                                     int confidence);
+
   std::string name_;
   VioOptions options_;
   core::RandomStream stream_;
@@ -154,15 +173,11 @@ class VioModel final : public SensorModel {
   core::Time feature_period_ns_;
   core::Time reset_after_ns_;
 
-  bool started_ = false;  ///< the first step has latched T_WS (unless configured)
-  Eigen::Isometry3d T_WS_ = Eigen::Isometry3d::Identity();
+  DriftingOdometryFrame frame_;  ///< S, and the pose error: R_hat = R_err R_Ss, dp_S
   core::Time next_sample_ns_ = 0;
   core::Time next_feature_check_ns_ = 0;
   Eigen::Vector3d previous_p_Ss_ = Eigen::Vector3d::Zero();
 
-  // Error state.
-  Eigen::Matrix3d R_err_ = Eigen::Matrix3d::Identity();  ///< R_hat = R_err R_Ss
-  Eigen::Vector3d dp_S_ = Eigen::Vector3d::Zero();         ///< p_hat - p_Ss [m]
   Eigen::Vector3d b_v_S_ = Eigen::Vector3d::Zero();        ///< velocity error while lost [m/s]
 
   double feature_score_ = 1.0;

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <limits>
 #include <regex>
+#include <stdexcept>
 #include <string>
 #include <tuple>
 #include <utility>
@@ -189,6 +190,19 @@ const MountSite* RobotDescription::FindSite(const std::string& name) const {
     if (site.name == name) return &site;
   }
   return nullptr;
+}
+
+const MountSite& RobotDescription::Site(const std::string& name, const std::string& who) const {
+  const MountSite* site = FindSite(name);
+  if (site == nullptr) throw std::invalid_argument(who + ": the robot has no site '" + name + "'");
+  return *site;
+}
+
+Eigen::Isometry3d MountSite::T_Bs() const {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = p_Bs;
+  T.linear() = q_Bs.normalized().toRotationMatrix();
+  return T;
 }
 
 struct World::Impl {

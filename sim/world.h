@@ -41,6 +41,9 @@ struct MountSite {
   std::string name;
   Eigen::Vector3d p_Bs = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_Bs = Eigen::Quaterniond::Identity();
+
+  /// The mount as a pose of s in B (q_Bs normalised).
+  Eigen::Isometry3d T_Bs() const;
 };
 
 /// What the harness and the controller need to know of the robot, read from the model.
@@ -51,6 +54,9 @@ struct RobotDescription {
   double tilt_servo_max_rate_radps = 5.0;
   std::vector<MountSite> sites;  ///< imu, vio_camera, lidar, prism, gnss_antenna, tool_tip
   const MountSite* FindSite(const std::string& name) const;
+  /// The site `name`; std::invalid_argument "<who>: the robot has no site '<name>'" when
+  /// the model has none (a sensor model's constructor naming itself as `who`).
+  const MountSite& Site(const std::string& name, const std::string& who) const;
 };
 
 /// Ground truth of the body frame B at one physics step.
