@@ -181,6 +181,11 @@ struct FaultInjector::Stage {
 
   /// Transforms `sample` in place; false if the sample is dropped.
   bool Process(SensorSample* sample);
+  // The kinds whose effect takes more than a few lines, on a sample inside the window;
+  // `previous` is the stamp of the sample before (if any).
+  void AddNonGaussianNoise(core::Time t, std::optional<core::Time> previous, core::Measurement* m);
+  void AddDivergence(core::Time t, core::Measurement* m) const;
+  void MaybeAddOutlier(core::Time t, std::optional<core::Time> previous, core::Measurement* m);
 
   FaultSpec spec;
   FaultWindow window;
@@ -213,40 +218,13 @@ bool FaultInjector::Stage::Process(SensorSample* sample) {
       return true;
     }
 
-    case FaultKind::kNonGaussianNoise: {
-      if (!active) return true;
-      const NonGaussianNoiseParams& p = spec.noise;
-      // Time since the previous sample in the window (or since the window's start).
-      const core::Time since = previous && *previous >= window.start_ns ? *previous
-                                                                        : window.start_ns;
-      const double dt = core::TimeToSeconds(t - since);
-      double phi = 1.0;
-      double step_std = p.brown_std_m_per_sqrt_s * std::sqrt(dt);
-      if (std::isfinite(p.brown_time_constant_s)) {
-        const double tau = p.brown_time_constant_s;
-        phi = std::exp(-dt / tau);
-        step_std = p.brown_std_m_per_sqrt_s * std::sqrt(0.5 * tau * (1.0 - phi * phi));
-      }
-      for (int i = 0; i < 3; ++i) brown_m[i] = phi * brown_m[i] + step_std * rng.Normal();
-      const Eigen::Vector3d white_m = rng.Normal3();
-      *MutablePosition(&m) += p.white_std_m * white_m + brown_m;
+    case FaultKind::kNonGaussianNoise:
+      if (active) AddNonGaussianNoise(t, previous, &m);
       return true;
-    }
 
-    case FaultKind::kDivergence: {
-      if (!active) return true;
-      const DivergenceParams& p = spec.divergence;
-      const Eigen::Vector3d axis_S = p.axis_S.normalized();
-      const double x = core::TimeToSeconds(t - window.start_ns);
-      const double growth = std::exp(x / p.time_constant_s);
-      // d(x) = int_0^x v0 e^(u/tau) du = v0 tau (e^(x/tau) - 1).
-      *MutablePosition(&m) += p.initial_velocity_mps * p.time_constant_s * (growth - 1.0) * axis_S;
-      if (auto* pose = std::get_if<core::PoseMeasurement>(&m); pose && pose->has_twist) {
-        pose->v_s_s_mps +=
-            pose->q_Ss.conjugate() * (p.initial_velocity_mps * growth * axis_S);
-      }
+    case FaultKind::kDivergence:
+      if (active) AddDivergence(t, &m);
       return true;
-    }
 
     case FaultKind::kDropout:
       return !active;
@@ -285,31 +263,62 @@ bool FaultInjector::Stage::Process(SensorSample* sample) {
       return true;
     }
 
-    case FaultKind::kOutliers: {
-      if (!active) return true;
-      const OutlierParams& p = spec.outliers;
-      // At least one Poisson event in (previous stamp, t] within the window.
-      const core::Time since = previous ? std::max(*previous, window.start_ns) : window.start_ns;
-      const double dt = core::TimeToSeconds(t - since);
-      const double probability = 1.0 - std::exp(-p.rate_hz * dt);
-      if (rng.Uniform(0.0, 1.0) >= probability) return true;
-      const int nu = p.degrees_of_freedom;
-      if (auto* imu = std::get_if<core::ImuMeasurement>(&m)) {
-        imu->acc_I_mps2 += p.acc_scale_mps2 * StudentT3(rng, nu);
-        imu->gyro_I_radps += p.gyro_scale_radps * StudentT3(rng, nu);
-      } else {
-        *MutablePosition(&m) += p.scale_m * StudentT3(rng, nu);
-        if (auto* pose = std::get_if<core::PoseMeasurement>(&m);
-            pose && p.rotation_scale_rad > 0.0) {
-          pose->q_Ss = core::CanonicalQuat(
-              (core::ExpQuat(p.rotation_scale_rad * StudentT3(rng, nu)) * pose->q_Ss)
-                  .normalized());
-        }
-      }
+    case FaultKind::kOutliers:
+      if (active) MaybeAddOutlier(t, previous, &m);
       return true;
-    }
   }
   return true;
+}
+
+void FaultInjector::Stage::AddNonGaussianNoise(core::Time t, std::optional<core::Time> previous,
+                                               core::Measurement* m) {
+  const NonGaussianNoiseParams& p = spec.noise;
+  // Time since the previous sample in the window (or since the window's start).
+  const core::Time since = previous && *previous >= window.start_ns ? *previous : window.start_ns;
+  const double dt = core::TimeToSeconds(t - since);
+  double phi = 1.0;
+  double step_std = p.brown_std_m_per_sqrt_s * std::sqrt(dt);
+  if (std::isfinite(p.brown_time_constant_s)) {
+    const double tau = p.brown_time_constant_s;
+    phi = std::exp(-dt / tau);
+    step_std = p.brown_std_m_per_sqrt_s * std::sqrt(0.5 * tau * (1.0 - phi * phi));
+  }
+  for (int i = 0; i < 3; ++i) brown_m[i] = phi * brown_m[i] + step_std * rng.Normal();
+  const Eigen::Vector3d white_m = rng.Normal3();
+  *MutablePosition(m) += p.white_std_m * white_m + brown_m;
+}
+
+void FaultInjector::Stage::AddDivergence(core::Time t, core::Measurement* m) const {
+  const DivergenceParams& p = spec.divergence;
+  const Eigen::Vector3d axis_S = p.axis_S.normalized();
+  const double x = core::TimeToSeconds(t - window.start_ns);
+  const double growth = std::exp(x / p.time_constant_s);
+  // d(x) = int_0^x v0 e^(u/tau) du = v0 tau (e^(x/tau) - 1).
+  *MutablePosition(m) += p.initial_velocity_mps * p.time_constant_s * (growth - 1.0) * axis_S;
+  if (auto* pose = std::get_if<core::PoseMeasurement>(m); pose && pose->has_twist) {
+    pose->v_s_s_mps += pose->q_Ss.conjugate() * (p.initial_velocity_mps * growth * axis_S);
+  }
+}
+
+void FaultInjector::Stage::MaybeAddOutlier(core::Time t, std::optional<core::Time> previous,
+                                           core::Measurement* m) {
+  const OutlierParams& p = spec.outliers;
+  // At least one Poisson event in (previous stamp, t] within the window.
+  const core::Time since = previous ? std::max(*previous, window.start_ns) : window.start_ns;
+  const double dt = core::TimeToSeconds(t - since);
+  const double probability = 1.0 - std::exp(-p.rate_hz * dt);
+  if (rng.Uniform(0.0, 1.0) >= probability) return;
+  const int nu = p.degrees_of_freedom;
+  if (auto* imu = std::get_if<core::ImuMeasurement>(m)) {
+    imu->acc_I_mps2 += p.acc_scale_mps2 * StudentT3(rng, nu);
+    imu->gyro_I_radps += p.gyro_scale_radps * StudentT3(rng, nu);
+    return;
+  }
+  *MutablePosition(m) += p.scale_m * StudentT3(rng, nu);
+  if (auto* pose = std::get_if<core::PoseMeasurement>(m); pose && p.rotation_scale_rad > 0.0) {
+    pose->q_Ss = core::CanonicalQuat(
+        (core::ExpQuat(p.rotation_scale_rad * StudentT3(rng, nu)) * pose->q_Ss).normalized());
+  }
 }
 
 FaultInjector::FaultInjector(std::vector<FaultSpec> specs, uint64_t seed)
