@@ -24,6 +24,7 @@
 #include "core/lie.h"
 #include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
+#include "replay/run_calibration.h"
 #include "sim/world.h"
 #include "tests/sensor_model_test_support.h"
 
@@ -346,6 +347,99 @@ TEST(LidarOdometryOptionsReader, RejectsAnOutOfRangeValue) {
   EXPECT_EQ(ReadError("range_noise_m: -0.01\n").key_path(), "range_noise_m");
   const core::InputError ranges = ReadError("min_range_m: 50\n");
   EXPECT_NE(std::string(ranges.what()).find("min_range_m"), std::string::npos);
+}
+
+// ---- the beam pattern (core/lidar_beam_pattern.h), shared with the run's readers ----
+
+TEST(LidarBeamPattern, RaysSpanTheElevationsAndTheFullTurn) {
+  core::LidarBeamPattern beams;  // Mid-360: 72 x 12 over [-7, 52] deg
+  for (int row = 0; row < beams.elevation_count; ++row) {
+    for (int column = 0; column < beams.azimuth_count; ++column) {
+      EXPECT_NEAR(beams.Direction_s(row, column).norm(), 1.0, 1e-15);
+    }
+  }
+  const auto elevation = [](const Eigen::Vector3d& d) { return std::asin(d.z()); };
+  EXPECT_NEAR(elevation(beams.Direction_s(0, 5)), beams.elevation_min_rad, 1e-12);
+  EXPECT_NEAR(elevation(beams.Direction_s(beams.elevation_count - 1, 5)), beams.elevation_max_rad,
+              1e-12);
+  // Neighbouring columns a full turn / count apart; the offset turns every ray.
+  const double step = 2.0 * std::numbers::pi / beams.azimuth_count;
+  const Eigen::Vector3d a = beams.Direction_s(3, 10);
+  const Eigen::Vector3d b = beams.Direction_s(3, 11);
+  EXPECT_NEAR(std::atan2(b.y(), b.x()) - std::atan2(a.y(), a.x()), step, 1e-12);
+  const Eigen::Vector3d turned = beams.Direction_s(3, 10, 0.25 * step);
+  EXPECT_NEAR(std::atan2(turned.y(), turned.x()) - std::atan2(a.y(), a.x()), 0.25 * step, 1e-12);
+  // One row: at the middle of the elevation band.
+  beams.elevation_count = 1;
+  EXPECT_NEAR(elevation(beams.Direction_s(0, 0)),
+              0.5 * (beams.elevation_min_rad + beams.elevation_max_rad), 1e-12);
+  EXPECT_TRUE(beams.InRange(beams.min_range_m));
+  EXPECT_TRUE(beams.InRange(beams.max_range_m));
+  EXPECT_FALSE(beams.InRange(0.5 * beams.min_range_m));
+  EXPECT_FALSE(beams.InRange(std::nan("")));
+}
+
+TEST(LidarBeamPattern, RangesAndElevationsOutOfOrderAreInvalidUnderTheLaterKey) {
+  std::string why;
+  core::LidarBeamPattern beams;
+  beams.min_range_m = beams.max_range_m;
+  EXPECT_FALSE(beams.IsValid(&why));
+  EXPECT_EQ(why.rfind("max_range_m: ", 0), 0u) << why;
+  beams = {};
+  std::swap(beams.elevation_min_rad, beams.elevation_max_rad);
+  EXPECT_FALSE(beams.IsValid(&why));
+  EXPECT_EQ(why.rfind("elevation_max_deg: ", 0), 0u) << why;
+  // LiDAR odometry's options are a beam pattern and check it the same way.
+  LidarOdometryOptions options;
+  options.min_range_m = 2.0 * options.max_range_m;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_EQ(why.rfind("max_range_m: ", 0), 0u) << why;
+}
+
+// What the scenario reader takes, calibration.yaml's reader takes the same: one table.
+TEST(LidarBeamPattern, CalibrationReaderReadsTheScenarioKeysWithTheSameLimits) {
+  const std::string beams_yaml =
+      "azimuth_count: 36, elevation_count: 8, elevation_min_deg: -10, elevation_max_deg: 50, "
+      "min_range_m: 0.2, max_range_m: 70";
+  const LidarOdometryOptions o = harness::internal::ReadSensorOptions<sim::LidarOdometryOptions>(
+      Root("{" + beams_yaml + "}"));
+  const auto calibration = [](const std::string& options) {
+    return replay::ParseRunCalibration(
+        "sensors:\n  lidar:\n    type: lidar_odometry\n    options: {" + options + "}\n",
+        "calibration.yaml");
+  };
+  const std::optional<core::LidarBeamPattern> read = calibration(beams_yaml).LidarBeams("lidar");
+  ASSERT_TRUE(read.has_value());
+  EXPECT_EQ(read->azimuth_count, o.azimuth_count);
+  EXPECT_EQ(read->elevation_count, o.elevation_count);
+  EXPECT_EQ(read->elevation_min_rad, o.elevation_min_rad);
+  EXPECT_EQ(read->elevation_max_rad, o.elevation_max_rad);
+  EXPECT_EQ(read->min_range_m, o.min_range_m);
+  EXPECT_EQ(read->max_range_m, o.max_range_m);
+  // Each limit of the table, and the order of the ranges, at the offending key.
+  const std::pair<std::string, std::string> broken[] = {
+      {"azimuth_count: 3601", "azimuth_count"},
+      {"elevation_count: 2.5", "elevation_count"},
+      {"elevation_min_deg: -91", "elevation_min_deg"},
+      {"min_range_m: -1", "min_range_m"},
+      {"max_range_m: 0.1", "max_range_m"},
+      {"elevation_max_deg: -20", "elevation_max_deg"}};
+  for (const auto& [replacement, key] : broken) {
+    std::string text = beams_yaml;
+    const size_t at = text.find(key + ":");
+    text.replace(at, text.find(',', at) == std::string::npos ? std::string::npos
+                                                             : text.find(',', at) - at,
+                 replacement);
+    try {
+      (void)calibration(text).LidarBeams("lidar");
+      ADD_FAILURE() << "no InputError for " << text;
+    } catch (const core::InputError& e) {
+      EXPECT_EQ(e.key_path(), "sensors.lidar.options." + key) << e.what();
+      EXPECT_EQ(e.location().line, 4) << e.what();
+    }
+  }
+  // A pattern with a key missing is no pattern (a run written before beams were recorded).
+  EXPECT_FALSE(calibration("azimuth_count: 36").LidarBeams("lidar").has_value());
 }
 
 }  // namespace

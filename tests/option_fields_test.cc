@@ -14,6 +14,7 @@
 #include <type_traits>
 #include <variant>
 
+#include "core/lidar_beam_pattern.h"
 #include "core/option_fields.h"
 #include "core/units.h"
 #include "sim/controller.h"
@@ -80,7 +81,8 @@ template <typename Options>
 class OptionFieldsTest : public ::testing::Test {};
 
 using OptionTypes =
-    ::testing::Types<sim::ImuOptions, sim::VioOptions, sim::LidarOdometryOptions,
+    ::testing::Types<core::LidarBeamPattern, sim::ImuOptions, sim::VioOptions,
+                     sim::LidarOdometryOptions,
                      sim::TotalStationOptions, sim::GnssOptions, sim::GnssFixErrorOptions,
                      sim::WindOptions, sim::ControllerOptions>;
 TYPED_TEST_SUITE(OptionFieldsTest, OptionTypes);
