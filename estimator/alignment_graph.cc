@@ -400,7 +400,7 @@ void AlignmentGraph::AnalyseObservability(const Eigen::Isometry3d& T_AL) {
   const Eigen::LLT<Eigen::Matrix3d> llt_pp(H_pp);
   const Eigen::Matrix3d K = llt_pp.solve(H_pt);  // H_pp⁻¹ H_pθ
   Eigen::Matrix3d H_rot = H_tt - H_pt.transpose() * K;
-  H_rot = 0.5 * (H_rot + H_rot.transpose());
+  H_rot = 0.5 * (H_rot + H_rot.transpose()).eval();  // eval: no aliasing
 
   // Directions: eigen-decomposition (ascending), per pair so the threshold does not
   // depend on the window length.

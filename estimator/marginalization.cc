@@ -143,7 +143,7 @@ bool Marginalize(const std::vector<MarginalFactor>& factors,
   const Eigen::MatrixXd H_km = H.bottomLeftCorner(kept_size, marginal_size);
   Eigen::MatrixXd H_star =
       H.bottomRightCorner(kept_size, kept_size) - H_km * H_mm_pinv * H_km.transpose();
-  H_star = 0.5 * (H_star + H_star.transpose());
+  H_star = 0.5 * (H_star + H_star.transpose()).eval();  // eval: no aliasing
   const Eigen::VectorXd b_star = b.tail(kept_size) - H_km * H_mm_pinv * b.head(marginal_size);
 
   // H* = V Λ Vᵀ = Jᵀ J with J = Λ^½ Vᵀ; b* = Jᵀ r0 with r0 = Λ^-½ Vᵀ b*.

@@ -305,9 +305,8 @@ Eigen::Matrix<double, 6, 6> LidarOdometryModel::ReportedCovariance(
   Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
   A.topLeftCorner<3, 3>() = at.R_Ws.transpose();
   A.bottomRightCorner<3, 3>() = R_WS.transpose();
-  Eigen::Matrix<double, 6, 6> covariance = A * covariance_W * A.transpose();
-  covariance = 0.5 * (covariance + covariance.transpose());
-  return covariance;
+  const Eigen::Matrix<double, 6, 6> covariance = A * covariance_W * A.transpose();
+  return 0.5 * (covariance + covariance.transpose());
 }
 
 }  // namespace tofu::sim
