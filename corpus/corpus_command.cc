@@ -436,12 +436,19 @@ std::string CardText(const CorpusSpec& spec, const std::vector<ManifestRow>& row
 
 }  // namespace
 
-int RunCorpusVerify(const fs::path& dir, bool quiet) {
-  if (!fs::is_directory(dir) || !fs::exists(dir / kSpecFile)) {
-    throw core::InputError({dir.string()}, "", "not a corpus directory (expected corpus.yaml and shard_*.h5)");
-  }
-  const CorpusSpec spec = ParseCorpusSpec(ReadText(dir / kSpecFile), (dir / kSpecFile).string());
-  std::vector<std::string> problems;
+namespace {
+
+// What verify gathers from the shards for the manifest and CARD.md.
+struct CorpusTally {
+  std::map<std::uint64_t, int> seen;  ///< episode index -> how many shards hold it
+  std::vector<ManifestRow> rows;
+  std::map<std::tuple<std::string, std::string, std::string>, int> events;
+  std::map<std::string, std::pair<std::uint64_t, std::uint64_t>> balance;
+  std::string version = "?", commit = "?";
+};
+
+// The shard_*.h5 files of `dir`, by name; a shard that did not finish is a problem.
+std::vector<fs::path> ShardFiles(const fs::path& dir, std::vector<std::string>& problems) {
   std::vector<fs::path> shards;
   for (const auto& entry : fs::directory_iterator(dir)) {
     const std::string name = entry.path().filename().string();
@@ -450,69 +457,85 @@ int RunCorpusVerify(const fs::path& dir, bool quiet) {
   }
   std::sort(shards.begin(), shards.end());
   if (shards.empty()) problems.push_back("no shard_*.h5 file");
+  return shards;
+}
 
-  std::map<std::uint64_t, int> seen;
-  std::vector<ManifestRow> rows;
-  std::map<std::tuple<std::string, std::string, std::string>, int> events;
-  std::map<std::string, std::pair<std::uint64_t, std::uint64_t>> balance;
-  std::string version = "?", commit = "?";
-  for (const fs::path& path : shards) {
-    const Hdf5File file = Hdf5File::OpenReadOnly(path);
-    version = file.root().StringAttribute("tofu_version");
-    commit = file.root().StringAttribute("tofu_commit");
-    if (file.root().StringAttribute("spec_yaml") != spec.text) {
-      problems.push_back(fmt::format("{}: made from another spec than {}", path.filename().string(), kSpecFile));
-    }
-    // The manifest part: what the generator recorded of each episode.
-    std::map<std::string, std::string> recorded_hash;
-    const fs::path part = path.parent_path() / (path.stem().string() + ".manifest.json");
-    if (!fs::exists(part)) {
-      problems.push_back(fmt::format("{}: missing", part.filename().string()));
-    } else {
-      for (const auto& row : nlohmann::json::parse(ReadText(part))) {
-        recorded_hash[row.at("id").get<std::string>()] = row.at("content_hash").get<std::string>();
-      }
-    }
-    const Hdf5Group episodes = file.root().OpenGroup("episodes");
-    for (const std::string& id : episodes.Children()) {
-      const Hdf5Group episode = episodes.OpenGroup(id);
-      ManifestRow row = ReadManifestRow(episode);
-      row.shard = fmt::format("{}/{}", file.root().Int64Attribute("shard_index"), file.root().Int64Attribute("shard_count"));
-      ++seen[row.index];
-      const std::string hash = fmt::format("{:016x}", episode.ContentHash());
-      const auto recorded = recorded_hash.find(id);
-      if (recorded == recorded_hash.end()) {
-        problems.push_back(fmt::format("{}: episode {} is not in the shard's manifest", path.filename().string(), id));
-      } else if (recorded->second != hash || row.content_hash != hash) {
-        problems.push_back(fmt::format("{}: episode {}: content hash {} does not match its manifest row ({})",
-                                       path.filename().string(), id, hash, recorded->second));
-      }
-      if (PlanEpisode(spec, row.index).id != id) {
-        problems.push_back(fmt::format("{}: episode {} is not episode {} of the spec", path.filename().string(), id, row.index));
-      }
-      for (const std::string& p : CheckEventsAgainstMasks(episode)) problems.push_back(p);
-      const Hdf5Group table = episode.OpenGroup("events");
-      const auto sensor = table.ReadStrings("sensor");
-      const auto kind = table.ReadStrings("kind");
-      const auto cause = table.ReadStrings("cause");
-      // Every scheduled fault has its row (a dropout leaves no flagged sample to check).
-      const std::size_t scheduled = static_cast<std::size_t>(std::count(cause.begin(), cause.end(), "scheduled"));
-      std::size_t planned = 0;
-      for (const PlannedFault& f : PlanEpisode(spec, row.index).faults) planned += f.start_s < spec.duration_s;
-      if (scheduled != planned) {
-        problems.push_back(fmt::format("{}: episode {}: {} scheduled fault events, the plan has {} faults",
-                                       path.filename().string(), id, scheduled, planned));
-      }
-      for (std::size_t e = 0; e < sensor.size(); ++e) ++events[{kind[e], sensor[e], cause[e]}];
-      const Hdf5Group sensors = episode.OpenGroup("sensors");
-      for (const std::string& s : sensors.Children()) {
-        const auto anomaly = sensors.OpenGroup(s).ReadUInt8("anomaly");
-        balance[s].first += static_cast<std::uint64_t>(std::count(anomaly.begin(), anomaly.end(), 1));
-        balance[s].second += anomaly.size();
-      }
-      rows.push_back(row);
+// The manifest part: what the generator recorded of each episode (id -> content hash).
+std::map<std::string, std::string> RecordedContentHashes(const fs::path& shard,
+                                                         std::vector<std::string>& problems) {
+  std::map<std::string, std::string> recorded_hash;
+  const fs::path part = shard.parent_path() / (shard.stem().string() + ".manifest.json");
+  if (!fs::exists(part)) {
+    problems.push_back(fmt::format("{}: missing", part.filename().string()));
+  } else {
+    for (const auto& row : nlohmann::json::parse(ReadText(part))) {
+      recorded_hash[row.at("id").get<std::string>()] = row.at("content_hash").get<std::string>();
     }
   }
+  return recorded_hash;
+}
+
+// Episode `id` of the shard at `shard` against its manifest row, the spec's plan and its
+// own masks; counts it, its events and its samples into `tally`.
+void VerifyEpisode(const CorpusSpec& spec, const fs::path& shard, const Hdf5File& file,
+                   const std::string& id, const Hdf5Group& episode,
+                   const std::map<std::string, std::string>& recorded_hash, CorpusTally& tally,
+                   std::vector<std::string>& problems) {
+  ManifestRow row = ReadManifestRow(episode);
+  row.shard = fmt::format("{}/{}", file.root().Int64Attribute("shard_index"), file.root().Int64Attribute("shard_count"));
+  ++tally.seen[row.index];
+  const std::string hash = fmt::format("{:016x}", episode.ContentHash());
+  const auto recorded = recorded_hash.find(id);
+  if (recorded == recorded_hash.end()) {
+    problems.push_back(fmt::format("{}: episode {} is not in the shard's manifest", shard.filename().string(), id));
+  } else if (recorded->second != hash || row.content_hash != hash) {
+    problems.push_back(fmt::format("{}: episode {}: content hash {} does not match its manifest row ({})",
+                                   shard.filename().string(), id, hash, recorded->second));
+  }
+  if (PlanEpisode(spec, row.index).id != id) {
+    problems.push_back(fmt::format("{}: episode {} is not episode {} of the spec", shard.filename().string(), id, row.index));
+  }
+  for (const std::string& p : CheckEventsAgainstMasks(episode)) problems.push_back(p);
+  const Hdf5Group table = episode.OpenGroup("events");
+  const auto sensor = table.ReadStrings("sensor");
+  const auto kind = table.ReadStrings("kind");
+  const auto cause = table.ReadStrings("cause");
+  // Every scheduled fault has its row (a dropout leaves no flagged sample to check).
+  const std::size_t scheduled = static_cast<std::size_t>(std::count(cause.begin(), cause.end(), "scheduled"));
+  std::size_t planned = 0;
+  for (const PlannedFault& f : PlanEpisode(spec, row.index).faults) planned += f.start_s < spec.duration_s;
+  if (scheduled != planned) {
+    problems.push_back(fmt::format("{}: episode {}: {} scheduled fault events, the plan has {} faults",
+                                   shard.filename().string(), id, scheduled, planned));
+  }
+  for (std::size_t e = 0; e < sensor.size(); ++e) ++tally.events[{kind[e], sensor[e], cause[e]}];
+  const Hdf5Group sensors = episode.OpenGroup("sensors");
+  for (const std::string& s : sensors.Children()) {
+    const auto anomaly = sensors.OpenGroup(s).ReadUInt8("anomaly");
+    tally.balance[s].first += static_cast<std::uint64_t>(std::count(anomaly.begin(), anomaly.end(), 1));
+    tally.balance[s].second += anomaly.size();
+  }
+  tally.rows.push_back(row);
+}
+
+void VerifyShard(const CorpusSpec& spec, const fs::path& path, CorpusTally& tally,
+                 std::vector<std::string>& problems) {
+  const Hdf5File file = Hdf5File::OpenReadOnly(path);
+  tally.version = file.root().StringAttribute("tofu_version");
+  tally.commit = file.root().StringAttribute("tofu_commit");
+  if (file.root().StringAttribute("spec_yaml") != spec.text) {
+    problems.push_back(fmt::format("{}: made from another spec than {}", path.filename().string(), kSpecFile));
+  }
+  const std::map<std::string, std::string> recorded_hash = RecordedContentHashes(path, problems);
+  const Hdf5Group episodes = file.root().OpenGroup("episodes");
+  for (const std::string& id : episodes.Children()) {
+    VerifyEpisode(spec, path, file, id, episodes.OpenGroup(id), recorded_hash, tally, problems);
+  }
+}
+
+// Every planned episode once, and no other.
+void CheckEpisodeCoverage(const CorpusSpec& spec, std::map<std::uint64_t, int>& seen,
+                          std::vector<std::string>& problems) {
   for (std::uint64_t i = 0; i < spec.episodes; ++i) {
     const int n = seen.count(i) ? seen[i] : 0;
     if (n != 1) problems.push_back(fmt::format("episode {} ({}) is present {} times (expected once)", i, PlanEpisode(spec, i).id, n));
@@ -520,7 +543,11 @@ int RunCorpusVerify(const fs::path& dir, bool quiet) {
   for (const auto& [i, n] : seen) {
     if (i >= spec.episodes) problems.push_back(fmt::format("episode {} is not planned (the spec has {})", i, spec.episodes));
   }
+}
 
+// manifest.csv, manifest.json and CARD.md of the corpus, the rows by episode index.
+void WriteManifests(const fs::path& dir, const CorpusSpec& spec, CorpusTally& tally) {
+  std::vector<ManifestRow>& rows = tally.rows;
   std::sort(rows.begin(), rows.end(), [](const ManifestRow& a, const ManifestRow& b) { return a.index < b.index; });
   const std::vector<std::string> methods = MethodsOf(rows);
   std::string csv = ManifestCsvHeader(methods);
@@ -531,7 +558,22 @@ int RunCorpusVerify(const fs::path& dir, bool quiet) {
   }
   WriteAtomically(dir / "manifest.csv", csv);
   WriteAtomically(dir / "manifest.json", json.dump(1) + "\n");
-  WriteAtomically(dir / "CARD.md", CardText(spec, rows, events, balance, version, commit));
+  WriteAtomically(dir / "CARD.md", CardText(spec, rows, tally.events, tally.balance, tally.version, tally.commit));
+}
+
+}  // namespace
+
+int RunCorpusVerify(const fs::path& dir, bool quiet) {
+  if (!fs::is_directory(dir) || !fs::exists(dir / kSpecFile)) {
+    throw core::InputError({dir.string()}, "", "not a corpus directory (expected corpus.yaml and shard_*.h5)");
+  }
+  const CorpusSpec spec = ParseCorpusSpec(ReadText(dir / kSpecFile), (dir / kSpecFile).string());
+  std::vector<std::string> problems;
+  const std::vector<fs::path> shards = ShardFiles(dir, problems);
+  CorpusTally tally;
+  for (const fs::path& path : shards) VerifyShard(spec, path, tally, problems);
+  CheckEpisodeCoverage(spec, tally.seen, problems);
+  WriteManifests(dir, spec, tally);
 
   if (!problems.empty()) {
     fmt::print(stderr, "tofu corpus verify: {}: {} problem(s)\n", dir.string(), problems.size());
@@ -540,7 +582,7 @@ int RunCorpusVerify(const fs::path& dir, bool quiet) {
   }
   if (!quiet) {
     fmt::print("{}: {} episodes in {} shard(s), every planned episode once, content hashes and event tables "
-               "agree; wrote manifest.csv, manifest.json, CARD.md\n", dir.string(), rows.size(), shards.size());
+               "agree; wrote manifest.csv, manifest.json, CARD.md\n", dir.string(), tally.rows.size(), shards.size());
   }
   return core::kExitOk;
 }

@@ -109,6 +109,85 @@ std::string FaultParameters(sim::FaultKind kind, double magnitude, core::RandomS
   return "";
 }
 
+// A circle's centripetal acceleration v^2 / r stays within this limit [m/s^2], the
+// episodes' max_acceleration_mps2.
+constexpr double kMaxAcceleration = 1.5;
+
+// The flight after the initial hover: where it starts, its yaw, and its one segment (YAML
+// lines of `trajectory.segments`).
+struct PlannedPath {
+  Eigen::Vector3d start_W_m;
+  double yaw_deg = 0.0;
+  std::string segment_yaml;
+};
+
+// The trajectory: hover, then the family's segment, flown for the whole episode. A circle
+// may lower `plan.speed_mps`.
+PlannedPath PlanPath(const CorpusSpec& spec, const WorldChoice& world, double tilt_sign,
+                     EpisodePlan& plan) {
+  const double cx = world.center_xy_m.x(), cy = world.center_xy_m.y(), h = plan.height_m;
+  PlannedPath path;
+  path.start_W_m = Eigen::Vector3d(cx, cy, h);
+  if (plan.family == "circle") {
+    plan.speed_mps = Round4(std::min(plan.speed_mps, std::sqrt(0.8 * kMaxAcceleration * plan.size_m)));
+    const double laps = std::ceil(spec.duration_s * plan.speed_mps / (2.0 * kPi * plan.size_m)) + 1.0;
+    path.segment_yaml = fmt::format("    - circle: {{center_m: {}, radius_m: {}, speed_mps: {}, laps: {}}}\n",
+                                    Vec({cx, cy, h}), FormatDouble(plan.size_m), FormatDouble(plan.speed_mps),
+                                    FormatDouble(laps));
+  } else if (plan.family == "figure_eight") {
+    // A lap of the lemniscate is ~4.6 half-lengths long at half_width = 0.6 half_length.
+    const double laps = std::ceil(spec.duration_s * plan.speed_mps / (4.6 * plan.size_m)) + 1.0;
+    path.segment_yaml = fmt::format(
+        "    - figure_eight: {{center_m: {}, half_length_m: {}, half_width_m: {}, speed_mps: {}, laps: {}}}\n",
+        Vec({cx, cy, h}), FormatDouble(plan.size_m), FormatDouble(Round4(0.6 * plan.size_m)),
+        FormatDouble(plan.speed_mps), FormatDouble(laps));
+  } else {
+    // wall_pass: back and forth along the facade at structure_distance_m from it, facing it.
+    const Eigen::Vector2d n = *world.wall_normal_xy;
+    const Eigen::Vector2d tangent(-n.y(), n.x());
+    const Eigen::Vector2d mid = *world.wall_point_xy_m + plan.structure_distance_m * n;
+    const Eigen::Vector2d a = mid - plan.size_m * tangent, b = mid + plan.size_m * tangent;
+    path.yaw_deg = Round4(std::atan2(-n.y(), -n.x()) * 180.0 / kPi);
+    path.start_W_m = Eigen::Vector3d(a.x(), a.y(), h);
+    const double pass_s = 2.0 * plan.size_m / plan.speed_mps + 2.0;
+    const int passes = std::max(1, static_cast<int>(std::ceil(spec.duration_s / pass_s)));
+    path.segment_yaml = "    - waypoints:\n";
+    for (int i = 0; i < passes; ++i) {
+      const Eigen::Vector2d p = i % 2 == 0 ? b : a;
+      path.segment_yaml += fmt::format("        - {{position_m: {}, rpy_deg: [{}, 0, {}]}}\n",
+                                       Vec(Eigen::Vector3d(p.x(), p.y(), h).unaryExpr(&Round4)),
+                                       FormatDouble(tilt_sign * plan.tilt_deg), FormatDouble(path.yaw_deg));
+    }
+  }
+  return path;
+}
+
+// Faults: how many, which kinds (by weight), on which sensor, when and how big. Appends
+// them to `plan.faults` and returns their lines of the scenario's `faults:`.
+std::string PlanFaults(const CorpusSpec& spec, core::RandomStream& random, EpisodePlan& plan) {
+  const int count = static_cast<int>(std::floor(Draw(random, {spec.fault_count.lo, spec.fault_count.hi + 0.999999})));
+  double total_weight = 0.0;
+  for (const FaultChoice& f : spec.faults) total_weight += f.weight;
+  std::string faults_yaml;
+  for (int k = 0; k < count && !spec.faults.empty(); ++k) {
+    double u = random.Uniform(0.0, total_weight);
+    std::size_t which = 0;
+    while (which + 1 < spec.faults.size() && u >= spec.faults[which].weight) u -= spec.faults[which++].weight;
+    const FaultChoice& choice = spec.faults[which];
+    PlannedFault fault;
+    fault.kind = choice.kind;
+    fault.sensor = choice.sensors[DrawIndex(random, choice.sensors.size())];
+    fault.start_s = Round4(std::min(Draw(random, spec.fault_onset_s), spec.duration_s - 1.0));
+    fault.end_s = Round4(std::min(fault.start_s + Draw(random, spec.fault_duration_s), spec.duration_s));
+    fault.magnitude = Round4(Draw(random, choice.magnitude));
+    faults_yaml += fmt::format("  - {{sensor: {}, kind: {}, start_s: {}, end_s: {}{}}}\n", fault.sensor,
+                               sim::FaultKindName(fault.kind), FormatDouble(fault.start_s),
+                               FormatDouble(fault.end_s), FaultParameters(fault.kind, fault.magnitude, random));
+    plan.faults.push_back(fault);
+  }
+  return faults_yaml;
+}
+
 }  // namespace
 
 const std::vector<std::string>& TrajectoryFamilies() {
@@ -116,42 +195,31 @@ const std::vector<std::string>& TrajectoryFamilies() {
   return families;
 }
 
-CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label) {
-  CorpusSpec spec;
-  spec.file = file_label;
-  spec.text = text;
-  const YamlValue root = harness::internal::ParseDocument(text, file_label);
-  YamlMap top = root.Map({"name", "description", "seed", "episodes", "duration_s", "worlds",
-                          "trajectory", "sensors", "wind", "faults", "estimation", "closed_loop"});
-  spec.name = top.Required("name").Identifier();
-  if (auto d = top.Optional("description")) spec.description = d->String();
-  spec.seed = top.Required("seed").UnsignedInteger();
-  const YamlValue episodes = top.Required("episodes");
-  spec.episodes = episodes.UnsignedInteger();
-  if (spec.episodes == 0 || spec.episodes > 10'000'000) {
-    episodes.Fail("expected a whole number of episodes in [1, 10000000]");
-  }
-  spec.duration_s = top.Required("duration_s").Number(NumberRule::Between(2.0, 3600.0, "s"));
+namespace {
 
-  for (const YamlValue& item : top.Required("worlds").List(true)) {
-    YamlMap w = item.Map({"world", "center_m", "wall"});
-    WorldChoice choice;
-    choice.world = w.Required("world").String();
-    if (auto c = w.Optional("center_m")) choice.center_xy_m = ReadXY(*c);
-    if (auto wall = w.Optional("wall")) {
-      YamlMap wm = wall->Map({"point_m", "normal"});
-      choice.wall_point_xy_m = ReadXY(wm.Required("point_m"));
-      const YamlValue normal = wm.Required("normal");
-      const Eigen::Vector2d n = ReadXY(normal);
-      if (n.norm() < 1e-6) normal.Fail("expected a non-zero horizontal normal [nx, ny]");
-      choice.wall_normal_xy = n.normalized();
-      wm.Finish();
-    }
-    w.Finish();
-    spec.worlds.push_back(choice);
+// An item of `worlds:`: the world, where its flights centre, and its wall (for wall_pass).
+WorldChoice ReadWorldChoice(const YamlValue& item) {
+  YamlMap w = item.Map({"world", "center_m", "wall"});
+  WorldChoice choice;
+  choice.world = w.Required("world").String();
+  if (auto c = w.Optional("center_m")) choice.center_xy_m = ReadXY(*c);
+  if (auto wall = w.Optional("wall")) {
+    YamlMap wm = wall->Map({"point_m", "normal"});
+    choice.wall_point_xy_m = ReadXY(wm.Required("point_m"));
+    const YamlValue normal = wm.Required("normal");
+    const Eigen::Vector2d n = ReadXY(normal);
+    if (n.norm() < 1e-6) normal.Fail("expected a non-zero horizontal normal [nx, ny]");
+    choice.wall_normal_xy = n.normalized();
+    wm.Finish();
   }
+  w.Finish();
+  return choice;
+}
 
-  YamlMap t = top.Required("trajectory").Map(
+// `trajectory:` the families and the ranges their size, speed and pose are drawn from.
+// After `worlds:`: wall_pass needs every world to have a wall.
+void ReadTrajectoryRanges(const YamlValue& value, CorpusSpec& spec) {
+  YamlMap t = value.Map(
       {"families", "speed_mps", "size_m", "height_m", "structure_distance_m", "tilt_deg"});
   const YamlValue families = t.Required("families");
   for (const YamlValue& f : families.List(true)) {
@@ -179,6 +247,83 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
   }
   if (auto d = t.Optional("tilt_deg")) spec.tilt_deg = ReadRange(*d, NumberRule::Between(0.0, 45.0, "deg"));
   t.Finish();
+}
+
+// An item of `faults.kinds:`; its sensors must be among the spec's `sensor_names`.
+FaultChoice ReadFaultChoice(const YamlValue& item, const std::vector<std::string>& sensor_names) {
+  YamlMap k = item.Map({"kind", "sensors", "weight", "magnitude"});
+  FaultChoice choice;
+  const YamlValue kind = k.Required("kind");
+  const auto parsed = sim::FaultKindFromName(kind.String());
+  if (!parsed) {
+    kind.Fail(fmt::format("unknown fault kind '{}' (expected misalignment, non_gaussian_noise, "
+                          "divergence, dropout, freeze, delay, jump or outliers)", kind.String()));
+  }
+  choice.kind = *parsed;
+  for (const YamlValue& s : k.Required("sensors").List(true)) {
+    const std::string name = s.String();
+    if (std::find(sensor_names.begin(), sensor_names.end(), name) == sensor_names.end()) {
+      s.Fail(fmt::format("'{}' is not a sensor of the spec's sensors: block", name));
+    }
+    choice.sensors.push_back(name);
+  }
+  if (auto w = k.Optional("weight")) choice.weight = w->Number(NumberRule::Positive(""));
+  const bool sized = choice.kind != sim::FaultKind::kDropout && choice.kind != sim::FaultKind::kFreeze;
+  if (auto m = k.Optional("magnitude")) {
+    if (!sized) m->Fail(fmt::format("{} has no magnitude", sim::FaultKindName(choice.kind)));
+    choice.magnitude = ReadRange(*m, NumberRule::Positive(""));
+  } else if (sized) {
+    k.self().Fail(fmt::format("missing required key 'magnitude' for a {} fault",
+                              sim::FaultKindName(choice.kind)));
+  }
+  k.Finish();
+  return choice;
+}
+
+// `faults:` how many per episode, when, how long, and of which kinds. After `sensors:`
+// and `duration_s`, which it is checked against.
+void ReadFaultRanges(const YamlValue& value, CorpusSpec& spec) {
+  YamlMap fm = value.Map({"count", "onset_s", "duration_s", "kinds"});
+  const YamlValue count = fm.Required("count");
+  spec.fault_count = ReadRange(count, NumberRule::Between(0.0, 20.0, ""));
+  if (spec.fault_count.lo != std::floor(spec.fault_count.lo) || spec.fault_count.hi != std::floor(spec.fault_count.hi)) {
+    count.Fail("expected whole numbers [min, max] of faults per episode");
+  }
+  spec.fault_onset_s = ReadRange(fm.Required("onset_s"), NumberRule::Between(0.0, 3600.0, "s"));
+  spec.fault_duration_s = ReadRange(fm.Required("duration_s"), NumberRule::Between(0.1, 3600.0, "s"));
+  if (spec.fault_onset_s.lo >= spec.duration_s) {
+    fm.self().Fail(fmt::format("onset_s starts at or after the episode's end ({} s)", FormatDouble(spec.duration_s)));
+  }
+  const YamlValue kinds = fm.Required("kinds");
+  for (const YamlValue& item : kinds.List(spec.fault_count.hi > 0)) {
+    spec.faults.push_back(ReadFaultChoice(item, spec.sensor_names));
+  }
+  fm.Finish();
+}
+
+}  // namespace
+
+CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label) {
+  CorpusSpec spec;
+  spec.file = file_label;
+  spec.text = text;
+  const YamlValue root = harness::internal::ParseDocument(text, file_label);
+  YamlMap top = root.Map({"name", "description", "seed", "episodes", "duration_s", "worlds",
+                          "trajectory", "sensors", "wind", "faults", "estimation", "closed_loop"});
+  spec.name = top.Required("name").Identifier();
+  if (auto d = top.Optional("description")) spec.description = d->String();
+  spec.seed = top.Required("seed").UnsignedInteger();
+  const YamlValue episodes = top.Required("episodes");
+  spec.episodes = episodes.UnsignedInteger();
+  if (spec.episodes == 0 || spec.episodes > 10'000'000) {
+    episodes.Fail("expected a whole number of episodes in [1, 10000000]");
+  }
+  spec.duration_s = top.Required("duration_s").Number(NumberRule::Between(2.0, 3600.0, "s"));
+
+  for (const YamlValue& item : top.Required("worlds").List(true)) {
+    spec.worlds.push_back(ReadWorldChoice(item));
+  }
+  ReadTrajectoryRanges(top.Required("trajectory"), spec);
 
   const YamlValue sensors = top.Required("sensors");
   for (const auto& [name, value] : sensors.Entries()) spec.sensor_names.push_back(name);
@@ -192,50 +337,7 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
     wm.Finish();
   }
 
-  if (auto f = top.Optional("faults")) {
-    YamlMap fm = f->Map({"count", "onset_s", "duration_s", "kinds"});
-    const YamlValue count = fm.Required("count");
-    spec.fault_count = ReadRange(count, NumberRule::Between(0.0, 20.0, ""));
-    if (spec.fault_count.lo != std::floor(spec.fault_count.lo) || spec.fault_count.hi != std::floor(spec.fault_count.hi)) {
-      count.Fail("expected whole numbers [min, max] of faults per episode");
-    }
-    spec.fault_onset_s = ReadRange(fm.Required("onset_s"), NumberRule::Between(0.0, 3600.0, "s"));
-    spec.fault_duration_s = ReadRange(fm.Required("duration_s"), NumberRule::Between(0.1, 3600.0, "s"));
-    if (spec.fault_onset_s.lo >= spec.duration_s) {
-      fm.self().Fail(fmt::format("onset_s starts at or after the episode's end ({} s)", FormatDouble(spec.duration_s)));
-    }
-    const YamlValue kinds = fm.Required("kinds");
-    for (const YamlValue& item : kinds.List(spec.fault_count.hi > 0)) {
-      YamlMap k = item.Map({"kind", "sensors", "weight", "magnitude"});
-      FaultChoice choice;
-      const YamlValue kind = k.Required("kind");
-      const auto parsed = sim::FaultKindFromName(kind.String());
-      if (!parsed) {
-        kind.Fail(fmt::format("unknown fault kind '{}' (expected misalignment, non_gaussian_noise, "
-                              "divergence, dropout, freeze, delay, jump or outliers)", kind.String()));
-      }
-      choice.kind = *parsed;
-      for (const YamlValue& s : k.Required("sensors").List(true)) {
-        const std::string name = s.String();
-        if (std::find(spec.sensor_names.begin(), spec.sensor_names.end(), name) == spec.sensor_names.end()) {
-          s.Fail(fmt::format("'{}' is not a sensor of the spec's sensors: block", name));
-        }
-        choice.sensors.push_back(name);
-      }
-      if (auto w = k.Optional("weight")) choice.weight = w->Number(NumberRule::Positive(""));
-      const bool sized = choice.kind != sim::FaultKind::kDropout && choice.kind != sim::FaultKind::kFreeze;
-      if (auto m = k.Optional("magnitude")) {
-        if (!sized) m->Fail(fmt::format("{} has no magnitude", sim::FaultKindName(choice.kind)));
-        choice.magnitude = ReadRange(*m, NumberRule::Positive(""));
-      } else if (sized) {
-        k.self().Fail(fmt::format("missing required key 'magnitude' for a {} fault",
-                                  sim::FaultKindName(choice.kind)));
-      }
-      k.Finish();
-      spec.faults.push_back(choice);
-    }
-    fm.Finish();
-  }
+  if (auto f = top.Optional("faults")) ReadFaultRanges(*f, spec);
 
   if (auto e = top.Optional("estimation")) spec.estimation_yaml = EmitNode(e->node());
   if (auto c = top.Optional("closed_loop")) {
@@ -282,66 +384,8 @@ EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {
   const double wind_heading = random.Uniform(0.0, 2.0 * kPi);
   const double tilt_sign = random.Uniform(0.0, 1.0) < 0.5 ? -1.0 : 1.0;
 
-  // The trajectory: hover, then the family's segment, flown for the whole episode.
-  const double cx = world.center_xy_m.x(), cy = world.center_xy_m.y(), h = plan.height_m;
-  // A circle's centripetal acceleration v^2 / r stays within the limit below.
-  constexpr double kMaxAcceleration = 1.5;
-  std::string segment;
-  Eigen::Vector3d start(cx, cy, h);
-  double yaw_deg = 0.0;
-  if (plan.family == "circle") {
-    plan.speed_mps = Round4(std::min(plan.speed_mps, std::sqrt(0.8 * kMaxAcceleration * plan.size_m)));
-    const double laps = std::ceil(spec.duration_s * plan.speed_mps / (2.0 * kPi * plan.size_m)) + 1.0;
-    segment = fmt::format("    - circle: {{center_m: {}, radius_m: {}, speed_mps: {}, laps: {}}}\n",
-                          Vec({cx, cy, h}), FormatDouble(plan.size_m), FormatDouble(plan.speed_mps),
-                          FormatDouble(laps));
-  } else if (plan.family == "figure_eight") {
-    // A lap of the lemniscate is ~4.6 half-lengths long at half_width = 0.6 half_length.
-    const double laps = std::ceil(spec.duration_s * plan.speed_mps / (4.6 * plan.size_m)) + 1.0;
-    segment = fmt::format(
-        "    - figure_eight: {{center_m: {}, half_length_m: {}, half_width_m: {}, speed_mps: {}, laps: {}}}\n",
-        Vec({cx, cy, h}), FormatDouble(plan.size_m), FormatDouble(Round4(0.6 * plan.size_m)),
-        FormatDouble(plan.speed_mps), FormatDouble(laps));
-  } else {
-    // wall_pass: back and forth along the facade at structure_distance_m from it, facing it.
-    const Eigen::Vector2d n = *world.wall_normal_xy;
-    const Eigen::Vector2d tangent(-n.y(), n.x());
-    const Eigen::Vector2d mid = *world.wall_point_xy_m + plan.structure_distance_m * n;
-    const Eigen::Vector2d a = mid - plan.size_m * tangent, b = mid + plan.size_m * tangent;
-    yaw_deg = Round4(std::atan2(-n.y(), -n.x()) * 180.0 / kPi);
-    start = Eigen::Vector3d(a.x(), a.y(), h);
-    const double pass_s = 2.0 * plan.size_m / plan.speed_mps + 2.0;
-    const int passes = std::max(1, static_cast<int>(std::ceil(spec.duration_s / pass_s)));
-    segment = "    - waypoints:\n";
-    for (int i = 0; i < passes; ++i) {
-      const Eigen::Vector2d p = i % 2 == 0 ? b : a;
-      segment += fmt::format("        - {{position_m: {}, rpy_deg: [{}, 0, {}]}}\n",
-                             Vec(Eigen::Vector3d(p.x(), p.y(), h).unaryExpr(&Round4)),
-                             FormatDouble(tilt_sign * plan.tilt_deg), FormatDouble(yaw_deg));
-    }
-  }
-
-  // Faults: how many, which kinds (by weight), on which sensor, when and how big.
-  const int count = static_cast<int>(std::floor(Draw(random, {spec.fault_count.lo, spec.fault_count.hi + 0.999999})));
-  double total_weight = 0.0;
-  for (const FaultChoice& f : spec.faults) total_weight += f.weight;
-  std::string faults_yaml;
-  for (int k = 0; k < count && !spec.faults.empty(); ++k) {
-    double u = random.Uniform(0.0, total_weight);
-    std::size_t which = 0;
-    while (which + 1 < spec.faults.size() && u >= spec.faults[which].weight) u -= spec.faults[which++].weight;
-    const FaultChoice& choice = spec.faults[which];
-    PlannedFault fault;
-    fault.kind = choice.kind;
-    fault.sensor = choice.sensors[DrawIndex(random, choice.sensors.size())];
-    fault.start_s = Round4(std::min(Draw(random, spec.fault_onset_s), spec.duration_s - 1.0));
-    fault.end_s = Round4(std::min(fault.start_s + Draw(random, spec.fault_duration_s), spec.duration_s));
-    fault.magnitude = Round4(Draw(random, choice.magnitude));
-    faults_yaml += fmt::format("  - {{sensor: {}, kind: {}, start_s: {}, end_s: {}{}}}\n", fault.sensor,
-                               sim::FaultKindName(fault.kind), FormatDouble(fault.start_s),
-                               FormatDouble(fault.end_s), FaultParameters(fault.kind, fault.magnitude, random));
-    plan.faults.push_back(fault);
-  }
+  const PlannedPath path = PlanPath(spec, world, tilt_sign, plan);
+  const std::string faults_yaml = PlanFaults(spec, random, plan);
 
   std::string yaml = fmt::format(
       "# Episode {} of corpus '{}' (seed {}): `tofu run` on this file reproduces it.\n"
@@ -363,8 +407,9 @@ EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {
       "  limits: {{max_speed_mps: {}, max_acceleration_mps2: {}}}\n"
       "  segments:\n"
       "    - hover: {{duration_s: 2}}\n{}",
-      Vec(start.unaryExpr(&Round4)), FormatDouble(tilt_sign * plan.tilt_deg), FormatDouble(yaw_deg),
-      FormatDouble(Round4(plan.speed_mps * 1.3 + 0.2)), FormatDouble(kMaxAcceleration), segment);
+      Vec(path.start_W_m.unaryExpr(&Round4)), FormatDouble(tilt_sign * plan.tilt_deg),
+      FormatDouble(path.yaw_deg), FormatDouble(Round4(plan.speed_mps * 1.3 + 0.2)),
+      FormatDouble(kMaxAcceleration), path.segment_yaml);
   yaml += "sensors:\n" + Indent(spec.sensors_yaml, "  ");
   if (!faults_yaml.empty()) yaml += "faults:\n" + faults_yaml;
   if (!spec.estimation_yaml.empty()) yaml += "estimation:\n" + Indent(spec.estimation_yaml, "  ");

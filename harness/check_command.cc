@@ -511,40 +511,37 @@ AggregatedExpectation AggregateExpectation(const Expectation& expectation,
   return a;
 }
 
-ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRun> runs) {
-  ScenarioCheck c;
-  c.name = scenario.name;
-  c.source_file = scenario.source_file;
-  c.runs = std::move(runs);
+namespace {
 
-  for (size_t i = 0; i < scenario.expect.size(); ++i) {
-    const Expectation& e = scenario.expect[i];
-    std::vector<SeedOutcome> outcomes;
-    for (const SeedRun& r : c.runs) {
-      SeedOutcome o;
-      o.seed = r.seed;
-      const nlohmann::json* entry = nullptr;
-      if (r.summary.is_object() && r.summary.contains("expectations") &&
-          r.summary["expectations"].is_array() && i < r.summary["expectations"].size()) {
-        entry = &r.summary["expectations"][i];
-      }
-      // Position and metric name must agree: anything else is not this expectation.
-      if (entry != nullptr && entry->is_object() && entry->value("metric", "") == e.metric) {
-        const auto value = entry->find("value");
-        if (value != entry->end() && value->is_number()) o.value = value->get<double>();
-        const auto passed = entry->find("passed");
-        o.held = passed != entry->end() && passed->is_boolean() && passed->get<bool>();
-      }
-      outcomes.push_back(o);
+// Each seed's outcome of expectation `index` of the scenario (`e`), from its summary.json.
+std::vector<SeedOutcome> SeedOutcomes(const std::vector<SeedRun>& runs, size_t index,
+                                      const Expectation& e) {
+  std::vector<SeedOutcome> outcomes;
+  for (const SeedRun& r : runs) {
+    SeedOutcome o;
+    o.seed = r.seed;
+    const nlohmann::json* entry = nullptr;
+    if (r.summary.is_object() && r.summary.contains("expectations") &&
+        r.summary["expectations"].is_array() && index < r.summary["expectations"].size()) {
+      entry = &r.summary["expectations"][index];
     }
-    c.expectations.push_back(AggregateExpectation(e, std::move(outcomes)));
+    // Position and metric name must agree: anything else is not this expectation.
+    if (entry != nullptr && entry->is_object() && entry->value("metric", "") == e.metric) {
+      const auto value = entry->find("value");
+      if (value != entry->end() && value->is_number()) o.value = value->get<double>();
+      const auto passed = entry->find("passed");
+      o.held = passed != entry->end() && passed->is_boolean() && passed->get<bool>();
+    }
+    outcomes.push_back(o);
   }
+  return outcomes;
+}
 
+// The estimation methods over the seeds (mean ATE, faults detected), by method name.
+std::vector<MethodStats> MethodStatsOverSeeds(const std::vector<SeedRun>& runs) {
   std::map<std::string, MethodStats> methods;
   std::map<std::string, double> ate_sum;
-  for (const SeedRun& r : c.runs) {
-    if (r.error.empty() && r.exit_code == core::kExitOk) ++c.seeds_passed;
-    if (!r.error.empty()) c.runs_ok = false;
+  for (const SeedRun& r : runs) {
     if (!r.summary.is_object() || !r.summary.contains("methods") ||
         !r.summary["methods"].is_object()) {
       continue;
@@ -567,13 +564,20 @@ ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRu
       }
     }
   }
+  std::vector<MethodStats> out;
   for (auto& [name, stats] : methods) {
     if (stats.seeds_with_ate > 0) stats.ate_mean_m = ate_sum[name] / stats.seeds_with_ate;
-    c.methods.push_back(stats);
+    out.push_back(stats);
   }
+  return out;
+}
+
+// The closed-loop flights over the seeds (mean tracking error, collisions, failsafe
+// events), by method name.
+std::vector<ClosedLoopStats> ClosedLoopStatsOverSeeds(const std::vector<SeedRun>& runs) {
   std::map<std::string, ClosedLoopStats> flights;
   std::map<std::string, std::pair<double, int>> tracking_sum;
-  for (const SeedRun& r : c.runs) {
+  for (const SeedRun& r : runs) {
     if (!r.summary.is_object() || !r.summary.contains("closed_loop") ||
         !r.summary["closed_loop"].is_object()) {
       continue;
@@ -595,11 +599,33 @@ ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRu
       }
     }
   }
+  std::vector<ClosedLoopStats> out;
   for (auto& [name, stats] : flights) {
     const auto& [sum, count] = tracking_sum[name];
     if (count > 0) stats.tracking_rmse_mean_m = sum / count;
-    c.closed_loop.push_back(stats);
+    out.push_back(stats);
   }
+  return out;
+}
+
+}  // namespace
+
+ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRun> runs) {
+  ScenarioCheck c;
+  c.name = scenario.name;
+  c.source_file = scenario.source_file;
+  c.runs = std::move(runs);
+
+  for (size_t i = 0; i < scenario.expect.size(); ++i) {
+    const Expectation& e = scenario.expect[i];
+    c.expectations.push_back(AggregateExpectation(e, SeedOutcomes(c.runs, i, e)));
+  }
+  for (const SeedRun& r : c.runs) {
+    if (r.error.empty() && r.exit_code == core::kExitOk) ++c.seeds_passed;
+    if (!r.error.empty()) c.runs_ok = false;
+  }
+  c.methods = MethodStatsOverSeeds(c.runs);
+  c.closed_loop = ClosedLoopStatsOverSeeds(c.runs);
 
   c.passed = c.runs_ok && !c.runs.empty() &&
              std::all_of(c.expectations.begin(), c.expectations.end(),
@@ -645,9 +671,100 @@ std::string XmlEscape(std::string_view text, bool attribute) {
   return out;
 }
 
+namespace {
+
+std::string XmlAttribute(std::string_view s) { return XmlEscape(s, true); }
+std::string XmlText(std::string_view s) { return XmlEscape(s, false); }
+
+// The runs themselves: fail when one exited with bad input or a failed simulation.
+// Counts a failure into `failures`.
+std::string RunTestCase(const ScenarioCheck& c, double time_s, int& failures) {
+  std::set<uint64_t> broken;
+  std::string run_errors;
+  for (const SeedRun& r : c.runs) {
+    if (r.error.empty()) continue;
+    broken.insert(r.seed);
+    run_errors += fmt::format("seed {}: {}\nlog: {}\n", r.seed, r.error, r.log_path);
+  }
+  std::string testcase =
+      fmt::format("    <testcase name=\"run\" classname=\"{}\" file=\"{}\" time=\"{:.3f}\"",
+                  XmlAttribute(c.name), XmlAttribute(c.source_file), time_s);
+  if (broken.empty()) return testcase + "/>\n";
+  ++failures;
+  return testcase + fmt::format(
+      ">\n      <failure message=\"{}\" type=\"run\">{}</failure>\n"
+      "      <system-out>{}</system-out>\n    </testcase>\n",
+      XmlAttribute(fmt::format("{} of {} runs failed", broken.size(), c.runs.size())),
+      XmlText(run_errors), XmlText(FailureSystemOut(c, broken)));
+}
+
+// One test case per expectation, aggregated over the seeds. Names are unique within a
+// suite (a repeated label gets its source line). Counts failures into `failures`.
+std::string ExpectationTestCases(const ScenarioCheck& c, int& failures) {
+  std::string cases;
+  std::map<std::string, int> label_count;
+  for (const AggregatedExpectation& a : c.expectations) {
+    ++label_count[ExpectationLabel(a.expectation)];
+  }
+  for (const AggregatedExpectation& a : c.expectations) {
+    std::string name = ExpectationLabel(a.expectation);
+    if (label_count[name] > 1) name += fmt::format(" (line {})", a.expectation.location.line);
+    cases += fmt::format(
+        "    <testcase name=\"{}\" classname=\"{}\" file=\"{}\" line=\"{}\" time=\"0\"",
+        XmlAttribute(name), XmlAttribute(c.name), XmlAttribute(a.expectation.location.file),
+        a.expectation.location.line);
+    if (a.passed) {
+      cases += "/>\n";
+      continue;
+    }
+    ++failures;
+    std::set<uint64_t> failed_seeds;
+    for (const SeedOutcome& s : a.seeds) {
+      if (!s.held) failed_seeds.insert(s.seed);
+    }
+    cases += fmt::format(
+        ">\n      <failure message=\"{}\" type=\"expectation\">{}\n{}\nat {}</failure>\n"
+        "      <system-out>{}</system-out>\n    </testcase>\n",
+        XmlAttribute(fmt::format("{}: {}: {}", ExpectationLabel(a.expectation), AggregateMessage(a),
+                                 SeedValues(a, "; "))),
+        XmlText(AggregateMessage(a)), XmlText(SeedValues(a, "\n")), XmlText(Where(a.expectation)),
+        XmlText(FailureSystemOut(c, failed_seeds)));
+  }
+  return cases;
+}
+
+// The <property> lines of the methods' and closed-loop flights' figures over the seeds.
+std::string StatsProperties(const ScenarioCheck& c) {
+  std::string properties;
+  for (const MethodStats& m : c.methods) {
+    if (m.ate_mean_m) {
+      properties += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                                XmlAttribute(m.method + ".ate_mean_m"), FormatDouble(*m.ate_mean_m));
+    }
+    if (m.has_detections) {
+      properties += fmt::format("      <property name=\"{}\" value=\"{}/{}\"/>\n",
+                                XmlAttribute(m.method + ".faults_detected"), m.faults_detected,
+                                m.faults);
+    }
+  }
+  for (const ClosedLoopStats& f : c.closed_loop) {
+    if (f.tracking_rmse_mean_m) {
+      properties += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                                XmlAttribute("closed_loop." + f.method + ".tracking_rmse_mean_m"),
+                                FormatDouble(*f.tracking_rmse_mean_m));
+    }
+    properties += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                              XmlAttribute("closed_loop." + f.method + ".collisions"), f.collisions);
+    properties += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
+                              XmlAttribute("closed_loop." + f.method + ".failsafe_events"),
+                              f.failsafe_events);
+  }
+  return properties;
+}
+
+}  // namespace
+
 std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
-  const auto attr = [](std::string_view s) { return XmlEscape(s, true); };
-  const auto text = [](std::string_view s) { return XmlEscape(s, false); };
   int total_tests = 0, total_failures = 0;
   double total_time = 0.0;
   std::string suites;
@@ -655,59 +772,8 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
     double time = 0.0;
     for (const SeedRun& r : c.runs) time += r.wall_time_s;
     int failures = 0;
-    std::string cases;
-
-    // The runs themselves: fail when one exited with bad input or a failed simulation.
-    std::set<uint64_t> broken;
-    std::string run_errors;
-    for (const SeedRun& r : c.runs) {
-      if (r.error.empty()) continue;
-      broken.insert(r.seed);
-      run_errors += fmt::format("seed {}: {}\nlog: {}\n", r.seed, r.error, r.log_path);
-    }
-    cases += fmt::format("    <testcase name=\"run\" classname=\"{}\" file=\"{}\" time=\"{:.3f}\"",
-                         attr(c.name), attr(c.source_file), time);
-    if (broken.empty()) {
-      cases += "/>\n";
-    } else {
-      ++failures;
-      cases += fmt::format(
-          ">\n      <failure message=\"{}\" type=\"run\">{}</failure>\n"
-          "      <system-out>{}</system-out>\n    </testcase>\n",
-          attr(fmt::format("{} of {} runs failed", broken.size(), c.runs.size())), text(run_errors),
-          text(FailureSystemOut(c, broken)));
-    }
-
-    // One test case per expectation, aggregated over the seeds. Names are unique within a
-    // suite (a repeated label gets its source line).
-    std::map<std::string, int> label_count;
-    for (const AggregatedExpectation& a : c.expectations) {
-      ++label_count[ExpectationLabel(a.expectation)];
-    }
-    for (const AggregatedExpectation& a : c.expectations) {
-      std::string name = ExpectationLabel(a.expectation);
-      if (label_count[name] > 1) name += fmt::format(" (line {})", a.expectation.location.line);
-      cases += fmt::format(
-          "    <testcase name=\"{}\" classname=\"{}\" file=\"{}\" line=\"{}\" time=\"0\"",
-          attr(name), attr(c.name), attr(a.expectation.location.file),
-          a.expectation.location.line);
-      if (a.passed) {
-        cases += "/>\n";
-        continue;
-      }
-      ++failures;
-      std::set<uint64_t> failed_seeds;
-      for (const SeedOutcome& s : a.seeds) {
-        if (!s.held) failed_seeds.insert(s.seed);
-      }
-      cases += fmt::format(
-          ">\n      <failure message=\"{}\" type=\"expectation\">{}\n{}\nat {}</failure>\n"
-          "      <system-out>{}</system-out>\n    </testcase>\n",
-          attr(fmt::format("{}: {}: {}", ExpectationLabel(a.expectation), AggregateMessage(a),
-                           SeedValues(a, "; "))),
-          text(AggregateMessage(a)), text(SeedValues(a, "\n")), text(Where(a.expectation)),
-          text(FailureSystemOut(c, failed_seeds)));
-    }
+    std::string cases = RunTestCase(c, time, failures);
+    cases += ExpectationTestCases(c, failures);
 
     const int tests = 1 + static_cast<int>(c.expectations.size());
     std::string seeds;
@@ -718,29 +784,9 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
         "    <properties>\n"
         "      <property name=\"seeds\" value=\"{}\"/>\n"
         "      <property name=\"seeds_passed\" value=\"{}\"/>\n",
-        attr(c.name), tests, failures, time, attr(c.source_file), seeds, c.seeds_passed);
-    for (const MethodStats& m : c.methods) {
-      if (m.ate_mean_m) {
-        suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
-                              attr(m.method + ".ate_mean_m"), FormatDouble(*m.ate_mean_m));
-      }
-      if (m.has_detections) {
-        suites += fmt::format("      <property name=\"{}\" value=\"{}/{}\"/>\n",
-                              attr(m.method + ".faults_detected"), m.faults_detected, m.faults);
-      }
-    }
-    for (const ClosedLoopStats& f : c.closed_loop) {
-      if (f.tracking_rmse_mean_m) {
-        suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
-                              attr("closed_loop." + f.method + ".tracking_rmse_mean_m"),
-                              FormatDouble(*f.tracking_rmse_mean_m));
-      }
-      suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
-                            attr("closed_loop." + f.method + ".collisions"), f.collisions);
-      suites += fmt::format("      <property name=\"{}\" value=\"{}\"/>\n",
-                            attr("closed_loop." + f.method + ".failsafe_events"),
-                            f.failsafe_events);
-    }
+        XmlAttribute(c.name), tests, failures, time, XmlAttribute(c.source_file), seeds,
+        c.seeds_passed);
+    suites += StatsProperties(c);
     suites += "    </properties>\n" + cases + "  </testsuite>\n";
     total_tests += tests;
     total_failures += failures;
@@ -754,6 +800,66 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
 }
 
 // ---- the command ----
+
+namespace {
+
+// Each scenario's seeds as jobs, its stale runs removed and its directory under `out`
+// made; longest simulated scenarios first.
+std::vector<Job> QueueRuns(const std::vector<Scenario>& scenarios, int seeds, const fs::path& out) {
+  std::vector<Job> queue;
+  for (size_t i = 0; i < scenarios.size(); ++i) {
+    const fs::path scenario_dir = out / scenarios[i].name;
+    RemoveStaleRuns(scenario_dir);
+    fs::create_directories(scenario_dir);
+    for (int k = 0; k < seeds; ++k) {
+      Job job;
+      job.scenario_index = i;
+      job.scenario_path = scenarios[i].source_file;
+      job.run.seed = scenarios[i].seed + static_cast<uint64_t>(k);
+      job.run.run_dir = (scenario_dir / fmt::format("seed_{}", job.run.seed)).string();
+      job.run.log_path = job.run.run_dir + ".log";
+      queue.push_back(std::move(job));
+    }
+  }
+  // Longest simulated scenarios first: the suite ends sooner when its longest run does not
+  // start last (stable, so seeds keep their order; the report does not depend on it).
+  std::stable_sort(queue.begin(), queue.end(), [&](const Job& a, const Job& b) {
+    return scenarios[a.scenario_index].duration_s > scenarios[b.scenario_index].duration_s;
+  });
+  return queue;
+}
+
+// What went wrong over all runs of the check.
+struct CheckFailures {
+  bool bad_input = false;
+  bool io_failed = false;
+  bool simulation_failed = false;
+  bool expectation_failed = false;
+};
+
+// Aggregate per scenario, in input order, runs in seed order.
+std::vector<ScenarioCheck> CheckScenarios(const std::vector<Scenario>& scenarios,
+                                          std::vector<Job>& queue, CheckFailures& failures) {
+  std::vector<std::vector<SeedRun>> runs(scenarios.size());
+  for (Job& job : queue) {
+    ReadSummary(job.run);
+    runs[job.scenario_index].push_back(std::move(job.run));
+  }
+  std::vector<ScenarioCheck> checks;
+  for (size_t i = 0; i < scenarios.size(); ++i) {
+    checks.push_back(EvaluateScenarioCheck(scenarios[i], std::move(runs[i])));
+    const ScenarioCheck& c = checks.back();
+    for (const SeedRun& r : c.runs) {
+      failures.bad_input = failures.bad_input || r.exit_code == core::kExitBadInput;
+      failures.io_failed = failures.io_failed || r.exit_code == core::kExitIoError;
+      failures.simulation_failed = failures.simulation_failed || !r.error.empty();
+    }
+    failures.expectation_failed = failures.expectation_failed || !c.passed;
+  }
+  return checks;
+}
+
+}  // namespace
 
 int RunCheckCommand(const CheckCommandOptions& options) {
   // Everything that can be wrong with the input is found before anything runs or is
@@ -772,26 +878,7 @@ int RunCheckCommand(const CheckCommandOptions& options) {
 
   const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
   const fs::path out = fs::absolute(options.out_dir).lexically_normal();
-  std::vector<Job> queue;
-  for (size_t i = 0; i < scenarios.size(); ++i) {
-    const fs::path scenario_dir = out / scenarios[i].name;
-    RemoveStaleRuns(scenario_dir);
-    fs::create_directories(scenario_dir);
-    for (int k = 0; k < options.seeds; ++k) {
-      Job job;
-      job.scenario_index = i;
-      job.scenario_path = scenarios[i].source_file;
-      job.run.seed = scenarios[i].seed + static_cast<uint64_t>(k);
-      job.run.run_dir = (scenario_dir / fmt::format("seed_{}", job.run.seed)).string();
-      job.run.log_path = job.run.run_dir + ".log";
-      queue.push_back(std::move(job));
-    }
-  }
-  // Longest simulated scenarios first: the suite ends sooner when its longest run does not
-  // start last (stable, so seeds keep their order; the report does not depend on it).
-  std::stable_sort(queue.begin(), queue.end(), [&](const Job& a, const Job& b) {
-    return scenarios[a.scenario_index].duration_s > scenarios[b.scenario_index].duration_s;
-  });
+  std::vector<Job> queue = QueueRuns(scenarios, options.seeds, out);
   int jobs = options.jobs;
   if (jobs == 0) jobs = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   if (!options.quiet) {
@@ -799,25 +886,8 @@ int RunCheckCommand(const CheckCommandOptions& options) {
                scenarios.size(), options.seeds, queue.size(), jobs, out.string());
   }
   RunPool(binary, queue, jobs, options.quiet);
-
-  // Aggregate per scenario, in input order, runs in seed order.
-  std::vector<std::vector<SeedRun>> runs(scenarios.size());
-  for (Job& job : queue) {
-    ReadSummary(job.run);
-    runs[job.scenario_index].push_back(std::move(job.run));
-  }
-  std::vector<ScenarioCheck> checks;
-  bool bad_input = false, io_failed = false, simulation_failed = false, expectation_failed = false;
-  for (size_t i = 0; i < scenarios.size(); ++i) {
-    checks.push_back(EvaluateScenarioCheck(scenarios[i], std::move(runs[i])));
-    const ScenarioCheck& c = checks.back();
-    for (const SeedRun& r : c.runs) {
-      bad_input = bad_input || r.exit_code == core::kExitBadInput;
-      io_failed = io_failed || r.exit_code == core::kExitIoError;
-      simulation_failed = simulation_failed || !r.error.empty();
-    }
-    expectation_failed = expectation_failed || !c.passed;
-  }
+  CheckFailures failures;
+  const std::vector<ScenarioCheck> checks = CheckScenarios(scenarios, queue, failures);
 
   if (!options.quiet) PrintTable(checks);
   PrintFailures(checks);
@@ -839,10 +909,10 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   }
   // One code per run of the check, the most fundamental cause first: the user's input,
   // the machine's storage, the simulation, then the expectations.
-  if (bad_input) return core::kExitBadInput;
-  if (io_failed) return core::kExitIoError;
-  if (simulation_failed) return core::kExitSimulationError;
-  return expectation_failed ? core::kExitExpectationFailed : core::kExitOk;
+  if (failures.bad_input) return core::kExitBadInput;
+  if (failures.io_failed) return core::kExitIoError;
+  if (failures.simulation_failed) return core::kExitSimulationError;
+  return failures.expectation_failed ? core::kExitExpectationFailed : core::kExitOk;
 }
 
 }  // namespace tofu::harness

@@ -471,6 +471,95 @@ ConsensusScores ScoreConsensusDecisions(const std::vector<estimator::ConsensusRe
   return scores;
 }
 
+namespace {
+
+nlohmann::json CollisionsJson(const RunRecord& record) {
+  nlohmann::json collisions = nlohmann::json::array();
+  for (const CollisionEvent& e : record.collisions) {
+    collisions.push_back({{"start_s", core::TimeToSeconds(e.start_ns)},
+                          {"end_s", core::TimeToSeconds(e.end_ns)},
+                          {"robot_geom", e.robot_geom},
+                          {"structure_geom", e.structure_geom},
+                          {"max_penetration_m", e.max_penetration_m}});
+  }
+  return collisions;
+}
+
+nlohmann::json ClosestStructureJson(const RunRecord& record) {
+  if (!record.closest_structure) {
+    return {{"distance_m", nullptr}, {"horizon_m", record.distance_horizon_m}};
+  }
+  const ProximityRecord& p = *record.closest_structure;
+  return {{"distance_m", p.proximity.distance_m},
+          {"t_s", core::TimeToSeconds(p.t_ns)},
+          {"horizon_m", record.distance_horizon_m}};
+}
+
+nlohmann::json ApproachesJson(const RunRecord& record) {
+  nlohmann::json approaches = nlohmann::json::array();
+  for (const ApproachResult& a : record.approaches) {
+    approaches.push_back({{"segment", a.segment_index},
+                          {"t_s", core::TimeToSeconds(a.t_ns)},
+                          {"standoff_m", a.standoff_m},
+                          {"tool_tip_distance_m", OptionalNumber(a.distance_m)}});
+  }
+  return approaches;
+}
+
+// Per stream: samples produced and delivered, and the time share of each condition over
+// the `run_s` seconds simulated.
+nlohmann::json SensorsJson(const RunRecord& record, double run_s) {
+  nlohmann::json sensors = nlohmann::json::object();
+  for (const SensorStream& stream : record.sensors) {
+    nlohmann::json conditions = nlohmann::json::object();
+    for (const sim::Condition c : sim::AllConditions()) {
+      const std::string name(sim::ConditionName(c));
+      const double active_s = ConditionActiveSeconds(record, stream.name, name, 0.0, run_s);
+      if (active_s > 0.0 && run_s > 0.0) conditions[name] = active_s / run_s;
+    }
+    MetricArguments stream_args;
+    stream_args.sensor = stream.name;
+    sensors[stream.name] = {
+        {"type", stream.type},
+        {"site", stream.site},
+        {"samples", stream.produced_count},
+        {"delivered", stream.delivered_count},
+        {"condition_time_fraction", conditions},
+        {"position_error_rms_m",
+         OptionalNumber(SensorMetricValue(record, "sensors.<sensor>.position_error_rms_m",
+                                          stream_args, std::nullopt))}};
+  }
+  return sensors;
+}
+
+// The expectation's metric (relative to its `relative_to` metric, if any) and whether it
+// is within [min, max].
+ExpectationResult CheckExpectation(const RunRecord& record, const Expectation& e) {
+  ExpectationResult r{e, MetricValue(record, e.metric, e.window_s), false};
+  if (e.relative_to) {
+    const std::optional<double> base = MetricValue(record, *e.relative_to, e.window_s);
+    r.value = r.value && base && *base > 0.0 ? std::optional<double>(*r.value / *base)
+                                             : std::nullopt;
+  }
+  r.passed = r.value.has_value() && (!e.min || *r.value >= *e.min) &&
+             (!e.max || *r.value <= *e.max);
+  return r;
+}
+
+nlohmann::json ExpectationJson(const Expectation& e, const ExpectationResult& r) {
+  nlohmann::json je = {{"metric", e.metric},
+                       {"min", OptionalNumber(e.min)},
+                       {"max", OptionalNumber(e.max)},
+                       {"value", OptionalNumber(r.value)},
+                       {"passed", r.passed},
+                       {"where", e.location.file + ":" + std::to_string(e.location.line)}};
+  if (e.window_s) je["window_s"] = {e.window_s->first, e.window_s->second};
+  if (e.relative_to) je["relative_to"] = *e.relative_to;
+  return je;
+}
+
+}  // namespace
+
 Evaluation Evaluate(const RunRecord& record) {
   Evaluation eval;
   const Scenario& sc = record.scenario;
@@ -491,59 +580,12 @@ Evaluation Evaluate(const RunRecord& record) {
     metrics[info.name] = OptionalNumber(MetricValue(record, info.name, std::nullopt));
   }
   j["metrics"] = metrics;
-
-  nlohmann::json collisions = nlohmann::json::array();
-  for (const CollisionEvent& e : record.collisions) {
-    collisions.push_back({{"start_s", core::TimeToSeconds(e.start_ns)},
-                          {"end_s", core::TimeToSeconds(e.end_ns)},
-                          {"robot_geom", e.robot_geom},
-                          {"structure_geom", e.structure_geom},
-                          {"max_penetration_m", e.max_penetration_m}});
-  }
-  j["collisions"] = collisions;
-
-  if (record.closest_structure) {
-    const ProximityRecord& p = *record.closest_structure;
-    j["closest_structure"] = {{"distance_m", p.proximity.distance_m},
-                              {"t_s", core::TimeToSeconds(p.t_ns)},
-                              {"horizon_m", record.distance_horizon_m}};
-  } else {
-    j["closest_structure"] = {{"distance_m", nullptr}, {"horizon_m", record.distance_horizon_m}};
-  }
-
-  nlohmann::json approaches = nlohmann::json::array();
-  for (const ApproachResult& a : record.approaches) {
-    approaches.push_back({{"segment", a.segment_index},
-                          {"t_s", core::TimeToSeconds(a.t_ns)},
-                          {"standoff_m", a.standoff_m},
-                          {"tool_tip_distance_m", OptionalNumber(a.distance_m)}});
-  }
-  j["approaches"] = approaches;
-
-  // Per stream: samples produced and delivered, and the time share of each condition.
-  nlohmann::json sensors = nlohmann::json::object();
+  j["collisions"] = CollisionsJson(record);
+  j["closest_structure"] = ClosestStructureJson(record);
+  j["approaches"] = ApproachesJson(record);
   const double run_s = core::TimeToSeconds(record.physics_steps *
                                            core::PeriodFromRate(sc.physics.rate_hz));
-  for (const SensorStream& stream : record.sensors) {
-    nlohmann::json conditions = nlohmann::json::object();
-    for (const sim::Condition c : sim::AllConditions()) {
-      const std::string name(sim::ConditionName(c));
-      const double active_s = ConditionActiveSeconds(record, stream.name, name, 0.0, run_s);
-      if (active_s > 0.0 && run_s > 0.0) conditions[name] = active_s / run_s;
-    }
-    MetricArguments stream_args;
-    stream_args.sensor = stream.name;
-    sensors[stream.name] = {
-        {"type", stream.type},
-        {"site", stream.site},
-        {"samples", stream.produced_count},
-        {"delivered", stream.delivered_count},
-        {"condition_time_fraction", conditions},
-        {"position_error_rms_m",
-         OptionalNumber(SensorMetricValue(record, "sensors.<sensor>.position_error_rms_m",
-                                          stream_args, std::nullopt))}};
-  }
-  j["sensors"] = sensors;
+  j["sensors"] = SensorsJson(record, run_s);
   size_t fault_labels = 0;
   for (const LabelEvent& l : record.labels) fault_labels += l.source == "fault" && l.active ? 1 : 0;
   j["faults_scheduled"] = fault_labels;
@@ -563,24 +605,9 @@ Evaluation Evaluate(const RunRecord& record) {
   }
   nlohmann::json expectations = nlohmann::json::array();
   for (const Expectation& e : sc.expect) {
-    ExpectationResult r{e, MetricValue(record, e.metric, e.window_s), false};
-    if (e.relative_to) {
-      const std::optional<double> base = MetricValue(record, *e.relative_to, e.window_s);
-      r.value = r.value && base && *base > 0.0 ? std::optional<double>(*r.value / *base)
-                                               : std::nullopt;
-    }
-    r.passed = r.value.has_value() && (!e.min || *r.value >= *e.min) &&
-               (!e.max || *r.value <= *e.max);
+    const ExpectationResult r = CheckExpectation(record, e);
     all_passed = all_passed && r.passed;
-    nlohmann::json je = {{"metric", e.metric},
-                         {"min", OptionalNumber(e.min)},
-                         {"max", OptionalNumber(e.max)},
-                         {"value", OptionalNumber(r.value)},
-                         {"passed", r.passed},
-                         {"where", e.location.file + ":" + std::to_string(e.location.line)}};
-    if (e.window_s) je["window_s"] = {e.window_s->first, e.window_s->second};
-    if (e.relative_to) je["relative_to"] = *e.relative_to;
-    expectations.push_back(je);
+    expectations.push_back(ExpectationJson(e, r));
     eval.expectations.push_back(r);
   }
   j["expectations"] = expectations;

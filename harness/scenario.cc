@@ -628,6 +628,149 @@ void EmitSegment(YAML::Emitter& out, const sim::PrimitiveSpec& segment) {
   out << YAML::EndMap;
 }
 
+// The `trajectory` section of the resolved scenario: start pose, limits and segments.
+void EmitTrajectory(YAML::Emitter& out, const sim::TrajectorySpec& t) {
+  out << YAML::Key << "trajectory" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "start" << YAML::Value << YAML::BeginMap;
+  EmitVector(out, "position_m", t.start.p_WB);
+  EmitRpyDeg(out, "rpy_deg", t.start.q_WB);
+  out << YAML::EndMap;
+  out << YAML::Key << "limits" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "max_speed_mps", t.limits.max_speed_mps);
+  EmitNumber(out, "max_acceleration_mps2", t.limits.max_acceleration_mps2);
+  EmitDegrees(out, "max_angular_rate_degps", t.limits.max_angular_rate_radps);
+  EmitDegrees(out, "max_angular_acceleration_degps2", t.limits.max_angular_acceleration_radps2);
+  out << YAML::EndMap;
+  out << YAML::Key << "segments" << YAML::Value << YAML::BeginSeq;
+  for (const sim::PrimitiveSpec& segment : t.segments) EmitSegment(out, segment);
+  out << YAML::EndSeq;
+  out << YAML::EndMap;
+}
+
+void EmitSensors(YAML::Emitter& out, const std::vector<SensorConfig>& sensors) {
+  out << YAML::Key << "sensors" << YAML::Value;
+  if (sensors.empty()) {
+    out << YAML::Flow << YAML::BeginMap << YAML::EndMap;
+    return;
+  }
+  out << YAML::BeginMap;
+  for (const SensorConfig& sensor : sensors) {
+    out << YAML::Key << sensor.name << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "type" << YAML::Value << std::string(SensorTypeName(sensor.options));
+    internal::EmitSensorOptions(out, sensor.options);
+    internal::EmitCalibrationError(out, sensor.calibration_error);
+    out << YAML::EndMap;
+  }
+  out << YAML::EndMap;
+}
+
+void EmitFaults(YAML::Emitter& out, const std::vector<sim::FaultSpec>& faults) {
+  out << YAML::Key << "faults" << YAML::Value;
+  if (faults.empty()) {
+    out << YAML::Flow << YAML::BeginSeq << YAML::EndSeq;
+    return;
+  }
+  out << YAML::BeginSeq;
+  for (const sim::FaultSpec& fault : faults) internal::EmitFaultSpec(out, fault);
+  out << YAML::EndSeq;
+}
+
+void EmitConsistency(YAML::Emitter& out, const ConsistencyConfig& cc) {
+  out << YAML::Key << "consistency" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "rate_hz", cc.rate_hz);
+  EmitNumber(out, "window_s", cc.window_s);
+  out << YAML::Key << "metrics" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (const estimator::ConsistencyMetric m : cc.metrics) {
+    out << std::string(estimator::MetricName(m));
+  }
+  out << YAML::EndSeq;
+  out << YAML::Key << "standardize" << YAML::Value << cc.standardize;
+  EmitNumber(out, "kl_bandwidth_scale", cc.kl_bandwidth_scale);
+  EmitNumber(out, "alignment_window_s", cc.alignment_window_s);
+  EmitNumber(out, "alignment_rate_hz", cc.alignment_rate_hz);
+  EmitNumber(out, "differentiation_window_s", cc.differentiation_window_s);
+  out << YAML::EndMap;
+}
+
+void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
+  out << YAML::Key << "estimation" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "methods" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (const std::string& m : ec.methods) out << YAML::DoubleQuoted << m;
+  out << YAML::EndSeq;
+  const ConsensusConfig& cons = ec.consensus;
+  out << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "threshold", cons.threshold);
+  if (cons.leave_threshold) EmitNumber(out, "leave_threshold", *cons.leave_threshold);
+  EmitNumber(out, "min_dwell_s", cons.min_dwell_s);
+  out << YAML::Key << "fuse" << YAML::Value << std::string(estimator::ConsensusPolicyName(cons.policy));
+  out << YAML::Key << "return_to_priority" << YAML::Value << cons.return_to_priority;
+  out << YAML::Key << "priority" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (const std::string& p : cons.priority) out << p;
+  out << YAML::EndSeq;
+  EmitNumber(out, "window_s", cons.window_s);
+  EmitNumber(out, "rate_hz", cons.rate_hz);
+  out << YAML::EndMap;
+  EmitNumber(out, "huber_delta", ec.huber_delta);
+  out << YAML::Key << "position_factors" << YAML::Value
+      << (ec.absolute_positions ? "absolute" : "between");
+  out << YAML::EndMap;
+}
+
+void EmitControl(YAML::Emitter& out, const ControlConfig& control) {
+  out << YAML::Key << "control" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "state_source" << YAML::Value << StateSourceName(control.state_source);
+  if (!control.methods.empty()) {
+    out << YAML::Key << "methods" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+    for (const std::string& m : control.methods) out << YAML::DoubleQuoted << m;
+    out << YAML::EndSeq;
+  }
+  EmitNumber(out, "corridor_m", control.corridor_m);
+  out << YAML::Key << "failsafe" << YAML::Value << YAML::BeginMap;
+  EmitNumber(out, "hold_s", control.failsafe.hold_s);
+  EmitNumber(out, "descent_rate_mps", control.failsafe.descent_rate_mps);
+  EmitNumber(out, "land_z_m", control.failsafe.land_z_m);
+  if (control.failsafe.max_position_std_m) {
+    EmitNumber(out, "max_position_std_m", *control.failsafe.max_position_std_m);
+  }
+  out << YAML::EndMap;
+  out << YAML::EndMap;
+}
+
+void EmitRender(YAML::Emitter& out, const RenderRequest& r) {
+  out << YAML::Key << "render" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "when" << YAML::Value << (r.always ? "always" : "failure");
+  out << YAML::Key << "size" << YAML::Value << YAML::Flow << YAML::BeginSeq << r.width_px
+      << r.height_px << YAML::EndSeq;
+  out << YAML::Key << "fps" << YAML::Value << r.fps;
+  out << YAML::Key << "camera" << YAML::Value << r.camera;
+  EmitNumber(out, "clip_half_s", r.clip_half_s);
+  EmitNumber(out, "error_bound_m", r.error_bound_m);
+  out << YAML::EndMap;
+}
+
+void EmitExpectations(YAML::Emitter& out, const std::vector<Expectation>& expectations) {
+  out << YAML::Key << "expect" << YAML::Value;
+  if (expectations.empty()) {
+    out << YAML::Flow << YAML::BeginSeq << YAML::EndSeq;
+    return;
+  }
+  out << YAML::BeginSeq;
+  for (const Expectation& e : expectations) {
+    out << YAML::BeginMap;
+    out << YAML::Key << "metric" << YAML::Value << e.metric;
+    if (e.min) EmitNumber(out, "min", *e.min);
+    if (e.max) EmitNumber(out, "max", *e.max);
+    if (e.window_s) {
+      out << YAML::Key << "window_s" << YAML::Value << YAML::Flow << YAML::BeginSeq
+          << FormatDouble(e.window_s->first) << FormatDouble(e.window_s->second) << YAML::EndSeq;
+    }
+    EmitNumber(out, "pass_fraction", e.pass_fraction);
+    if (e.relative_to) out << YAML::Key << "relative_to" << YAML::Value << *e.relative_to;
+    out << YAML::EndMap;
+  }
+  out << YAML::EndSeq;
+}
+
 // A per-method metric must name a method of `estimation.methods`.
 void CheckMethodOfMetric(const Scenario& scenario, const Expectation& expectation,
                          const std::string& metric, const std::string& key_path) {
@@ -850,148 +993,20 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   EmitNumber(out, "groundtruth_rate_hz", scenario.output.groundtruth_rate_hz);
   out << YAML::EndMap;
 
-  const sim::TrajectorySpec& t = scenario.trajectory;
-  out << YAML::Key << "trajectory" << YAML::Value << YAML::BeginMap;
-  out << YAML::Key << "start" << YAML::Value << YAML::BeginMap;
-  EmitVector(out, "position_m", t.start.p_WB);
-  EmitRpyDeg(out, "rpy_deg", t.start.q_WB);
-  out << YAML::EndMap;
-  out << YAML::Key << "limits" << YAML::Value << YAML::BeginMap;
-  EmitNumber(out, "max_speed_mps", t.limits.max_speed_mps);
-  EmitNumber(out, "max_acceleration_mps2", t.limits.max_acceleration_mps2);
-  EmitDegrees(out, "max_angular_rate_degps", t.limits.max_angular_rate_radps);
-  EmitDegrees(out, "max_angular_acceleration_degps2", t.limits.max_angular_acceleration_radps2);
-  out << YAML::EndMap;
-  out << YAML::Key << "segments" << YAML::Value << YAML::BeginSeq;
-  for (const sim::PrimitiveSpec& segment : t.segments) EmitSegment(out, segment);
-  out << YAML::EndSeq;
-  out << YAML::EndMap;
+  EmitTrajectory(out, scenario.trajectory);
 
   out << YAML::Key << "initial_offset" << YAML::Value << YAML::BeginMap;
   EmitVector(out, "position_m", scenario.initial_offset.position_W_m);
   EmitRpyDeg(out, "rpy_deg", scenario.initial_offset.q_offset);
   out << YAML::EndMap;
 
-  out << YAML::Key << "sensors" << YAML::Value;
-  if (scenario.sensors.empty()) {
-    out << YAML::Flow << YAML::BeginMap << YAML::EndMap;
-  } else {
-    out << YAML::BeginMap;
-    for (const SensorConfig& sensor : scenario.sensors) {
-      out << YAML::Key << sensor.name << YAML::Value << YAML::BeginMap;
-      out << YAML::Key << "type" << YAML::Value << std::string(SensorTypeName(sensor.options));
-      internal::EmitSensorOptions(out, sensor.options);
-      internal::EmitCalibrationError(out, sensor.calibration_error);
-      out << YAML::EndMap;
-    }
-    out << YAML::EndMap;
-  }
-  out << YAML::Key << "faults" << YAML::Value;
-  if (scenario.faults.empty()) {
-    out << YAML::Flow << YAML::BeginSeq << YAML::EndSeq;
-  } else {
-    out << YAML::BeginSeq;
-    for (const sim::FaultSpec& fault : scenario.faults) internal::EmitFaultSpec(out, fault);
-    out << YAML::EndSeq;
-  }
-
-  if (scenario.consistency) {
-    const ConsistencyConfig& cc = *scenario.consistency;
-    out << YAML::Key << "consistency" << YAML::Value << YAML::BeginMap;
-    EmitNumber(out, "rate_hz", cc.rate_hz);
-    EmitNumber(out, "window_s", cc.window_s);
-    out << YAML::Key << "metrics" << YAML::Value << YAML::Flow << YAML::BeginSeq;
-    for (const estimator::ConsistencyMetric m : cc.metrics) {
-      out << std::string(estimator::MetricName(m));
-    }
-    out << YAML::EndSeq;
-    out << YAML::Key << "standardize" << YAML::Value << cc.standardize;
-    EmitNumber(out, "kl_bandwidth_scale", cc.kl_bandwidth_scale);
-    EmitNumber(out, "alignment_window_s", cc.alignment_window_s);
-    EmitNumber(out, "alignment_rate_hz", cc.alignment_rate_hz);
-    EmitNumber(out, "differentiation_window_s", cc.differentiation_window_s);
-    out << YAML::EndMap;
-  }
-
-  if (scenario.estimation) {
-    const EstimationConfig& ec = *scenario.estimation;
-    out << YAML::Key << "estimation" << YAML::Value << YAML::BeginMap;
-    out << YAML::Key << "methods" << YAML::Value << YAML::Flow << YAML::BeginSeq;
-    for (const std::string& m : ec.methods) out << YAML::DoubleQuoted << m;
-    out << YAML::EndSeq;
-    const ConsensusConfig& cons = ec.consensus;
-    out << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
-    EmitNumber(out, "threshold", cons.threshold);
-    if (cons.leave_threshold) EmitNumber(out, "leave_threshold", *cons.leave_threshold);
-    EmitNumber(out, "min_dwell_s", cons.min_dwell_s);
-    out << YAML::Key << "fuse" << YAML::Value << std::string(estimator::ConsensusPolicyName(cons.policy));
-    out << YAML::Key << "return_to_priority" << YAML::Value << cons.return_to_priority;
-    out << YAML::Key << "priority" << YAML::Value << YAML::Flow << YAML::BeginSeq;
-    for (const std::string& p : cons.priority) out << p;
-    out << YAML::EndSeq;
-    EmitNumber(out, "window_s", cons.window_s);
-    EmitNumber(out, "rate_hz", cons.rate_hz);
-    out << YAML::EndMap;
-    EmitNumber(out, "huber_delta", ec.huber_delta);
-    out << YAML::Key << "position_factors" << YAML::Value
-        << (ec.absolute_positions ? "absolute" : "between");
-    out << YAML::EndMap;
-  }
-
-  if (scenario.control) {
-    const ControlConfig& control = *scenario.control;
-    out << YAML::Key << "control" << YAML::Value << YAML::BeginMap;
-    out << YAML::Key << "state_source" << YAML::Value << StateSourceName(control.state_source);
-    if (!control.methods.empty()) {
-      out << YAML::Key << "methods" << YAML::Value << YAML::Flow << YAML::BeginSeq;
-      for (const std::string& m : control.methods) out << YAML::DoubleQuoted << m;
-      out << YAML::EndSeq;
-    }
-    EmitNumber(out, "corridor_m", control.corridor_m);
-    out << YAML::Key << "failsafe" << YAML::Value << YAML::BeginMap;
-    EmitNumber(out, "hold_s", control.failsafe.hold_s);
-    EmitNumber(out, "descent_rate_mps", control.failsafe.descent_rate_mps);
-    EmitNumber(out, "land_z_m", control.failsafe.land_z_m);
-    if (control.failsafe.max_position_std_m) {
-      EmitNumber(out, "max_position_std_m", *control.failsafe.max_position_std_m);
-    }
-    out << YAML::EndMap;
-    out << YAML::EndMap;
-  }
-
-  if (scenario.render) {
-    const RenderRequest& r = *scenario.render;
-    out << YAML::Key << "render" << YAML::Value << YAML::BeginMap;
-    out << YAML::Key << "when" << YAML::Value << (r.always ? "always" : "failure");
-    out << YAML::Key << "size" << YAML::Value << YAML::Flow << YAML::BeginSeq << r.width_px
-        << r.height_px << YAML::EndSeq;
-    out << YAML::Key << "fps" << YAML::Value << r.fps;
-    out << YAML::Key << "camera" << YAML::Value << r.camera;
-    EmitNumber(out, "clip_half_s", r.clip_half_s);
-    EmitNumber(out, "error_bound_m", r.error_bound_m);
-    out << YAML::EndMap;
-  }
-
-  out << YAML::Key << "expect" << YAML::Value;
-  if (scenario.expect.empty()) {
-    out << YAML::Flow << YAML::BeginSeq << YAML::EndSeq;
-  } else {
-    out << YAML::BeginSeq;
-    for (const Expectation& e : scenario.expect) {
-      out << YAML::BeginMap;
-      out << YAML::Key << "metric" << YAML::Value << e.metric;
-      if (e.min) EmitNumber(out, "min", *e.min);
-      if (e.max) EmitNumber(out, "max", *e.max);
-      if (e.window_s) {
-        out << YAML::Key << "window_s" << YAML::Value << YAML::Flow << YAML::BeginSeq
-            << FormatDouble(e.window_s->first) << FormatDouble(e.window_s->second) << YAML::EndSeq;
-      }
-      EmitNumber(out, "pass_fraction", e.pass_fraction);
-      if (e.relative_to) out << YAML::Key << "relative_to" << YAML::Value << *e.relative_to;
-      out << YAML::EndMap;
-    }
-    out << YAML::EndSeq;
-  }
+  EmitSensors(out, scenario.sensors);
+  EmitFaults(out, scenario.faults);
+  if (scenario.consistency) EmitConsistency(out, *scenario.consistency);
+  if (scenario.estimation) EmitEstimation(out, *scenario.estimation);
+  if (scenario.control) EmitControl(out, *scenario.control);
+  if (scenario.render) EmitRender(out, *scenario.render);
+  EmitExpectations(out, scenario.expect);
   out << YAML::EndMap;
   assert(out.good());
   return std::string(out.c_str()) + "\n";

@@ -59,19 +59,21 @@ void EventOptions::Validate() const {
   if (!(merge_s >= 0.0) || !std::isfinite(merge_s)) fail("merge_s", "expected >= 0 s");
 }
 
-std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& options) {
-  options.Validate();
-  const core::Time settle_ns = core::SecondsToTime(options.settle_s);
-  std::vector<RenderEvent> events;
+namespace {
 
-  // Fault onsets: a scheduled fault becomes active.
+// Fault onsets: a scheduled fault becomes active.
+void AddFaultOnsets(const RunData& run, std::vector<RenderEvent>& events) {
   for (const LabelRow& l : run.labels) {
     if (l.source == "fault" && l.active) {
       events.push_back({l.t_ns, EventKind::kFaultOnset, l.sensor, l.sensor + " " + l.label});
     }
   }
+}
 
-  // Detections and switches, per method, from the consensus decisions after start-up.
+// Detections and switches, per method, from the consensus decisions after start-up
+// (`settle_ns` after a method's first decision).
+void AddDetectionsAndSwitches(const RunData& run, core::Time settle_ns,
+                              std::vector<RenderEvent>& events) {
   std::map<std::string, const DecisionRow*> previous;
   std::map<std::string, core::Time> first_decision;
   for (const DecisionRow& d : run.decisions) {
@@ -97,9 +99,12 @@ std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& opti
                                     JoinPlus(before.fused))});
     }
   }
+}
 
-  // Error above the bound: rising edges of an armed method (below bound * rearm_fraction
-  // since start-up or since its last crossing).
+// Error above the bound: rising edges of an armed method (below bound * rearm_fraction
+// since start-up or since its last crossing).
+void AddErrorsAboveBound(const RunData& run, const EventOptions& options, core::Time settle_ns,
+                         std::vector<RenderEvent>& events) {
   std::vector<ErrorRow> errors = run.errors;
   std::stable_sort(errors.begin(), errors.end(),
                    [](const ErrorRow& a, const ErrorRow& b) { return a.t_ns < b.t_ns; });
@@ -118,47 +123,56 @@ std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& opti
       is_armed = true;
     }
   }
+}
 
+void AddCollisions(const RunData& run, std::vector<RenderEvent>& events) {
   for (const CollisionRow& c : run.collisions) {
     events.push_back({c.t_ns, EventKind::kCollision,
                       c.structure_geom.empty() ? "structure" : c.structure_geom,
                       fmt::format("collision {} - {}", c.robot_geom, c.structure_geom)});
   }
+}
 
-  std::stable_sort(events.begin(), events.end(), [](const RenderEvent& a, const RenderEvent& b) {
-    return std::tie(a.t_ns, a.kind, a.subject) < std::tie(b.t_ns, b.kind, b.subject);
-  });
-  // Which events tell most: collisions, fault onsets, detections of a faulted sensor,
-  // errors above the bound, false alarms, switches. Caps keep the most telling first.
-  const auto priority = [&run](const RenderEvent& e) {
-    switch (e.kind) {
-      case EventKind::kCollision: return 0;
-      case EventKind::kFaultOnset: return 1;
-      case EventKind::kDetection: return run.ActiveFaults(e.subject, e.t_ns).empty() ? 4 : 2;
-      case EventKind::kErrorAboveBound: return 3;
-      case EventKind::kSensorSwitch: return 5;
-    }
-    return 6;
-  };
-  const auto by_time = [](const RenderEvent& a, const RenderEvent& b) {
-    return std::tie(a.t_ns, a.kind, a.subject) < std::tie(b.t_ns, b.kind, b.subject);
-  };
+bool EarlierEvent(const RenderEvent& a, const RenderEvent& b) {
+  return std::tie(a.t_ns, a.kind, a.subject) < std::tie(b.t_ns, b.kind, b.subject);
+}
 
-  // Repeats within merge_s of a kept event of the same kind, subject and priority are in
-  // its clip (a false alarm does not swallow the detection of a fault that follows it).
+// Which events tell most: collisions, fault onsets, detections of a faulted sensor,
+// errors above the bound, false alarms, switches (0: most).
+int EventPriority(const RunData& run, const RenderEvent& e) {
+  switch (e.kind) {
+    case EventKind::kCollision: return 0;
+    case EventKind::kFaultOnset: return 1;
+    case EventKind::kDetection: return run.ActiveFaults(e.subject, e.t_ns).empty() ? 4 : 2;
+    case EventKind::kErrorAboveBound: return 3;
+    case EventKind::kSensorSwitch: return 5;
+  }
+  return 6;
+}
+
+// Repeats within merge_s of a kept event of the same kind, subject and priority are in
+// its clip (a false alarm does not swallow the detection of a fault that follows it).
+// `events` in time order.
+std::vector<RenderEvent> WithoutRepeats(const RunData& run, const std::vector<RenderEvent>& events,
+                                        const EventOptions& options) {
   const core::Time merge_ns = core::SecondsToTime(options.merge_s);
   std::map<std::tuple<EventKind, std::string, int>, core::Time> last_kept;
   std::vector<RenderEvent> merged;
   for (const RenderEvent& e : events) {
-    const auto key = std::make_tuple(e.kind, e.subject, priority(e));
+    const auto key = std::make_tuple(e.kind, e.subject, EventPriority(run, e));
     const auto last = last_kept.find(key);
     if (last != last_kept.end() && e.t_ns - last->second <= merge_ns) continue;
     last_kept[key] = e.t_ns;
     merged.push_back(e);
   }
-  // Caps, per kind and in total, by priority then time; the result in time order.
+  return merged;
+}
+
+// Caps, per kind and in total, by priority then time; the result in time order.
+std::vector<RenderEvent> MostTelling(const RunData& run, std::vector<RenderEvent> merged,
+                                     const EventOptions& options) {
   std::stable_sort(merged.begin(), merged.end(), [&](const RenderEvent& a, const RenderEvent& b) {
-    return priority(a) < priority(b);
+    return EventPriority(run, a) < EventPriority(run, b);
   });
   std::map<EventKind, size_t> per_kind;
   std::vector<RenderEvent> kept;
@@ -167,8 +181,23 @@ std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& opti
     if (per_kind[e.kind]++ >= options.max_per_kind) continue;
     kept.push_back(e);
   }
-  std::stable_sort(kept.begin(), kept.end(), by_time);
+  std::stable_sort(kept.begin(), kept.end(), EarlierEvent);
   return kept;
+}
+
+}  // namespace
+
+std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& options) {
+  options.Validate();
+  const core::Time settle_ns = core::SecondsToTime(options.settle_s);
+  std::vector<RenderEvent> events;
+  AddFaultOnsets(run, events);
+  AddDetectionsAndSwitches(run, settle_ns, events);
+  AddErrorsAboveBound(run, options, settle_ns, events);
+  AddCollisions(run, events);
+  std::stable_sort(events.begin(), events.end(), EarlierEvent);
+  // Caps keep the most telling first.
+  return MostTelling(run, WithoutRepeats(run, events, options), options);
 }
 
 }  // namespace tofu::renders

@@ -880,10 +880,11 @@ MethodFiles WriteMethodResultReleasingOutputs(const RecordedLog& log, ReplayResu
   return WriteMethodResultReleasing(log, result, out_dir, &result.outputs);
 }
 
-int RunEstimateCommand(const EstimateCommandOptions& options) {
-  RecordedLogOptions read;
-  read.use_clean_streams = options.use_clean_streams;
-  const RecordedLog log = ReadRecordedLog(options.log_dir, read);
+namespace {
+
+// `--method` as given, or by default each non-IMU stream alone.
+std::vector<ReplayMethod> MethodsToReplay(const EstimateCommandOptions& options,
+                                          const RecordedLog& log) {
   std::vector<ReplayMethod> methods;
   if (options.methods.empty()) {
     for (const RecordedStream& s : log.streams) {
@@ -892,8 +893,12 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   } else {
     for (const std::string& m : options.methods) methods.push_back(ParseReplayMethod(m, log));
   }
-  // A tofu run directory says how its methods were configured (its scenario's
-  // estimation: block): the same configuration reproduces what ran in the flight.
+  return methods;
+}
+
+// A tofu run directory says how its methods were configured (its scenario's
+// estimation: block): the same configuration reproduces what ran in the flight.
+EstimationConfig RunEstimationConfig(const EstimateCommandOptions& options) {
   EstimationConfig run_config;
   if (const std::filesystem::path scenario = options.log_dir / "scenario.yaml";
       options.read_estimation_config && std::filesystem::is_regular_file(scenario)) {
@@ -906,8 +911,11 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
       }
     }
   }
-  const EstimationSetup setup = MakeEstimationSetup(log, run_config);
-  estimator::MultiGraphEstimatorOptions estimator_options = setup.estimator;
+  return run_config;
+}
+
+estimator::MultiGraphEstimatorOptions WithEstimatorOverrides(
+    estimator::MultiGraphEstimatorOptions estimator_options, const EstimateCommandOptions& options) {
   if (options.window_s) estimator_options.local.window_ns = core::SecondsToTime(*options.window_s);
   if (options.keyframe_rate_hz) estimator_options.local.keyframe_rate_hz = *options.keyframe_rate_hz;
   if (options.huber_delta) estimator_options.local.huber_delta = *options.huber_delta;
@@ -916,19 +924,11 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     estimator_options.local.imu_noise.gyro_noise_density_radps_per_sqrthz *= k;
     estimator_options.local.imu_noise.accel_noise_density_mps2_per_sqrthz *= k;
   }
-  // Methods with @clean replay the un-faulted streams of the same run.
-  std::optional<RecordedLog> clean_log;
-  for (const ReplayMethod& m : methods) {
-    if (m.clean_streams && !options.use_clean_streams && !clean_log) {
-      RecordedLogOptions clean_read;
-      clean_read.use_clean_streams = true;
-      clean_log = ReadRecordedLog(options.log_dir, clean_read);
-    }
-  }
-  const auto log_for = [&](const ReplayMethod& m) -> const RecordedLog& {
-    return m.clean_streams && clean_log ? *clean_log : log;
-  };
-  std::vector<estimator::SensorSpec> specs = setup.sensors;
+  return estimator_options;
+}
+
+std::vector<estimator::SensorSpec> WithBetweenFactorOverrides(
+    std::vector<estimator::SensorSpec> specs, const EstimateCommandOptions& options) {
   for (estimator::SensorSpec& spec : specs) {
     if (options.between_position_std_m) spec.between_position_std_m = *options.between_position_std_m;
     if (options.between_rotation_std_rad) spec.between_rotation_std_rad = *options.between_rotation_std_rad;
@@ -939,6 +939,97 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
       spec.between_position_in_reference = *options.between_position_in_reference;
     }
   }
+  return specs;
+}
+
+// Methods with @clean replay the un-faulted streams of the same run.
+std::optional<RecordedLog> ReadCleanLogIfAsked(const EstimateCommandOptions& options,
+                                               const std::vector<ReplayMethod>& methods) {
+  std::optional<RecordedLog> clean_log;
+  for (const ReplayMethod& m : methods) {
+    if (m.clean_streams && !options.use_clean_streams && !clean_log) {
+      RecordedLogOptions clean_read;
+      clean_read.use_clean_streams = true;
+      clean_log = ReadRecordedLog(options.log_dir, clean_read);
+    }
+  }
+  return clean_log;
+}
+
+void WarnIfWorseThanInput(const ReplayMethod& method, const MethodFiles& files) {
+  if (const std::optional<InputCheck>& c = files.input_check;
+      c && (c->worse_in_position || c->worse_in_rotation)) {
+    fmt::print(stderr,
+               "warning: {} is worse than its input {} on the same span (ATE {:.4f} m vs "
+               "{:.4f} m, rotation {:.3f} deg vs {:.3f} deg)\n",
+               method.name, c->input, c->ate_m, c->input_ate_m, c->rotation_deg,
+               c->input_rotation_deg);
+  }
+}
+
+void PrintMethodRow(const ReplayMethod& method, const ReplayResult& result,
+                    const MethodFiles& files) {
+  const std::vector<PoseSample>& trajectory = files.trajectory;
+  const std::optional<TrajectoryErrors>& errors = files.errors;
+  fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8.0f} {:>10.3f} {:>10.3f}\n", method.name,
+             errors ? fmt::format("{:.4f}", errors->ate_position_rmse_m) : "n/a",
+             errors ? fmt::format("{:.3f}", errors->rotation_rmse_deg) : "n/a",
+             errors ? fmt::format("{:.4f}", errors->rpe_translation_rmse_m) : "n/a",
+             fmt::format("{}/{}", trajectory.size(), result.outputs.size()),
+             result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0,
+             files.solve_mean_ms, files.solve_p99_ms);
+}
+
+// Each pose stream on its own (T_AI = T_As T_Is⁻¹) over the span the methods covered:
+// what fusion has to beat.
+void WriteRawStreamBaselines(const RecordedLog& log, core::Time first_output_ns,
+                             core::Time last_output_ns, const std::filesystem::path& out_dir,
+                             bool quiet) {
+  if (log.ground_truth.empty() || first_output_ns > last_output_ns) return;
+  std::vector<PoseSample> truth;
+  for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+  for (const RecordedStream& stream : log.streams) {
+    if (stream.kind != StreamKind::kPose) continue;
+    const std::vector<PoseSample> raw = RawPoseTrajectory(log, stream, first_output_ns,
+                                                          last_output_ns);
+    if (raw.size() <= 10) continue;
+    const TrajectoryErrors errors = EvaluateTrajectory(raw, truth);
+    const std::string stem = "estimate_raw_" + SafeFileName(stream.name);
+    WriteErrorsCsv(out_dir / (stem + "_errors.csv"), errors, raw, truth);
+    nlohmann::ordered_json j;
+    j["method"] = "raw:" + stream.name;
+    j["ate"] = {{"alignment", "se3"},
+                {"matched", errors.matched},
+                {"position_rmse_m", errors.ate_position_rmse_m},
+                {"position_max_m", errors.ate_position_max_m},
+                {"rotation_rmse_deg", errors.rotation_rmse_deg},
+                {"rpe_delta_s", errors.rpe_delta_s},
+                {"rpe_translation_rmse_m", errors.rpe_translation_rmse_m},
+                {"rpe_rotation_rmse_deg", errors.rpe_rotation_rmse_deg}};
+    WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
+    if (!quiet) {
+      fmt::print("{:<28} {:>9.4f} {:>9.3f} {:>9.4f}   (the stream alone, same span)\n",
+                 "raw:" + stream.name, errors.ate_position_rmse_m, errors.rotation_rmse_deg,
+                 errors.rpe_translation_rmse_m);
+    }
+  }
+}
+
+}  // namespace
+
+int RunEstimateCommand(const EstimateCommandOptions& options) {
+  RecordedLogOptions read;
+  read.use_clean_streams = options.use_clean_streams;
+  const RecordedLog log = ReadRecordedLog(options.log_dir, read);
+  const std::vector<ReplayMethod> methods = MethodsToReplay(options, log);
+  const EstimationSetup setup = MakeEstimationSetup(log, RunEstimationConfig(options));
+  const estimator::MultiGraphEstimatorOptions estimator_options =
+      WithEstimatorOverrides(setup.estimator, options);
+  const std::optional<RecordedLog> clean_log = ReadCleanLogIfAsked(options, methods);
+  const auto log_for = [&](const ReplayMethod& m) -> const RecordedLog& {
+    return m.clean_streams && clean_log ? *clean_log : log;
+  };
+  const std::vector<estimator::SensorSpec> specs = WithBetweenFactorOverrides(setup.sensors, options);
   if (!options.quiet) {
     for (const std::string& note : log.notes) fmt::print("note: {}\n", note);
     fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10}\n", "method", "ATE [m]",
@@ -967,68 +1058,19 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
       WriteFileAtomically(out_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
                           ConsistencyMatrixCsv(result));
     }
-    const std::vector<PoseSample>& trajectory = files.trajectory;
-    const std::optional<TrajectoryErrors>& errors = files.errors;
-    const double mean_ms = files.solve_mean_ms;
-    const double p99_ms = files.solve_p99_ms;
-    if (!trajectory.empty()) {
-      first_output_ns = std::min(first_output_ns, trajectory.front().t_ns);
-      last_output_ns = std::max(last_output_ns, trajectory.back().t_ns);
+    if (!files.trajectory.empty()) {
+      first_output_ns = std::min(first_output_ns, files.trajectory.front().t_ns);
+      last_output_ns = std::max(last_output_ns, files.trajectory.back().t_ns);
     }
-    if (const std::optional<InputCheck>& c = files.input_check;
-        c && (c->worse_in_position || c->worse_in_rotation)) {
-      fmt::print(stderr,
-                 "warning: {} is worse than its input {} on the same span (ATE {:.4f} m vs "
-                 "{:.4f} m, rotation {:.3f} deg vs {:.3f} deg)\n",
-                 method.name, c->input, c->ate_m, c->input_ate_m, c->rotation_deg,
-                 c->input_rotation_deg);
-    }
+    WarnIfWorseThanInput(method, files);
     if (const std::optional<std::string> starved = NothingToFuse(result, log_for(method).imu_stream)) {
       fmt::print(stderr, "error: {}\n", *starved);
       failed = true;
     }
-    if (!options.quiet) {
-      fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8.0f} {:>10.3f} {:>10.3f}\n", method.name,
-                 errors ? fmt::format("{:.4f}", errors->ate_position_rmse_m) : "n/a",
-                 errors ? fmt::format("{:.3f}", errors->rotation_rmse_deg) : "n/a",
-                 errors ? fmt::format("{:.4f}", errors->rpe_translation_rmse_m) : "n/a",
-                 fmt::format("{}/{}", trajectory.size(), result.outputs.size()),
-                 result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0,
-                 mean_ms, p99_ms);
-    }
+    if (!options.quiet) PrintMethodRow(method, result, files);
   }
   if (decisions_csv != kDecisionsCsvHeader) WriteFileAtomically(out_dir / "decisions.csv", decisions_csv);
-  // Each pose stream on its own (T_AI = T_As T_Is⁻¹) over the span the methods covered:
-  // what fusion has to beat.
-  if (!log.ground_truth.empty() && first_output_ns <= last_output_ns) {
-    std::vector<PoseSample> truth;
-    for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
-    for (const RecordedStream& stream : log.streams) {
-      if (stream.kind != StreamKind::kPose) continue;
-      const std::vector<PoseSample> raw = RawPoseTrajectory(log, stream, first_output_ns,
-                                                            last_output_ns);
-      if (raw.size() <= 10) continue;
-      const TrajectoryErrors errors = EvaluateTrajectory(raw, truth);
-      const std::string stem = "estimate_raw_" + SafeFileName(stream.name);
-      WriteErrorsCsv(out_dir / (stem + "_errors.csv"), errors, raw, truth);
-      nlohmann::ordered_json j;
-      j["method"] = "raw:" + stream.name;
-      j["ate"] = {{"alignment", "se3"},
-                  {"matched", errors.matched},
-                  {"position_rmse_m", errors.ate_position_rmse_m},
-                  {"position_max_m", errors.ate_position_max_m},
-                  {"rotation_rmse_deg", errors.rotation_rmse_deg},
-                  {"rpe_delta_s", errors.rpe_delta_s},
-                  {"rpe_translation_rmse_m", errors.rpe_translation_rmse_m},
-                  {"rpe_rotation_rmse_deg", errors.rpe_rotation_rmse_deg}};
-      WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
-      if (!options.quiet) {
-        fmt::print("{:<28} {:>9.4f} {:>9.3f} {:>9.4f}   (the stream alone, same span)\n",
-                   "raw:" + stream.name, errors.ate_position_rmse_m, errors.rotation_rmse_deg,
-                   errors.rpe_translation_rmse_m);
-      }
-    }
-  }
+  WriteRawStreamBaselines(log, first_output_ns, last_output_ns, out_dir, options.quiet);
   return failed ? 1 : 0;
 }
 

@@ -1344,96 +1344,105 @@ std::string CheckSummaryTable(const std::vector<CheckScenario>& scenarios) {
       rows);
 }
 
-std::string ScenarioDetail(const CheckScenario& sc) {
+// The matrix's first row: how each seed's run went.
+std::string RunRow(const CheckScenario& sc) {
   const harness::ScenarioCheck& c = sc.check;
-  std::string out =
-      fmt::format("<section class=\"scenario\" id=\"scenario-{}\">\n<h2><code>{}</code> {}</h2>\n",
-                  E(sc.name), E(sc.name), ScenarioResult(c));
-  if (!c.source_file.empty()) out += fmt::format("<p class=\"muted\">{}</p>\n", E(c.source_file));
-  // The matrix: expectations by seeds.
+  std::string cells;
+  for (const CheckRun& r : sc.runs) {
+    // A run that worked but failed an expectation is no error of the run: neutral here,
+    // red in the expectation's row.
+    const char* style = !r.run.error.empty() || r.run.exit_code == core::kExitBadInput ? "fail"
+                        : r.run.exit_code == core::kExitOk                             ? "pass"
+                                                           : "neutral";
+    cells += fmt::format("<td class=\"cell {}\">{}</td>", style, E(RunVerdict(r)));
+  }
+  return fmt::format(
+      "<tr class=\"{}\"><td>run</td><td class=\"num\">–</td>{}<td "
+      "class=\"result\">{}</td></tr>\n",
+      c.runs_ok ? "pass" : "fail", cells, c.runs_ok ? "ok" : "ERROR");
+}
+
+// A row of the matrix: the expectation's value in each seed, and its verdict over them.
+std::string ExpectationRow(const harness::AggregatedExpectation& a) {
+  std::string cells;
+  for (const harness::SeedOutcome& o : a.seeds) {
+    cells += fmt::format("<td class=\"cell num {}\">{} {}</td>", o.held ? "pass" : "fail",
+                         o.value ? Number(*o.value) : "n/a", o.held ? "✔" : "✘");
+  }
+  return fmt::format(
+      "<tr class=\"{}\"><td><code>{}</code><div class=\"where\">{}</div></td><td "
+      "class=\"num\">{}/{}</td>{}"
+      "<td class=\"result\">{}</td></tr>\n",
+      a.passed ? "pass" : "fail", E(harness::ExpectationLabel(a.expectation)),
+      E(fmt::format("{}:{}", a.expectation.location.file, a.expectation.location.line)),
+      a.required, a.seeds.size(), cells,
+      a.passed ? fmt::format("held {}/{}", a.held, a.seeds.size())
+               : fmt::format("FAIL {}/{}", a.held, a.seeds.size()));
+}
+
+// The matrix: expectations by seeds.
+std::string ExpectationMatrix(const CheckScenario& sc) {
   std::string head;
   for (const CheckRun& r : sc.runs) head += fmt::format("<th>{}</th>", SeedLink(sc, r));
-  std::string rows;
-  {
-    std::string cells;
-    for (const CheckRun& r : sc.runs) {
-      // A run that worked but failed an expectation is no error of the run: neutral here,
-      // red in the expectation's row.
-      const char* style = !r.run.error.empty() || r.run.exit_code == core::kExitBadInput ? "fail"
-                          : r.run.exit_code == core::kExitOk                             ? "pass"
-                                                             : "neutral";
-      cells += fmt::format("<td class=\"cell {}\">{}</td>", style, E(RunVerdict(r)));
-    }
-    rows += fmt::format(
-        "<tr class=\"{}\"><td>run</td><td class=\"num\">–</td>{}<td "
-        "class=\"result\">{}</td></tr>\n",
-        c.runs_ok ? "pass" : "fail", cells, c.runs_ok ? "ok" : "ERROR");
-  }
-  for (const harness::AggregatedExpectation& a : c.expectations) {
-    std::string cells;
-    for (const harness::SeedOutcome& o : a.seeds) {
-      cells += fmt::format("<td class=\"cell num {}\">{} {}</td>", o.held ? "pass" : "fail",
-                           o.value ? Number(*o.value) : "n/a", o.held ? "✔" : "✘");
-    }
-    rows += fmt::format(
-        "<tr class=\"{}\"><td><code>{}</code><div class=\"where\">{}</div></td><td "
-        "class=\"num\">{}/{}</td>{}"
-        "<td class=\"result\">{}</td></tr>\n",
-        a.passed ? "pass" : "fail", E(harness::ExpectationLabel(a.expectation)),
-        E(fmt::format("{}:{}", a.expectation.location.file, a.expectation.location.line)),
-        a.required, a.seeds.size(), cells,
-        a.passed ? fmt::format("held {}/{}", a.held, a.seeds.size())
-                 : fmt::format("FAIL {}/{}", a.held, a.seeds.size()));
-  }
-  out += fmt::format(
+  std::string rows = RunRow(sc);
+  for (const harness::AggregatedExpectation& a : sc.check.expectations) rows += ExpectationRow(a);
+  return fmt::format(
       "<table "
       "class=\"matrix\">\n<thead><tr><th>expectation</th><th>needs</th>{}<th>result</th></tr></"
       "thead>\n"
       "<tbody>\n{}</tbody>\n</table>\n",
       head, rows);
-  // Methods per seed.
-  if (!c.methods.empty() || !c.closed_loop.empty()) {
-    std::string mrows;
-    for (const harness::MethodStats& m : c.methods) {
-      std::string cells;
-      for (const CheckRun& r : sc.runs) {
-        const json methods = r.run.summary.is_object()
-                                 ? r.run.summary.value("methods", json::object())
-                                 : json::object();
-        cells += fmt::format("<td class=\"num\">{}</td>",
-                             Field(methods.value(m.method, json::object()), "ate_m"));
-      }
-      mrows += fmt::format(
-          "<tr><td><code>{}</code></td>{}<td class=\"num\">{}</td><td class=\"num\">{}</td></tr>\n",
-          E(m.method), cells, m.ate_mean_m ? Number(*m.ate_mean_m) : "–",
-          m.has_detections ? fmt::format("{}/{}", m.faults_detected, m.faults) : "–");
+}
+
+// Methods per seed (ATE) and closed-loop flights per seed (tracking RMSE); none without
+// either.
+std::string MethodsPerSeedTable(const CheckScenario& sc) {
+  const harness::ScenarioCheck& c = sc.check;
+  if (c.methods.empty() && c.closed_loop.empty()) return "";
+  std::string mrows;
+  for (const harness::MethodStats& m : c.methods) {
+    std::string cells;
+    for (const CheckRun& r : sc.runs) {
+      const json methods = r.run.summary.is_object()
+                               ? r.run.summary.value("methods", json::object())
+                               : json::object();
+      cells += fmt::format("<td class=\"num\">{}</td>",
+                           Field(methods.value(m.method, json::object()), "ate_m"));
     }
-    for (const harness::ClosedLoopStats& f : c.closed_loop) {
-      std::string cells;
-      for (const CheckRun& r : sc.runs) {
-        const json flights = r.run.summary.is_object()
-                                 ? r.run.summary.value("closed_loop", json::object())
-                                 : json::object();
-        cells += fmt::format("<td class=\"num\">{}</td>",
-                             Field(flights.value(f.method, json::object()), "tracking_rmse_m"));
-      }
-      mrows += fmt::format(
-          "<tr class=\"{}\"><td>flown on <code>{}</code> (tracking RMSE)</td>{}<td "
-          "class=\"num\">{}</td>"
-          "<td class=\"num\">{} hits, {} failsafe</td></tr>\n",
-          f.collisions > 0 ? "fail" : "", E(f.method), cells,
-          f.tracking_rmse_mean_m ? Number(*f.tracking_rmse_mean_m) : "–", f.collisions,
-          f.failsafe_events);
-    }
-    std::string mhead;
-    for (const CheckRun& r : sc.runs) mhead += fmt::format("<th>seed {}</th>", r.run.seed);
-    out += fmt::format(
-        "<h3>Methods [m]</h3>\n<table>\n<thead><tr><th>method "
-        "(ATE)</th>{}<th>mean</th><th>detected / "
-        "collisions</th></tr></thead>\n<tbody>\n{}</tbody>\n</table>\n",
-        mhead, mrows);
+    mrows += fmt::format(
+        "<tr><td><code>{}</code></td>{}<td class=\"num\">{}</td><td class=\"num\">{}</td></tr>\n",
+        E(m.method), cells, m.ate_mean_m ? Number(*m.ate_mean_m) : "–",
+        m.has_detections ? fmt::format("{}/{}", m.faults_detected, m.faults) : "–");
   }
-  // Why runs failed.
+  for (const harness::ClosedLoopStats& f : c.closed_loop) {
+    std::string cells;
+    for (const CheckRun& r : sc.runs) {
+      const json flights = r.run.summary.is_object()
+                               ? r.run.summary.value("closed_loop", json::object())
+                               : json::object();
+      cells += fmt::format("<td class=\"num\">{}</td>",
+                           Field(flights.value(f.method, json::object()), "tracking_rmse_m"));
+    }
+    mrows += fmt::format(
+        "<tr class=\"{}\"><td>flown on <code>{}</code> (tracking RMSE)</td>{}<td "
+        "class=\"num\">{}</td>"
+        "<td class=\"num\">{} hits, {} failsafe</td></tr>\n",
+        f.collisions > 0 ? "fail" : "", E(f.method), cells,
+        f.tracking_rmse_mean_m ? Number(*f.tracking_rmse_mean_m) : "–", f.collisions,
+        f.failsafe_events);
+  }
+  std::string mhead;
+  for (const CheckRun& r : sc.runs) mhead += fmt::format("<th>seed {}</th>", r.run.seed);
+  return fmt::format(
+      "<h3>Methods [m]</h3>\n<table>\n<thead><tr><th>method "
+      "(ATE)</th>{}<th>mean</th><th>detected / "
+      "collisions</th></tr></thead>\n<tbody>\n{}</tbody>\n</table>\n",
+      mhead, mrows);
+}
+
+// Why runs failed.
+std::string RunFailureNotes(const CheckScenario& sc) {
+  std::string out;
   for (const CheckRun& r : sc.runs) {
     if (r.run.error.empty()) continue;
     out += fmt::format("<div class=\"failure\"><strong>seed {}:</strong> {}", r.run.seed,
@@ -1445,6 +1454,18 @@ std::string ScenarioDetail(const CheckScenario& sc) {
     if (!r.log_tail.empty()) out += fmt::format("<pre>{}</pre>", E(r.log_tail));
     out += "</div>\n";
   }
+  return out;
+}
+
+std::string ScenarioDetail(const CheckScenario& sc) {
+  const harness::ScenarioCheck& c = sc.check;
+  std::string out =
+      fmt::format("<section class=\"scenario\" id=\"scenario-{}\">\n<h2><code>{}</code> {}</h2>\n",
+                  E(sc.name), E(sc.name), ScenarioResult(c));
+  if (!c.source_file.empty()) out += fmt::format("<p class=\"muted\">{}</p>\n", E(c.source_file));
+  out += ExpectationMatrix(sc);
+  out += MethodsPerSeedTable(sc);
+  out += RunFailureNotes(sc);
   return out + "</section>\n";
 }
 

@@ -156,104 +156,131 @@ std::vector<double> FullCovariance(const CsvTable& csv, std::size_t row, const s
   return c;
 }
 
+// The columns every sensor stream has (all but the timestamp may be missing, -1).
+struct SensorRowColumns {
+  int t = -1;
+  int arrival = -1;
+  int conditions = -1;
+  int faults = -1;
+};
+
+core::Time ArrivalNs(const CsvTable& csv, const SensorRowColumns& c, std::size_t r) {
+  const core::Time t_ns = csv.Int(r, c.t);
+  return c.arrival >= 0 ? csv.Int(r, c.arrival) : t_ns;
+}
+
+void AddSensorRowFields(JsonText& j, const CsvTable& csv, const SensorRowColumns& c, std::size_t r) {
+  const core::Time t_ns = csv.Int(r, c.t);
+  j.Time("timestamp", t_ns);
+  j.Time("arrival", c.arrival >= 0 ? csv.Int(r, c.arrival) : t_ns);
+  j.Strings("conditions", SplitLabels(c.conditions >= 0 ? csv.Text(r, c.conditions) : ""));
+  j.Strings("faults", SplitLabels(c.faults >= 0 ? csv.Text(r, c.faults) : ""));
+}
+
+void ExportImuSamples(const CsvTable& csv, const SensorRowColumns& c, const std::string& topic,
+                      Channels& out) {
+  const int w[3] = {csv.Require("w_RS_S_x"), csv.Require("w_RS_S_y"), csv.Require("w_RS_S_z")};
+  const int a[3] = {csv.Require("a_RS_S_x"), csv.Require("a_RS_S_y"), csv.Require("a_RS_S_z")};
+  for (std::size_t r = 0; r < csv.rows(); ++r) {
+    JsonText j;
+    j.Begin();
+    AddSensorRowFields(j, csv, c, r);
+    j.Vector("angular_velocity_radps",
+             {csv.Double(r, w[0]), csv.Double(r, w[1]), csv.Double(r, w[2])});
+    j.Vector("linear_acceleration_mps2",
+             {csv.Double(r, a[0]), csv.Double(r, a[1]), csv.Double(r, a[2])});
+    j.End();
+    out.Add(topic, "tofu.ImuSample", csv.Int(r, c.t), ArrivalNs(csv, c, r), j.str());
+  }
+}
+
+// A pose or position stream: each row as measured (in the sensor's reference frame), and
+// mapped into W.
+void ExportMeasurements(const RunData& run, const std::string& name, const CsvTable& csv,
+                        const SensorRowColumns& c, const std::string& topic, Channels& out) {
+  const renders::SensorTrack* track = run.FindSensor(name);
+  const Eigen::Isometry3d T_WS = track ? track->true_T_WS : Eigen::Isometry3d::Identity();
+  const int p[3] = {csv.Require("p_Ss_x"), csv.Require("p_Ss_y"), csv.Require("p_Ss_z")};
+  const bool is_pose = csv.Find("q_Ss_w") >= 0;
+  int q[4] = {-1, -1, -1, -1};
+  int v[3] = {-1, -1, -1};
+  int omega[3] = {-1, -1, -1};
+  if (is_pose) {
+    q[0] = csv.Require("q_Ss_w"), q[1] = csv.Require("q_Ss_x");
+    q[2] = csv.Require("q_Ss_y"), q[3] = csv.Require("q_Ss_z");
+    v[0] = csv.Find("v_s_x"), v[1] = csv.Find("v_s_y"), v[2] = csv.Find("v_s_z");
+    omega[0] = csv.Find("omega_s_x"), omega[1] = csv.Find("omega_s_y"), omega[2] = csv.Find("omega_s_z");
+  }
+  const std::string frame = name + "_reference";
+  const std::vector<int> cov_pose = UpperTriangleColumns<6>(csv, "cov_pose_");
+  const std::vector<int> cov_twist = UpperTriangleColumns<6>(csv, "cov_twist_");
+  const std::vector<int> cov_p = UpperTriangleColumns<3>(csv, "cov_p_");
+  for (std::size_t r = 0; r < csv.rows(); ++r) {
+    const core::Time t_ns = csv.Int(r, c.t);
+    const core::Time arrival_ns = ArrivalNs(csv, c, r);
+    const Eigen::Vector3d p_Ss(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
+    Eigen::Quaterniond q_Ss = Eigen::Quaterniond::Identity();
+    JsonText j;
+    j.Begin();
+    AddSensorRowFields(j, csv, c, r);
+    j.String("frame_id", frame);
+    if (is_pose) {
+      q_Ss = Eigen::Quaterniond(csv.Double(r, q[0]), csv.Double(r, q[1]), csv.Double(r, q[2]),
+                                csv.Double(r, q[3]));
+      j.Pose("pose", p_Ss, q_Ss);
+      j.Numbers("covariance", FullCovariance<6>(csv, r, cov_pose));
+      const bool has_twist = v[0] >= 0 && !csv.Text(r, v[0]).empty();
+      if (has_twist) {
+        j.Vector("linear_velocity_mps",
+                 {csv.Double(r, v[0]), csv.Double(r, v[1]), csv.Double(r, v[2])});
+        j.Vector("angular_velocity_radps", {csv.Double(r, omega[0]), csv.Double(r, omega[1]),
+                                            csv.Double(r, omega[2])});
+        j.Numbers("twist_covariance", FullCovariance<6>(csv, r, cov_twist));
+      }
+    } else {
+      j.Vector("position", p_Ss);
+      j.Numbers("covariance", FullCovariance<3>(csv, r, cov_p));
+    }
+    j.End();
+    out.Add(topic, is_pose ? "tofu.PoseMeasurement" : "tofu.PositionMeasurement", t_ns,
+            arrival_ns, j.str());
+
+    // In W through the sensor's true reference frame (calibration.yaml true_T_WS), as
+    // the renderer places it; a NaN sample (a fault) has no place.
+    if (!p_Ss.allFinite() || (is_pose && !q_Ss.coeffs().allFinite())) continue;
+    const Eigen::Vector3d p_W = T_WS * p_Ss;
+    const Eigen::Quaterniond q_W =
+        is_pose ? Eigen::Quaterniond(T_WS.linear() * q_Ss.normalized().toRotationMatrix())
+                : Eigen::Quaterniond::Identity();
+    out.Add(topic + "/world", "foxglove.PoseInFrame", t_ns, arrival_ns,
+            PoseInFrame(t_ns, kWorldFrame, p_W, q_W.normalized()));
+  }
+}
+
 void ExportSensors(const RunData& run, Channels& out) {
   for (const fs::path& file : renders::SensorCsvFiles(run.directory)) {
     const std::string name = file.stem().string();
     const std::string topic = "/sensors/" + name;
     const CsvTable csv(file, "#timestamp [ns],... (a sensor stream of README 'Run directory')");
-    const int t = csv.Require("timestamp");
-    const int arrival = csv.Find("arrival");
-    const int conditions = csv.Find("conditions");
-    const int faults = csv.Find("faults");
-    const auto common = [&](JsonText& j, std::size_t r) {
-      const core::Time t_ns = csv.Int(r, t);
-      j.Time("timestamp", t_ns);
-      j.Time("arrival", arrival >= 0 ? csv.Int(r, arrival) : t_ns);
-      j.Strings("conditions", SplitLabels(conditions >= 0 ? csv.Text(r, conditions) : ""));
-      j.Strings("faults", SplitLabels(faults >= 0 ? csv.Text(r, faults) : ""));
-    };
+    SensorRowColumns columns;
+    columns.t = csv.Require("timestamp");
+    columns.arrival = csv.Find("arrival");
+    columns.conditions = csv.Find("conditions");
+    columns.faults = csv.Find("faults");
     if (csv.Find("w_RS_S_x") >= 0) {
-      const int w[3] = {csv.Require("w_RS_S_x"), csv.Require("w_RS_S_y"), csv.Require("w_RS_S_z")};
-      const int a[3] = {csv.Require("a_RS_S_x"), csv.Require("a_RS_S_y"), csv.Require("a_RS_S_z")};
-      for (std::size_t r = 0; r < csv.rows(); ++r) {
-        JsonText j;
-        j.Begin();
-        common(j, r);
-        j.Vector("angular_velocity_radps",
-                 {csv.Double(r, w[0]), csv.Double(r, w[1]), csv.Double(r, w[2])});
-        j.Vector("linear_acceleration_mps2",
-                 {csv.Double(r, a[0]), csv.Double(r, a[1]), csv.Double(r, a[2])});
-        j.End();
-        const core::Time t_ns = csv.Int(r, t);
-        out.Add(topic, "tofu.ImuSample", t_ns, arrival >= 0 ? csv.Int(r, arrival) : t_ns, j.str());
-      }
-      continue;
-    }
-    const renders::SensorTrack* track = run.FindSensor(name);
-    const Eigen::Isometry3d T_WS = track ? track->true_T_WS : Eigen::Isometry3d::Identity();
-    const int p[3] = {csv.Require("p_Ss_x"), csv.Require("p_Ss_y"), csv.Require("p_Ss_z")};
-    const bool is_pose = csv.Find("q_Ss_w") >= 0;
-    int q[4] = {-1, -1, -1, -1};
-    int v[3] = {-1, -1, -1};
-    int omega[3] = {-1, -1, -1};
-    if (is_pose) {
-      q[0] = csv.Require("q_Ss_w"), q[1] = csv.Require("q_Ss_x");
-      q[2] = csv.Require("q_Ss_y"), q[3] = csv.Require("q_Ss_z");
-      v[0] = csv.Find("v_s_x"), v[1] = csv.Find("v_s_y"), v[2] = csv.Find("v_s_z");
-      omega[0] = csv.Find("omega_s_x"), omega[1] = csv.Find("omega_s_y"), omega[2] = csv.Find("omega_s_z");
-    }
-    const std::string frame = name + "_reference";
-    const std::vector<int> cov_pose = UpperTriangleColumns<6>(csv, "cov_pose_");
-    const std::vector<int> cov_twist = UpperTriangleColumns<6>(csv, "cov_twist_");
-    const std::vector<int> cov_p = UpperTriangleColumns<3>(csv, "cov_p_");
-    for (std::size_t r = 0; r < csv.rows(); ++r) {
-      const core::Time t_ns = csv.Int(r, t);
-      const core::Time arrival_ns = arrival >= 0 ? csv.Int(r, arrival) : t_ns;
-      const Eigen::Vector3d p_Ss(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
-      Eigen::Quaterniond q_Ss = Eigen::Quaterniond::Identity();
-      JsonText j;
-      j.Begin();
-      common(j, r);
-      j.String("frame_id", frame);
-      if (is_pose) {
-        q_Ss = Eigen::Quaterniond(csv.Double(r, q[0]), csv.Double(r, q[1]), csv.Double(r, q[2]),
-                                  csv.Double(r, q[3]));
-        j.Pose("pose", p_Ss, q_Ss);
-        j.Numbers("covariance", FullCovariance<6>(csv, r, cov_pose));
-        const bool has_twist = v[0] >= 0 && !csv.Text(r, v[0]).empty();
-        if (has_twist) {
-          j.Vector("linear_velocity_mps",
-                   {csv.Double(r, v[0]), csv.Double(r, v[1]), csv.Double(r, v[2])});
-          j.Vector("angular_velocity_radps", {csv.Double(r, omega[0]), csv.Double(r, omega[1]),
-                                              csv.Double(r, omega[2])});
-          j.Numbers("twist_covariance", FullCovariance<6>(csv, r, cov_twist));
-        }
-      } else {
-        j.Vector("position", p_Ss);
-        j.Numbers("covariance", FullCovariance<3>(csv, r, cov_p));
-      }
-      j.End();
-      out.Add(topic, is_pose ? "tofu.PoseMeasurement" : "tofu.PositionMeasurement", t_ns,
-              arrival_ns, j.str());
-
-      // In W through the sensor's true reference frame (calibration.yaml true_T_WS), as
-      // the renderer places it; a NaN sample (a fault) has no place.
-      if (!p_Ss.allFinite() || (is_pose && !q_Ss.coeffs().allFinite())) continue;
-      const Eigen::Vector3d p_W = T_WS * p_Ss;
-      const Eigen::Quaterniond q_W =
-          is_pose ? Eigen::Quaterniond(T_WS.linear() * q_Ss.normalized().toRotationMatrix())
-                  : Eigen::Quaterniond::Identity();
-      out.Add(topic + "/world", "foxglove.PoseInFrame", t_ns, arrival_ns,
-              PoseInFrame(t_ns, kWorldFrame, p_W, q_W.normalized()));
+      ExportImuSamples(csv, columns, topic, out);
+    } else {
+      ExportMeasurements(run, name, csv, columns, topic, out);
     }
   }
 }
 
 // ---- estimates, errors, decisions, consistency ----
 
-void ExportEstimates(const RunData& run, Channels& out) {
+// The estimate_<method>.csv files of a run directory (not their _errors.csv), by name.
+std::vector<fs::path> EstimateCsvFiles(const fs::path& directory) {
   std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(run.directory)) {
+  for (const auto& entry : fs::directory_iterator(directory)) {
     const std::string name = entry.path().filename().string();
     if (entry.is_regular_file() && name.rfind("estimate_", 0) == 0 && name.ends_with(".csv") &&
         !name.ends_with("_errors.csv")) {
@@ -261,62 +288,72 @@ void ExportEstimates(const RunData& run, Channels& out) {
     }
   }
   std::sort(files.begin(), files.end());
-  for (const fs::path& file : files) {
-    const std::string stem = file.stem().string();
-    std::string method = stem.substr(std::string("estimate_").size());
-    const fs::path json_path = run.directory / (stem + ".json");
-    if (fs::exists(json_path)) {
-      const nlohmann::json j = renders::ReadRunJson(json_path);
-      if (j.is_object() && j.contains("method") && j["method"].is_string()) method = j["method"];
-    }
-    const CsvTable csv(file, "#timestamp [ns],p_LI_x [m],...,valid,fused");
-    const int t = csv.Require("timestamp");
-    const auto columns = [&](std::initializer_list<const char*> keys) {
-      std::vector<int> c;
-      for (const char* k : keys) c.push_back(csv.Require(k));
-      return c;
-    };
-    const std::vector<int> p = columns({"p_LI_x", "p_LI_y", "p_LI_z"});
-    const std::vector<int> q = columns({"q_LI_w", "q_LI_x", "q_LI_y", "q_LI_z"});
-    const std::vector<int> v = columns({"v_L_x", "v_L_y", "v_L_z"});
-    const std::vector<int> ba = columns({"b_a_x", "b_a_y", "b_a_z"});
-    const std::vector<int> bg = columns({"b_g_x", "b_g_y", "b_g_z"});
-    const std::vector<int> sp = columns({"std_p_x", "std_p_y", "std_p_z"});
-    const int valid = csv.Require("valid");
-    const int fused = csv.Find("fused");
-    const auto vec = [&](std::size_t r, const std::vector<int>& c) {
-      return Eigen::Vector3d(csv.Double(r, c[0], true), csv.Double(r, c[1], true),
-                             csv.Double(r, c[2], true));
-    };
-    const std::string topic = "/estimates/" + method;
-    for (std::size_t r = 0; r < csv.rows(); ++r) {
-      const core::Time t_ns = csv.Int(r, t);
-      JsonText j;
-      j.Begin();
-      j.Time("timestamp", t_ns);
-      j.String("frame_id", "L");
-      j.Pose("pose", vec(r, p),
-             Eigen::Quaterniond(csv.Double(r, q[0]), csv.Double(r, q[1]), csv.Double(r, q[2]),
-                                csv.Double(r, q[3])));
-      j.Vector("velocity_mps", vec(r, v));
-      j.Vector("accel_bias_mps2", vec(r, ba));
-      j.Vector("gyro_bias_radps", vec(r, bg));
-      j.Vector("position_std_m", vec(r, sp));
-      j.Bool("valid", csv.Text(r, valid) == "1");
-      j.Strings("fused", SplitLabels(fused >= 0 ? csv.Text(r, fused) : "", '+'));
-      j.End();
-      out.Add(topic, "tofu.Estimate", t_ns, t_ns, j.str());
-    }
-    // T_WB of the valid rows, as the renderer's ghost (the evaluation's alignment T_WL).
-    const auto estimate = std::find_if(run.estimates.begin(), run.estimates.end(),
-                                       [&](const renders::MethodEstimate& e) { return e.method == method; });
-    if (estimate == run.estimates.end()) continue;
-    for (const TimedPose& T_WB : estimate->T_WB) {
-      out.Add(topic + "/world", "foxglove.PoseInFrame", T_WB.t_ns, T_WB.t_ns,
-              PoseInFrame(T_WB.t_ns, kWorldFrame, T_WB.p_W, T_WB.q_W));
-    }
-  }
+  return files;
+}
 
+// The method's name as its .json beside the CSV gives it, else the file's stem.
+std::string EstimateMethodName(const RunData& run, const fs::path& file) {
+  const std::string stem = file.stem().string();
+  std::string method = stem.substr(std::string("estimate_").size());
+  const fs::path json_path = run.directory / (stem + ".json");
+  if (fs::exists(json_path)) {
+    const nlohmann::json j = renders::ReadRunJson(json_path);
+    if (j.is_object() && j.contains("method") && j["method"].is_string()) method = j["method"];
+  }
+  return method;
+}
+
+void ExportEstimateFile(const RunData& run, const fs::path& file, Channels& out) {
+  const std::string method = EstimateMethodName(run, file);
+  const CsvTable csv(file, "#timestamp [ns],p_LI_x [m],...,valid,fused");
+  const int t = csv.Require("timestamp");
+  const auto columns = [&](std::initializer_list<const char*> keys) {
+    std::vector<int> c;
+    for (const char* k : keys) c.push_back(csv.Require(k));
+    return c;
+  };
+  const std::vector<int> p = columns({"p_LI_x", "p_LI_y", "p_LI_z"});
+  const std::vector<int> q = columns({"q_LI_w", "q_LI_x", "q_LI_y", "q_LI_z"});
+  const std::vector<int> v = columns({"v_L_x", "v_L_y", "v_L_z"});
+  const std::vector<int> ba = columns({"b_a_x", "b_a_y", "b_a_z"});
+  const std::vector<int> bg = columns({"b_g_x", "b_g_y", "b_g_z"});
+  const std::vector<int> sp = columns({"std_p_x", "std_p_y", "std_p_z"});
+  const int valid = csv.Require("valid");
+  const int fused = csv.Find("fused");
+  const auto vec = [&](std::size_t r, const std::vector<int>& c) {
+    return Eigen::Vector3d(csv.Double(r, c[0], true), csv.Double(r, c[1], true),
+                           csv.Double(r, c[2], true));
+  };
+  const std::string topic = "/estimates/" + method;
+  for (std::size_t r = 0; r < csv.rows(); ++r) {
+    const core::Time t_ns = csv.Int(r, t);
+    JsonText j;
+    j.Begin();
+    j.Time("timestamp", t_ns);
+    j.String("frame_id", "L");
+    j.Pose("pose", vec(r, p),
+           Eigen::Quaterniond(csv.Double(r, q[0]), csv.Double(r, q[1]), csv.Double(r, q[2]),
+                              csv.Double(r, q[3])));
+    j.Vector("velocity_mps", vec(r, v));
+    j.Vector("accel_bias_mps2", vec(r, ba));
+    j.Vector("gyro_bias_radps", vec(r, bg));
+    j.Vector("position_std_m", vec(r, sp));
+    j.Bool("valid", csv.Text(r, valid) == "1");
+    j.Strings("fused", SplitLabels(fused >= 0 ? csv.Text(r, fused) : "", '+'));
+    j.End();
+    out.Add(topic, "tofu.Estimate", t_ns, t_ns, j.str());
+  }
+  // T_WB of the valid rows, as the renderer's ghost (the evaluation's alignment T_WL).
+  const auto estimate = std::find_if(run.estimates.begin(), run.estimates.end(),
+                                     [&](const renders::MethodEstimate& e) { return e.method == method; });
+  if (estimate == run.estimates.end()) return;
+  for (const TimedPose& T_WB : estimate->T_WB) {
+    out.Add(topic + "/world", "foxglove.PoseInFrame", T_WB.t_ns, T_WB.t_ns,
+            PoseInFrame(T_WB.t_ns, kWorldFrame, T_WB.p_W, T_WB.q_W));
+  }
+}
+
+void ExportErrors(const RunData& run, Channels& out) {
   for (const renders::ErrorRow& e : run.errors) {
     JsonText j;
     j.Begin();
@@ -326,7 +363,9 @@ void ExportEstimates(const RunData& run, Channels& out) {
     j.End();
     out.Add("/errors/" + e.method, "tofu.EstimateError", e.t_ns, e.t_ns, j.str());
   }
+}
 
+void ExportDecisions(const RunData& run, Channels& out) {
   for (const renders::DecisionRow& d : run.decisions) {
     JsonText j;
     j.Begin();
@@ -339,8 +378,10 @@ void ExportEstimates(const RunData& run, Channels& out) {
     j.End();
     out.Add("/consensus/decisions", "tofu.ConsensusDecision", d.t_ns, d.t_ns, j.str());
   }
+}
 
-  // One matrix per evaluation: the rows of one time stamp.
+// One matrix per evaluation: the rows of one time stamp.
+void ExportConsistency(const RunData& run, Channels& out) {
   for (const auto& [method, rows] : run.consistency) {
     const std::string topic = "/consensus/consistency/" + (method.empty() ? "run" : method);
     std::size_t i = 0;
@@ -364,6 +405,13 @@ void ExportEstimates(const RunData& run, Channels& out) {
       out.Add(topic, "tofu.ConsistencyMatrix", t_ns, t_ns, j.str());
     }
   }
+}
+
+void ExportEstimates(const RunData& run, Channels& out) {
+  for (const fs::path& file : EstimateCsvFiles(run.directory)) ExportEstimateFile(run, file, out);
+  ExportErrors(run, out);
+  ExportDecisions(run, out);
+  ExportConsistency(run, out);
 }
 
 // ---- labels, failure events, closed-loop flights ----
@@ -427,24 +475,65 @@ struct Primitive {
   std::array<float, 4> rgba;
 };
 
-void ExportScene(const RunData& run, Channels& out) {
-  sim::WorldOptions options;
-  options.world = run.world;
-  options.robot = run.robot;
-  const sim::World world(options);
-  const mjModel* m = world.model();
-  mjData* d = mj_makeData(m);
-  mj_forward(m, d);
-  const int root_joint = mj_name2id(m, mjOBJ_JOINT, "root");
-  const int robot_body = root_joint >= 0 ? m->body_rootid[m->jnt_bodyid[root_joint]] : -1;
-  const Eigen::Vector3d p_WB0(d->xpos[3 * std::max(robot_body, 0)], d->xpos[3 * std::max(robot_body, 0) + 1],
-                              d->xpos[3 * std::max(robot_body, 0) + 2]);
-  const mjtNum* xq = d->xquat + 4 * std::max(robot_body, 0);
-  const Eigen::Quaterniond q_WB0(xq[0], xq[1], xq[2], xq[3]);
+// The primitives of one scene entity, each a JSON array of foxglove primitives.
+struct ScenePrimitives {
+  JsonText cubes, cylinders, spheres;
+};
 
-  JsonText world_cubes, world_cylinders, world_spheres, robot_cubes, robot_cylinders, robot_spheres;
-  for (JsonText* j : {&world_cubes, &world_cylinders, &world_spheres, &robot_cubes,
-                      &robot_cylinders, &robot_spheres}) {
+// Geom `type` of half-sizes `size` (MuJoCo's) at p, q, as the primitives that draw it.
+void AddGeom(ScenePrimitives& lists, int type, const mjtNum* size, const Eigen::Vector3d& p,
+             const Eigen::Quaterniond& q, const std::array<float, 4>& rgba) {
+  const auto primitive = [&](JsonText& list, const Eigen::Vector3d& at, const Eigen::Vector3d& extent,
+                             bool cylinder) {
+    list.Begin();
+    list.Pose("pose", at, q);
+    list.Vector("size", extent);
+    if (cylinder) {
+      list.Number("bottom_scale", 1.0);
+      list.Number("top_scale", 1.0);
+    }
+    list.Color("color", rgba);
+    list.End();
+  };
+  switch (type) {
+    case mjGEOM_PLANE: {
+      // A plane of size 0 is infinite; draw 40 m of it.
+      const double sx = size[0] > 0 ? 2.0 * size[0] : 40.0;
+      const double sy = size[1] > 0 ? 2.0 * size[1] : 40.0;
+      primitive(lists.cubes, p - q * Eigen::Vector3d(0, 0, 0.005), {sx, sy, 0.01}, false);
+      break;
+    }
+    case mjGEOM_BOX:
+      primitive(lists.cubes, p, 2.0 * Eigen::Vector3d(size[0], size[1], size[2]), false);
+      break;
+    case mjGEOM_SPHERE:
+      primitive(lists.spheres, p, Eigen::Vector3d::Constant(2.0 * size[0]), false);
+      break;
+    case mjGEOM_ELLIPSOID:
+      primitive(lists.spheres, p, 2.0 * Eigen::Vector3d(size[0], size[1], size[2]), false);
+      break;
+    case mjGEOM_CYLINDER:
+      primitive(lists.cylinders, p, {2.0 * size[0], 2.0 * size[0], 2.0 * size[1]}, true);
+      break;
+    case mjGEOM_CAPSULE: {
+      // A cylinder and its two hemispherical caps (as spheres).
+      primitive(lists.cylinders, p, {2.0 * size[0], 2.0 * size[0], 2.0 * size[1]}, true);
+      const Eigen::Vector3d axis = q * Eigen::Vector3d(0, 0, size[1]);
+      primitive(lists.spheres, p + axis, Eigen::Vector3d::Constant(2.0 * size[0]), false);
+      primitive(lists.spheres, p - axis, Eigen::Vector3d::Constant(2.0 * size[0]), false);
+      break;
+    }
+    default:
+      break;  // meshes and height fields: none in tofu's models
+  }
+}
+
+// The visible geoms of the model at its initial state: the world's in W, the robot's (the
+// tree of `robot_body`, -1: none) in its base frame B0 (p_WB0, q_WB0).
+void CollectGeoms(const mjModel* m, const mjData* d, int robot_body, const Eigen::Vector3d& p_WB0,
+                  const Eigen::Quaterniond& q_WB0, ScenePrimitives& world, ScenePrimitives& robot) {
+  for (JsonText* j : {&world.cubes, &world.cylinders, &world.spheres, &robot.cubes,
+                      &robot.cylinders, &robot.spheres}) {
     j->BeginArray();
   }
   for (int g = 0; g < m->ngeom; ++g) {
@@ -469,87 +558,62 @@ void ExportScene(const RunData& run, Channels& out) {
       p = q_WB0.conjugate() * (p_W - p_WB0);
       q = q_WB0.conjugate() * q;
     }
-    const mjtNum* size = m->geom_size + 3 * g;
-    JsonText& cubes = is_robot ? robot_cubes : world_cubes;
-    JsonText& cylinders = is_robot ? robot_cylinders : world_cylinders;
-    JsonText& spheres = is_robot ? robot_spheres : world_spheres;
-    const auto primitive = [&](JsonText& list, const Eigen::Vector3d& at, const Eigen::Vector3d& extent,
-                               bool cylinder) {
-      list.Begin();
-      list.Pose("pose", at, q);
-      list.Vector("size", extent);
-      if (cylinder) {
-        list.Number("bottom_scale", 1.0);
-        list.Number("top_scale", 1.0);
-      }
-      list.Color("color", rgba);
-      list.End();
-    };
-    switch (m->geom_type[g]) {
-      case mjGEOM_PLANE: {
-        // A plane of size 0 is infinite; draw 40 m of it.
-        const double sx = size[0] > 0 ? 2.0 * size[0] : 40.0;
-        const double sy = size[1] > 0 ? 2.0 * size[1] : 40.0;
-        primitive(cubes, p - q * Eigen::Vector3d(0, 0, 0.005), {sx, sy, 0.01}, false);
-        break;
-      }
-      case mjGEOM_BOX:
-        primitive(cubes, p, 2.0 * Eigen::Vector3d(size[0], size[1], size[2]), false);
-        break;
-      case mjGEOM_SPHERE:
-        primitive(spheres, p, Eigen::Vector3d::Constant(2.0 * size[0]), false);
-        break;
-      case mjGEOM_ELLIPSOID:
-        primitive(spheres, p, 2.0 * Eigen::Vector3d(size[0], size[1], size[2]), false);
-        break;
-      case mjGEOM_CYLINDER:
-        primitive(cylinders, p, {2.0 * size[0], 2.0 * size[0], 2.0 * size[1]}, true);
-        break;
-      case mjGEOM_CAPSULE: {
-        // A cylinder and its two hemispherical caps (as spheres).
-        primitive(cylinders, p, {2.0 * size[0], 2.0 * size[0], 2.0 * size[1]}, true);
-        const Eigen::Vector3d axis = q * Eigen::Vector3d(0, 0, size[1]);
-        primitive(spheres, p + axis, Eigen::Vector3d::Constant(2.0 * size[0]), false);
-        primitive(spheres, p - axis, Eigen::Vector3d::Constant(2.0 * size[0]), false);
-        break;
-      }
-      default:
-        break;  // meshes and height fields: none in tofu's models
-    }
+    AddGeom(is_robot ? robot : world, m->geom_type[g], m->geom_size + 3 * g, p, q, rgba);
   }
-  mj_deleteData(d);
-  for (JsonText* j : {&world_cubes, &world_cylinders, &world_spheres, &robot_cubes,
-                      &robot_cylinders, &robot_spheres}) {
+  for (JsonText* j : {&world.cubes, &world.cylinders, &world.spheres, &robot.cubes,
+                      &robot.cylinders, &robot.spheres}) {
     j->EndArray();
   }
+}
+
+// A foxglove SceneEntity drawing `primitives` in `frame`, from t0 on.
+void AddSceneEntity(JsonText& j, core::Time t0, const char* id, const char* frame,
+                    const ScenePrimitives& primitives) {
+  j.Begin();
+  j.Time("timestamp", t0);
+  j.String("frame_id", frame);
+  j.String("id", id);
+  j.Time("lifetime", 0);  // forever
+  j.Bool("frame_locked", std::string_view(frame) != kWorldFrame);
+  j.Raw("metadata", "[]");
+  j.Raw("arrows", "[]");
+  j.Raw("cubes", primitives.cubes.str());
+  j.Raw("spheres", primitives.spheres.str());
+  j.Raw("cylinders", primitives.cylinders.str());
+  j.Raw("lines", "[]");
+  j.Raw("triangles", "[]");
+  j.Raw("texts", "[]");
+  j.Raw("models", "[]");
+  j.End();
+}
+
+void ExportScene(const RunData& run, Channels& out) {
+  sim::WorldOptions options;
+  options.world = run.world;
+  options.robot = run.robot;
+  const sim::World world(options);
+  const mjModel* m = world.model();
+  mjData* d = mj_makeData(m);
+  mj_forward(m, d);
+  const int root_joint = mj_name2id(m, mjOBJ_JOINT, "root");
+  const int robot_body = root_joint >= 0 ? m->body_rootid[m->jnt_bodyid[root_joint]] : -1;
+  const Eigen::Vector3d p_WB0(d->xpos[3 * std::max(robot_body, 0)], d->xpos[3 * std::max(robot_body, 0) + 1],
+                              d->xpos[3 * std::max(robot_body, 0) + 2]);
+  const mjtNum* xq = d->xquat + 4 * std::max(robot_body, 0);
+  const Eigen::Quaterniond q_WB0(xq[0], xq[1], xq[2], xq[3]);
+
+  ScenePrimitives world_primitives, robot_primitives;
+  CollectGeoms(m, d, robot_body, p_WB0, q_WB0, world_primitives, robot_primitives);
+  mj_deleteData(d);
 
   const core::Time t0 = run.start_ns();
-  const auto entity = [&](JsonText& j, const char* id, const char* frame, const JsonText& cubes,
-                          const JsonText& cylinders, const JsonText& spheres) {
-    j.Begin();
-    j.Time("timestamp", t0);
-    j.String("frame_id", frame);
-    j.String("id", id);
-    j.Time("lifetime", 0);  // forever
-    j.Bool("frame_locked", std::string_view(frame) != kWorldFrame);
-    j.Raw("metadata", "[]");
-    j.Raw("arrows", "[]");
-    j.Raw("cubes", cubes.str());
-    j.Raw("spheres", spheres.str());
-    j.Raw("cylinders", cylinders.str());
-    j.Raw("lines", "[]");
-    j.Raw("triangles", "[]");
-    j.Raw("texts", "[]");
-    j.Raw("models", "[]");
-    j.End();
-  };
   JsonText scene;
   scene.Begin();
   scene.Raw("deletions", "[]");
   scene.Key("entities");
   scene.BeginArray();
-  entity(scene, "world", kWorldFrame, world_cubes, world_cylinders, world_spheres);
-  entity(scene, "robot", kBodyFrame, robot_cubes, robot_cylinders, robot_spheres);
+  AddSceneEntity(scene, t0, "world", kWorldFrame, world_primitives);
+  AddSceneEntity(scene, t0, "robot", kBodyFrame, robot_primitives);
   scene.EndArray();
   scene.End();
   out.Add("/scene", "foxglove.SceneUpdate", t0, t0, scene.str());
