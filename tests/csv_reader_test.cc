@@ -6,7 +6,6 @@
 
 #include <gtest/gtest.h>
 
-#include <functional>
 #include <string>
 
 #include "core/error.h"
@@ -18,15 +17,7 @@ namespace {
 
 constexpr char kHeader[] = "#timestamp [ns],v_x [m/s],v_y [m/s],v_z [m/s]";
 
-core::InputError ErrorOf(const std::function<void()>& read) {
-  try {
-    read();
-  } catch (const core::InputError& e) {
-    return e;
-  }
-  ADD_FAILURE() << "expected an InputError";
-  return core::InputError({}, "", "");
-}
+using test::InputErrorOf;
 
 TEST(CsvReader, ReadsTextWithAByteOrderMarkCrLfAndTheEurocTimestampSpelling) {
   const std::string text = "\xEF\xBB\xBF#timestamp, v_x [m/s],v_y [m/s] ,v_z [m/s]\r\n"
@@ -45,14 +36,14 @@ TEST(CsvReader, ReadsTextWithAByteOrderMarkCrLfAndTheEurocTimestampSpelling) {
 }
 
 TEST(CsvReader, AHeaderThatMustMatchNamesTheFirstWrongColumn) {
-  const core::InputError e = ErrorOf([] {
+  const core::InputError e = InputErrorOf([] {
     CsvReader reader(CsvText{"#timestamp [ns],v_x [m/s],vy,v_z [m/s]\n1,0,0,0\n", "v.csv"},
                      kHeader, CsvOptions{.header_must_match = true});
   });
   EXPECT_EQ(e.location().line, 1);
   EXPECT_EQ(e.location().column, 27);
   EXPECT_CONTAINS(e.what(), "column 3 should be 'v_y [m/s]', got 'vy'");
-  const core::InputError count = ErrorOf([] {
+  const core::InputError count = InputErrorOf([] {
     CsvReader reader(CsvText{"#timestamp [ns],v_x [m/s]\n", "v.csv"}, kHeader,
                      CsvOptions{.header_must_match = true});
   });
@@ -63,7 +54,7 @@ TEST(CsvReader, ABlankLineInsideTheDataIsNamedWhenBlankLinesEndIt) {
   const std::string text = std::string(kHeader) + "\n1,0,0,0\n\n  \n2,0,0,0\n";
   CsvReader strict(CsvText{text, "v.csv"}, kHeader, CsvOptions{.blank_lines_only_at_end = true});
   ASSERT_TRUE(strict.Next());
-  const core::InputError e = ErrorOf([&] { strict.Next(); });
+  const core::InputError e = InputErrorOf([&] { strict.Next(); });
   EXPECT_EQ(e.location().line, 3);
   EXPECT_CONTAINS(e.what(), "line 5 has another row");
   // Without the option a blank line is skipped, as in every run file.
@@ -90,7 +81,7 @@ TEST(CsvReader, HeaderlessBlankSeparatedColumnsWithComments) {
   CsvReader short_row(CsvText{"1 2\n3\n", "p.tum"}, "t x per line",
                       CsvOptions{.columns = {"t [s]", "x [m]"}, .whitespace_separated = true});
   ASSERT_TRUE(short_row.Next());
-  const core::InputError e = ErrorOf([&] { short_row.Next(); });
+  const core::InputError e = InputErrorOf([&] { short_row.Next(); });
   EXPECT_EQ(e.location().line, 2);
   EXPECT_CONTAINS(e.what(), "expected 2 whitespace-separated fields as in the form 't x per line'");
   EXPECT_CONTAINS(e.what(), "column 2 'x [m]' and later are missing");
@@ -104,14 +95,14 @@ TEST(VelocityCsv, RejectsNonFiniteVelocitiesAndStampsThatDoNotIncrease) {
       ParseVelocityCsv(header + "1000,0.1,0.2,0.3\n2000,0,0,0\n\n", "v.csv");
   ASSERT_EQ(series.t_ns.size(), 2u);
   EXPECT_EQ(series.v_mps[0], Eigen::Vector3d(0.1, 0.2, 0.3));
-  const core::InputError nan = ErrorOf([&] { ParseVelocityCsv(header + "1000,0,nan,0\n", "v.csv"); });
+  const core::InputError nan = InputErrorOf([&] { ParseVelocityCsv(header + "1000,0,nan,0\n", "v.csv"); });
   EXPECT_EQ(nan.location().column, 8);
   EXPECT_CONTAINS(nan.what(), "NaN and Inf are not accepted");
   const core::InputError repeated =
-      ErrorOf([&] { ParseVelocityCsv(header + "1000,0,0,0\n1000,0,0,0\n", "v.csv"); });
+      InputErrorOf([&] { ParseVelocityCsv(header + "1000,0,0,0\n1000,0,0,0\n", "v.csv"); });
   EXPECT_EQ(repeated.location().line, 3);
   EXPECT_CONTAINS(repeated.what(), "not after the previous sample's 1000 ns (line 2)");
-  const core::InputError empty = ErrorOf([&] { ParseVelocityCsv(header, "v.csv"); });
+  const core::InputError empty = InputErrorOf([&] { ParseVelocityCsv(header, "v.csv"); });
   EXPECT_EQ(empty.location().line, 2);
   EXPECT_CONTAINS(empty.what(), "no samples");
 }

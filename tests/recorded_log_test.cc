@@ -649,15 +649,7 @@ TEST_F(RecordedLogInputTest, EmptyStreamsAreAllowed) {
 // consistency` and the renderer: malformed content is an InputError at its line and key,
 // read where it is asked for.
 TEST(RunCalibration, MalformedFieldsNameTheirLineAndKey) {
-  const auto error_of = [](const auto& read) -> core::InputError {
-    try {
-      read();
-    } catch (const core::InputError& e) {
-      return e;
-    }
-    ADD_FAILURE() << "expected an InputError";
-    return core::InputError({}, "", "");
-  };
+  const auto error_of = [](const auto& read) { return test::InputErrorOf(read); };
   const std::string text =
       "sensors:\n"
       "  vio:\n"

@@ -23,11 +23,26 @@
 
 #include <gtest/gtest.h>
 
+#include "core/error.h"
+
 #define EXPECT_CONTAINS(haystack, needle)                          \
   EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
       << "'" << (haystack) << "' does not contain '" << (needle) << "'"
 
 namespace tofu::test {
+
+/// The core::InputError that `read()` throws; a test failure (and an empty error) when it
+/// throws none.
+template <typename Read>
+core::InputError InputErrorOf(const Read& read) {
+  try {
+    read();
+  } catch (const core::InputError& e) {
+    return e;
+  }
+  ADD_FAILURE() << "expected an InputError";
+  return core::InputError({}, "", "");
+}
 
 inline std::string ReadFile(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
