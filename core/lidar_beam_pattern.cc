@@ -40,7 +40,7 @@ double LidarBeamPattern::ElevationRad(int row) const {
 Eigen::Vector3d LidarBeamPattern::Direction_s(int row, int column,
                                               double azimuth_offset_rad) const {
   const double e = ElevationRad(row);
-  const double a = azimuth_offset_rad + (2.0 * kPi / azimuth_count) * column;
+  const double a = azimuth_offset_rad + AzimuthStepRad() * column;
   const double ce = std::cos(e);
   return Eigen::Vector3d(ce * std::cos(a), ce * std::sin(a), std::sin(e));
 }

@@ -36,6 +36,8 @@ struct LidarBeamPattern {
   /// limits or the ranges or elevations are not in order.
   bool IsValid(std::string* why = nullptr) const;
 
+  /// Angle between neighbouring columns: the full turn / azimuth_count [rad].
+  double AzimuthStepRad() const { return 2.0 * kPi / azimuth_count; }
   /// Elevation of row `row` in [0, elevation_count) [rad].
   double ElevationRad(int row) const;
   /// Unit direction in the scanner frame s (z = scanner axis) of the ray in row `row` and

@@ -18,7 +18,6 @@
 namespace tofu::renders {
 namespace {
 
-using core::kPi;
 constexpr double kDegToRad = core::kRadPerDeg;
 constexpr int kMaxSceneGeoms = 12000;
 

@@ -72,7 +72,6 @@ bool LidarOdometryOptions::IsValid(std::string* why) const {
 }
 namespace {
 
-using core::kPi;
 /// Fractional part of the golden ratio: successive multiples fill [0, 1) evenly.
 constexpr double kGoldenFraction = 0.6180339887498949;
 
@@ -97,7 +96,7 @@ LidarScanGeometry LidarOdometryModel::AnalyseScan(const World& world,
   // The azimuths turn by the golden fraction of a step from scan to scan: successive scans
   // sample between each other's rays, as a non-repetitive scan pattern does.
   const double phase = kGoldenFraction * static_cast<double>(scan_index % 1000003);
-  const double azimuth_offset = (phase - std::floor(phase)) * (2.0 * kPi / beams.azimuth_count);
+  const double azimuth_offset = (phase - std::floor(phase)) * beams.AzimuthStepRad();
 
   // Unscaled information S = sum J^T J, J = [(p x n)^T, n^T] (H = S / sigma^2).
   LidarScanGeometry g;
