@@ -41,7 +41,8 @@ usage() {
 }
 
 all_targets=(fuzz_scenario fuzz_calibration fuzz_run_directory fuzz_euroc_imu
-             fuzz_euroc_groundtruth fuzz_tum fuzz_velocity_csv fuzz_corpus_spec)
+             fuzz_euroc_groundtruth fuzz_tum fuzz_velocity_csv fuzz_corpus_spec
+             fuzz_client_message)
 
 [[ $# -ge 1 ]] || usage
 seconds="$1"
@@ -118,6 +119,7 @@ dictionary() {  # dictionary TARGET CORPUS_DIR OUT
     fuzz_scenario|fuzz_calibration|fuzz_corpus_spec)
       cp "$root/fuzz/dicts/yaml.dict" "$out"
       cat "$dir"/* | grep -oE '[A-Za-z_][A-Za-z0-9_]{2,}' | sort -u | sed 's/.*/"&"/' >> "$out" ;;
+    fuzz_client_message) cp "$root/fuzz/dicts/client_message.dict" "$out" ;;
     *) cp "$root/fuzz/dicts/csv.dict" "$out" ;;
   esac
 }

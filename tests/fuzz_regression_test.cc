@@ -27,6 +27,7 @@
 
 #include "core/error.h"
 #include "corpus/corpus_spec.h"
+#include "fuzz/client_messages.h"
 #include "fuzz/recorded_log_layouts.h"
 #include "fuzz/scenario_round_trip.h"
 #include "harness/scenario.h"
@@ -180,6 +181,14 @@ const std::vector<std::pair<std::string, Reader>>& Readers() {
       {"fuzz_corpus_spec",
        [](const std::string& bytes, const fs::path&) {
          (void)corpus::ParseCorpusSpec(bytes, "fuzz_corpus.yaml");
+       }},
+      // The protocol's oracle is its own (fuzz/client_messages.h): ProtocolError is
+      // absorbed, anything else escapes. A seed must hold a message that decodes.
+      {"fuzz_client_message",
+       [](const std::string& bytes, const fs::path&) {
+         if (fuzz::DecodeClientMessages(bytes) == 0) {
+           throw std::logic_error("no message of the input decodes");
+         }
        }},
   };
   return readers;
