@@ -4,7 +4,8 @@
 function(tofu_set_warnings target)
   # -Wshadow=local is GCC's; clang (the TOFU_FUZZ build) has no such option.
   target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic
-                         $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>)
+                         $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>
+                         $<$<CXX_COMPILER_ID:GNU>:-fno-semantic-interposition>)
   if(TOFU_SANITIZE)
     # Eigen turns EIGEN_MALLOC_ALREADY_ALIGNED off under ASan, which makes our objects free
     # with its hand-made aligned allocator what the prebuilt libceres allocated with plain

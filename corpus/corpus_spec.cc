@@ -12,6 +12,7 @@
 #include "core/file_io.h"
 #include "core/random.h"
 #include "core/units.h"
+#include "harness/client_config.h"
 #include "harness/scenario.h"
 #include "harness/yaml_reader.h"
 
@@ -309,7 +310,8 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
   spec.text = text;
   const YamlValue root = harness::internal::ParseDocument(text, file_label);
   YamlMap top = root.Map({"name", "description", "seed", "episodes", "duration_s", "worlds",
-                          "trajectory", "sensors", "wind", "faults", "estimation", "closed_loop"});
+                          "trajectory", "sensors", "wind", "faults", "external", "plugins",
+                          "estimation", "closed_loop"});
   spec.name = top.Required("name").Identifier();
   if (auto d = top.Optional("description")) spec.description = d->String();
   spec.seed = top.Required("seed").UnsignedInteger();
@@ -339,6 +341,18 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
 
   if (auto f = top.Optional("faults")) ReadFaultRanges(*f, spec);
 
+  // Users' estimators: their paths made absolute against the spec's directory, so every
+  // episode's scenario (written anywhere) names the same programs and libraries.
+  const auto external = top.Optional("external");
+  const auto plugins = top.Optional("plugins");
+  if (external || plugins) {
+    YAML::Emitter clients;
+    clients << YAML::BeginMap;
+    harness::internal::EmitClients(clients,
+                                   harness::internal::ReadClients(external, plugins, file_label));
+    clients << YAML::EndMap;
+    spec.clients_yaml = std::string(clients.c_str()) + "\n";
+  }
   if (auto e = top.Optional("estimation")) spec.estimation_yaml = EmitNode(e->node());
   if (auto c = top.Optional("closed_loop")) {
     YamlMap cm = c->Map({"methods"});
@@ -412,6 +426,7 @@ EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {
       FormatDouble(kMaxAcceleration), path.segment_yaml);
   yaml += "sensors:\n" + Indent(spec.sensors_yaml, "  ");
   if (!faults_yaml.empty()) yaml += "faults:\n" + faults_yaml;
+  yaml += spec.clients_yaml;
   if (!spec.estimation_yaml.empty()) yaml += "estimation:\n" + Indent(spec.estimation_yaml, "  ");
   if (!spec.closed_loop_methods.empty()) {
     std::string methods;

@@ -62,6 +62,8 @@ struct CorpusSpec {
   std::string sensors_yaml;
   std::vector<std::string> sensor_names;
   std::string estimation_yaml;
+  /// `external:` and `plugins:` (users' estimators), resolved: YAML text, "" without.
+  std::string clients_yaml;
   Range fault_count{0.0, 0.0};  ///< whole numbers
   Range fault_onset_s, fault_duration_s;
   std::vector<FaultChoice> faults;

@@ -56,7 +56,13 @@ struct ControlConfig {
   /// A flight whose true position leaves the reference by more than this has diverged.
   double corridor_m = 0.5;
   FailsafeConfig failsafe;
+  /// Who flies every flight of the scenario: a client ("external:<key>", "plugin:<key>")
+  /// of the scenario's external:/plugins: blocks; unset: tofu's SE(3) controller.
+  std::optional<std::string> controller;
 };
+
+/// `control.controller` naming tofu's own SE(3) controller (the default).
+inline constexpr const char* kBuiltinControllerName = "se3";
 
 const char* StateSourceName(ControlConfig::StateSource source);
 

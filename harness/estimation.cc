@@ -56,6 +56,32 @@ std::optional<Eigen::Vector3d> TruthPositionAt(const std::vector<GroundTruthPose
   return (1.0 - u) * a.p_WI + u * b.p_WI;
 }
 
+// A client's decisions are its fused set at each change (replay's DecisionsFromFusedSets):
+// a sensor it had already stopped fusing when a fault began has no decision in the fault's
+// interval. The decision in force at each fault onset is stated again there, so that such
+// a sensor counts as excluded from the onset (delay 0), as sampling its fused set would.
+std::vector<estimator::ConsensusRecord> RestatedAtFaultOnsets(
+    std::vector<estimator::ConsensusRecord> records, const std::vector<LabelEvent>& labels) {
+  std::vector<estimator::ConsensusRecord> onsets;
+  for (const LabelEvent& label : labels) {
+    if (label.source != "fault" || !label.active) continue;
+    const auto after = std::upper_bound(
+        records.begin(), records.end(), label.t_ns,
+        [](core::Time t, const estimator::ConsensusRecord& r) { return t < r.t_ns; });
+    if (after == records.begin()) continue;  // nothing decided yet
+    estimator::ConsensusRecord restated = *std::prev(after);
+    restated.t_ns = label.t_ns;
+    restated.window_end_ns = label.t_ns;
+    restated.decision.t_ns = label.t_ns;
+    restated.decision.changed = false;
+    onsets.push_back(std::move(restated));
+  }
+  records.insert(records.end(), onsets.begin(), onsets.end());
+  std::stable_sort(records.begin(), records.end(),
+                   [](const auto& a, const auto& b) { return a.t_ns < b.t_ns; });
+  return records;
+}
+
 // Decimation of errors.csv: one row per 50 ms of estimate time.
 constexpr core::Time kErrorRowPeriodNs = 50'000'000;
 
@@ -126,6 +152,7 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
     const ReplayMethod& method = result.method;
     MethodEvaluation e;
     e.outputs = result.outputs.size();
+    if (result.failure) e.failure = replay::ClientFailureText(result);
     // The outputs are released once written, before the trajectory is scored: what the
     // scoring below needs of them is in files (trajectory, position covariances).
     const MethodFiles files = replay::WriteMethodResultReleasingOutputs(log, result, run_dir);
@@ -186,6 +213,17 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
       if (e.nees_samples > 0) e.nees_position_mean = nees_sum / static_cast<double>(e.nees_samples);
     }
 
+    // Consensus, and a client that says which sensors it fuses: detection, re-admission,
+    // false exclusions and switches.
+    const bool client_selects = method.kind == ReplayMethod::Kind::kClient && !result.consensus.empty();
+    if (client_selects) {
+      e.consensus = true;
+      ConsensusScores scores = ScoreConsensusDecisions(
+          RestatedAtFaultOnsets(result.consensus, labels), labels, run_end_ns, sensor_names);
+      e.switches = scores.switches;
+      e.detections = std::move(scores.detections);
+      e.false_exclusion_s = std::move(scores.false_exclusion_s);
+    }
     if (method.kind == ReplayMethod::Kind::kConsensus) {
       any_consensus = true;
       e.consensus = true;

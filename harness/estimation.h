@@ -75,6 +75,9 @@ struct MethodEvaluation {
   double run_duration_s = 0.0;
   // Cost (wall clock: kept out of summary.json).
   double wall_time_s = 0.0;
+  /// A client method that failed: why, with its last standard-error lines (what it
+  /// produced before is scored as any method's).
+  std::optional<std::string> failure;
 
   int missed_faults() const;
   /// The largest detection delay over the faults of `kind` ("" = every detectable fault);

@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <tuple>
 
+#include <fmt/format.h>
+
 #include "core/units.h"
 #include "harness/metrics.h"
 
@@ -195,6 +197,7 @@ nlohmann::json MethodsJson(const RunRecord& record) {
       }
       j["detections"] = detections;
     }
+    if (m.failure) j["failure"] = *m.failure;
     methods[m.method] = j;
   }
   return methods;
@@ -264,6 +267,24 @@ ClosedLoopMetrics ComputeClosedLoopMetrics(const RunRecord& flight) {
   m.diverged = m.tracking_max_m.value_or(0.0) > cl.control.corridor_m;
   if (cl.handover_ns) m.handover_s = core::TimeToSeconds(*cl.handover_ns);
   return m;
+}
+
+// The user's estimators and controllers that failed in this run: the open-loop methods,
+// and the closed-loop flights of a client method (a flight on tofu's own methods that fails
+// is the simulation's failure, reported as such).
+std::vector<std::string> ClientFailures(const RunRecord& record) {
+  std::vector<std::string> failures;
+  for (const MethodEvaluation& m : record.methods) {
+    if (m.failure) failures.push_back(*m.failure);
+  }
+  for (const RunRecord& flight : record.closed_loop_flights) {
+    const std::string& method = flight.closed_loop->method;
+    if (flight.failure && (method.starts_with("external:") || method.starts_with("plugin:") ||
+                           flight.scenario.control->controller)) {
+      failures.push_back(fmt::format("closed-loop flight on {}: {}", method, *flight.failure));
+    }
+  }
+  return failures;
 }
 
 nlohmann::json ClosedLoopJson(const RunRecord& flight) {
@@ -603,6 +624,8 @@ Evaluation Evaluate(const RunRecord& record) {
   for (const RunRecord& flight : record.closed_loop_flights) {
     all_passed = all_passed && !flight.failure.has_value();
   }
+  eval.client_failures = ClientFailures(record);
+  all_passed = all_passed && eval.client_failures.empty();
   nlohmann::json expectations = nlohmann::json::array();
   for (const Expectation& e : sc.expect) {
     const ExpectationResult r = CheckExpectation(record, e);

@@ -24,6 +24,9 @@ struct ExpectationResult {
 struct Evaluation {
   std::vector<ExpectationResult> expectations;
   bool passed = false;  ///< every expectation held and the simulation did not fail
+  /// A user's estimator or controller failed (a method of the run, or the flight of a
+  /// closed-loop one): `tofu run` exits 3, as for a failed simulation.
+  std::vector<std::string> client_failures;
   nlohmann::json summary;
 };
 

@@ -15,6 +15,8 @@
 #include "core/error.h"
 #include "core/lie.h"
 #include "core/random.h"
+#include "harness/client_config.h"
+#include "harness/controllers.h"
 #include "harness/run_directory.h"
 #include "harness/run_recorder.h"
 #include "harness/sample_stream.h"
@@ -115,12 +117,14 @@ class InLoopMethods {
                                                                                 : StreamKind::kPosition;
       kinds.emplace_back(s.name, kind);
     }
-    const RecordedLog log = DescribeRunStreams(kinds, CalibrationYamlText(record), "");
+    const std::string calibration_yaml = CalibrationYamlText(record);
+    const RecordedLog log = DescribeRunStreams(kinds, calibration_yaml, "");
     const EstimationSetup setup = MakeEstimationSetup(log, config_);
+    const replay::ClientTexts texts{calibration_yaml, config_.resolved_yaml};
     for (const std::string& name : names_) {
-      const ReplayMethod method = ParseReplayMethod(name, log);
+      const ReplayMethod method = ParseReplayMethod(name, log, config_.clients);
       clean_.push_back(method.clean_streams);
-      runners_.emplace_back(log, method, setup.estimator, setup.sensors, setup.consensus);
+      runners_.emplace_back(log, method, setup.estimator, setup.sensors, setup.consensus, texts);
     }
     // The labels known so far: the fault schedule, and the conditions of the first step.
     for (const LabelEvent& label : schedule_) AddLabel(label);
@@ -140,11 +144,19 @@ class InLoopMethods {
     const core::StampedMeasurement m{stream.name, a.sample->t_ns,
                                      RecordedMeasurement(stream.type, a.sample->measured)};
     for (std::size_t i = 0; i < runners_.size(); ++i) {
-      if (clean_[i] == clean_stream) runners_[i].Add(m);
+      if (clean_[i] == clean_stream) runners_[i].Add(m, a.sample->arrival_ns);
     }
   }
 
-  const MethodRunner& runner(std::size_t i) const { return runners_[i]; }
+  /// The flying method (closed loop): every answer of what was released so far, before
+  /// the controller reads its newest output. Throws SimulationError when it failed: a
+  /// flight on a failed estimator has nothing to fly on.
+  const MethodRunner& SyncFlying() {
+    MethodRunner& flying = runners_[0];
+    flying.Sync();
+    if (flying.failed()) throw core::SimulationError(flying.failure_text());
+    return flying;
+  }
 
   std::vector<ReplayResult> Finish() {
     std::vector<ReplayResult> results;
@@ -258,6 +270,7 @@ class Flight {
   // still in flight to the methods, merge the labels, evaluate consistency.
   void Finish() {
     if (recorder_) recorder_->Close();
+    FinishController(*controller_);
     record_.wall_time_s = WallSeconds();
     // The true reference frames are known once the models have started (e.g. VIO's
     // odometry frame is where the camera booted).
@@ -321,7 +334,13 @@ class Flight {
     const sim::Waypoint& start = scenario_.trajectory.start;
     world_->Reset(sim::Waypoint{start.p_WB + scenario_.initial_offset.position_W_m,
                                 start.q_WB * scenario_.initial_offset.q_offset});
-    controller_.emplace(scenario_.controller, record_.robot.rigid_body);
+    const replay::ClientSpec* client = nullptr;
+    if (scenario_.control && scenario_.control->controller) {
+      controller_name_ = *scenario_.control->controller;
+      client = internal::FindClient(scenario_.clients, controller_name_);
+    }
+    controller_ = StartController(client, scenario_.controller, record_.robot.rigid_body,
+                                  record_.robot.allocation);
     allocator_.emplace(record_.robot.allocation);
     wind_.emplace(scenario_.wind, core::RandomStream(scenario_.seed, "wind"));
 
@@ -430,8 +449,9 @@ class Flight {
     if (pilot_) {
       // The flying method's newest output: only samples with arrival <= t_ns made it.
       const estimator::EstimatorOutput* newest = nullptr;
-      if (in_loop_->started() && !in_loop_->runner(0).outputs().empty()) {
-        newest = &in_loop_->runner(0).outputs().back();
+      if (in_loop_->started()) {
+        const MethodRunner& flying = in_loop_->SyncFlying();
+        if (!flying.outputs().empty()) newest = &flying.outputs().back();
       }
       if (!pilot_->handed_over() &&
           pilot_->TryHandover(t_ns, newest, PoseOf(now.p_WB, now.q_WB))) {
@@ -445,8 +465,9 @@ class Flight {
         disarmed_ = command.disarmed;
       }
     }
-    const sim::Wrench wrench = controller_->Compute(state, reference);
-    sim::AllocationResult allocation = allocator_->Allocate(wrench, now.tilt_rad);
+    sim::AllocationResult allocation =
+        ComputeActuation(*controller_, controller_name_, state, pilot_ && pilot_->handed_over(),
+                         reference, *allocator_, now.tilt_rad);
     if (disarmed_) allocation.command.rotor_thrust_N.fill(0.0);
     world_->SetCommand(allocation.command);
     record_.saturation.emplace_back(t_ns, allocation.saturated);
@@ -585,7 +606,8 @@ class Flight {
   // The world and what flies the robot.
   std::unique_ptr<sim::World> world_;
   std::unique_ptr<sim::Trajectory> trajectory_;
-  std::optional<sim::GeometricController> controller_;
+  std::unique_ptr<api::Controller> controller_;
+  std::string controller_name_ = kBuiltinControllerName;
   std::optional<sim::Allocator> allocator_;
   std::optional<sim::Wind> wind_;
   std::optional<ClosedLoopPilot> pilot_;

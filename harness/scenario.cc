@@ -19,6 +19,7 @@
 
 #include "core/file_io.h"
 #include "core/lie.h"
+#include "harness/client_config.h"
 #include "harness/config_io.h"
 #include "harness/fault_config.h"
 #include "harness/metrics.h"
@@ -115,8 +116,13 @@ ConsistencyConfig ReadConsistency(const YamlValue& value) {
   return config;
 }
 
-EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<SensorConfig>& sensors) {
+// `check_methods`: false for a block read on a client's side, which does not know the
+// scenario's clients (its methods are not what it runs).
+EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<SensorConfig>& sensors,
+                                const std::vector<replay::ClientSpec>& clients,
+                                bool check_methods = true) {
   EstimationConfig config;
+  config.clients = clients;
   YamlMap map = value.Map({"methods", "consensus", "huber_delta", "position_factors"});
   ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
   if (const auto factors = map.Optional("position_factors")) {
@@ -143,7 +149,9 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   }
   for (const YamlValue& item : map.Required("methods").List(/*non_empty=*/true)) {
     const std::string name = item.String();
-    if (const auto error = CheckMethodName(name, sensor_names)) item.Fail(*error);
+    if (const auto error = CheckMethodName(name, sensor_names, clients); error && check_methods) {
+      item.Fail(*error);
+    }
     if (std::find(config.methods.begin(), config.methods.end(), name) != config.methods.end()) {
       item.Fail(fmt::format("method '{}' is listed twice", name));
     }
@@ -191,7 +199,20 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
 // block: a closed-loop method must be one of estimation.methods and needs an IMU.
 ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
   ControlConfig config;
-  YamlMap map = value.Map({"state_source", "methods", "corridor_m", "failsafe"});
+  YamlMap map = value.Map({"state_source", "methods", "corridor_m", "failsafe", "controller"});
+  if (const auto controller = map.Optional("controller")) {
+    const std::string name = controller->String();
+    if (name != kBuiltinControllerName) {
+      if (internal::FindClient(scenario.clients, name) == nullptr) {
+        std::string known;
+        for (const replay::ClientSpec& c : scenario.clients) known += ", " + c.Name();
+        controller->Fail(fmt::format("controller '{}' is neither {} (tofu's own) nor a client of "
+                                     "the scenario's external: or plugins: blocks (known: {}{})",
+                                     name, kBuiltinControllerName, kBuiltinControllerName, known));
+      }
+      config.controller = name;
+    }
+  }
   std::optional<YamlValue> source;
   if ((source = map.Optional("state_source"))) {
     const std::string name = source->String();
@@ -725,6 +746,7 @@ void EmitControl(YAML::Emitter& out, const ControlConfig& control) {
     out << YAML::EndSeq;
   }
   EmitNumber(out, "corridor_m", control.corridor_m);
+  if (control.controller) out << YAML::Key << "controller" << YAML::Value << *control.controller;
   out << YAML::Key << "failsafe" << YAML::Value << YAML::BeginMap;
   EmitNumber(out, "hold_s", control.failsafe.hold_s);
   EmitNumber(out, "descent_rate_mps", control.failsafe.descent_rate_mps);
@@ -793,12 +815,34 @@ void CheckMethodOfMetric(const Scenario& scenario, const Expectation& expectatio
 
 }  // namespace
 
+replay::EstimationConfig ParseEstimationBlock(const std::string& yaml_text,
+                                              const std::string& file_label,
+                                              const std::vector<std::string>& sensors,
+                                              const std::string& imu) {
+  const YamlValue root = internal::ParseDocument(yaml_text, file_label);
+  YamlMap map = root.Map({"estimation"});
+  // The block's checks need only which stream is the IMU and the others' names.
+  std::vector<SensorConfig> configs;
+  for (const std::string& name : sensors) {
+    SensorConfig c;
+    c.name = name;
+    if (name == imu) c.options = sim::ImuOptions{};
+    else c.options = sim::VioOptions{};
+    configs.push_back(std::move(c));
+  }
+  EstimationConfig config =
+      ReadEstimation(map.Required("estimation"), configs, {}, /*check_methods=*/false);
+  map.Finish();
+  config.resolved_yaml = yaml_text;
+  return config;
+}
+
 Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label) {
   const YamlValue root = internal::ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
-                          "sensors", "faults", "consistency", "estimation", "control",
-                          "render", "expect"});
+                          "sensors", "faults", "consistency", "external", "plugins",
+                          "estimation", "control", "render", "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -860,8 +904,16 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   if (const auto consistency = map.Optional("consistency")) {
     scenario.consistency = ReadConsistency(*consistency);
   }
+  scenario.clients =
+      internal::ReadClients(map.Optional("external"), map.Optional("plugins"), file_label);
   if (const auto estimation = map.Optional("estimation")) {
-    scenario.estimation = ReadEstimation(*estimation, scenario.sensors);
+    scenario.estimation = ReadEstimation(*estimation, scenario.sensors, scenario.clients);
+    // What a client's setup carries: the block as the resolved scenario writes it.
+    YAML::Emitter block;
+    block << YAML::BeginMap;
+    EmitEstimation(block, *scenario.estimation);
+    block << YAML::EndMap;
+    scenario.estimation->resolved_yaml = std::string(block.c_str()) + "\n";
   }
   if (const auto control = map.Optional("control")) {
     scenario.control = ReadControl(*control, scenario);
@@ -1003,6 +1055,7 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   EmitSensors(out, scenario.sensors);
   EmitFaults(out, scenario.faults);
   if (scenario.consistency) EmitConsistency(out, *scenario.consistency);
+  internal::EmitClients(out, scenario.clients);
   if (scenario.estimation) EmitEstimation(out, *scenario.estimation);
   if (scenario.control) EmitControl(out, *scenario.control);
   if (scenario.render) EmitRender(out, *scenario.render);

@@ -91,6 +91,8 @@ struct Scenario {
   std::optional<ConsistencyConfig> consistency;
   /// `estimation:` the estimation methods `tofu run` replays on the run's streams and
   /// scores (harness/estimation.h); none when absent.
+  /// Users' estimators and controllers (`external:`, `plugins:`; harness/client_config.h).
+  std::vector<replay::ClientSpec> clients;
   std::optional<replay::EstimationConfig> estimation;
   /// `control:` where the controller gets its state: ground truth (default), or each
   /// listed estimation method in a closed-loop flight of its own (harness/closed_loop.h).
@@ -108,6 +110,15 @@ Scenario LoadScenario(const std::string& path);
 
 /// Same, from YAML text; `file_label` is used in error messages.
 Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label);
+
+/// A resolved `estimation:` block alone ({estimation: {...}}, as a client's setup carries
+/// it: replay::EstimationConfig::resolved_yaml), for the streams `sensors` of which `imu`
+/// is the IMU. Its method names are not checked (the client's side does not know the
+/// scenario's clients, and runs one method of its own choosing).
+replay::EstimationConfig ParseEstimationBlock(const std::string& yaml_text,
+                                              const std::string& file_label,
+                                              const std::vector<std::string>& sensors,
+                                              const std::string& imu);
 
 /// The checks of a loaded scenario that need its models but not the simulation (`tofu
 /// validate`; `tofu check` and `tofu run` before anything flies): the world and robot

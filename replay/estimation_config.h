@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/units.h"
 #include "estimator/consensus_estimator.h"
 #include "estimator/consensus_selector.h"
 #include "estimator/multi_graph_estimator.h"
@@ -32,6 +33,29 @@ struct ConsensusConfig {
   double rate_hz = 10.0;                  ///< evaluations per second
 };
 
+/// A user's estimator (or controller) a scenario names: `external: {<key>: {command: [...],
+/// config: {...}, timeout_s: 10}}` (a process speaking docs/INTERFACE.md's protocol) or
+/// `plugins: {<key>: {library: ..., config: {...}}}` (a C++ plug-in, include/tofu/plugin.h).
+struct ClientSpec {
+  enum class Kind { kProcess, kPlugin };
+  Kind kind = Kind::kProcess;
+  std::string key;                     ///< the scenario's key
+  std::vector<std::string> command;    ///< kProcess: argv
+  std::string working_dir;             ///< kProcess: where it runs (absolute)
+  double timeout_s = 10.0;             ///< kProcess: deadline of each answer
+  std::string library;                 ///< kPlugin: the shared library (absolute)
+  std::string config_json = "{}";      ///< the `config:` map as JSON text
+  /// "external:<key>" or "plugin:<key>": the method (or controller) name.
+  std::string Name() const { return (kind == Kind::kProcess ? "external:" : "plugin:") + key; }
+};
+
+/// What a client is told besides its streams (api::EstimatorSetup's texts).
+struct ClientTexts {
+  std::string calibration_yaml;  ///< the run's calibration.yaml
+  std::string estimation_yaml;   ///< the scenario's resolved estimation: block
+  double gravity_mps2 = core::kWorldGravity_mps2;
+};
+
 /// `estimation:` in a scenario.
 struct EstimationConfig {
   /// Method names (replay/replay.h ParseReplayMethod): consensus,
@@ -47,6 +71,11 @@ struct EstimationConfig {
   /// (displacements, the paper's eq. 3) or "absolute" (each position in L through the
   /// frozen T_AL; estimator::SensorSpec::absolute_position).
   bool absolute_positions = false;
+  /// The scenario's users' estimators (`external:` and `plugins:`), which methods
+  /// "external:<key>" and "plugin:<key>" name.
+  std::vector<ClientSpec> clients;
+  /// This block as the resolved scenario writes it (what a client's setup carries).
+  std::string resolved_yaml;
 };
 
 /// What every method of a run is configured with, from the streams' description (the

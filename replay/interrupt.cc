@@ -58,6 +58,8 @@ void InstallInterruptHandlers() {
 
 int InterruptSignal() { return g_signal.load(); }
 
+int InterruptWakeFd() { return g_pipe[0]; }
+
 void ThrowIfInterrupted() {
   if (const int signal = g_signal.load(); signal != 0) throw Interrupted{signal};
 }

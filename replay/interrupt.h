@@ -32,6 +32,11 @@ void InstallInterruptHandlers();
 /// The first interrupting signal received, 0 if none.
 int InterruptSignal();
 
+/// The read end of the self-pipe the handler writes to (-1 before
+/// InstallInterruptHandlers): readable once a signal came, for waits that poll other fds
+/// (a client's pipes, interface::SetInterruptCheck).
+int InterruptWakeFd();
+
 /// Throws Interrupted when a signal was received: the check point.
 void ThrowIfInterrupted();
 

@@ -759,7 +759,12 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
   log.imu_samples_are_interval_averages = layout.run_directory;
 
   // Mounts: T_Is = T_BI^-1 T_Bs (nominal mounts).
-  const RunCalibration calibration = ReadRunCalibration(directory / "calibration.yaml");
+  RunCalibration calibration;
+  if (const fs::path cal_path = directory / "calibration.yaml"; fs::is_regular_file(cal_path)) {
+    log.calibration_yaml =
+        core::ReadWholeFile(cal_path, "calibration file", core::kMaxConfigFileBytes);
+    calibration = ParseRunCalibration(log.calibration_yaml, cal_path.string());
+  }
   Eigen::Isometry3d T_BI_true = ApplyCalibration(calibration, log);
   if (!layout.run_directory && !log.imu_stream.empty()) {
     ApplyEurocImuCalibration(directory, calibration.present, T_BI_true, log);
@@ -786,6 +791,7 @@ RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> s
   log.imu_samples_are_interval_averages = true;
   const fs::path cal_path = directory / "calibration.yaml";
   ApplyCalibration(ParseRunCalibration(calibration_yaml, cal_path.string()), log);
+  log.calibration_yaml = calibration_yaml;
   return log;
 }
 

@@ -130,6 +130,8 @@ struct RecordedLog {
   /// Layout (a): labels.csv (conditions and scheduled faults), by time; empty otherwise.
   std::vector<LabelEvent> labels;
   std::vector<std::string> notes;       ///< what was read and what was assumed
+  /// calibration.yaml's text ("" without one): what a user's estimator is told.
+  std::string calibration_yaml;
 };
 
 /// Reads the recorded streams of `directory` (layout (a) or (b) above).

@@ -15,8 +15,12 @@
 #include "core/error.h"
 #include "core/units.h"
 #include "estimator/velocity.h"
+#include "interface/client.h"
+#include "replay/api_convert.h"
+#include "replay/builtin_estimator.h"
 #include "replay/estimation_config.h"
 #include "replay/file_io.h"
+#include "replay/run_calibration.h"
 
 namespace tofu::replay {
 namespace {
@@ -145,12 +149,36 @@ namespace {
 
 constexpr const char* kMethodForms =
     "single:<sensor>, fuse:<a>+<b>, imu_only, naive, oracle, consensus, "
-    "consensus:pair_member or consensus:consistent_set, optionally with @clean";
+    "consensus:pair_member, consensus:consistent_set, external:<client> or plugin:<client>, "
+    "optionally with @clean";
 
-// The grammar of method names, against a list of sensor names; the parsed method or an
-// error message.
+// "external:<key>" or "plugin:<key>" against the scenario's clients: the parsed method, an
+// error message, or nullopt when `body` is no client method.
+std::optional<std::variant<ReplayMethod, std::string>> ParseClientMethod(
+    ReplayMethod method, const std::string& body, const std::vector<ClientSpec>& clients) {
+  const bool process = body.starts_with("external:");
+  if (!process && !body.starts_with("plugin:")) return std::nullopt;
+  const std::string key = body.substr(body.find(':') + 1);
+  const ClientSpec::Kind kind = process ? ClientSpec::Kind::kProcess : ClientSpec::Kind::kPlugin;
+  std::string known;
+  for (const ClientSpec& c : clients) {
+    if (c.kind == kind && c.key == key) {
+      method.kind = ReplayMethod::Kind::kClient;
+      method.client = c;
+      return method;
+    }
+    if (c.kind == kind) known += (known.empty() ? "" : ", ") + c.key;
+  }
+  return fmt::format("method '{}': no {} client '{}' in the scenario's {} block (known: {})",
+                     method.name, process ? "process" : "plug-in", key,
+                     process ? "external:" : "plugins:", known.empty() ? "(none)" : known);
+}
+
+// The grammar of method names, against a list of sensor names and the scenario's clients;
+// the parsed method or an error message.
 std::variant<ReplayMethod, std::string> ParseMethod(const std::string& name,
-                                                    const std::vector<std::string>& sensors) {
+                                                    const std::vector<std::string>& sensors,
+                                                    const std::vector<ClientSpec>& clients) {
   ReplayMethod method;
   method.name = name;
   std::string body = name;
@@ -172,6 +200,7 @@ std::variant<ReplayMethod, std::string> ParseMethod(const std::string& name,
     method.fused.push_back(sensor);
   };
   if (body == "imu_only") return method;
+  if (auto client = ParseClientMethod(method, body, clients)) return std::move(*client);
   if (body == "naive") {
     method.kind = ReplayMethod::Kind::kNaive;
     method.fused = sensors;
@@ -221,8 +250,9 @@ std::vector<std::string> SensorNamesOf(const RecordedLog& log) {
 
 }  // namespace
 
-ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log) {
-  auto parsed = ParseMethod(name, SensorNamesOf(log));
+ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log,
+                               const std::vector<ClientSpec>& clients) {
+  auto parsed = ParseMethod(name, SensorNamesOf(log), clients);
   if (auto* error = std::get_if<std::string>(&parsed)) {
     throw core::InputError({log.directory.string()}, "--method", *error);
   }
@@ -230,8 +260,9 @@ ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log) 
 }
 
 std::optional<std::string> CheckMethodName(const std::string& name,
-                                           const std::vector<std::string>& sensors) {
-  auto parsed = ParseMethod(name, sensors);
+                                           const std::vector<std::string>& sensors,
+                                           const std::vector<ClientSpec>& clients) {
+  auto parsed = ParseMethod(name, sensors, clients);
   if (auto* error = std::get_if<std::string>(&parsed)) return *error;
   return std::nullopt;
 }
@@ -289,130 +320,170 @@ std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
 
 namespace {
 
-// The naive baseline's privileged information (seed paper Sec. 3.3: "in the naive case, we
-// use the ground truth transform between the Leica and local frame"): once the local
-// frame L exists, anchored to the sensor that initialised it (T_A0L), every other sensor
-// B gets T_BL = T_WB⁻¹ T_WA0 T_A0L from the true reference frames.
-void GiveTrueAlignments(const std::vector<RecordedStream>& streams,
-                        estimator::MultiGraphEstimator& estimator) {
-  const RecordedStream* anchor = nullptr;
-  Eigen::Isometry3d T_A0L = Eigen::Isometry3d::Identity();
-  for (const RecordedStream& s : streams) {
-    if (s.kind == StreamKind::kImu || !s.true_T_WS) continue;
-    if (const auto T_AL = estimator.AlignmentOf(s.name)) {
-      anchor = &s;
-      T_A0L = *T_AL;
-      break;
-    }
+// A client's estimates are checked before they are recorded (the protocol's decoder checks
+// their form; a plug-in's come as structs): finite numbers, a non-zero quaternion, time
+// that does not go backwards. Returns the problem, or an empty string.
+std::string ClientEstimateProblem(const api::Estimate& e, std::optional<core::Time> previous_ns) {
+  const auto finite = [](const auto& values) {
+    return std::all_of(values.begin(), values.end(), [](double v) { return std::isfinite(v); });
+  };
+  if (previous_ns && e.t_ns < *previous_ns) {
+    return fmt::format("t_ns {} is earlier than the previous estimate's {}: expected "
+                       "non-decreasing times", e.t_ns, *previous_ns);
   }
-  if (anchor == nullptr) return;
-  for (const RecordedStream& s : streams) {
-    if (s.kind == StreamKind::kImu || !s.true_T_WS || &s == anchor) continue;
-    estimator.SetKnownAlignment(s.name, s.true_T_WS->inverse() * *anchor->true_T_WS * T_A0L);
+  if (!finite(e.T_LI.p_m)) return "p_LI_m: expected 3 finite numbers";
+  if (!finite(e.T_LI.q_wxyz)) return "q_LI_wxyz: expected 4 finite numbers";
+  const double q_norm2 = e.T_LI.q_wxyz[0] * e.T_LI.q_wxyz[0] + e.T_LI.q_wxyz[1] * e.T_LI.q_wxyz[1] +
+                         e.T_LI.q_wxyz[2] * e.T_LI.q_wxyz[2] + e.T_LI.q_wxyz[3] * e.T_LI.q_wxyz[3];
+  if (!(q_norm2 > 1e-12)) return "q_LI_wxyz: expected a non-zero quaternion";
+  if (!finite(e.v_L_mps)) return "v_L_mps: expected 3 finite numbers";
+  if (!finite(e.omega_I_radps)) return "omega_I_radps: expected 3 finite numbers";
+  if (!finite(e.bias_acc_mps2) || !finite(e.bias_gyro_radps)) return "bias: expected finite numbers";
+  if (e.position_covariance_m2 && !finite(*e.position_covariance_m2)) {
+    return "position_covariance_m2: expected 9 finite numbers";
   }
+  return {};
+}
+
+// A client method's estimator: its process or its plug-in, started with its setup.
+std::unique_ptr<api::Estimator> StartClient(const RecordedLog& log, const ReplayMethod& method,
+                                            const ClientTexts& texts) {
+  const ClientSpec& spec = *method.client;
+  api::EstimatorSetup setup = ApiSetupOf(log, texts.gravity_mps2);
+  setup.method = method.name;
+  setup.config_json = spec.config_json;
+  setup.calibration_yaml = CalibrationWithoutTruth(texts.calibration_yaml, "calibration.yaml");
+  setup.estimation_yaml = texts.estimation_yaml;
+  std::unique_ptr<api::Estimator> estimator;
+  if (spec.kind == ClientSpec::Kind::kProcess) {
+    interface::ProcessClientConfig config;
+    config.name = method.name;
+    config.command = spec.command;
+    config.working_dir = spec.working_dir;
+    config.config_json = spec.config_json;
+    config.timeout_s = spec.timeout_s;
+    estimator = std::make_unique<interface::ProcessEstimator>(std::move(config));
+  } else {
+    estimator = interface::PluginLibrary::Open(spec.library)->CreateEstimator(spec.key);
+  }
+  estimator->Start(setup);
+  return estimator;
 }
 
 }  // namespace
 
 struct MethodRunner::Impl {
   ReplayMethod method;
-  std::vector<RecordedStream> streams;  // the naive baseline's true frames
-  std::optional<estimator::MultiGraphEstimator> fixed;
-  std::optional<estimator::ConsensusEstimator> consensus;
-  bool true_alignments_given = false;
+  std::vector<std::string> stream_names;  // api sensor index -> name (the log's order)
+  std::vector<std::string> sensor_names;  // the non-IMU streams
+  std::unique_ptr<api::Estimator> estimator;
+  BuiltinEstimator* builtin = nullptr;               // tofu's own (diagnostics, labels)
+  interface::ProcessEstimator* process = nullptr;   // a process client (Sync)
   ReplayResult result;
   std::optional<core::Time> first_t_ns;
   core::Time last_t_ns = 0;
   std::vector<estimator::SensorSpec> specs;  // as given (what was stated)
   std::chrono::steady_clock::duration busy{};
-  // kOracle: the labels, and the sensors they call unhealthy now (by their last sample).
-  SensorHealth health;
-  std::vector<std::string> unhealthy;
+  std::vector<api::Estimate> estimates;  // scratch
+  std::optional<core::Time> last_estimate_ns;
 
-  // The oracle's choice for one sample: a sensor whose labels say faulty or degraded
-  // leaves the fused set before its sample is added, and comes back with its first
-  // healthy sample. While it is unhealthy its alignment pairs are dropped, as consensus
-  // drops an inconsistent sensor's, so that a recovered sensor is re-aligned from
-  // healthy data only.
-  // Returns true for a sample of an unhealthy sensor: its pair, added with the sample,
-  // is dropped after it too (RestartAlignment).
-  bool OracleSelect(const core::StampedMeasurement& m) {
-    if (std::find(method.fused.begin(), method.fused.end(), m.sensor) == method.fused.end()) {
-      return false;  // the IMU, or a stream the method does not fuse
+  std::size_t IndexOf(const std::string& sensor) const {
+    for (std::size_t i = 0; i < stream_names.size(); ++i) {
+      if (stream_names[i] == sensor) return i;
     }
-    const bool healthy = health.Healthy(m.sensor, m.t_ns);
-    const auto at = std::find(unhealthy.begin(), unhealthy.end(), m.sensor);
-    if (healthy == (at == unhealthy.end())) return !healthy;
-    if (healthy) {
-      unhealthy.erase(at);
-    } else {
-      unhealthy.push_back(m.sensor);
-    }
-    std::vector<std::string> fused;
-    for (const std::string& name : method.fused) {
-      if (std::find(unhealthy.begin(), unhealthy.end(), name) == unhealthy.end()) {
-        fused.push_back(name);
-      }
-    }
-    fixed->SetFusedSensors(fused);
-    return !healthy;
+    throw std::invalid_argument(fmt::format("method {}: measurement of unknown stream '{}'",
+                                            method.name, sensor));
   }
 
-  const estimator::MultiGraphEstimator& estimator() const {
-    return fixed ? *fixed : consensus->estimator();
+  // The first failure is the one reported (what the client said after it is moot).
+  void Fail(const std::string& why, std::vector<std::string> stderr_tail) {
+    if (result.failure) return;
+    result.failure = why;
+    result.failure_stderr_tail = std::move(stderr_tail);
+    estimator.reset();  // ends a process client now (no process left behind)
+    process = nullptr;
+  }
+
+  // Runs `call` on a client, turning its errors into the method's failure.
+  template <typename Call>
+  void Guarded(Call&& call) {
+    if (builtin != nullptr) {
+      call();
+      return;
+    }
+    try {
+      call();
+    } catch (const interface::ClientError& e) {
+      Fail(e.what(), e.stderr_tail());
+    } catch (const std::exception& e) {
+      Fail(fmt::format("{}: {}", method.name, e.what()), {});
+    }
+  }
+
+  // The estimates collected in `estimates` into the result (checked for a client).
+  void Record() {
+    for (api::Estimate& e : estimates) {
+      if (result.failure) break;
+      if (builtin == nullptr) {
+        if (const std::string problem = ClientEstimateProblem(e, last_estimate_ns); !problem.empty()) {
+          Fail(fmt::format("{}: estimate at t_ns {}: {}", method.name, e.t_ns, problem),
+               process != nullptr ? process->End() : std::vector<std::string>{});
+          break;
+        }
+        last_estimate_ns = e.t_ns;
+      }
+      result.outputs.push_back(FromApiEstimate(std::move(e)));
+    }
+    estimates.clear();
   }
 };
 
 MethodRunner::MethodRunner(const RecordedLog& log, const ReplayMethod& method,
                            const estimator::MultiGraphEstimatorOptions& options,
                            const std::vector<estimator::SensorSpec>& sensors,
-                           const estimator::ConsensusEstimatorOptions& consensus_options)
+                           const estimator::ConsensusEstimatorOptions& consensus_options,
+                           const ClientTexts& texts)
     : impl_(std::make_unique<Impl>()) {
-  impl_->method = method;
-  impl_->streams = log.streams;
-  impl_->specs = sensors;
-  impl_->result.method = method;
-  impl_->result.keyframe_period_ns = core::PeriodFromRate(options.local.keyframe_rate_hz);
-  if (method.kind == ReplayMethod::Kind::kConsensus) {
-    estimator::ConsensusEstimatorOptions chosen = consensus_options;
-    if (method.policy) chosen.selection.policy = *method.policy;
-    impl_->consensus.emplace(log.imu_stream, sensors, options, chosen);
-  } else {
-    impl_->fixed.emplace(log.imu_stream, sensors, options);
-    impl_->fixed->SetFusedSensors(method.fused);
+  Impl& m = *impl_;
+  m.method = method;
+  for (const RecordedStream& s : log.streams) {
+    m.stream_names.push_back(s.name);
+    if (s.kind != StreamKind::kImu) m.sensor_names.push_back(s.name);
   }
-  for (const LabelEvent& label : log.labels) AddLabel(label);
+  m.specs = sensors;
+  m.result.method = method;
+  m.result.keyframe_period_ns = core::PeriodFromRate(options.local.keyframe_rate_hz);
+  if (method.kind != ReplayMethod::Kind::kClient) {
+    auto builtin = std::make_unique<BuiltinEstimator>(
+        log, method, EstimationSetup{options, sensors, consensus_options});
+    m.builtin = builtin.get();
+    m.estimator = std::move(builtin);
+    for (const LabelEvent& label : log.labels) AddLabel(label);
+    return;
+  }
+  m.Guarded([&] {
+    m.estimator = StartClient(log, method, texts);
+    m.process = dynamic_cast<interface::ProcessEstimator*>(m.estimator.get());
+  });
 }
 
 MethodRunner::~MethodRunner() = default;
 MethodRunner::MethodRunner(MethodRunner&&) noexcept = default;
 MethodRunner& MethodRunner::operator=(MethodRunner&&) noexcept = default;
 
-std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement) {
+std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement, core::Time arrival_ns) {
   Impl& m = *impl_;
+  if (!m.estimator) return 0;  // a failed client
   const auto start = std::chrono::steady_clock::now();
   const std::size_t before = m.result.outputs.size();
   if (!m.first_t_ns || measurement.t_ns < *m.first_t_ns) m.first_t_ns = measurement.t_ns;
   m.last_t_ns = std::max(m.last_t_ns, measurement.t_ns);
-  if (m.fixed) {
-    const bool unhealthy =
-        m.method.kind == ReplayMethod::Kind::kOracle && m.OracleSelect(measurement);
-    m.fixed->Add(measurement);
-    if (unhealthy) m.fixed->RestartAlignment(measurement.sensor);
-    if (m.method.kind == ReplayMethod::Kind::kNaive && !m.true_alignments_given &&
-        m.fixed->local().initialized()) {
-      GiveTrueAlignments(m.streams, *m.fixed);
-      m.true_alignments_given = true;
-    }
-    for (estimator::EstimatorOutput& o : m.fixed->TakeOutputs()) {
-      m.result.outputs.push_back(std::move(o));
-    }
-  } else {
-    m.consensus->Add(measurement);
-    for (estimator::EstimatorOutput& o : m.consensus->TakeOutputs()) {
-      m.result.outputs.push_back(std::move(o));
-    }
-    for (estimator::ConsensusRecord& r : m.consensus->TakeRecords()) {
+  const api::Measurement sample =
+      ToApiMeasurement(measurement, arrival_ns, m.IndexOf(measurement.sensor));
+  m.Guarded([&] { m.estimator->Add(sample, &m.estimates); });
+  m.Record();
+  if (m.builtin != nullptr) {
+    for (estimator::ConsensusRecord& r : m.builtin->TakeConsensusRecords()) {
       m.result.consensus.push_back(std::move(r));
     }
   }
@@ -420,27 +491,85 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement) {
   return m.result.outputs.size() - before;
 }
 
+void MethodRunner::Sync() {
+  Impl& m = *impl_;
+  if (m.process == nullptr) return;
+  const auto start = std::chrono::steady_clock::now();
+  m.Guarded([&] { m.process->Drain(&m.estimates); });
+  m.Record();
+  m.busy += std::chrono::steady_clock::now() - start;
+}
+
+bool MethodRunner::failed() const { return impl_->result.failure.has_value(); }
+
+std::string MethodRunner::failure_text() const { return ClientFailureText(impl_->result); }
+
 void MethodRunner::AddLabel(const LabelEvent& label) {
   // The un-faulted streams (@clean) have no scheduled fault; their conditions still hold.
   if (impl_->method.clean_streams && label.source == "fault") return;
-  impl_->health.Add(label);
+  if (impl_->builtin != nullptr) impl_->builtin->AddLabel(label);
 }
 
 const std::vector<estimator::EstimatorOutput>& MethodRunner::outputs() const {
   return impl_->result.outputs;
 }
 
-const estimator::MultiGraphEstimator& MethodRunner::estimator() const {
-  return impl_->estimator();
+namespace {
+
+// A client that reports which sensors it fuses is scored as consensus is (detection,
+// re-admission, false exclusion, switches): its fused sets become decisions, one at each
+// change; every other sensor is excluded meanwhile.
+std::vector<estimator::ConsensusRecord> DecisionsFromFusedSets(
+    const std::vector<estimator::EstimatorOutput>& outputs,
+    const std::vector<std::string>& sensors) {
+  std::vector<estimator::ConsensusRecord> records;
+  std::optional<std::vector<std::string>> previous;
+  for (const estimator::EstimatorOutput& o : outputs) {
+    if (!o.initialized || (previous && *previous == o.fused)) continue;
+    estimator::ConsensusRecord r;
+    r.t_ns = o.t_ns;
+    r.window_end_ns = o.t_ns;
+    r.decision.t_ns = o.t_ns;
+    r.decision.fused = o.fused;
+    r.decision.eligible = o.fused;
+    for (const std::string& s : sensors) {
+      if (std::find(o.fused.begin(), o.fused.end(), s) == o.fused.end()) {
+        r.decision.excluded.push_back(s);
+      }
+    }
+    r.decision.reason = "reported by the client";
+    r.decision.changed = previous.has_value();
+    previous = o.fused;
+    records.push_back(std::move(r));
+  }
+  return records;
 }
+
+}  // namespace
 
 ReplayResult MethodRunner::Finish() && {
   Impl& m = *impl_;
+  if (m.builtin == nullptr && m.estimator) {
+    const auto start = std::chrono::steady_clock::now();
+    m.Guarded([&] {
+      m.estimator->Finish(&m.estimates);
+      m.result.client_report_json = m.estimator->ReportJson();
+    });
+    m.Record();
+    m.estimator.reset();
+    m.busy += std::chrono::steady_clock::now() - start;
+  }
   ReplayResult result = std::move(m.result);
   result.wall_time_s = std::chrono::duration<double>(m.busy).count();
   if (m.first_t_ns) result.log_duration_s = core::TimeToSeconds(m.last_t_ns - *m.first_t_ns);
   result.first_measurement_ns = m.first_t_ns;
-  const estimator::MultiGraphEstimator& estimator = m.estimator();
+  if (m.builtin == nullptr) {
+    const bool reports_fused = std::any_of(result.outputs.begin(), result.outputs.end(),
+                                           [](const auto& o) { return !o.fused.empty(); });
+    if (reports_fused) result.consensus = DecisionsFromFusedSets(result.outputs, m.sensor_names);
+    return result;
+  }
+  const estimator::MultiGraphEstimator& estimator = m.builtin->estimator();
   result.initialisations = estimator.initialisations();
   for (const estimator::SensorSpec& spec : m.specs) {
     const auto used = estimator.BetweenNoiseOf(spec.name);
@@ -451,11 +580,11 @@ ReplayResult MethodRunner::Finish() && {
   }
   result.counters = estimator.counters();
   result.solver = estimator.local().stats();
-  for (const RecordedStream& s : m.streams) {
-    if (const estimator::AlignmentGraph* g = estimator.AlignmentGraphOf(s.name)) {
-      result.alignment[s.name] = g->estimate();
+  for (const std::string& name : m.stream_names) {
+    if (const estimator::AlignmentGraph* g = estimator.AlignmentGraphOf(name)) {
+      result.alignment[name] = g->estimate();
     }
-    if (const auto T_AL = estimator.AlignmentOf(s.name)) result.T_AL_used[s.name] = *T_AL;
+    if (const auto T_AL = estimator.AlignmentOf(name)) result.T_AL_used[name] = *T_AL;
   }
   return result;
 }
@@ -464,11 +593,12 @@ ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
                     const estimator::MultiGraphEstimatorOptions& options,
                     const std::vector<estimator::SensorSpec>& sensors,
                     const std::function<void(double)>& progress,
-                    const estimator::ConsensusEstimatorOptions& consensus_options) {
-  MethodRunner runner(log, method, options, sensors, consensus_options);
+                    const estimator::ConsensusEstimatorOptions& consensus_options,
+                    const ClientTexts& texts) {
+  MethodRunner runner(log, method, options, sensors, consensus_options, texts);
   const std::size_t n = log.measurements.size();
   for (std::size_t i = 0; i < n; ++i) {
-    runner.Add(log.measurements[i]);
+    runner.Add(log.measurements[i], log.arrival_ns[i]);
     if (progress && (i % 4096 == 0 || i + 1 == n)) progress(static_cast<double>(i + 1) / n);
   }
   return std::move(runner).Finish();
@@ -839,6 +969,18 @@ MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResul
                           {"worse_than_input", c->worse_in_position || c->worse_in_rotation}};
     }
   }
+  if (result.method.client) {
+    j["client"] = result.method.client->Name();
+    if (result.failure) {
+      j["failure"] = *result.failure;
+      j["failure_stderr_tail"] = result.failure_stderr_tail;
+    }
+    // A client's report is its own JSON object; one that is not stays out, named.
+    const auto report = nlohmann::ordered_json::parse(result.client_report_json, nullptr, false);
+    if (!report.is_discarded() && report.is_object() && !report.empty()) {
+      j["client_report"] = report;
+    }
+  }
   WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
 
   double& mean_ms = files.solve_mean_ms;
@@ -884,14 +1026,15 @@ namespace {
 
 // `--method` as given, or by default each non-IMU stream alone.
 std::vector<ReplayMethod> MethodsToReplay(const EstimateCommandOptions& options,
-                                          const RecordedLog& log) {
+                                          const RecordedLog& log,
+                                          const std::vector<ClientSpec>& clients) {
   std::vector<ReplayMethod> methods;
   if (options.methods.empty()) {
     for (const RecordedStream& s : log.streams) {
       if (s.kind != StreamKind::kImu) methods.push_back(ParseReplayMethod("single:" + s.name, log));
     }
   } else {
-    for (const std::string& m : options.methods) methods.push_back(ParseReplayMethod(m, log));
+    for (const std::string& m : options.methods) methods.push_back(ParseReplayMethod(m, log, clients));
   }
   return methods;
 }
@@ -954,6 +1097,10 @@ std::optional<RecordedLog> ReadCleanLogIfAsked(const EstimateCommandOptions& opt
     }
   }
   return clean_log;
+}
+
+void PrintClientFailure(const ReplayResult& result) {
+  fmt::print(stderr, "error: {}\n", ClientFailureText(result));
 }
 
 void WarnIfWorseThanInput(const ReplayMethod& method, const MethodFiles& files) {
@@ -1021,8 +1168,10 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   RecordedLogOptions read;
   read.use_clean_streams = options.use_clean_streams;
   const RecordedLog log = ReadRecordedLog(options.log_dir, read);
-  const std::vector<ReplayMethod> methods = MethodsToReplay(options, log);
-  const EstimationSetup setup = MakeEstimationSetup(log, RunEstimationConfig(options));
+  const EstimationConfig run_config = RunEstimationConfig(options);
+  const std::vector<ReplayMethod> methods = MethodsToReplay(options, log, run_config.clients);
+  const EstimationSetup setup = MakeEstimationSetup(log, run_config);
+  const ClientTexts texts{log.calibration_yaml, run_config.resolved_yaml};
   const estimator::MultiGraphEstimatorOptions estimator_options =
       WithEstimatorOverrides(setup.estimator, options);
   const std::optional<RecordedLog> clean_log = ReadCleanLogIfAsked(options, methods);
@@ -1047,12 +1196,17 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   core::Time first_output_ns = std::numeric_limits<core::Time>::max();
   core::Time last_output_ns = std::numeric_limits<core::Time>::min();
   bool failed = false;
+  bool failed_client = false;  // a user's estimator failed: exit 3, as a failed flight
   for (const ReplayMethod& method : methods) {
     std::function<void(double)> progress;
     if (options.progress) progress = [&](double f) { options.progress(method.name, f); };
-    const ReplayResult result =
-        Replay(log_for(method), method, estimator_options, specs, progress, consensus_options);
+    const ReplayResult result = Replay(log_for(method), method, estimator_options, specs,
+                                       progress, consensus_options, texts);
     const MethodFiles files = WriteMethodResult(log_for(method), result, out_dir);
+    if (result.failure) {
+      PrintClientFailure(result);
+      failed_client = true;
+    }
     if (method.kind == ReplayMethod::Kind::kConsensus) {
       decisions_csv += DecisionRows(result);
       WriteFileAtomically(out_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
@@ -1071,7 +1225,18 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   }
   if (decisions_csv != kDecisionsCsvHeader) WriteFileAtomically(out_dir / "decisions.csv", decisions_csv);
   WriteRawStreamBaselines(log, first_output_ns, last_output_ns, out_dir, options.quiet);
+  if (failed_client) return core::kExitSimulationError;
   return failed ? 1 : 0;
+}
+
+std::string ClientFailureText(const ReplayResult& result) {
+  if (!result.failure) return {};
+  std::string text = *result.failure;
+  if (!result.failure_stderr_tail.empty()) {
+    text += fmt::format("\n  last lines of {}'s standard error:", result.method.name);
+    for (const std::string& line : result.failure_stderr_tail) text += "\n    " + line;
+  }
+  return text;
 }
 
 std::optional<std::string> NothingToFuse(const ReplayResult& result,

@@ -40,10 +40,14 @@ namespace tofu::replay {
 ///    real log) has no label, so the oracle fuses everything there.
 /// A suffix "@clean" runs the method on the un-faulted streams (sensors/clean/): the
 /// paper's reference is "single:vio@clean".
+///  - "external:<name>", "plugin:<name>": a user's estimator, a process speaking the
+///    protocol of docs/INTERFACE.md or a C++ plug-in, as the scenario's `external:` or
+///    `plugins:` entry <name> says (EstimationConfig::clients).
 struct ReplayMethod {
-  enum class Kind { kFixed, kNaive, kConsensus, kOracle };
+  enum class Kind { kFixed, kNaive, kConsensus, kOracle, kClient };
   std::string name;
   Kind kind = Kind::kFixed;
+  std::optional<ClientSpec> client;  ///< kClient
   std::vector<std::string> fused;  ///< kFixed, kNaive and kOracle: the sensors it may fuse
   bool clean_streams = false;      ///< "@clean"
   /// kConsensus: the fusion rule when the name states one (else the scenario's).
@@ -52,11 +56,14 @@ struct ReplayMethod {
 
 /// Parses a method name against the log's streams; throws core::InputError naming the
 /// method, the unknown sensor and the known ones.
-ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log);
+/// `clients`: the scenario's users' estimators (external:/plugin: names).
+ReplayMethod ParseReplayMethod(const std::string& name, const RecordedLog& log,
+                               const std::vector<ClientSpec>& clients = {});
 /// The same check against a list of sensor names (a scenario's, before any run): returns
 /// an error message, or nullopt when the name is a valid method for these sensors.
 std::optional<std::string> CheckMethodName(const std::string& name,
-                                           const std::vector<std::string>& sensors);
+                                           const std::vector<std::string>& sensors,
+                                           const std::vector<ClientSpec>& clients = {});
 
 /// Estimator options for a log: IMU noise from its calibration when known (else the
 /// ADIS16448 datasheet), inflated 10x for flight (rotor vibration), the IMU sample
@@ -91,6 +98,12 @@ struct ReplayResult {
     std::string source;  ///< "stated" (calibration/options) or "measured" (from the data)
   };
   std::map<std::string, StreamNoise> stream_noise;
+  /// kClient: why the client failed (it stopped being fed then; what it produced before
+  /// is kept), and its last standard-error lines.
+  std::optional<std::string> failure;
+  std::vector<std::string> failure_stderr_tail;
+  /// kClient: the JSON object its ReportJson (the protocol's `finished.report`) gave.
+  std::string client_report_json;
 };
 
 /// One method, fed one measurement at a time in arrival order: the same code replays a
@@ -100,24 +113,35 @@ struct ReplayResult {
 /// measurements are not read.
 class MethodRunner {
  public:
+  /// A client method (kClient) is started here (its process launched, or its plug-in
+  /// loaded, and given its setup with `texts`); a client that fails to start makes a
+  /// runner whose result has `failure` set.
   MethodRunner(const RecordedLog& log, const ReplayMethod& method,
                const estimator::MultiGraphEstimatorOptions& options,
                const std::vector<estimator::SensorSpec>& sensors,
-               const estimator::ConsensusEstimatorOptions& consensus = {});
+               const estimator::ConsensusEstimatorOptions& consensus = {},
+               const ClientTexts& texts = {});
   ~MethodRunner();
   MethodRunner(MethodRunner&&) noexcept;
   MethodRunner& operator=(MethodRunner&&) noexcept;
 
-  /// The next measurement in arrival order; returns how many outputs it produced.
-  std::size_t Add(const core::StampedMeasurement& measurement);
+  /// The next measurement in arrival order; returns how many outputs it produced. A
+  /// process client's answers may lag (open loop streams ahead): Sync() waits for them.
+  std::size_t Add(const core::StampedMeasurement& measurement, core::Time arrival_ns);
+  /// Every output of the measurements added so far is in outputs() (a closed loop calls
+  /// it before the controller reads the newest).
+  void Sync();
+  /// The client failed (kClient): the method is no longer fed.
+  bool failed() const;
+  /// Why, with the client's last standard-error lines ("" when it did not fail).
+  std::string failure_text() const;
   /// A label the oracle learns while the run goes on (the run loop's condition
   /// transitions); the log's own labels (labels.csv) are known from the start. Other
   /// methods ignore labels.
   void AddLabel(const LabelEvent& label);
   /// Every output so far (the newest last).
   const std::vector<estimator::EstimatorOutput>& outputs() const;
-  const estimator::MultiGraphEstimator& estimator() const;
-  /// The result; wall_time_s is the time spent inside Add.
+  /// The result; wall_time_s is the time spent inside Add. Ends a client (finish).
   ReplayResult Finish() &&;
 
  private:
@@ -132,7 +156,8 @@ ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
                     const estimator::MultiGraphEstimatorOptions& options,
                     const std::vector<estimator::SensorSpec>& sensors,
                     const std::function<void(double)>& progress = nullptr,
-                    const estimator::ConsensusEstimatorOptions& consensus = {});
+                    const estimator::ConsensusEstimatorOptions& consensus = {},
+                    const ClientTexts& texts = {});
 
 /// The valid outputs as a trajectory of T_LI.
 std::vector<PoseSample> OutputTrajectory(const ReplayResult& result);
@@ -175,6 +200,10 @@ std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const Repla
 /// non-finite, out of order, ...): what was rejected, per sensor. nullopt otherwise and
 /// for imu_only. `tofu estimate` exits 1 with it; a scenario fails its run.
 std::optional<std::string> NothingToFuse(const ReplayResult& result, const std::string& imu_stream);
+
+/// A failed client method's error with its last standard-error lines, for logs; "" when
+/// the method did not fail.
+std::string ClientFailureText(const ReplayResult& result);
 
 /// What WriteMethodResult wrote and measured.
 struct MethodFiles {

@@ -171,6 +171,23 @@ RunCalibration ParseRunCalibration(const std::string& text, const std::string& f
   return cal;
 }
 
+std::string CalibrationWithoutTruth(const std::string& text, const std::string& file) {
+  if (text.empty()) return text;
+  YAML::Node root = YAML::Clone(LoadYamlText(text, file));
+  if (!root.IsMap()) return text;
+  root.remove("mounts");
+  if (YAML::Node sensors = root["sensors"]; sensors && sensors.IsMap()) {
+    for (auto entry : sensors) {
+      if (!entry.second.IsMap()) continue;
+      entry.second.remove("true_T_B_s");
+      entry.second.remove("true_T_WS");
+    }
+  }
+  YAML::Emitter out;
+  out << root;
+  return std::string(out.c_str()) + "\n";
+}
+
 RunCalibration ReadRunCalibration(const fs::path& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return RunCalibration{};

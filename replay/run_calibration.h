@@ -76,4 +76,8 @@ RunCalibration ParseRunCalibration(const std::string& text, const std::string& f
 /// `present == false`, not an error.
 RunCalibration ReadRunCalibration(const std::filesystem::path& path);
 
+/// calibration.yaml as a user's estimator is told it: without the truth (the true mounts
+/// `mounts:`, `true_T_B_s`, `true_T_WS`), which is for scoring only. Throws as the parser.
+std::string CalibrationWithoutTruth(const std::string& text, const std::string& file);
+
 }  // namespace tofu::replay

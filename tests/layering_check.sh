@@ -6,7 +6,9 @@
 # harness/ never includes renders/ and renders/ never includes harness/ (renders read
 # the run directory through replay/); nothing but apps/ includes
 # report/ (MCAP and HTML of finished runs), and report/ never includes apps/; nothing but
-# apps/ includes corpus/, which builds on harness alone.
+# apps/ includes corpus/, which builds on harness alone; interface/ (the protocol, the
+# plug-in loader) includes the public api and core only, and only replay/, harness/ and
+# apps/ include it; include/tofu (the installed api) includes nothing of the project.
 set -u
 root="${1:?usage: layering_check.sh SOURCE_DIR}"
 status=0
@@ -36,5 +38,12 @@ for layer in core sim estimator replay harness renders report; do
   check "$layer" 'corpus/' "corpora are built from harness runs; nothing below includes them"
 done
 check corpus 'apps/|renders/|report/' "corpus needs harness runs only"
+check interface 'mujoco/|sim/|estimator/|replay/|harness/|renders/|report/|corpus/|apps/|ceres/' \
+  "interface (the protocol and the plug-in loader) knows the public api and core only"
+check include 'mujoco/|sim/|estimator/|replay/|harness/|interface/|core/|ceres/|Eigen/' \
+  "the public api (include/tofu) is header-only and free of tofu's internals and Eigen"
+for layer in core sim estimator; do
+  check "$layer" 'interface/|tofu/' "users' estimators and controllers enter through replay and harness"
+done
 [[ $status == 0 ]] && echo "layering ok"
 exit $status

@@ -31,6 +31,7 @@
 #include "renders/render_command.h"
 #include "replay/consistency_command.h"
 #include "replay/file_io.h"
+#include "interface/child_process.h"
 #include "replay/interrupt.h"
 #include "replay/replay.h"
 #include "report/html_report.h"
@@ -249,7 +250,13 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   if (!quiet) PrintReport(record, evaluation, out);
   tofu::replay::ThrowIfInterrupted();
   if (mcap_file) ExportMcap(out, *mcap_file, true, quiet);
-  const int status = record.failure    ? tofu::core::kExitSimulationError
+  // A user's estimator or controller that failed is printed even when quiet: the run log
+  // is where `tofu check` users look for the client's last words.
+  for (const std::string& failure : evaluation.client_failures) {
+    fmt::print(stderr, "tofu: CLIENT FAILED: {}\n", failure);
+  }
+  const int status = record.failure || !evaluation.client_failures.empty()
+                         ? tofu::core::kExitSimulationError
                      : evaluation.passed ? tofu::core::kExitOk
                                          : tofu::core::kExitExpectationFailed;
   // `render:` the failure events, after the run directory is complete (renders/ is
@@ -717,7 +724,12 @@ int main(int argc, char** argv) {
     // The commands that write outputs stop cleanly on SIGINT, SIGTERM and SIGHUP: staging
     // removed, children stopped, exit 128 + signal (replay/interrupt.h). The others keep
     // the default action (`tofu corpus generate` resumes a killed shard by design).
-    if (command.interruptible) tofu::replay::InstallInterruptHandlers();
+    if (command.interruptible) {
+      tofu::replay::InstallInterruptHandlers();
+      // A wait for a user's estimator or controller is a check point too.
+      tofu::interface::SetInterruptCheck(&tofu::replay::ThrowIfInterrupted,
+                                         tofu::replay::InterruptWakeFd());
+    }
     return RunMapped(command);
   }
   return tofu::core::kExitOk;
