@@ -29,10 +29,39 @@ std::vector<std::string> ReadmeYamlBlocks() {
   return blocks;
 }
 
+// "Test your own estimator or controller": the clients' fragment is valid with the
+// paper's sensors and a controller client beside the estimator.
+TEST(Readme, ClientExampleIsValid) {
+  const std::vector<std::string> blocks = ReadmeYamlBlocks();
+  ASSERT_FALSE(blocks.empty());
+  const std::string yaml = R"(name: readme_clients
+world: indoor_arena
+duration_s: 10
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  segments:
+    - hover: {duration_s: 1}
+sensors:
+  imu: {}
+  vio: {}
+  leica: {type: total_station}
+)" + blocks[0];
+  // The fragment names python_pd as the controller; give it one as the README's section does.
+  std::string with_controller = yaml;
+  with_controller.replace(with_controller.find("external:\n"), 10,
+                          "external:\n  python_pd: {command: [/usr/bin/python3, pd.py]}\n");
+  Scenario scenario;
+  ASSERT_NO_THROW(scenario = ParseScenario(with_controller, "README.md")) << with_controller;
+  ASSERT_EQ(scenario.clients.size(), 2u);
+  ASSERT_TRUE(scenario.control.has_value());
+  EXPECT_EQ(scenario.control->controller, "external:python_pd");
+  EXPECT_EQ(scenario.estimation->methods[1], "external:python_ekf");
+}
+
 TEST(Readme, ScenarioExampleIsValid) {
   const std::vector<std::string> blocks = ReadmeYamlBlocks();
   ASSERT_FALSE(blocks.empty()) << "README.md has no ```yaml block";
-  const std::string& yaml = blocks[0];
+  const std::string& yaml = blocks[1];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   EXPECT_EQ(scenario.name, "approach_wall");
@@ -43,7 +72,7 @@ TEST(Readme, ScenarioExampleIsValid) {
 // The sensors-and-faults example is a fragment: valid once put into a scenario.
 TEST(Readme, SensorExampleIsValid) {
   const std::vector<std::string> blocks = ReadmeYamlBlocks();
-  ASSERT_GE(blocks.size(), 2u);
+  ASSERT_GE(blocks.size(), 3u);
   const std::string yaml = R"(name: readme_sensors
 world: bridge
 duration_s: 60
@@ -51,7 +80,7 @@ trajectory:
   start: {position_m: [-9, 0, 3]}
   segments:
     - hover: {duration_s: 1}
-)" + blocks[1];
+)" + blocks[2];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   EXPECT_EQ(scenario.sensors.size(), 5u);
@@ -61,7 +90,7 @@ trajectory:
 // The estimation example is a fragment too: valid with the paper scenario's sensors.
 TEST(Readme, EstimationExampleIsValid) {
   const std::vector<std::string> blocks = ReadmeYamlBlocks();
-  ASSERT_GE(blocks.size(), 3u);
+  ASSERT_GE(blocks.size(), 4u);
   const std::string yaml = R"(name: readme_estimation
 world: indoor_arena
 duration_s: 60
@@ -74,7 +103,7 @@ sensors:
   vio: {}
   lio: {type: lidar_odometry}
   leica: {type: total_station}
-)" + blocks[2];
+)" + blocks[3];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.estimation.has_value());
@@ -86,7 +115,7 @@ sensors:
 // The closed-loop example: valid with an estimation block that has its methods.
 TEST(Readme, ControlExampleIsValid) {
   const std::vector<std::string> blocks = ReadmeYamlBlocks();
-  ASSERT_GE(blocks.size(), 4u);
+  ASSERT_GE(blocks.size(), 5u);
   const std::string yaml = R"(name: readme_control
 world: indoor_arena
 duration_s: 20
@@ -100,7 +129,7 @@ sensors:
   leica: {type: total_station}
 estimation:
   methods: [consensus, naive]
-)" + blocks[3];
+)" + blocks[4];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.control.has_value());
@@ -113,7 +142,7 @@ estimation:
 // The render example, likewise.
 TEST(Readme, RenderExampleIsValid) {
   const std::vector<std::string> blocks = ReadmeYamlBlocks();
-  ASSERT_GE(blocks.size(), 5u);
+  ASSERT_GE(blocks.size(), 6u);
   const std::string yaml = R"(name: readme_render
 world: indoor_arena
 duration_s: 5
@@ -121,7 +150,7 @@ trajectory:
   start: {position_m: [0, 0, 1.5]}
   segments:
     - hover: {duration_s: 1}
-)" + blocks[4];
+)" + blocks[5];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.render.has_value());

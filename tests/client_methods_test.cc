@@ -1,0 +1,272 @@
+// Users' estimators in a run (docs/INTERFACE.md), through the tofu binary:
+//  - lossless: tofu's own consensus hosted behind the process protocol (tofu-estimator-host,
+//    JSON lines and MessagePack) and behind the plug-in API (libtofu_builtin_plugin.so)
+//    gives byte-identical estimate files to the in-process method, open loop and as the
+//    estimator a closed-loop flight flies on (then the whole flight is identical too);
+//  - `tofu estimate` replays a run with a client method as the loop ran it;
+//  - a bad client (cannot start, exits early, hangs, malformed, NaN, time backwards, wrong
+//    seq, another version, its own error) fails its method with the method, message and
+//    field named and its last stderr lines in the run log, every other method is still
+//    scored, the run exits 3 and no client process is left, also on SIGTERM.
+
+#include <signal.h>
+#include <sys/wait.h>
+
+#include <cerrno>
+#include <cstdlib>
+#include <filesystem>
+#include <optional>
+#include <thread>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "tests/test_support.h"
+
+namespace tofu {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path BuildDir() { return fs::path(TOFU_BINARY).parent_path(); }
+
+// A short flight near the arena's east wall with the seed paper's sensors, the VIO
+// diverging from 6 s. `clients` and `methods` are filled in per test.
+std::string Scenario(const std::string& clients, const std::string& methods,
+                     const std::string& control = "") {
+  return R"(
+name: client_short
+world: indoor_arena
+duration_s: 10
+seed: 3
+trajectory:
+  start: {position_m: [2.0, -2.0, 1.5]}
+  limits: {max_speed_mps: 0.6, max_acceleration_mps2: 0.6}
+  segments:
+    - hover: {duration_s: 1}
+    - line: {to_m: [4.5, -2.0, 1.5]}
+    - line: {to_m: [4.5, 1.0, 1.5]}
+sensors:
+  imu: {}
+  vio: {}
+  lio: {type: lidar_odometry}
+  leica: {type: total_station}
+faults:
+  - {sensor: vio, kind: divergence, start_s: 6, end_s: 10, axis: [1, 0, 0], initial_velocity_mps: 0.3, time_constant_s: 8}
+)" + clients + R"(
+estimation:
+  methods: )" + methods + R"(
+  consensus: {threshold: 0.3, priority: [leica, lio, vio]}
+  huber_delta: 3
+)" + control;
+}
+
+std::string HostClients() {
+  const std::string host = (BuildDir() / "tofu-estimator-host").string();
+  const std::string plugin = (BuildDir() / "libtofu_builtin_plugin.so").string();
+  return "external:\n"
+         "  host: {command: [\"" + host + "\"], config: {method: consensus}}\n"
+         "  host_mp: {command: [\"" + host + "\", --encoding, msgpack], config: {method: consensus}}\n"
+         "plugins:\n"
+         "  builtin: {library: \"" + plugin + "\", config: {method: consensus}}\n";
+}
+
+struct Result {
+  int exit_code = -1;
+  std::string err;
+};
+
+Result RunTofu(const std::string& args, const fs::path& cwd) {
+  const std::string command = "cd " + test::Quote(cwd.string()) + " && " +
+                              test::Quote(TOFU_BINARY) + " " + args + " >/dev/null 2>" +
+                              test::Quote((cwd / "stderr.txt").string());
+  const int status = std::system(command.c_str());
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, test::ReadFile(cwd / "stderr.txt")};
+}
+
+void ExpectSameFile(const fs::path& a, const fs::path& b) {
+  ASSERT_TRUE(fs::exists(a)) << a;
+  ASSERT_TRUE(fs::exists(b)) << b;
+  EXPECT_TRUE(test::ReadFile(a) == test::ReadFile(b)) << a << " and " << b << " differ";
+}
+
+TEST(ClientMethods, BuiltinConsensusThroughTheProtocolAndThePluginIsLossless) {
+  const fs::path work = test::PerTestDirectory("client_lossless_");
+  fs::create_directories(work);
+  test::WriteFile(work / "s.yaml",
+                  Scenario(HostClients(),
+                           R"([consensus, "external:host", "external:host_mp", "plugin:builtin"])",
+                           "control:\n  state_source: estimate\n  methods: [consensus, \"external:host\", "
+                           "\"plugin:builtin\"]\n"));
+  const Result run = RunTofu("run s.yaml --out R --quiet", work);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const fs::path r = work / "R";
+  for (const std::string stem : {"external_host", "external_host_mp", "plugin_builtin"}) {
+    for (const std::string ext : {".csv", ".tum", "_errors.csv"}) {
+      ExpectSameFile(r / ("estimate_consensus" + ext), r / ("estimate_" + stem + ext));
+    }
+  }
+  // Flying on the hosted estimator is the same flight as flying on the in-process one.
+  for (const std::string stem : {"external_host", "plugin_builtin"}) {
+    const fs::path flown = r / "closed_loop" / stem;
+    ExpectSameFile(r / "closed_loop" / "consensus" / "estimate_consensus.csv",
+                   flown / ("estimate_" + stem + ".csv"));
+    for (const std::string file : {"groundtruth.csv", "control.csv", "tracking.csv"}) {
+      ExpectSameFile(r / "closed_loop" / "consensus" / file, flown / file);
+    }
+  }
+  // The client reported its fused sets: it is scored for detection as consensus is.
+  const auto summary = nlohmann::json::parse(test::ReadFile(r / "summary.json"));
+  EXPECT_EQ(summary["methods"]["external:host"]["faults_detected"],
+            summary["methods"]["consensus"]["faults_detected"]);
+  EXPECT_EQ(summary["methods"]["external:host"]["ate_m"], summary["methods"]["consensus"]["ate_m"]);
+
+  // `tofu estimate` replays the recorded run through the client as the loop did.
+  const Result estimate =
+      RunTofu("estimate R --method external:host --method plugin:builtin --out E --quiet", work);
+  ASSERT_EQ(estimate.exit_code, 0) << estimate.err;
+  ExpectSameFile(r / "estimate_external_host.csv", work / "E" / "estimate_external_host.csv");
+  ExpectSameFile(r / "estimate_plugin_builtin.csv", work / "E" / "estimate_plugin_builtin.csv");
+  fs::remove_all(work);
+}
+
+// ---- bad clients ----
+
+// A Python client that answers correctly until `misbehave` (Python statements, run when the
+// measurement with seq == `at` arrives) and writes its pid to pid.txt first.
+std::string MisbehavingClient(const std::string& misbehave, int at) {
+  return R"(import json, os, sys
+open('pid.txt', 'w').write(str(os.getpid()))
+def send(m):
+    sys.stdout.write(json.dumps(m) + '\n'); sys.stdout.flush()
+for line in sys.stdin:
+    m = json.loads(line)
+    t = m['type']
+    if t == 'hello': send({'type': 'hello', 'version': 1})
+    elif t == 'setup': send({'type': 'ready'})
+    elif t == 'measurement':
+        seq = m['seq']
+        if seq == )" + std::to_string(at) + R"(:
+            sys.stderr.write('bad client about to misbehave\n'); sys.stderr.flush()
+)" + misbehave + R"(
+        est = {'t_ns': m['t_ns'], 'valid': True, 'p_LI_m': [0, 0, 0], 'q_LI_wxyz': [1, 0, 0, 0],
+               'v_L_mps': [0, 0, 0], 'omega_I_radps': [0, 0, 0]}
+        send({'type': 'estimates', 'seq': seq, 'estimates': [est] if m['kind'] == 'imu' else []})
+    elif t == 'finish':
+        send({'type': 'finished'}); break
+)";
+}
+
+bool ProcessAlive(const fs::path& pid_file) {
+  if (!fs::exists(pid_file)) return false;
+  const int pid = std::stoi(test::ReadFile(pid_file));
+  return ::kill(pid, 0) == 0 || errno != ESRCH;
+}
+
+struct BadCase {
+  std::string name;
+  std::string script;           // the client's code ("" = a command that cannot start)
+  std::string expected_message;  // a fragment of what tofu must say
+  std::string options = "";      // more keys of the external: entry
+};
+
+class BadClient : public ::testing::TestWithParam<BadCase> {};
+
+TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsThreeAndLeavesNoProcess) {
+  const BadCase& c = GetParam();
+  const fs::path work = test::PerTestDirectory("bad_client_" + c.name + "_");
+  fs::create_directories(work);
+  std::string command = "[/usr/bin/python3, bad.py]";
+  if (c.script.empty()) {
+    command = "[./no_such_program]";
+  } else {
+    test::WriteFile(work / "bad.py", c.script);
+  }
+  const std::string clients =
+      "external:\n  bad: {command: " + command + c.options + "}\n";
+  test::WriteFile(work / "s.yaml", Scenario(clients, R"([consensus, "external:bad"])"));
+  const Result run = RunTofu("run s.yaml --out R --quiet", work);
+  EXPECT_EQ(run.exit_code, 3) << run.err;
+  EXPECT_CONTAINS(run.err, "external:bad");
+  EXPECT_CONTAINS(run.err, c.expected_message);
+  if (!c.script.empty()) {
+    EXPECT_CONTAINS(run.err, "bad client about to misbehave");
+  }
+  ASSERT_TRUE(fs::exists(work / "R" / "summary.json")) << run.err;
+  const auto summary = nlohmann::json::parse(test::ReadFile(work / "R" / "summary.json"));
+  EXPECT_TRUE(summary["methods"]["consensus"]["ate_m"].is_number());
+  EXPECT_FALSE(summary["methods"]["consensus"].contains("failure"));
+  ASSERT_TRUE(summary["methods"]["external:bad"].contains("failure"));
+  EXPECT_CONTAINS(summary["methods"]["external:bad"]["failure"].get<std::string>(), c.expected_message);
+  EXPECT_FALSE(ProcessAlive(work / "pid.txt")) << "the client is still running";
+  fs::remove_all(work);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Cases, BadClient,
+    ::testing::Values(
+        BadCase{"cannot_start", "", "no_such_program"},
+        BadCase{"exits_early", MisbehavingClient("            sys.exit(5)", 500), "exit"},
+        BadCase{"hangs", MisbehavingClient("            import time; time.sleep(60)", 500), "timeout",
+                ", timeout_s: 0.5"},
+        BadCase{"malformed", MisbehavingClient("            sys.stdout.write('{not json\\n'); sys.stdout.flush()", 500),
+                "JSON"},
+        BadCase{"missing_field",
+                MisbehavingClient("            send({'type': 'estimates', 'seq': seq, 'estimates': [{'t_ns': m['t_ns']}]}); continue", 500),
+                "valid"},
+        BadCase{"nan",
+                MisbehavingClient("            sys.stdout.write('{\"type\":\"estimates\",\"seq\":%d,\"estimates\":[{\"t_ns\":%d,\"valid\":true,\"p_LI_m\":[NaN,0,0],\"q_LI_wxyz\":[1,0,0,0],\"v_L_mps\":[0,0,0],\"omega_I_radps\":[0,0,0]}]}\\n' % (seq, m['t_ns'])); sys.stdout.flush(); continue", 500),
+                "p_LI_m"},
+        BadCase{"time_backwards",
+                MisbehavingClient("            send({'type': 'estimates', 'seq': seq, 'estimates': [{'t_ns': 0, 'valid': True, 'p_LI_m': [0,0,0], 'q_LI_wxyz': [1,0,0,0], 'v_L_mps': [0,0,0], 'omega_I_radps': [0,0,0]}]}); continue", 500),
+                "t_ns"},
+        BadCase{"wrong_seq",
+                MisbehavingClient("            send({'type': 'estimates', 'seq': seq + 7, 'estimates': []}); continue", 500),
+                "seq"},
+        BadCase{"own_error",
+                MisbehavingClient("            send({'type': 'error', 'message': 'filter diverged'}); continue", 500),
+                "filter diverged"},
+        BadCase{"other_version",
+                "import json, os, sys\nopen('pid.txt', 'w').write(str(os.getpid()))\n"
+                "sys.stderr.write('bad client about to misbehave\\n')\n"
+                "line = sys.stdin.readline()\n"
+                "sys.stdout.write(json.dumps({'type': 'hello', 'version': 7}) + '\\n')\n"
+                "sys.stdout.flush()\nsys.stdin.read()\n",
+                "version 7"}),
+    [](const ::testing::TestParamInfo<BadCase>& param) { return param.param.name; });
+
+TEST(ClientMethods, SigtermDuringARunLeavesNoClientProcess) {
+  const fs::path work = test::PerTestDirectory("client_sigterm_");
+  fs::create_directories(work);
+  // A client that answers slowly: the run is still flying when the signal comes.
+  test::WriteFile(work / "slow.py",
+                  MisbehavingClient("            pass", 0) + "\n");
+  std::string script = test::ReadFile(work / "slow.py");
+  const std::string marker = "        seq = m['seq']\n";
+  script.insert(script.find(marker) + marker.size(), "        import time; time.sleep(0.002)\n");
+  test::WriteFile(work / "slow.py", script);
+  test::WriteFile(work / "s.yaml",
+                  Scenario("external:\n  slow: {command: [/usr/bin/python3, slow.py]}\n",
+                           R"([consensus, "external:slow"])"));
+  test::ChildProcess tofu({TOFU_BINARY, "run", "s.yaml", "--out", "R", "--quiet"}, work,
+                          work / "log.txt");
+  ASSERT_TRUE(test::WaitUntil([&] { return fs::exists(work / "pid.txt"); },
+                              std::chrono::seconds(30)));
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  ::kill(tofu.pid(), SIGTERM);
+  const std::optional<int> status = tofu.Wait(std::chrono::seconds(30));
+  ASSERT_TRUE(status.has_value());
+  EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 128 + SIGTERM)
+      << test::ReadFile(work / "log.txt");
+  EXPECT_FALSE(fs::exists(work / "R"));
+  EXPECT_TRUE(test::WaitUntil([&] { return !ProcessAlive(work / "pid.txt"); },
+                              std::chrono::seconds(5)))
+      << "the client outlived tofu";
+  fs::remove_all(work);
+}
+
+}  // namespace
+}  // namespace tofu
