@@ -7,14 +7,13 @@
 
 #include "core/error.h"
 #include "interface/client.h"
+#include "replay/api_convert.h"
 
 namespace tofu::harness {
 namespace {
 
-api::Vec3 ToApi(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
-Eigen::Vector3d FromApi(const api::Vec3& v) { return {v[0], v[1], v[2]}; }
-api::Quat ToApi(const Eigen::Quaterniond& q) { return {q.w(), q.x(), q.y(), q.z()}; }
-Eigen::Quaterniond FromApi(const api::Quat& q) { return {q[0], q[1], q[2], q[3]}; }
+using replay::FromApi;
+using replay::ToApi;
 
 constexpr std::size_t kArms = sim::kArmCount;
 

@@ -283,8 +283,21 @@ std::vector<std::string> ClientFailures(const RunRecord& record) {
                            flight.scenario.control->controller)) {
       failures.push_back(fmt::format("closed-loop flight on {}: {}", method, *flight.failure));
     }
+    // The flight ended, but its estimator failed at the end (finish, exit status).
+    for (const MethodEvaluation& m : flight.methods) {
+      if (m.failure) failures.push_back(fmt::format("closed-loop flight on {}: {}", method, *m.failure));
+    }
   }
   return failures;
+}
+
+// A closed-loop flight's failure: the simulation's, else its flying method's.
+nlohmann::json FlightFailureJson(const RunRecord& flight) {
+  if (flight.failure) return *flight.failure;
+  for (const MethodEvaluation& m : flight.methods) {
+    if (m.failure) return *m.failure;
+  }
+  return nullptr;
 }
 
 nlohmann::json ClosedLoopJson(const RunRecord& flight) {
@@ -306,7 +319,7 @@ nlohmann::json ClosedLoopJson(const RunRecord& flight) {
           {"diverged", m.diverged},
           {"handover_s", OptionalNumber(m.handover_s)},
           {"corridor_m", flight.closed_loop ? flight.closed_loop->control.corridor_m : 0.0},
-          {"failure", flight.failure ? nlohmann::json(*flight.failure) : nlohmann::json(nullptr)},
+          {"failure", FlightFailureJson(flight)},
           {"events", events}};
 }
 

@@ -26,10 +26,10 @@ Eigen::Matrix<double, N, N> FromApiMatrix(const std::array<double, N * N>& a) {
   return m;
 }
 
+}  // namespace
+
 api::Quat ToApi(const Eigen::Quaterniond& q) { return {q.w(), q.x(), q.y(), q.z()}; }
 Eigen::Quaterniond FromApi(const api::Quat& q) { return {q[0], q[1], q[2], q[3]}; }
-
-}  // namespace
 
 api::Vec3 ToApi(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 Eigen::Vector3d FromApi(const api::Vec3& v) { return {v[0], v[1], v[2]}; }

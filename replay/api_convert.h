@@ -20,6 +20,9 @@ api::Pose ToApiPose(const Eigen::Isometry3d& T_AB);
 Eigen::Isometry3d FromApiPose(const api::Pose& T_AB);
 api::Vec3 ToApi(const Eigen::Vector3d& v);
 Eigen::Vector3d FromApi(const api::Vec3& v);
+/// (w, x, y, z), as stored: no normalisation.
+api::Quat ToApi(const Eigen::Quaterniond& q);
+Eigen::Quaterniond FromApi(const api::Quat& q);
 
 api::Measurement ToApiMeasurement(const core::StampedMeasurement& measurement,
                                   core::Time arrival_ns, std::size_t sensor_index);

@@ -238,6 +238,34 @@ INSTANTIATE_TEST_SUITE_P(
                 "version 7"}),
     [](const ::testing::TestParamInfo<BadCase>& param) { return param.param.name; });
 
+// A closed-loop flight whose estimator fails only at the end (exits 1 after finished):
+// the flight is scored, the failure is the run's (exit 3), in its closed_loop entry.
+TEST(ClientMethods, AClientFailingAfterAClosedLoopFlightFailsTheRun) {
+  const fs::path work = test::PerTestDirectory("client_closed_loop_finish_");
+  fs::create_directories(work);
+  std::string script = MisbehavingClient("            pass", 0);
+  script.replace(script.find("send({'type': 'finished'}); break"),
+                 std::string("send({'type': 'finished'}); break").size(),
+                 "send({'type': 'finished'}); sys.exit(1)");
+  // Never valid: the pilot flies on ground truth throughout, the flight itself is sound.
+  const std::string valid = "'valid': True";
+  script.replace(script.find(valid), valid.size(), "'valid': False");
+  test::WriteFile(work / "bad.py", script);
+  test::WriteFile(work / "s.yaml",
+                  Scenario("external:\n  bad: {command: [/usr/bin/python3, bad.py]}\n",
+                           R"([consensus, "external:bad"])",
+                           "control:\n  state_source: estimate\n  methods: [\"external:bad\"]\n"));
+  const Result run = RunTofu("run s.yaml --out R --quiet", work);
+  EXPECT_EQ(run.exit_code, 3) << run.err;
+  EXPECT_CONTAINS(run.err, "closed-loop flight on external:bad");
+  EXPECT_CONTAINS(run.err, "exited with status 1");
+  const auto summary = nlohmann::json::parse(test::ReadFile(work / "R" / "summary.json"));
+  EXPECT_TRUE(summary["closed_loop"]["external:bad"]["failure"].is_string());
+  EXPECT_TRUE(summary["closed_loop"]["external:bad"]["tracking_rmse_m"].is_number());
+  EXPECT_FALSE(summary["passed"].get<bool>());
+  fs::remove_all(work);
+}
+
 TEST(ClientMethods, SigtermDuringARunLeavesNoClientProcess) {
   const fs::path work = test::PerTestDirectory("client_sigterm_");
   fs::create_directories(work);
