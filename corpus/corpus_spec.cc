@@ -355,8 +355,9 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
   }
   if (auto e = top.Optional("estimation")) spec.estimation_yaml = EmitNode(e->node());
   if (auto c = top.Optional("closed_loop")) {
-    YamlMap cm = c->Map({"methods"});
+    YamlMap cm = c->Map({"methods", "controller"});
     for (const YamlValue& m : cm.Required("methods").List(true)) spec.closed_loop_methods.push_back(m.String());
+    if (auto controller = cm.Optional("controller")) spec.controller = controller->String();
     if (spec.estimation_yaml.empty()) c->Fail("closed_loop needs an estimation: block (its methods fly)");
     cm.Finish();
   }
@@ -431,7 +432,8 @@ EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {
   if (!spec.closed_loop_methods.empty()) {
     std::string methods;
     for (const std::string& m : spec.closed_loop_methods) methods += (methods.empty() ? "\"" : ", \"") + m + "\"";
-    yaml += fmt::format("control: {{state_source: estimate, methods: [{}]}}\n", methods);
+    yaml += fmt::format("control: {{state_source: estimate, methods: [{}]{}}}\n", methods,
+                        spec.controller.empty() ? "" : ", controller: \"" + spec.controller + "\"");
   }
   plan.scenario_yaml = yaml;
   return plan;

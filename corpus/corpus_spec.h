@@ -69,6 +69,9 @@ struct CorpusSpec {
   std::vector<FaultChoice> faults;
   /// Closed loop: each episode also flies on these estimation methods (`control:`).
   std::vector<std::string> closed_loop_methods;
+  /// `closed_loop.controller`: who flies every flight of every episode (a client of the
+  /// spec's external:/plugins:); "" = tofu's SE(3) controller.
+  std::string controller;
 };
 
 /// A fault as planned for one episode (the severity that the fault-event table reports).

@@ -29,5 +29,7 @@ grep -aq "external:python_ekf" "$work/ekf.mcap" || fail "the MCAP file has no to
 "$tofu" corpus generate "$source_dir/corpora/clients_smoke.yaml" --out "$work/corpus" --quiet \
   || fail "corpus generate failed"
 "$tofu" corpus verify "$work/corpus" --quiet || fail "corpus verify failed"
-grep -q "external:python_ekf" "$work/corpus/manifest.csv" || fail "the manifest has no column of the client"
+for method in "external:python_ekf" "plugin:complementary"; do
+  grep -q "$method" "$work/corpus/manifest.csv" || fail "the manifest has no column of $method"
+done
 echo "client examples ok"
