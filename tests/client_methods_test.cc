@@ -296,5 +296,43 @@ TEST(ClientMethods, SigtermDuringARunLeavesNoClientProcess) {
   fs::remove_all(work);
 }
 
+TEST(ClientMethods, SigintToACheckWithJobsLeavesNoClientProcess) {
+  const fs::path work = test::PerTestDirectory("client_check_sigint_");
+  fs::create_directories(work);
+  // Slow clients, each writing pid_<pid>.txt: two seeds fly at once (--jobs 2).
+  std::string script = MisbehavingClient("            pass", 0);
+  script.replace(script.find("open('pid.txt', 'w')"), std::string("open('pid.txt', 'w')").size(),
+                 "open('pid_%d.txt' % os.getpid(), 'w')");
+  const std::string marker = "        seq = m['seq']\n";
+  script.insert(script.find(marker) + marker.size(), "        import time; time.sleep(0.002)\n");
+  test::WriteFile(work / "slow.py", script);
+  test::WriteFile(work / "s.yaml",
+                  Scenario("external:\n  slow: {command: [/usr/bin/python3, slow.py]}\n",
+                           R"([consensus, "external:slow"])"));
+  test::ChildProcess check({TOFU_BINARY, "check", "s.yaml", "--seeds", "2", "--jobs", "2",
+                            "--out", "C", "--quiet"},
+                           work, work / "log.txt");
+  const auto pid_files = [&] {
+    std::vector<fs::path> files;
+    for (const auto& e : fs::directory_iterator(work)) {
+      if (e.path().filename().string().starts_with("pid_")) files.push_back(e.path());
+    }
+    return files;
+  };
+  ASSERT_TRUE(test::WaitUntil([&] { return pid_files().size() >= 2; }, std::chrono::seconds(60)))
+      << test::ReadFile(work / "log.txt");
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  ::kill(check.pid(), SIGINT);
+  const std::optional<int> status = check.Wait(std::chrono::seconds(60));
+  ASSERT_TRUE(status.has_value());
+  EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 128 + SIGINT)
+      << test::ReadFile(work / "log.txt");
+  for (const fs::path& file : pid_files()) {
+    EXPECT_TRUE(test::WaitUntil([&] { return !ProcessAlive(file); }, std::chrono::seconds(5)))
+        << file << ": the client outlived tofu check";
+  }
+  fs::remove_all(work);
+}
+
 }  // namespace
 }  // namespace tofu
