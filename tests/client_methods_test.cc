@@ -266,19 +266,26 @@ TEST(ClientMethods, AClientFailingAfterAClosedLoopFlightFailsTheRun) {
   fs::remove_all(work);
 }
 
-TEST(ClientMethods, SigtermDuringARunLeavesNoClientProcess) {
-  const fs::path work = test::PerTestDirectory("client_sigterm_");
-  fs::create_directories(work);
-  // A client that answers slowly: the run is still flying when the signal comes.
-  test::WriteFile(work / "slow.py",
-                  MisbehavingClient("            pass", 0) + "\n");
-  std::string script = test::ReadFile(work / "slow.py");
+// A client that answers every measurement 2 ms late (a run is still flying when a test's
+// signal comes), writing its pid to the file the Python expression `pid_file` names, and
+// s.yaml flying it beside consensus.
+void WriteSlowClientScenario(const fs::path& work, const std::string& pid_file) {
+  std::string script = MisbehavingClient("            pass", 0);
+  const std::string pid = "open('pid.txt', 'w')";
+  script.replace(script.find(pid), pid.size(), "open(" + pid_file + ", 'w')");
   const std::string marker = "        seq = m['seq']\n";
   script.insert(script.find(marker) + marker.size(), "        import time; time.sleep(0.002)\n");
   test::WriteFile(work / "slow.py", script);
   test::WriteFile(work / "s.yaml",
                   Scenario("external:\n  slow: {command: [/usr/bin/python3, slow.py]}\n",
                            R"([consensus, "external:slow"])"));
+}
+
+TEST(ClientMethods, SigtermDuringARunLeavesNoClientProcess) {
+  const fs::path work = test::PerTestDirectory("client_sigterm_");
+  fs::create_directories(work);
+  // A client that answers slowly: the run is still flying when the signal comes.
+  WriteSlowClientScenario(work, "'pid.txt'");
   test::ChildProcess tofu({TOFU_BINARY, "run", "s.yaml", "--out", "R", "--quiet"}, work,
                           work / "log.txt");
   ASSERT_TRUE(test::WaitUntil([&] { return fs::exists(work / "pid.txt"); },
@@ -300,15 +307,7 @@ TEST(ClientMethods, SigintToACheckWithJobsLeavesNoClientProcess) {
   const fs::path work = test::PerTestDirectory("client_check_sigint_");
   fs::create_directories(work);
   // Slow clients, each writing pid_<pid>.txt: two seeds fly at once (--jobs 2).
-  std::string script = MisbehavingClient("            pass", 0);
-  script.replace(script.find("open('pid.txt', 'w')"), std::string("open('pid.txt', 'w')").size(),
-                 "open('pid_%d.txt' % os.getpid(), 'w')");
-  const std::string marker = "        seq = m['seq']\n";
-  script.insert(script.find(marker) + marker.size(), "        import time; time.sleep(0.002)\n");
-  test::WriteFile(work / "slow.py", script);
-  test::WriteFile(work / "s.yaml",
-                  Scenario("external:\n  slow: {command: [/usr/bin/python3, slow.py]}\n",
-                           R"([consensus, "external:slow"])"));
+  WriteSlowClientScenario(work, "'pid_%d.txt' % os.getpid()");
   test::ChildProcess check({TOFU_BINARY, "check", "s.yaml", "--seeds", "2", "--jobs", "2",
                             "--out", "C", "--quiet"},
                            work, work / "log.txt");
