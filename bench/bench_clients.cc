@@ -117,6 +117,22 @@ void BM_ReplayThroughProtocol(benchmark::State& state) {
 BENCHMARK(BM_ReplayThroughProtocol)->ArgName("msgpack")->Arg(0)->Arg(1)
     ->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(3);
 
+// Flies `scenario` once per iteration; the real-time factor as a counter.
+void FlyAndCount(benchmark::State& state, const Scenario& scenario,
+                 const tofu::harness::SimulateOptions& options) {
+  double simulated_s = 0.0;
+  for (auto _ : state) {
+    const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
+    if (record.failure) {
+      state.SkipWithError(record.failure->c_str());
+      return;
+    }
+    benchmark::DoNotOptimize(record.groundtruth.data());
+    simulated_s += static_cast<double>(record.physics_steps) / scenario.physics.rate_hz;
+  }
+  state.counters["real_time_factor"] = benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
+}
+
 // 60 s of the paper's sensors and its VIO divergence, flown on `method`.
 void BM_ClosedLoopThroughClient(benchmark::State& state) {
   static const char* kMethods[] = {"consensus", "external:host", "plugin:builtin"};
@@ -136,17 +152,7 @@ void BM_ClosedLoopThroughClient(benchmark::State& state) {
   scenario.estimation->methods = {"consensus", "external:host", "plugin:builtin"};
   tofu::harness::SimulateOptions options;
   options.fly_on = method;
-  double simulated_s = 0.0;
-  for (auto _ : state) {
-    const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
-    if (record.failure) {
-      state.SkipWithError(record.failure->c_str());
-      return;
-    }
-    benchmark::DoNotOptimize(record.groundtruth.data());
-    simulated_s += static_cast<double>(record.physics_steps) / scenario.physics.rate_hz;
-  }
-  state.counters["real_time_factor"] = benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
+  FlyAndCount(state, scenario, options);
 }
 BENCHMARK(BM_ClosedLoopThroughClient)->ArgName("consensus_host_plugin")->Arg(0)->Arg(1)->Arg(2)
     ->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1)->Repetitions(3);
@@ -156,16 +162,7 @@ void BM_PythonEkfClosedLoop(benchmark::State& state) {
       (SourceDir() / "scenarios/clients/python_ekf_wall.yaml").string());
   tofu::harness::SimulateOptions options;
   options.fly_on = "external:python_ekf";
-  double simulated_s = 0.0;
-  for (auto _ : state) {
-    const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
-    if (record.failure) {
-      state.SkipWithError(record.failure->c_str());
-      return;
-    }
-    simulated_s += static_cast<double>(record.physics_steps) / scenario.physics.rate_hz;
-  }
-  state.counters["real_time_factor"] = benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
+  FlyAndCount(state, scenario, options);
 }
 BENCHMARK(BM_PythonEkfClosedLoop)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1)
     ->Repetitions(3);

@@ -96,7 +96,6 @@ std::unique_ptr<api::Controller> StartController(const replay::ClientSpec* clien
       config.name = client->Name();
       config.command = client->command;
       config.working_dir = client->working_dir;
-      config.config_json = client->config_json;
       config.timeout_s = client->timeout_s;
       config.max_in_flight = 1;
       controller = std::make_unique<interface::ProcessController>(std::move(config));

@@ -35,7 +35,6 @@ struct ProcessClientConfig {
   std::string name;                  ///< "external:<key>": in messages and errors
   std::vector<std::string> command;  ///< argv; command[0] looked up on PATH if no '/'
   std::filesystem::path working_dir; ///< the client runs here (the scenario's directory)
-  std::string config_json = "{}";    ///< the scenario's `config:` map, JSON text
   double timeout_s = 10.0;           ///< deadline for each answer
   /// Open loop: measurements sent ahead of the answers read (1 = strict lockstep).
   std::size_t max_in_flight = 256;

@@ -360,7 +360,6 @@ std::unique_ptr<api::Estimator> StartClient(const RecordedLog& log, const Replay
     config.name = method.name;
     config.command = spec.command;
     config.working_dir = spec.working_dir;
-    config.config_json = spec.config_json;
     config.timeout_s = spec.timeout_s;
     estimator = std::make_unique<interface::ProcessEstimator>(std::move(config));
   } else {

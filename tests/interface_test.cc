@@ -772,7 +772,6 @@ class ProcessClient : public ::testing::Test {
     config.name = "external:cpp";
     config.command = {TOFU_TEST_CLIENT, role, interface::EncodingName(encoding)};
     config.working_dir = dir_;
-    config.config_json = R"({"actuators":true})";
     return config;
   }
 
