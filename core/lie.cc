@@ -58,6 +58,19 @@ double RotationAngleBetween(const Eigen::Matrix3d& R_a, const Eigen::Matrix3d& R
   return LogSO3(R_a.transpose() * R_b).norm();
 }
 
+double YawOfNearestZRotation(const Eigen::Matrix3d& R) {
+  return std::atan2(R(1, 0) - R(0, 1), R(0, 0) + R(1, 1));
+}
+
+Eigen::Isometry3d YawPositionRegistration(const Eigen::Isometry3d& T_AX,
+                                          const Eigen::Isometry3d& T_BX) {
+  const double yaw_rad = YawOfNearestZRotation(T_AX.linear() * T_BX.linear().transpose());
+  Eigen::Isometry3d T_AB = Eigen::Isometry3d::Identity();
+  T_AB.linear() = Eigen::AngleAxisd(yaw_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T_AB.translation() = T_AX.translation() - T_AB.linear() * T_BX.translation();
+  return T_AB;
+}
+
 Eigen::Matrix3d RightJacobianSO3(const Eigen::Vector3d& phi) {
   const double theta = phi.norm();
   const Eigen::Matrix3d phi_hat = Hat(phi);

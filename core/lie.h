@@ -34,6 +34,18 @@ Eigen::Matrix3d RotationFromRollPitchYaw(double roll_rad, double pitch_rad, doub
 /// Angle in radians of the rotation R_a^T R_b, in [0, pi].
 double RotationAngleBetween(const Eigen::Matrix3d& R_a, const Eigen::Matrix3d& R_b);
 
+/// Yaw (rad, about z) of the rotation about z nearest to R in the Frobenius norm:
+/// atan2(R10 - R01, R00 + R11). For two gravity-aligned frames, their relative heading.
+double YawOfNearestZRotation(const Eigen::Matrix3d& R);
+
+/// The gravity-aligned registration T_AB (a rotation about z and a translation) that maps
+/// the pose X as B knows it onto the pose X as A knows it: yaw from R_AX R_BXᵀ (nearest z
+/// rotation), translation so that T_AB p_BX = p_AX exactly. Two frames that share the
+/// gravity direction (a VIO's local frame, a surveyed mission frame) differ by such a
+/// transform; "the robot is here" is T_AX.
+Eigen::Isometry3d YawPositionRegistration(const Eigen::Isometry3d& T_AX,
+                                          const Eigen::Isometry3d& T_BX);
+
 /// Right Jacobian of SO(3): Exp(φ + δφ) ≈ Exp(φ) Exp(Jr(φ) δφ) (Forster et al. 2016, eq. 8).
 Eigen::Matrix3d RightJacobianSO3(const Eigen::Vector3d& phi);
 /// Its inverse: Log(Exp(φ) Exp(δφ)) ≈ φ + Jr⁻¹(φ) δφ (Forster et al. 2016, eq. 9).

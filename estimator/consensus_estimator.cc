@@ -382,6 +382,16 @@ struct ConsensusEstimator::Impl {
     for (const std::string& name : record.decision.inconsistent) {
       estimator.RestartAlignment(name);
     }
+    // The mission frame may follow any surveyed sensor consensus has not excluded: one it
+    // cannot judge yet (unavailable to the matrix without a usable alignment) is checked
+    // by its own fit.
+    std::vector<std::string> candidates;
+    for (const Sensor& sensor : sensors) {
+      const std::string& name = sensor.spec.name;
+      const auto& excluded = record.decision.excluded;
+      if (std::find(excluded.begin(), excluded.end(), name) == excluded.end()) candidates.push_back(name);
+    }
+    estimator.SetMissionCandidates(candidates);
     records.push_back(std::move(record));
   }
 
@@ -460,6 +470,10 @@ void ConsensusEstimator::Add(const core::StampedMeasurement& measurement) {
     impl.Evaluate(*impl.next_evaluation_ns);
     *impl.next_evaluation_ns += impl.options.evaluation_period_ns;
   }
+}
+
+void ConsensusEstimator::SetMissionSurvey(MissionSurvey survey) {
+  impl_->estimator.SetMissionSurvey(std::move(survey));
 }
 
 std::vector<EstimatorOutput> ConsensusEstimator::TakeOutputs() {

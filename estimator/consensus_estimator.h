@@ -89,6 +89,10 @@ class ConsensusEstimator {
   /// gates reject and count it; non-finite samples never reach the matrix).
   void Add(const core::StampedMeasurement& measurement);
 
+  /// The mission survey (MultiGraphEstimator::SetMissionSurvey): T_ML then follows the
+  /// surveyed sensors consensus fuses.
+  void SetMissionSurvey(MissionSurvey survey);
+
   /// Estimator outputs produced since the last call.
   std::vector<EstimatorOutput> TakeOutputs();
   /// Consensus evaluations since the last call.

@@ -63,6 +63,8 @@ struct PendingPair {
   core::Time t_ns = 0;
   Eigen::Vector3d p_A;
   Eigen::Matrix3d covariance_A;
+  bool for_alignment = true;  // the sensor's alignment graph was not frozen
+  bool for_mission = false;   // a trusted surveyed sensor: the mission frame's fit
 };
 
 // Yaw of a rotation about the z axis of its parent frame (ZYX convention).
@@ -136,6 +138,16 @@ struct MultiGraphEstimator::Impl {
   std::vector<std::string> fused_names;
   EstimatorCounters counters;
   std::vector<EstimatorOutput> outputs;
+  std::optional<MissionFrame> mission;
+  std::optional<std::vector<std::string>> mission_candidates;  // unset: the fused sensors
+
+  const std::vector<std::string>& MissionCandidates() const {
+    return mission_candidates ? *mission_candidates : fused_names;
+  }
+  bool IsMissionCandidate(const std::string& name) const {
+    const std::vector<std::string>& names = MissionCandidates();
+    return std::find(names.begin(), names.end(), name) != names.end();
+  }
 
   bool has_imu = false;
   core::Time last_imu_ns = 0;
@@ -638,6 +650,10 @@ struct MultiGraphEstimator::Impl {
                                                (options.alignment_local_position_std_m *
                                                 options.alignment_local_position_std_m);
       pair.p_Ls_estimated = local->p_LI + local->q_LI * p.sensor->spec.T_Is.translation();
+      if (p.for_mission && mission) {
+        mission->AddPair(p.sensor->spec.name, p.t_ns, p.p_A, pair.p_Ls_estimated, p.covariance_A);
+      }
+      if (!p.for_alignment) continue;
       p.sensor->graph->AddPair(pair);
       p.sensor->graph->Update(p.t_ns);
     }
@@ -706,6 +722,13 @@ struct MultiGraphEstimator::Impl {
           out.position_covariance_m2 = P->topLeftCorner<3, 3>();
         }
         last_covariance_ns = t;
+      }
+      if (mission) {
+        Eigen::Isometry3d T_LI = Eigen::Isometry3d::Identity();
+        T_LI.linear() = now->state.q_LI.normalized().toRotationMatrix();
+        T_LI.translation() = now->state.p_LI;
+        mission->Update(now->t_ns, T_LI, MissionCandidates());
+        out.mission = mission->published();
       }
       outputs.push_back(std::move(out));
       while (next_output_ns <= t) next_output_ns += options.output_period_ns;
@@ -776,6 +799,7 @@ bool MultiGraphEstimatorOptions::IsValid(std::string* why) const {
   std::string nested;
   if (!local.IsValid(&nested)) return fail("local." + nested);
   if (!alignment.IsValid(&nested)) return fail("alignment." + nested);
+  if (!mission.IsValid(&nested)) return fail("mission." + nested);
   if (!visual_inertial.IsValid(&nested)) return fail("visual_inertial." + nested);
   // One gravity for the whole estimator: the alignment's must be the local graph's.
   if (visual_inertial.gravity_mps2 != local.gravity_mps2) {
@@ -866,11 +890,19 @@ void MultiGraphEstimator::Add(const core::StampedMeasurement& m) {
   }
   if (!impl.Gate(m.sensor, m.t_ns, finite, &sensor->has_last, &sensor->last_t_ns)) return;
 
-  // Alignment pair (not while frozen: the local estimate then follows this very sensor).
-  if (impl.smoother.initialized() && !sensor->graph->frozen()) {
+  // Alignment pair (not while frozen: the local estimate then follows this very sensor);
+  // the mission frame takes the positions of the trusted surveyed sensors, fused or not
+  // (it only reads where L is, it does not feed the local graph).
+  const bool for_alignment = !sensor->graph->frozen();
+  const bool for_mission = impl.mission && impl.IsMissionCandidate(m.sensor) &&
+                           impl.mission->Surveyed(m.sensor) &&
+                           std::holds_alternative<core::PositionMeasurement>(m.value);
+  if (impl.smoother.initialized() && (for_alignment || for_mission)) {
     PendingPair pair;
     pair.sensor = sensor;
     pair.t_ns = m.t_ns;
+    pair.for_alignment = for_alignment;
+    pair.for_mission = for_mission;
     if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
       pair.p_A = pose->p_Ss;
       pair.covariance_A = pose->covariance.bottomRightCorner<3, 3>();
@@ -908,6 +940,7 @@ bool MultiGraphEstimator::SetFusedSensors(const std::vector<std::string>& names)
       s->graph->SetFrozen(aligned || s->spec.kind == SensorKind::kPose);
     } else if (!want && s->fused) {
       impl.smoother.EndChain(s->id);
+      if (impl.mission && !impl.mission_candidates) impl.mission->Forget(s->spec.name);
       s->graph->SetFrozen(false);
       if (s->frozen_T_AL) RememberFrame(*s->frozen_T_AL, s.get());
       s->frozen_T_AL.reset();
@@ -951,6 +984,24 @@ bool MultiGraphEstimator::RestartAlignment(const std::string& name) {
 void MultiGraphEstimator::SetKnownAlignment(const std::string& sensor,
                                             const Eigen::Isometry3d& T_AL) {
   if (SensorState* s = impl_->Find(sensor)) s->known_T_AL = T_AL;
+}
+
+void MultiGraphEstimator::SetMissionSurvey(MissionSurvey survey) {
+  impl_->mission.emplace(impl_->options.mission, std::move(survey));
+}
+
+void MultiGraphEstimator::SetMissionCandidates(const std::vector<std::string>& names) {
+  Impl& impl = *impl_;
+  if (impl.mission) {
+    for (const std::string& name : impl.MissionCandidates()) {
+      if (std::find(names.begin(), names.end(), name) == names.end()) impl.mission->Forget(name);
+    }
+  }
+  impl.mission_candidates = names;
+}
+
+std::string MultiGraphEstimator::MissionFrameSource() const {
+  return impl_->mission ? impl_->mission->source() : std::string();
 }
 
 std::vector<EstimatorOutput> MultiGraphEstimator::TakeOutputs() {

@@ -28,6 +28,7 @@
 #include "estimator/alignment_graph.h"
 #include "estimator/imu_preintegration.h"
 #include "estimator/local_smoother.h"
+#include "estimator/mission_frame.h"
 #include "estimator/visual_inertial_alignment.h"
 
 namespace tofu::estimator {
@@ -123,6 +124,9 @@ struct MultiGraphEstimatorOptions {
   /// Consecutive bad solves after which the local graph is re-initialised from the
   /// propagated state.
   int max_consecutive_bad_solves = 3;
+  /// The global output T_ML (estimator/mission_frame.h), published once a mission survey
+  /// is given (SetMissionSurvey).
+  MissionFrameOptions mission;
 
   /// True when the options (the nested ones too) are usable; otherwise false with the
   /// broken constraint in *why (if why is not null).
@@ -143,6 +147,9 @@ struct EstimatorOutput {
   /// block is kept: every output of a flight is held until its end (200 Hz per method),
   /// and the whole 15x15 made an output 2 kB (issue 19: memory grows with flight time).
   std::optional<Eigen::Matrix3d> position_covariance_m2;
+  /// The mission frame in L (estimator/mission_frame.h), once a survey was given and
+  /// either the launch pad registered L or a trusted surveyed sensor aligned it.
+  std::optional<MissionFrameEstimate> mission;
 };
 
 /// How and when the local graph was (re-)initialised.
@@ -225,6 +232,18 @@ class MultiGraphEstimator {
   /// A known T_AL (e.g. the ground truth handed to the naive baseline), used instead of
   /// the sensor's alignment graph.
   void SetKnownAlignment(const std::string& sensor, const Eigen::Isometry3d& T_AL);
+
+  /// What is known of the mission frame M: from now on every output carries T_ML
+  /// (registered at the first output to the launch pad, then following the fused
+  /// surveyed sensors). Without a call, outputs carry none.
+  void SetMissionSurvey(MissionSurvey survey);
+  /// The surveyed sensors T_ML may follow (each also has to explain its positions:
+  /// MissionFrameOptions::max_fit_chi2_per_dof). Until the first call: the fused ones.
+  /// Consensus names every sensor it has not excluded, so that one it cannot judge yet
+  /// still serves when its positions fit.
+  void SetMissionCandidates(const std::vector<std::string>& names);
+  /// The surveyed sensor the published T_ML follows now (empty: none).
+  std::string MissionFrameSource() const;
 
   /// Outputs produced since the last call.
   std::vector<EstimatorOutput> TakeOutputs();
