@@ -265,7 +265,8 @@ void WriteControl(W& w, std::int64_t seq, const api::ControlState& state,
 
 template <class W>
 void WriteEstimate(W& w, const api::Estimate& e) {
-  w.BeginObject(9 + (e.position_covariance_m2 ? 1 : 0) + (e.fused ? 1 : 0));
+  w.BeginObject(9 + (e.position_covariance_m2 ? 1 : 0) + (e.fused ? 1 : 0) + (e.T_ML ? 2 : 0) +
+                (e.T_ML_covariance ? 1 : 0));
   w.Key("t_ns");
   w.Int(e.t_ns);
   w.Key("valid");
@@ -285,6 +286,11 @@ void WriteEstimate(W& w, const api::Estimate& e) {
     for (const std::string& name : *e.fused) w.String(name);
     w.EndArray();
   }
+  if (e.T_ML) {
+    WriteArray(w, "p_ML_m", e.T_ML->p_m);
+    WriteArray(w, "q_ML_wxyz", e.T_ML->q_wxyz);
+  }
+  if (e.T_ML_covariance) WriteArray(w, "T_ML_covariance", *e.T_ML_covariance);
   w.EndObject();
 }
 
@@ -539,6 +545,16 @@ class Reader {
   std::optional<std::int64_t> expected_seq_;
 };
 
+// A quaternion tofu can normalise: non-zero, finite norm.
+void RequireRotation(const Reader& r, const Value& object, const Path& path, std::string_view key,
+                     const api::Quat& q) {
+  const double norm2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+  if (!(norm2 > 0.0) || !std::isfinite(norm2)) {
+    r.Fail(path.Member(key), "a quaternion [w, x, y, z] of non-zero, finite norm (tofu normalises it)",
+           *object.Find(key));
+  }
+}
+
 // One estimate of an `estimates` or `finished` message.
 api::Estimate ReadEstimate(const Reader& r, const Value& value, const Path& path) {
   const Value object = r.Object(value, path, "an object (an estimate)");
@@ -547,13 +563,7 @@ api::Estimate ReadEstimate(const Reader& r, const Value& value, const Path& path
   e.valid = r.Bool(r.Member(object, path, "valid", "a boolean"), path.Member("valid"));
   r.Finite(object, path, "p_LI_m", &e.T_LI.p_m);
   r.Finite(object, path, "q_LI_wxyz", &e.T_LI.q_wxyz);
-  const api::Quat& q = e.T_LI.q_wxyz;
-  const double norm2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-  if (!(norm2 > 0.0) || !std::isfinite(norm2)) {
-    r.Fail(path.Member("q_LI_wxyz"),
-           "a quaternion [w, x, y, z] of non-zero, finite norm (tofu normalises it)",
-           *object.Find("q_LI_wxyz"));
-  }
+  RequireRotation(r, object, path, "q_LI_wxyz", e.T_LI.q_wxyz);
   r.Finite(object, path, "v_L_mps", &e.v_L_mps);
   r.Finite(object, path, "omega_I_radps", &e.omega_I_radps);
   e.initialized = e.valid;
@@ -576,6 +586,23 @@ api::Estimate ReadEstimate(const Reader& r, const Value& value, const Path& path
       names.emplace_back(r.String((*fused)[i], fused_path.Element(i)));
     }
   }
+  const bool has_p_ML = r.Optional(object, "p_ML_m").has_value();
+  const bool has_q_ML = r.Optional(object, "q_ML_wxyz").has_value();
+  if (has_p_ML != has_q_ML) {
+    const char* missing = has_p_ML ? "q_ML_wxyz" : "p_ML_m";
+    r.Fail(path.Member(missing),
+           "present with its other half (T_ML is p_ML_m and q_ML_wxyz, both or neither)",
+           *object.Find(has_p_ML ? "p_ML_m" : "q_ML_wxyz"));
+  }
+  if (has_p_ML) {
+    api::Pose& T_ML = e.T_ML.emplace();
+    r.Finite(object, path, "p_ML_m", &T_ML.p_m);
+    r.Finite(object, path, "q_ML_wxyz", &T_ML.q_wxyz);
+    RequireRotation(r, object, path, "q_ML_wxyz", T_ML.q_wxyz);
+  }
+  if (r.Optional(object, "T_ML_covariance")) {
+    r.Finite(object, path, "T_ML_covariance", &e.T_ML_covariance.emplace());
+  }
   return e;
 }
 
@@ -589,10 +616,13 @@ void ReadEstimateArray(const Reader& r, const Value& array, const Path& path,
   }
 }
 
-api::Pose ReadPose(const Reader& r, const Value& object, const Path& path) {
+// A pose object {"p_m": [3], "q_wxyz": [4]} at `path`.
+api::Pose ReadPoseObject(const Reader& r, const Value& value, const Path& path) {
+  const Value object = r.Object(value, path, "a pose {\"p_m\": [3], \"q_wxyz\": [4]}");
   api::Pose pose;
   r.Finite(object, path, "p_m", &pose.p_m);
   r.Finite(object, path, "q_wxyz", &pose.q_wxyz);
+  RequireRotation(r, object, path, "q_wxyz", pose.q_wxyz);
   return pose;
 }
 
@@ -632,12 +662,14 @@ json HelloMessage(std::string_view role, std::string_view name) {
 json SetupMessage(const api::EstimatorSetup& setup) {
   json sensors = json::array();
   for (const api::SensorInfo& s : setup.sensors) {
-    sensors.push_back({{"name", s.name},
-                       {"kind", api::SensorKindName(s.kind)},
-                       {"T_Is", PoseJson(s.T_Is)},
-                       {"covariance_stated", s.covariance_stated}});
+    json sensor = {{"name", s.name},
+                   {"kind", api::SensorKindName(s.kind)},
+                   {"T_Is", PoseJson(s.T_Is)},
+                   {"covariance_stated", s.covariance_stated}};
+    if (s.T_MS) sensor["T_MS"] = PoseJson(*s.T_MS);
+    sensors.push_back(std::move(sensor));
   }
-  return {{"type", "setup"},
+  json message = {{"type", "setup"},
           {"method", setup.method},
           {"imu", setup.imu},
           {"sensors", std::move(sensors)},
@@ -645,6 +677,8 @@ json SetupMessage(const api::EstimatorSetup& setup) {
           {"config", ParseObject(setup.config_json, "setup: config")},
           {"calibration_yaml", setup.calibration_yaml},
           {"estimation_yaml", setup.estimation_yaml}};
+  if (setup.T_MI_launch) message["T_MI_launch"] = PoseJson(*setup.T_MI_launch);
+  return message;
 }
 
 json SetupMessage(const api::ControllerSetup& setup) {
@@ -883,12 +917,12 @@ api::EstimatorSetup DecodeSetup(const Message& message) {
     } else {
       r.Fail(path.Member("kind"), "\"imu\", \"pose\" or \"position\"", kind);
     }
-    const Path mount = path.Member("T_Is");
-    info.T_Is = ReadPose(r, r.Object(r.Member(sensor, path, "T_Is", "a pose"), mount,
-                                     "a pose {\"p_m\": [3], \"q_wxyz\": [4]}"),
-                         mount);
+    info.T_Is = ReadPoseObject(r, r.Member(sensor, path, "T_Is", "a pose"), path.Member("T_Is"));
     info.covariance_stated = r.Bool(r.Member(sensor, path, "covariance_stated", "a boolean"),
                                     path.Member("covariance_stated"));
+    if (const auto T_MS = r.Optional(sensor, "T_MS")) {
+      info.T_MS = ReadPoseObject(r, *T_MS, path.Member("T_MS"));
+    }
   }
   setup.imu = Index(r, r.Member(object, root, "imu", "an index into sensors"), root.Member("imu"),
                     setup.sensors.size(), "sensors");
@@ -899,6 +933,9 @@ api::EstimatorSetup DecodeSetup(const Message& message) {
                                     root.Member("calibration_yaml"));
   setup.estimation_yaml = r.String(r.Member(object, root, "estimation_yaml", "a string"),
                                    root.Member("estimation_yaml"));
+  if (const auto T_MI_launch = r.Optional(object, "T_MI_launch")) {
+    setup.T_MI_launch = ReadPoseObject(r, *T_MI_launch, root.Member("T_MI_launch"));
+  }
   return setup;
 }
 

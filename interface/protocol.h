@@ -29,7 +29,7 @@ namespace tofu::interface {
 // ---------------------------------------------------------------------------------------
 // tofu → client
 
-/// {"type": "hello", "protocol": "tofu", "version": 1, "role", "name", "encodings"}.
+/// {"type": "hello", "protocol": "tofu", "version": 2, "role", "name", "encodings"}.
 /// `role` is "estimator" or "controller".
 nlohmann::json HelloMessage(std::string_view role, std::string_view name);
 /// The estimator's setup; setup.config_json must hold a JSON object (ProtocolError).

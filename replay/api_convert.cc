@@ -110,6 +110,13 @@ api::Estimate ToApiEstimate(estimator::EstimatorOutput&& o) {
   e.bias_gyro_radps = ToApi(o.bias.gyro_radps);
   if (o.position_covariance_m2) e.position_covariance_m2 = ToApiMatrix<3>(*o.position_covariance_m2);
   e.fused = std::move(o.fused);
+  if (o.mission) {
+    e.T_ML = api::Pose{ToApi(o.mission->p_ML_m), ToApi(o.mission->q_ML)};
+    // [δp; δθ]: the heading is the rotation about z; roll and pitch are gravity's.
+    Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+    covariance.diagonal() << o.mission->variance.head<3>(), 0.0, 0.0, o.mission->variance.w();
+    e.T_ML_covariance = ToApiMatrix<6>(covariance);
+  }
   return e;
 }
 
@@ -126,6 +133,15 @@ estimator::EstimatorOutput FromApiEstimate(api::Estimate&& e) {
   o.bias.gyro_radps = FromApi(e.bias_gyro_radps);
   if (e.position_covariance_m2) o.position_covariance_m2 = FromApiMatrix<3>(*e.position_covariance_m2);
   if (e.fused) o.fused = std::move(*e.fused);
+  if (e.T_ML) {
+    estimator::MissionFrameEstimate& mission = o.mission.emplace();
+    mission.p_ML_m = FromApi(e.T_ML->p_m);
+    mission.q_ML = FromApi(e.T_ML->q_wxyz);
+    if (e.T_ML_covariance) {
+      const Eigen::Matrix<double, 6, 6> covariance = FromApiMatrix<6>(*e.T_ML_covariance);
+      mission.variance << covariance.diagonal().head<3>(), covariance(5, 5);
+    }
+  }
   return o;
 }
 
@@ -140,9 +156,11 @@ api::EstimatorSetup ApiSetupOf(const RecordedLog& log, double gravity_mps2) {
                                               : api::SensorKind::kPosition;
     info.T_Is = ToApiPose(s.T_Is);
     info.covariance_stated = s.covariance_stated;
+    if (s.T_MS) info.T_MS = ToApiPose(*s.T_MS);
     if (s.name == log.imu_stream) setup.imu = setup.sensors.size();
     setup.sensors.push_back(std::move(info));
   }
+  if (log.T_MI_launch) setup.T_MI_launch = ToApiPose(*log.T_MI_launch);
   return setup;
 }
 

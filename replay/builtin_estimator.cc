@@ -125,6 +125,18 @@ void BuiltinEstimator::Start(const api::EstimatorSetup& setup) {
                                               setup.sensors[i].name, impl_->streams[i].name));
     }
   }
+  // The mission frame: the launch pad and the surveyed frames, as any estimator is told.
+  estimator::MissionSurvey survey;
+  if (setup.T_MI_launch) survey.T_MI_launch = FromApiPose(*setup.T_MI_launch);
+  for (const api::SensorInfo& sensor : setup.sensors) {
+    if (sensor.T_MS) survey.T_MS[sensor.name] = FromApiPose(*sensor.T_MS);
+  }
+  if (!survey.T_MI_launch && survey.T_MS.empty()) return;
+  if (impl_->consensus) {
+    impl_->consensus->SetMissionSurvey(std::move(survey));
+  } else {
+    impl_->fixed->SetMissionSurvey(std::move(survey));
+  }
 }
 
 void BuiltinEstimator::Add(const api::Measurement& measurement, std::vector<api::Estimate>* out) {

@@ -453,6 +453,9 @@ Eigen::Isometry3d ApplyCalibration(const RunCalibration& cal, RecordedLog& log) 
     for (RecordedStream& s : log.streams) {
       const auto it = cal.sensors.find(s.name);
       if (it != cal.sensors.end()) s.true_T_WS = it->second.true_T_WS;
+      if (const auto surveyed = cal.T_MS.find(s.name); surveyed != cal.T_MS.end()) {
+        s.T_MS = surveyed->second;
+      }
       if (it == cal.sensors.end() || !it->second.T_Bs) {
         log.notes.push_back(fmt::format("{}: no mount in calibration.yaml, T_I_s = identity",
                                         s.name));
@@ -470,6 +473,9 @@ Eigen::Isometry3d ApplyCalibration(const RunCalibration& cal, RecordedLog& log) 
       }
     }
     log.notes.push_back("mounts: T_I_s = T_B_I^-1 T_B_s from calibration.yaml");
+    // The nominal mount: the launch pad is what the operator states, through what the
+    // flight stack is told of the IMU.
+    if (cal.T_MB_launch) log.T_MI_launch = *cal.T_MB_launch * T_BI;
   }
   if (!log.imu_stream.empty()) {
     if (cal.present) {

@@ -71,6 +71,9 @@ struct RecordedStream {
   /// The true pose of the stream's reference frame S in W (calibration.yaml true_T_WS):
   /// scoring only, and the privileged information of the `naive` baseline.
   std::optional<Eigen::Isometry3d> true_T_WS;
+  /// The reference frame S as surveyed in the mission frame M (calibration.yaml
+  /// mission.T_MS): what an estimator is told of an absolute sensor's frame.
+  std::optional<Eigen::Isometry3d> T_MS;
 };
 
 /// IMU noise densities as calibration.yaml gives them (the IMU sensor's options).
@@ -132,6 +135,9 @@ struct RecordedLog {
   std::vector<std::string> notes;       ///< what was read and what was assumed
   /// calibration.yaml's text ("" without one): what a user's estimator is told.
   std::string calibration_yaml;
+  /// The IMU's pose in M at launch (mission.T_MB_launch through the nominal IMU mount);
+  /// unset when calibration.yaml states no launch pad (a recorded real log).
+  std::optional<Eigen::Isometry3d> T_MI_launch;
 };
 
 /// Reads the recorded streams of `directory` (layout (a) or (b) above).

@@ -455,6 +455,10 @@ MethodRunner::MethodRunner(const RecordedLog& log, const ReplayMethod& method,
   if (method.kind != ReplayMethod::Kind::kClient) {
     auto builtin = std::make_unique<BuiltinEstimator>(
         log, method, EstimationSetup{options, sensors, consensus_options});
+    // Told what any estimator is told (the mission survey among it).
+    api::EstimatorSetup setup = ApiSetupOf(log, texts.gravity_mps2);
+    setup.method = method.name;
+    builtin->Start(setup);
     m.builtin = builtin.get();
     m.estimator = std::move(builtin);
     for (const LabelEvent& label : log.labels) AddLabel(label);

@@ -139,6 +139,24 @@ std::optional<core::LidarBeamPattern> RunCalibration::LidarBeams(
   return beams;
 }
 
+namespace {
+
+// A map of names (sites, sensors: `what`) to poses at `key`.
+std::map<std::string, Eigen::Isometry3d> YamlPoseMap(const YAML::Node& node, const std::string& file,
+                                                     const std::string& key, const std::string& what) {
+  if (!node.IsMap()) {
+    throw YamlError(file, node.Mark(), key, fmt::format("expected a map of {} name to pose", what));
+  }
+  std::map<std::string, Eigen::Isometry3d> poses;
+  for (const auto& entry : node) {
+    const std::string name = YamlText(entry.first, file, key);
+    poses[name] = YamlPose(entry.second, file, key + "." + name);
+  }
+  return poses;
+}
+
+}  // namespace
+
 RunCalibration ParseRunCalibration(const std::string& text, const std::string& file) {
   RunCalibration cal;
   cal.present = true;
@@ -146,13 +164,17 @@ RunCalibration ParseRunCalibration(const std::string& text, const std::string& f
   const YAML::Node root = LoadYamlText(text, file);
   if (root.IsNull()) return cal;
   if (!root.IsMap()) throw YamlError(file, root.Mark(), "", "expected a map (tofu calibration)");
-  if (const YAML::Node mounts = root["mounts"]) {
-    if (!mounts.IsMap()) {
-      throw YamlError(file, mounts.Mark(), "mounts", "expected a map of site name to pose");
+  if (const YAML::Node mounts = root["mounts"]) cal.mounts = YamlPoseMap(mounts, file, "mounts", "site");
+  if (const YAML::Node mission = root["mission"]) {
+    if (!mission.IsMap()) {
+      throw YamlError(file, mission.Mark(), "mission",
+                      "expected a map {T_MB_launch: pose, T_MS: {<sensor>: pose}}");
     }
-    for (const auto& entry : mounts) {
-      const std::string name = YamlText(entry.first, file, "mounts");
-      cal.mounts[name] = YamlPose(entry.second, file, "mounts." + name);
+    if (mission["T_MB_launch"]) {
+      cal.T_MB_launch = YamlPose(mission["T_MB_launch"], file, "mission.T_MB_launch");
+    }
+    if (const YAML::Node surveyed = mission["T_MS"]) {
+      cal.T_MS = YamlPoseMap(surveyed, file, "mission.T_MS", "sensor");
     }
   }
   const YAML::Node sensors = root["sensors"];

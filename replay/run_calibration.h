@@ -17,6 +17,9 @@
 //     true_T_WS: pose                         the stream's reference frame S in W (scoring)
 //     sky_directions_S: [[x, y, z], ...]      GNSS: unit satellite directions in S
 //     options: {<key>: <scalar>, ...}}}       the sensor's options, units in the key names
+//   mission:                                  what the operator knows of the mission frame M
+//     T_MB_launch: pose                       the launch pad: the body's pose in M
+//     T_MS: {<name>: pose}                    surveyed reference frames of absolute sensors
 
 #include <filesystem>
 #include <map>
@@ -56,6 +59,9 @@ struct RunCalibration {
   std::string file;      ///< named in error messages
   std::map<std::string, Eigen::Isometry3d> mounts;
   std::map<std::string, SensorCalibration> sensors;
+  /// `mission:` (absent in a user's calibration of a recorded log).
+  std::optional<Eigen::Isometry3d> T_MB_launch;
+  std::map<std::string, Eigen::Isometry3d> T_MS;
 
   /// sensors.<sensor>.options.<key> as a number; nullopt when the sensor, its options or
   /// the key is absent. Throws core::InputError at the value's line when it is not a number.

@@ -145,7 +145,7 @@ def send(m):
 for line in sys.stdin:
     m = json.loads(line)
     t = m['type']
-    if t == 'hello': send({'type': 'hello', 'version': 1})
+    if t == 'hello': send({'type': 'hello', 'version': 2})
     elif t == 'setup': send({'type': 'ready'})
     elif t == 'measurement':
         seq = m['seq']

@@ -321,7 +321,7 @@ TEST(Protocol, ClientMessagesRoundTripThroughTofusDecodersInBothEncodings) {
         interface::DecodeClientHello(Transfer(interface::ClientHelloMessage(Encoding::kMsgpack), encoding));
     EXPECT_EQ(hello.version, api::kApiVersion);
     EXPECT_EQ(hello.encoding, Encoding::kMsgpack);
-    EXPECT_EQ(interface::DecodeClientHello(json{{"type", "hello"}, {"version", 1}}).encoding,
+    EXPECT_EQ(interface::DecodeClientHello(json{{"type", "hello"}, {"version", 2}}).encoding,
               Encoding::kJson);
     interface::DecodeReady(Transfer(interface::ReadyMessage(), encoding));
 
@@ -550,10 +550,10 @@ TEST(Protocol, BadCommandsAndHellosAreRefusedWithBothSidesNamed) {
   EXPECT_CONTAINS(ProtocolErrorOf([&] { interface::DecodeCommand(missing_torque, 0, 6); }),
                   "command seq=0: torque_B_Nm: missing");
 
-  EXPECT_CONTAINS(ProtocolErrorOf([] { interface::DecodeClientHello(json{{"type", "hello"}, {"version", 2}}); }),
-                  "hello: version: the client speaks protocol version 2, this tofu speaks version 1");
+  EXPECT_CONTAINS(ProtocolErrorOf([] { interface::DecodeClientHello(json{{"type", "hello"}, {"version", 3}}); }),
+                  "hello: version: the client speaks protocol version 3, this tofu speaks version 2");
   EXPECT_CONTAINS(ProtocolErrorOf([] {
-                    interface::DecodeClientHello(json{{"type", "hello"}, {"version", 1}, {"encoding", "xml"}});
+                    interface::DecodeClientHello(json{{"type", "hello"}, {"version", 2}, {"encoding", "xml"}});
                   }),
                   "hello: encoding: expected \"json\" or \"msgpack\", got \"xml\"");
   EXPECT_CONTAINS(ProtocolErrorOf([] { interface::DecodeClientHello(json{{"type", "hello"}}); }),
@@ -654,7 +654,7 @@ if mode == "garbage_hello":
     sys.stdout.write("hello tofu\n")
     sys.stdout.flush()
     time.sleep(100)
-send({"type": "hello", "version": 2 if mode == "version2" else 1})
+send({"type": "hello", "version": 3 if mode == "other_version" else 2})
 setup = json.loads(sys.stdin.readline())
 if mode == "grandchild":
     subprocess.Popen(["sleep", "1000"])
@@ -712,7 +712,7 @@ def send(message):
     sys.stdout.flush()
 hello = json.loads(sys.stdin.readline())
 assert hello["role"] == "controller", hello
-send({"type": "hello", "version": 1, "encoding": "json"})
+send({"type": "hello", "version": 2, "encoding": "json"})
 setup = json.loads(sys.stdin.readline())
 arms = setup["arm_count"]
 send({"type": "ready"})
@@ -1018,9 +1018,9 @@ TEST_F(ProcessClient, MalformedAnswersAreRefusedNamingMessageAndField) {
 }
 
 TEST_F(ProcessClient, BadHellosAndEndingsAreRefused) {
-  EXPECT_CONTAINS(RunUntilError(Python("version2")).what(),
-                  "external:test: hello: version: the client speaks protocol version 2, this tofu speaks "
-                  "version 1");
+  EXPECT_CONTAINS(RunUntilError(Python("other_version")).what(),
+                  "external:test: hello: version: the client speaks protocol version 3, this tofu speaks "
+                  "version 2");
   ExpectNothingLeft();
   EXPECT_CONTAINS(RunUntilError(Python("garbage_hello", 2.0)).what(),
                   "a line that is not valid JSON");
@@ -1152,7 +1152,7 @@ std::string ClientErrorOf(Call&& call) {
 
 TEST(Plugin, RefusesOtherVersionsAndUnknownNamesAndReportsThrows) {
   EXPECT_CONTAINS(ClientErrorOf([] { interface::PluginLibrary::Open(TOFU_TEST_PLUGIN_WRONG_VERSION); }),
-                  "built against tofu API version 2, this tofu speaks version 1");
+                  "built against tofu API version 3, this tofu speaks version 2");
   EXPECT_CONTAINS(ClientErrorOf([] { interface::PluginLibrary::Open(TOFU_TEST_PLUGIN_NO_VERSION); }),
                   "not a tofu plug-in: it defines no tofu_plugin_api_version");
   EXPECT_CONTAINS(ClientErrorOf([] { interface::PluginLibrary::Open("/no/such/libplugin.so"); }),

@@ -290,7 +290,7 @@ def converse(script, messages, timeout_s=300):
     return answers, status, b"".join(stderr_chunks).decode(errors="replace"), wall
 
 
-HELLO_ESTIMATOR = {"type": "hello", "protocol": "tofu", "version": 1, "role": "estimator",
+HELLO_ESTIMATOR = {"type": "hello", "protocol": "tofu", "version": 2, "role": "estimator",
                    "name": "external:test", "encodings": ["json", "msgpack"]}
 HELLO_CONTROLLER = dict(HELLO_ESTIMATOR, role="controller")
 
@@ -308,7 +308,7 @@ class EkfEstimatorTest(unittest.TestCase):
     def test_protocol_answers(self):
         a = self.answers
         self.assertEqual(self.status, 0, self.stderr[-2000:])
-        self.assertEqual(a[0], {"type": "hello", "version": 1, "encoding": "json"})
+        self.assertEqual(a[0], {"type": "hello", "version": 2, "encoding": "json"})
         self.assertEqual(a[1], {"type": "ready"})
         self.assertEqual(a[-1]["type"], "finished")
         self.assertIsInstance(a[-1]["report"], dict)
@@ -527,7 +527,7 @@ class PdControllerTest(unittest.TestCase):
 
         try:
             send(HELLO_CONTROLLER)
-            self.assertEqual(receive(), {"type": "hello", "version": 1, "encoding": "json"})
+            self.assertEqual(receive(), {"type": "hello", "version": 2, "encoding": "json"})
             send({"type": "setup", "name": "external:test_pd", "rate_hz": rate_hz,
                   "mass_kg": 4.5, "inertia_B_kgm2": J_nominal.ravel().tolist(),
                   "gravity_mps2": G, "arm_count": 6, "max_rotor_thrust_N": 12.0,
@@ -666,7 +666,7 @@ class MsgpackEncodingTest(unittest.TestCase):
         proc.stdin.write(json.dumps(HELLO_ESTIMATOR).encode() + b"\n")
         proc.stdin.flush()
         hello = json.loads(proc.stdout.readline())
-        self.assertEqual(hello, {"type": "hello", "version": 1, "encoding": "msgpack"})
+        self.assertEqual(hello, {"type": "hello", "version": 2, "encoding": "msgpack"})
 
         def write_all():
             for msg in [setup] + measurements + [{"type": "finish"}]:

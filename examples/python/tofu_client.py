@@ -1,6 +1,6 @@
 """tofu_client: a small helper for writing tofu process clients in Python.
 
-Speaks tofu's lockstep protocol (docs/INTERFACE.md, version 1) on standard input and
+Speaks tofu's lockstep protocol (docs/INTERFACE.md, version 2) on standard input and
 standard output, and hands each message to an estimator or a controller object:
 
     estimator:  start(setup)                     setup message (dict), answered "ready"
@@ -37,7 +37,7 @@ import sys
 import time
 import traceback
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 
 
 class ProtocolError(Exception):

@@ -11,11 +11,12 @@
 //
 // Conventions (docs/DESIGN.md): SI units, the unit in each name; time as int64
 // nanoseconds since the run's start; T_AB is the pose of frame B in frame A
-// (p_A = T_AB p_B); quaternions Hamilton, unit, stored (w, x, y, z). Frames: W the
-// mission (simulator) world, z up; B the body; I the IMU; s a sensor's mount on the body;
-// S a sensor's reference frame (its odometry frame, the total station's or the GNSS's
-// ENU frame); L the estimator's own local frame, gravity aligned (z up), origin and yaw
-// its own.
+// (p_A = T_AB p_B); quaternions Hamilton, unit, stored (w, x, y, z). Frames: M the
+// mission frame, z up: the survey the mission is planned in, which is the simulator's
+// world W (the reference trajectory, the structure and the scoring are in it); B the
+// body; I the IMU; s a sensor's mount on the body; S a sensor's reference frame (its
+// odometry frame, the total station's or the GNSS's ENU frame); L the estimator's own
+// local frame, gravity aligned (z up), origin and yaw its own.
 //
 // Versioning: kApiVersion grows by one whenever a type or virtual function of this file
 // (or a message of the protocol) changes in a way an existing client would notice. A
@@ -29,7 +30,7 @@
 #include <string>
 #include <vector>
 
-#define TOFU_API_VERSION 1
+#define TOFU_API_VERSION 2
 
 namespace tofu::api {
 
@@ -75,6 +76,10 @@ struct SensorInfo {
   Pose T_Is;
   /// The samples carry the sensor's own covariance (false: a default was filled in).
   bool covariance_stated = true;
+  /// The sensor's reference frame S surveyed in M (a total station set up on surveyed
+  /// points, a GNSS ENU frame tied to the site's survey); unset: not surveyed (odometry
+  /// frames, which start wherever the sensor boots).
+  std::optional<Pose> T_MS;
 };
 
 /// Everything an estimator is told before the first sample.
@@ -91,6 +96,10 @@ struct EstimatorSetup {
   std::string calibration_yaml;
   /// The scenario's resolved `estimation:` block (YAML): tofu's own estimator settings.
   std::string estimation_yaml;
+  /// The IMU's pose in M at launch: the launch pad's surveyed pose through the nominal
+  /// mount, "the robot is here" as an operator states it (the robot waits there until
+  /// the closed loop hands over to the estimate). Unset: not known (a recorded log).
+  std::optional<Pose> T_MI_launch;
 };
 
 /// IMU: specific force f_I = R_WI^T (a_WI - g_W) and angular rate of I in I.
@@ -147,6 +156,14 @@ struct Estimate {
   /// The sensors (names) it fused at this moment, when it chooses sensors: exclusion,
   /// detection delay and re-admission are then scored for it as for consensus.
   std::optional<std::vector<std::string>> fused;
+  /// The global output: the mission frame M in L, gravity aligned (a heading and a
+  /// translation), from the launch pad and the surveyed sensors the estimator trusts.
+  /// A closed-loop flight flies the mission (stated in M) through it; without it, the
+  /// pilot registers L to the launch pad once, at the handover. Keep it continuous: the
+  /// controller sees every change of it as motion.
+  std::optional<Pose> T_ML;
+  /// Covariance of [delta_p (m, in M); delta_theta (rad)] of T_ML, when known.
+  std::optional<Mat6> T_ML_covariance;
 };
 
 class Estimator {
