@@ -25,28 +25,29 @@ const char* FlightModeName(FlightMode mode) {
   return "?";
 }
 
-ClosedLoopPilot::ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_BI)
-    : failsafe_(failsafe), T_BI_(T_BI) {}
+ClosedLoopPilot::ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_BI,
+                                 const Eigen::Isometry3d& T_MB_launch)
+    : failsafe_(failsafe), T_BI_(T_BI), T_MB_launch_(T_MB_launch) {}
 
-bool ClosedLoopPilot::TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest,
-                                  const Eigen::Isometry3d& T_WB_true) {
+bool ClosedLoopPilot::TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest) {
   if (handed_over_ || newest == nullptr || !newest->valid) return false;
-  // T_LB of the estimate; W = Rz(yaw) L + p: the z rotation nearest to R_WB R_LBᵀ.
   Eigen::Isometry3d T_LI = Eigen::Isometry3d::Identity();
   T_LI.linear() = newest->state.q_LI.normalized().toRotationMatrix();
   T_LI.translation() = newest->state.p_LI;
-  const Eigen::Isometry3d T_LB = T_LI * T_BI_.inverse();
-  const Eigen::Matrix3d R = T_WB_true.linear() * T_LB.linear().transpose();
-  const double yaw = std::atan2(R(1, 0) - R(0, 1), R(0, 0) + R(1, 1));
-  T_WL_ = Eigen::Isometry3d::Identity();
-  T_WL_.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  T_WL_.translation() = T_WB_true.translation() - T_WL_.linear() * T_LB.translation();
+  T_ML_launch_ = core::YawPositionRegistration(T_MB_launch_, T_LI * T_BI_.inverse());
   handed_over_ = true;
   mode_ = FlightMode::kEstimate;
-  events_.push_back({t_ns, "handover",
-                     fmt::format("estimate valid; W registered to L (yaw {:.3f} deg)",
-                                 core::DegFromRad(yaw))});
+  const std::string detail =
+      newest->mission
+          ? std::string("estimate valid; the mission flown through its T_ML")
+          : fmt::format("estimate valid; L registered to the launch pad (yaw {:.3f} deg)",
+                        core::DegFromRad(core::YawOfNearestZRotation(T_ML_launch_.linear())));
+  events_.push_back({t_ns, "handover", detail});
   return true;
+}
+
+Eigen::Isometry3d ClosedLoopPilot::T_ML(const estimator::EstimatorOutput& o) const {
+  return o.mission ? o.mission->T_ML() : T_ML_launch_;
 }
 
 sim::RobotState ClosedLoopPilot::StateOf(core::Time t_ns,
@@ -62,12 +63,13 @@ sim::RobotState ClosedLoopPilot::StateOf(core::Time t_ns,
   // p_LB = p_LI + R_LI p_IB, v_LB = v_LI + R_LI (ω_I × p_IB), ω_B = R_BI ω_I.
   const Eigen::Vector3d p_LB = p_LI + R_LI * p_IB;
   const Eigen::Vector3d v_LB = o.state.v_L_mps + R_LI * o.omega_I_radps.cross(p_IB);
-  const Eigen::Matrix3d& R_WL = T_WL_.linear();
+  const Eigen::Isometry3d T_ML = this->T_ML(o);
+  const Eigen::Matrix3d& R_ML = T_ML.linear();
   sim::RobotState state;
   state.t_ns = t_ns;
-  state.p_WB = T_WL_ * p_LB;
-  state.q_WB = Eigen::Quaterniond(R_WL * R_LI * R_IB).normalized();
-  state.v_WB_W = R_WL * v_LB;
+  state.p_WB = T_ML * p_LB;
+  state.q_WB = Eigen::Quaterniond(R_ML * R_LI * R_IB).normalized();
+  state.v_WB_W = R_ML * v_LB;
   state.omega_WB_B = T_BI_.linear() * o.omega_I_radps;
   return state;
 }

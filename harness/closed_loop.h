@@ -4,11 +4,14 @@
 // ground truth. The pilot below is what a flight stack puts between its estimator and
 // its position controller:
 //  - start-up: until the method reports a valid estimate, the robot hovers on ground
-//    truth (the stand-in for a take-off on a surveyed pose). At the first valid output it
-//    hands over and registers the mission frame W to the estimator's local frame L in
-//    yaw and position (L is gravity aligned, its yaw and origin are arbitrary, as a VIO's
-//    are), from the true pose at that instant: the operator's "the robot is here".
-//    After the handover the pilot never reads ground truth (its interface has none).
+//    truth over the launch pad (the stand-in for waiting on it). At the first valid
+//    output it hands over. From then on the mission, stated in the mission frame M (=
+//    W), is flown through the estimate's T_ML, the estimator's global output (the
+//    launch pad's registration, then the surveyed absolute sensors it trusts:
+//    estimator/mission_frame.h). An estimate without T_ML (a client's that does not
+//    publish one) is registered once, at the handover, to the launch pad's pose: the
+//    operator's "the robot is here". The pilot never reads ground truth (its interface
+//    has none).
 //  - failsafe: when the output is flagged invalid (no fused sensor for longer than the
 //    estimator's max_unfused_ns), stale (none for 100 ms: the IMU stopped reaching the
 //    estimator) or its position standard deviation passes an opt-in bound, the
@@ -79,14 +82,15 @@ struct FlightEvent {
 
 class ClosedLoopPilot {
  public:
-  /// `T_BI`: the IMU's nominal mount (what the estimator is given).
-  ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_BI);
+  /// `T_BI`: the IMU's nominal mount (what the estimator is given); `T_MB_launch`: the
+  /// launch pad's pose of B in M, as the scenario states it.
+  ClosedLoopPilot(const FailsafeConfig& failsafe, const Eigen::Isometry3d& T_BI,
+                  const Eigen::Isometry3d& T_MB_launch);
 
   bool handed_over() const { return handed_over_; }
-  /// Before the handover: hands over when `newest` is valid, registering W to L with
-  /// the true pose of B now. Returns whether it handed over.
-  bool TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest,
-                   const Eigen::Isometry3d& T_WB_true);
+  /// Before the handover: hands over when `newest` is valid (registering L to the launch
+  /// pad when the estimate carries no T_ML). Returns whether it handed over.
+  bool TryHandover(core::Time t_ns, const estimator::EstimatorOutput* newest);
 
   /// After the handover: what the controller flies on at t_ns, from the newest output.
   struct Command {
@@ -106,15 +110,17 @@ class ClosedLoopPilot {
   const std::optional<sim::RobotState>& last_state() const { return last_state_; }
   FlightMode mode() const { return mode_; }
   const std::vector<FlightEvent>& events() const { return events_; }
-  /// W to L registration taken at the handover.
-  const Eigen::Isometry3d& T_WL() const { return T_WL_; }
+  /// T_ML the newest state was flown through: the estimate's, else the launch pad's.
+  Eigen::Isometry3d T_ML(const estimator::EstimatorOutput& o) const;
 
  private:
   sim::RobotState StateOf(core::Time t_ns, const estimator::EstimatorOutput& o) const;
 
   FailsafeConfig failsafe_;
   Eigen::Isometry3d T_BI_;
-  Eigen::Isometry3d T_WL_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_MB_launch_;
+  /// The launch pad's registration of L, for estimates without T_ML.
+  Eigen::Isometry3d T_ML_launch_ = Eigen::Isometry3d::Identity();
   bool handed_over_ = false;
   FlightMode mode_ = FlightMode::kTruth;
   std::optional<double> position_std_m_;  // from the newest output that carried one

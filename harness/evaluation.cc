@@ -211,9 +211,17 @@ const RunRecord* FindClosedLoopFlight(const RunRecord& record, const std::string
 }
 
 std::optional<double> ClosedLoopMetricValue(const RunRecord& record, const std::string& pattern,
-                                            const MetricArguments& args) {
+                                            const MetricArguments& args,
+                                            const std::optional<std::pair<double, double>>& window_s) {
   const RunRecord* flight = FindClosedLoopFlight(record, args.method);
   if (flight == nullptr) return std::nullopt;
+  if (window_s) {
+    // Tracking over part of the flight (e.g. while an absolute sensor is in view).
+    const auto position = [](const TrackingSample& s) { return s.position_error_m; };
+    const Stats stats = TrackingStats(*flight, window_s, position);
+    if (pattern == "closed_loop.<method>.tracking_rmse_m") return stats.rmse();
+    if (pattern == "closed_loop.<method>.tracking_max_m") return stats.maximum();
+  }
   const ClosedLoopMetrics m = ComputeClosedLoopMetrics(*flight);
   if (pattern == "closed_loop.<method>.tracking_rmse_m") return m.tracking_rmse_m;
   if (pattern == "closed_loop.<method>.tracking_max_m") return m.tracking_max_m;
@@ -372,7 +380,7 @@ std::optional<double> MetricValue(const RunRecord& record, const std::string& me
   }
   if (const auto match = MatchMetric(metric); match && !match->second.method.empty()) {
     if (metric.starts_with("closed_loop.")) {
-      return ClosedLoopMetricValue(record, match->first->name, match->second);
+      return ClosedLoopMetricValue(record, match->first->name, match->second, window_s);
     }
     return MethodMetricValue(record, match->first->name, match->second);
   }

@@ -59,9 +59,9 @@ const std::vector<MetricInfo>& MetricCatalog() {
       // Closed-loop flights (`control: {state_source: estimate}`), harness/closed_loop.h:
       // the robot flew on the method's estimate; judged against ground truth.
       {"closed_loop.<method>.tracking_rmse_m", "m",
-       "RMS of the true |p_WB - p_ref| of the flight flown on the method", false},
-      {"closed_loop.<method>.tracking_max_m", "m", "largest true |p_WB - p_ref| of that flight",
-       false},
+       "RMS of the true |p_WB - p_ref| of the flight flown on the method (over the window)", true},
+      {"closed_loop.<method>.tracking_max_m", "m",
+       "largest true |p_WB - p_ref| of that flight (over the window)", true},
       {"closed_loop.<method>.estimate_ate_m", "m",
        "RMS of |p_WB estimated - p_WB true| as the controller saw it, after the handover",
        false},

@@ -428,7 +428,9 @@ class Flight {
     // A closed-loop flight: the pilot between the flying method and the controller.
     if (options_.fly_on) {
       const ControlConfig control = scenario_.control.value_or(ControlConfig{});
-      pilot_.emplace(control.failsafe, NominalImuMount(scenario_, record_.robot));
+      const sim::Waypoint launch_pad = LaunchPad(scenario_);
+      pilot_.emplace(control.failsafe, NominalImuMount(scenario_, record_.robot),
+                     PoseOf(launch_pad.p_WB, launch_pad.q_WB));
       record_.closed_loop.emplace();
       record_.closed_loop->method = *options_.fly_on;
       record_.closed_loop->control = control;
@@ -453,10 +455,8 @@ class Flight {
         const MethodRunner& flying = in_loop_->SyncFlying();
         if (!flying.outputs().empty()) newest = &flying.outputs().back();
       }
-      if (!pilot_->handed_over() &&
-          pilot_->TryHandover(t_ns, newest, PoseOf(now.p_WB, now.q_WB))) {
+      if (!pilot_->handed_over() && pilot_->TryHandover(t_ns, newest)) {
         record_.closed_loop->handover_ns = t_ns;
-        record_.closed_loop->T_WL = pilot_->T_WL();
       }
       if (pilot_->handed_over()) {
         const ClosedLoopPilot::Command command = pilot_->Fly(t_ns, *newest, reference);

@@ -77,7 +77,6 @@ struct ClosedLoopFlight {
   std::vector<ClosedLoopSample> samples;  ///< at output.groundtruth_rate_hz
   std::vector<FlightEvent> events;
   std::optional<core::Time> handover_ns;
-  Eigen::Isometry3d T_WL = Eigen::Isometry3d::Identity();  ///< registration at handover
 };
 
 struct RunRecord {

@@ -118,6 +118,19 @@ std::string CalibrationYaml(const RunRecord& record) {
     out << YAML::EndMap;
   }
   out << YAML::EndMap;
+
+  // What the operator knows of the mission frame M (= W): told to every estimator.
+  const sim::Waypoint launch_pad = LaunchPad(record.scenario);
+  out << YAML::Key << "mission" << YAML::Value << YAML::BeginMap;
+  EmitPose(out, "T_MB_launch", launch_pad.p_WB, launch_pad.q_WB);
+  out << YAML::Key << "T_MS" << YAML::Value << YAML::BeginMap;
+  for (size_t i = 0; i < record.sensors.size(); ++i) {
+    const SensorStream& stream = record.sensors[i];
+    if (!SurveyedInMission(record.scenario, record.scenario.sensors[i])) continue;
+    EmitPose(out, stream.name, stream.T_WS.translation(), Eigen::Quaterniond(stream.T_WS.linear()));
+  }
+  out << YAML::EndMap;
+  out << YAML::EndMap;
   out << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }

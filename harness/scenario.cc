@@ -197,6 +197,59 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
 
 // `control:` (harness/closed_loop.h). Needs the scenario's sensors and `estimation:`
 // block: a closed-loop method must be one of estimation.methods and needs an IMU.
+MissionConfig ReadMission(const YamlValue& value, const std::vector<SensorConfig>& sensors) {
+  MissionConfig mission;
+  YamlMap map = value.Map({"launch_pad", "surveyed"});
+  if (const auto pad = map.Optional("launch_pad")) {
+    YamlMap pad_map = pad->Map({"position_m", "rpy_deg"});
+    sim::Waypoint& pose = mission.launch_pad.emplace();
+    pose.p_WB = pad_map.Required("position_m").Vector3(NumberRule::Any("m"));
+    if (const auto q = ReadRpy(pad_map)) pose.q_WB = *q;
+    pad_map.Finish();
+  }
+  if (const auto surveyed = map.Optional("surveyed")) {
+    std::vector<std::string>& names = mission.surveyed.emplace();
+    for (const YamlValue& item : surveyed->List(/*non_empty=*/false)) {
+      const std::string name = item.String();
+      const auto sensor = std::find_if(sensors.begin(), sensors.end(),
+                                       [&](const SensorConfig& c) { return c.name == name; });
+      if (sensor == sensors.end()) {
+        item.Fail(fmt::format("'{}' is not a sensor of the scenario's sensors: block", name));
+      }
+      const std::string_view type = SensorTypeName(sensor->options);
+      if (type != "total_station" && type != "gnss") {
+        item.Fail(fmt::format("'{}' is a {} sensor; expected a total_station or gnss sensor (an "
+                              "absolute sensor's frame is surveyed, an odometry's starts where it "
+                              "boots)",
+                              name, type));
+      }
+      if (std::find(names.begin(), names.end(), name) != names.end()) {
+        item.Fail(fmt::format("'{}' is listed twice", name));
+      }
+      names.push_back(name);
+    }
+  }
+  map.Finish();
+  return mission;
+}
+
+void EmitMission(YAML::Emitter& out, const MissionConfig& mission) {
+  if (!mission.launch_pad && !mission.surveyed) return;
+  out << YAML::Key << "mission" << YAML::Value << YAML::BeginMap;
+  if (mission.launch_pad) {
+    out << YAML::Key << "launch_pad" << YAML::Value << YAML::BeginMap;
+    EmitVector(out, "position_m", mission.launch_pad->p_WB);
+    EmitRpyDeg(out, "rpy_deg", mission.launch_pad->q_WB);
+    out << YAML::EndMap;
+  }
+  if (mission.surveyed) {
+    out << YAML::Key << "surveyed" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+    for (const std::string& name : *mission.surveyed) out << name;
+    out << YAML::EndSeq;
+  }
+  out << YAML::EndMap;
+}
+
 ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
   ControlConfig config;
   YamlMap map = value.Map({"state_source", "methods", "corridor_m", "failsafe", "controller"});
@@ -837,12 +890,25 @@ replay::EstimationConfig ParseEstimationBlock(const std::string& yaml_text,
   return config;
 }
 
+sim::Waypoint LaunchPad(const Scenario& scenario) {
+  return scenario.mission.launch_pad.value_or(scenario.trajectory.start);
+}
+
+bool SurveyedInMission(const Scenario& scenario, const SensorConfig& sensor) {
+  if (scenario.mission.surveyed) {
+    const std::vector<std::string>& names = *scenario.mission.surveyed;
+    return std::find(names.begin(), names.end(), sensor.name) != names.end();
+  }
+  const std::string_view type = SensorTypeName(sensor.options);
+  return type == "total_station" || type == "gnss";
+}
+
 Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label) {
   const YamlValue root = internal::ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
                           "sensors", "faults", "consistency", "external", "plugins",
-                          "estimation", "control", "render", "expect"});
+                          "estimation", "control", "mission", "render", "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -917,6 +983,9 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   }
   if (const auto control = map.Optional("control")) {
     scenario.control = ReadControl(*control, scenario);
+  }
+  if (const auto mission = map.Optional("mission")) {
+    scenario.mission = ReadMission(*mission, scenario.sensors);
   }
   if (const auto render = map.Optional("render")) {
     scenario.render = ReadRender(*render);
@@ -1058,6 +1127,7 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   internal::EmitClients(out, scenario.clients);
   if (scenario.estimation) EmitEstimation(out, *scenario.estimation);
   if (scenario.control) EmitControl(out, *scenario.control);
+  EmitMission(out, scenario.mission);
   if (scenario.render) EmitRender(out, *scenario.render);
   EmitExpectations(out, scenario.expect);
   out << YAML::EndMap;

@@ -53,6 +53,21 @@ struct InitialOffset {
   Eigen::Quaterniond q_offset = Eigen::Quaterniond::Identity();
 };
 
+/// `mission:` what the operator knows of the mission frame M before the flight. M is the
+/// simulator's world W: the survey the trajectory, the structure and the scoring are in.
+/// The estimator is told the launch pad's pose (the robot waits there until the closed
+/// loop hands over to it) and the surveyed reference frames of absolute sensors (their
+/// true T_WS: a total station set up on surveyed points, a GNSS ENU frame tied to the
+/// site), never the robot's true pose.
+struct MissionConfig {
+  /// `launch_pad: {position_m, rpy_deg}`: the body's pose on the pad; unset: the
+  /// trajectory's start pose (where the robot is placed, initial_offset aside).
+  std::optional<sim::Waypoint> launch_pad;
+  /// `surveyed: [names]`: the total_station and gnss sensors whose frames are surveyed;
+  /// unset: all of them.
+  std::optional<std::vector<std::string>> surveyed;
+};
+
 /// `render:` what `tofu run` renders of the run (renders/, off-screen EGL) after writing
 /// it: the failure events (fault onset, detection, switch, error above a bound,
 /// collision) as keyframe PNGs and clips in <out>/renders/. Plain data: harness never
@@ -97,6 +112,7 @@ struct Scenario {
   /// `control:` where the controller gets its state: ground truth (default), or each
   /// listed estimation method in a closed-loop flight of its own (harness/closed_loop.h).
   std::optional<ControlConfig> control;
+  MissionConfig mission;
   std::optional<RenderRequest> render;
   std::vector<Expectation> expect;
   /// Where keys were written, for the errors found after parsing (CheckScenarioModels):
@@ -104,6 +120,12 @@ struct Scenario {
   /// key was left to its default.
   std::map<std::string, core::SourceLocation> key_locations;
 };
+
+/// The launch pad's pose of B in M (mission.launch_pad, else the trajectory's start).
+sim::Waypoint LaunchPad(const Scenario& scenario);
+/// Whether `sensor`'s reference frame is surveyed in M (mission.surveyed, else every
+/// total_station and gnss sensor).
+bool SurveyedInMission(const Scenario& scenario, const SensorConfig& sensor);
 
 /// Reads and validates a scenario file. Throws core::InputError on any problem.
 Scenario LoadScenario(const std::string& path);

@@ -85,6 +85,11 @@ void ExpectSameOutputs(const std::vector<estimator::EstimatorOutput>& in_loop,
     ASSERT_TRUE(a.bias.accel_mps2 == b.bias.accel_mps2) << what << " b_a at output " << i;
     ASSERT_EQ(a.valid, b.valid) << what << " valid at output " << i;
     ASSERT_EQ(a.fused, b.fused) << what << " fused at output " << i;
+    ASSERT_EQ(a.mission.has_value(), b.mission.has_value()) << what << " T_ML at output " << i;
+    if (a.mission) {
+      ASSERT_TRUE(a.mission->p_ML_m == b.mission->p_ML_m) << what << " p_ML at output " << i;
+      ASSERT_TRUE(a.mission->q_ML.coeffs() == b.mission->q_ML.coeffs()) << what << " q_ML at " << i;
+    }
   }
 }
 
@@ -181,6 +186,54 @@ TEST(ClosedLoop, ControllerInputIsUnchangedByASampleArrivingLater) {
   EXPECT_TRUE(differs_after) << "the tampered samples never reached the controller";
 }
 
+// The handover and the flight use no ground truth: the launch pad is stated 0.3 m east of
+// where the robot really waits. Flown on VIO alone (no surveyed sensor), the robot flies
+// the whole mission 0.3 m west of the reference, as a real robot told a wrong pad would;
+// flown on consensus with the total station surveyed, the estimator's T_ML moves to the
+// station's frame and the robot comes back onto the reference.
+TEST(ClosedLoop, TheHandoverAndTheFlightUseNoGroundTruth) {
+  harness::Scenario scenario = ShortScenario();
+  scenario.faults.clear();
+  scenario.duration_s = 14.0;
+  scenario.estimation->methods = {"consensus", "single:vio"};
+  scenario.control->methods = {"consensus", "single:vio"};
+  sim::Waypoint pad = scenario.trajectory.start;
+  pad.p_WB.x() += 0.3;
+  scenario.mission.launch_pad = pad;
+  const harness::RunRecord record = harness::Simulate(scenario);
+  ASSERT_FALSE(record.failure) << *record.failure;
+  ASSERT_EQ(record.closed_loop_flights.size(), 2u);
+  // The mean tracking error over [from_s, to_s] of a flight.
+  const auto mean_error_m = [](const harness::RunRecord& flight, double from_s, double to_s) {
+    double sum = 0.0;
+    int n = 0;
+    for (const harness::TrackingSample& t : flight.tracking) {
+      const double t_s = core::TimeToSeconds(t.t_ns);
+      if (t_s < from_s || t_s > to_s) continue;
+      sum += t.position_error_m;
+      ++n;
+    }
+    return n > 0 ? sum / n : NAN;
+  };
+  for (const harness::RunRecord& flight : record.closed_loop_flights) {
+    const std::string& method = flight.closed_loop->method;
+    ASSERT_TRUE(flight.closed_loop->handover_ns) << method;
+    const double handover_s = core::TimeToSeconds(*flight.closed_loop->handover_ns);
+    // Registered with the true pose, the flight would track within ~2 cm from the start.
+    if (method == "single:vio") {
+      // 0.3 m off, give or take the heading VIO started with (measured: 0.24 m).
+      EXPECT_NEAR(mean_error_m(flight, handover_s + 2.0, 14.0), 0.3, 0.1) << method;
+    } else {
+      // The estimator's T_ML started from the pad too and moves at 0.1 m/s towards the
+      // station's frame: half a second after the handover the robot has flown to where
+      // it believes the reference is (measured: 0.22 m off; the station's first fit came
+      // shortly before the handover).
+      EXPECT_GT(mean_error_m(flight, handover_s + 0.5, handover_s + 1.0), 0.15) << method;
+      EXPECT_LT(mean_error_m(flight, 11.0, 14.0), 0.05) << method;
+    }
+  }
+}
+
 // ---- the pilot ----
 
 estimator::EstimatorOutput Output(core::Time t_ns, const Eigen::Vector3d& p_LI, double yaw_rad,
@@ -194,34 +247,58 @@ estimator::EstimatorOutput Output(core::Time t_ns, const Eigen::Vector3d& p_LI, 
   return o;
 }
 
-TEST(ClosedLoopPilot, HandsOverAtTheFirstValidOutputAndRegistersYawAndPosition) {
+// An estimate without T_ML: L is registered once, at the handover, to the launch pad as
+// the scenario states it (the pilot is given no true pose at all).
+TEST(ClosedLoopPilot, HandsOverAtTheFirstValidOutputAndRegistersLToTheLaunchPad) {
   Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
   T_BI.translation() = Eigen::Vector3d(0.05, 0.0, 0.02);
-  ClosedLoopPilot pilot(harness::FailsafeConfig{}, T_BI);
-  Eigen::Isometry3d T_WB = Eigen::Isometry3d::Identity();
-  T_WB.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  T_WB.translation() = Eigen::Vector3d(2.0, -1.0, 1.5);
+  Eigen::Isometry3d T_MB_launch = Eigen::Isometry3d::Identity();
+  T_MB_launch.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T_MB_launch.translation() = Eigen::Vector3d(2.0, -1.0, 1.5);
+  ClosedLoopPilot pilot(harness::FailsafeConfig{}, T_BI, T_MB_launch);
 
   const estimator::EstimatorOutput invalid = Output(0, Eigen::Vector3d::Zero(), 0.0, false);
-  EXPECT_FALSE(pilot.TryHandover(0, nullptr, T_WB));
-  EXPECT_FALSE(pilot.TryHandover(0, &invalid, T_WB));
+  EXPECT_FALSE(pilot.TryHandover(0, nullptr));
+  EXPECT_FALSE(pilot.TryHandover(0, &invalid));
   EXPECT_FALSE(pilot.handed_over());
 
-  // L: yawed by -1.0 rad from W, its origin elsewhere; the IMU at the estimate's p_LI.
+  // L: yawed by -1.0 rad from M, its origin elsewhere; the IMU at the estimate's p_LI.
   const estimator::EstimatorOutput first = Output(10, Eigen::Vector3d(0.4, 0.2, 0.0), -0.7, true);
-  ASSERT_TRUE(pilot.TryHandover(10, &first, T_WB));
+  ASSERT_TRUE(pilot.TryHandover(10, &first));
   EXPECT_EQ(pilot.events().front().event, "handover");
-  // The estimate, seen through the registration, is the true pose at the handover.
+  EXPECT_NE(pilot.events().front().detail.find("launch pad"), std::string::npos);
+  // The estimate, seen through the registration, is the launch pad's pose at the handover.
   const ClosedLoopPilot::Command c = pilot.Fly(10, first, sim::Reference{});
-  EXPECT_LT((c.state.p_WB - T_WB.translation()).norm(), 1e-12);
-  EXPECT_LT(c.state.q_WB.angularDistance(Eigen::Quaterniond(T_WB.linear())), 1e-12);
+  EXPECT_LT((c.state.p_WB - T_MB_launch.translation()).norm(), 1e-12);
+  EXPECT_LT(c.state.q_WB.angularDistance(Eigen::Quaterniond(T_MB_launch.linear())), 1e-12);
   EXPECT_EQ(c.mode, FlightMode::kEstimate);
-  // A move of the estimate along L's x moves B along W's direction of L's x.
+  // A move of the estimate along L's x moves B along M's direction of L's x.
   const estimator::EstimatorOutput moved = Output(20, Eigen::Vector3d(1.4, 0.2, 0.0), -0.7, true);
   const ClosedLoopPilot::Command d = pilot.Fly(20, moved, sim::Reference{});
-  const Eigen::Vector3d x_L_in_W = pilot.T_WL().linear() * Eigen::Vector3d::UnitX();
-  EXPECT_LT((d.state.p_WB - c.state.p_WB - x_L_in_W).norm(), 1e-12);
-  EXPECT_NEAR(std::atan2(x_L_in_W.y(), x_L_in_W.x()), 1.0, 1e-12);
+  const Eigen::Vector3d x_L_in_M = pilot.T_ML(moved).linear() * Eigen::Vector3d::UnitX();
+  EXPECT_LT((d.state.p_WB - c.state.p_WB - x_L_in_M).norm(), 1e-12);
+  EXPECT_NEAR(std::atan2(x_L_in_M.y(), x_L_in_M.x()), 1.0, 1e-12);
+}
+
+// An estimate with T_ML: every state is flown through the estimate's own T_ML, the launch
+// pad is not used.
+TEST(ClosedLoopPilot, FliesThroughTheEstimatesMissionFrame) {
+  Eigen::Isometry3d T_MB_launch = Eigen::Isometry3d::Identity();
+  T_MB_launch.translation() = Eigen::Vector3d(5.0, 5.0, 5.0);
+  ClosedLoopPilot pilot(harness::FailsafeConfig{}, Eigen::Isometry3d::Identity(), T_MB_launch);
+  estimator::EstimatorOutput o = Output(0, Eigen::Vector3d(1.0, 0.0, 1.0), 0.0, true);
+  o.mission.emplace();
+  o.mission->p_ML_m = Eigen::Vector3d(-2.0, 3.0, 0.5);
+  o.mission->q_ML = Eigen::Quaterniond(Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d::UnitZ()));
+  ASSERT_TRUE(pilot.TryHandover(0, &o));
+  EXPECT_NE(pilot.events().front().detail.find("T_ML"), std::string::npos);
+  const ClosedLoopPilot::Command c = pilot.Fly(0, o, sim::Reference{});
+  EXPECT_LT((c.state.p_WB - Eigen::Vector3d(-2.0, 4.0, 1.5)).norm(), 1e-12);
+  // The frame moves (a surveyed sensor took over): so does the state.
+  o.t_ns = 5'000'000;
+  o.mission->p_ML_m.x() += 0.01;
+  EXPECT_LT((pilot.Fly(o.t_ns, o, sim::Reference{}).state.p_WB - Eigen::Vector3d(-1.99, 4.0, 1.5)).norm(),
+            1e-12);
 }
 
 TEST(ClosedLoopPilot, FailsafeHoldsThenLandsAndResumesWhenTheEstimateReturns) {
@@ -229,10 +306,10 @@ TEST(ClosedLoopPilot, FailsafeHoldsThenLandsAndResumesWhenTheEstimateReturns) {
   failsafe.hold_s = 1.0;
   failsafe.descent_rate_mps = 0.5;
   failsafe.land_z_m = 0.3;
-  ClosedLoopPilot pilot(failsafe, Eigen::Isometry3d::Identity());
-  const Eigen::Isometry3d T_WB = Eigen::Isometry3d(Eigen::Translation3d(0, 0, 2.0));
+  ClosedLoopPilot pilot(failsafe, Eigen::Isometry3d::Identity(),
+                        Eigen::Isometry3d(Eigen::Translation3d(0, 0, 2.0)));
   const estimator::EstimatorOutput good = Output(0, Eigen::Vector3d(0, 0, 2.0), 0.0, true);
-  ASSERT_TRUE(pilot.TryHandover(0, &good, T_WB));
+  ASSERT_TRUE(pilot.TryHandover(0, &good));
   sim::Reference mission;
   mission.p_WB = Eigen::Vector3d(1.0, 0.0, 2.0);
   EXPECT_EQ(pilot.Fly(0, good, mission).reference.p_WB, mission.p_WB);
@@ -266,9 +343,9 @@ TEST(ClosedLoopPilot, FailsafeHoldsThenLandsAndResumesWhenTheEstimateReturns) {
 }
 
 TEST(ClosedLoopPilot, AStaleOutputTriggersTheFailsafe) {
-  ClosedLoopPilot pilot(harness::FailsafeConfig{}, Eigen::Isometry3d::Identity());
+  ClosedLoopPilot pilot(harness::FailsafeConfig{}, Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity());
   const estimator::EstimatorOutput o = Output(0, Eigen::Vector3d::Zero(), 0.0, true);
-  ASSERT_TRUE(pilot.TryHandover(0, &o, Eigen::Isometry3d::Identity()));
+  ASSERT_TRUE(pilot.TryHandover(0, &o));
   EXPECT_EQ(pilot.Fly(ClosedLoopPilot::kStaleAfterNs, o, sim::Reference{}).mode,
             FlightMode::kEstimate);
   EXPECT_EQ(pilot.Fly(ClosedLoopPilot::kStaleAfterNs + 5'000'000, o, sim::Reference{}).mode,
@@ -279,9 +356,9 @@ TEST(ClosedLoopPilot, AStaleOutputTriggersTheFailsafe) {
 TEST(ClosedLoopPilot, APositionCovarianceAboveTheBoundTriggersTheFailsafe) {
   harness::FailsafeConfig failsafe;
   failsafe.max_position_std_m = 0.2;
-  ClosedLoopPilot pilot(failsafe, Eigen::Isometry3d::Identity());
+  ClosedLoopPilot pilot(failsafe, Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity());
   estimator::EstimatorOutput o = Output(0, Eigen::Vector3d::Zero(), 0.0, true);
-  ASSERT_TRUE(pilot.TryHandover(0, &o, Eigen::Isometry3d::Identity()));
+  ASSERT_TRUE(pilot.TryHandover(0, &o));
   o.position_covariance_m2 = Eigen::Matrix3d::Identity() * 0.01;  // 0.1 m std
   EXPECT_EQ(pilot.Fly(1, o, sim::Reference{}).mode, FlightMode::kEstimate);
   o.position_covariance_m2->diagonal() << 0.01, 0.09, 0.01;  // 0.3 m in y
@@ -353,6 +430,35 @@ TEST(ClosedLoopScenario, RejectsAClosedLoopMetricOfAMethodThatDoesNotFly) {
   ExpectRejected(WithControl("control: {state_source: estimate, methods: [consensus]}\n"
                              "expect:\n  - {metric: closed_loop.naive.collisions, max: 0}\n"),
                  "expect[0].metric", "which control.methods does not list (listed: consensus)");
+}
+
+TEST(ClosedLoopScenario, RejectsAMissionBlockThatSurveysNoAbsoluteSensor) {
+  ExpectRejected(WithControl("mission: {surveyed: [vio]}\n"), "mission.surveyed[0]",
+                 "'vio' is a vio sensor; expected a total_station or gnss sensor");
+  ExpectRejected(WithControl("mission: {surveyed: [gnss]}\n"), "mission.surveyed[0]",
+                 "'gnss' is not a sensor of the scenario's sensors: block");
+  ExpectRejected(WithControl("mission: {launch_pad: {rpy_deg: [0, 0, 90]}}\n"),
+                 "mission.launch_pad.position_m", "missing");
+  ExpectRejected(WithControl("mission: {pad: [0, 0, 0]}\n"), "mission.pad", "unknown key");
+}
+
+TEST(ClosedLoopScenario, TheMissionBlockRoundTripsAndDefaultsToTheStartAndEverySurveyableSensor) {
+  const harness::Scenario plain = harness::ParseScenario(WithControl(""), "plain.yaml");
+  EXPECT_EQ(harness::LaunchPad(plain).p_WB, Eigen::Vector3d(0, 0, 1.5));
+  EXPECT_TRUE(harness::SurveyedInMission(plain, plain.sensors[2]));   // leica
+  EXPECT_FALSE(harness::SurveyedInMission(plain, plain.sensors[1]));  // vio
+  EXPECT_EQ(harness::ResolvedScenarioYaml(plain).find("\nmission:"), std::string::npos);
+
+  const harness::Scenario a = harness::ParseScenario(
+      WithControl("mission: {launch_pad: {position_m: [1, 2, 0.2], rpy_deg: [0, 0, 90]}, surveyed: []}\n"),
+      "a.yaml");
+  EXPECT_EQ(harness::LaunchPad(a).p_WB, Eigen::Vector3d(1, 2, 0.2));
+  EXPECT_NEAR(harness::LaunchPad(a).q_WB.angularDistance(
+                  Eigen::Quaterniond(Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d::UnitZ()))),
+              0.0, 1e-12);
+  EXPECT_FALSE(harness::SurveyedInMission(a, a.sensors[2]));  // surveyed: [] surveys none
+  const std::string text = harness::ResolvedScenarioYaml(a);
+  EXPECT_EQ(harness::ResolvedScenarioYaml(harness::ParseScenario(text, "b.yaml")), text);
 }
 
 TEST(ClosedLoopScenario, ResolvedYamlRoundTripsTheControlBlock) {

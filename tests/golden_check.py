@@ -22,7 +22,10 @@ consensus values) and bridge_sensors asserted the time without RTK (its scenario
 summary.json: the expectation, nothing flown differed), and when calibration.yaml gained
 the GNSS sky (`sky_directions_S`, issue 18: the renderer reads it from the run directory;
 the calibration.yaml of bridge_sensors, indoor_outdoor_window and window_sensors, one added
-line each, nothing else differed).
+line each, nothing else differed), and when calibration.yaml gained `mission:` (issue 34:
+the launch pad and the surveyed frames every estimator is told; each calibration.yaml is
+the golden one with that section appended, checked before re-recording, nothing else
+differed).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)
