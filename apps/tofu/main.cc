@@ -28,6 +28,7 @@
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
+#include "harness/shard.h"
 #include "renders/render_command.h"
 #include "replay/consistency_command.h"
 #include "replay/file_io.h"
@@ -408,7 +409,7 @@ std::vector<Command> AddCorpusCommands(CLI::App& parent) {
          tofu::corpus::GenerateOptions options;
          options.spec = o->spec;
          options.out_dir = o->out;
-         options.shard = tofu::corpus::ResolveShard(o->shard, o->shard_count);
+         options.shard = tofu::harness::ResolveShard(o->shard, o->shard_count);
          options.quiet = o->quiet;
          std::optional<ProgressBar> bar;
          if (!o->quiet && ::isatty(STDERR_FILENO)) {
