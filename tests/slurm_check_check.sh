@@ -16,67 +16,18 @@
 # problem, a cluster that does not start included, is a failure.
 set -euo pipefail
 
-if [[ $# -ne 3 ]]; then
-  echo "usage: slurm_check_check.sh TOFU SOURCE_DIR WORK_DIR" >&2
-  exit 2
-fi
-tofu=$(realpath "$1")
-src=$(realpath "$2")
-work=$(realpath -m "$3")
+# shellcheck source=tests/slurm_test_support.sh
+source "$(dirname "${BASH_SOURCE[0]}")/slurm_test_support.sh"
+slurm_test_arguments "$@"  # tofu, src, work
 scenarios=("$src/tests/data/check_shard/a_hover_methods.yaml" "$src/tests/data/check_shard/b_hover_strict.yaml")
-cluster=$src/scripts/slurm_local_cluster.sh
 job_script=$src/scripts/check.sbatch
 
-missing=
-for c in slurmctld slurmd sbatch scontrol sinfo munged munge; do
-  command -v "$c" >/dev/null || missing+=" $c"
-done
-if [[ -n $missing ]]; then
-  echo "SKIP: not installed:$missing (Debian: slurmctld slurmd slurm-client munge)"
-  exit 77
-fi
-if [[ $(id -u) != 0 ]]; then
-  echo "SKIP: a local Slurm cluster needs root (slurmd starts jobs as their users)"
-  exit 77
-fi
-
-fail() {
-  echo "FAIL: $*" >&2
-  exit 1
-}
+slurm_skip_unless_possible
 [[ -x $tofu ]] || fail "no tofu binary at $tofu"
 
-state=$work/slurm
 out=$work/check
 rm -rf "$out" "$out.report" "$work/one_out" "$work/one_report" "$work"/*.xml "$work"/tofu-check-*.out
 mkdir -p "$work"
-
-# Ports of our own (not slurm_corpus's, nor a developer's cluster on 6817/6818).
-export TOFU_SLURMCTLD_PORT=${TOFU_SLURMCTLD_PORT:-6927}
-export TOFU_SLURMD_PORT=${TOFU_SLURMD_PORT:-6928}
-export SLURM_CONF=$state/etc/slurm.conf
-
-show_logs() {
-  local f
-  for f in "$work"/tofu-check-*.out "$state"/log/slurmctld.log "$state"/log/slurmd.log; do
-    [[ -s $f ]] || continue
-    echo "---- last lines of $f"
-    tail -n 25 "$f"
-  done
-}
-cleanup() {
-  local status=$?
-  trap - EXIT INT TERM
-  ((status == 0)) || show_logs
-  if [[ -n $sbatch_pid ]]; then kill "$sbatch_pid" 2>/dev/null || true; fi
-  if [[ -n $array_job ]]; then scancel "$array_job" 2>/dev/null || true; fi
-  "$cluster" stop "$state" || status=1
-  exit "$status"
-}
-sbatch_pid=
-array_job=
-trap cleanup EXIT
-trap 'exit 130' INT TERM
 
 cd "$work"
 echo "== one machine: tofu check (2 scenarios x 2 seeds) --out $out"
@@ -86,15 +37,18 @@ one_status=0
 ((one_status == 1)) || fail "the one-machine check exited $one_status, expected 1 (b_hover_strict fails)"
 mv "$out" "$work/one_out"
 
-# The watchdog outlives ctest's 600 s TIMEOUT by a minute: if ctest kills this script with
-# SIGKILL the trap never runs, and the watchdog stops the daemons instead.
-"$cluster" start --max-lifetime 660 "$state" || fail "the local Slurm cluster did not start"
+# Ports of our own (not slurm_corpus's, nor a developer's cluster on 6817/6818).
+export TOFU_SLURMCTLD_PORT=${TOFU_SLURMCTLD_PORT:-6927}
+export TOFU_SLURMD_PORT=${TOFU_SLURMD_PORT:-6928}
+slurm_logs=("$work/tofu-check-*.out")
+slurm_start "$work/slurm" "$src/scripts/slurm_local_cluster.sh"
 
 export SEEDS=2 TOFU=$tofu JUNIT=$work/merged.xml REPORT=$out.report
 echo "== sbatch --array=0-1 check.sbatch $out ..."
 array_job=$(sbatch --parsable --array=0-1 "$job_script" "$out" "${scenarios[@]}")
 array_job=${array_job%%;*}
 [[ -n $array_job ]] || fail "sbatch did not submit the array"
+slurm_jobs=("$array_job")
 echo "== sbatch --wait --dependency=afterany:$array_job check.sbatch $out ... (the merge)"
 # In the background and waited for, so that a SIGTERM (ctest, ^C) is handled at once.
 merge_status=0
@@ -107,17 +61,7 @@ merge_job=$(head -n 1 "$work/sbatch.out")
 merge_job=${merge_job%%;*}
 [[ -n $merge_job ]] || fail "sbatch did not submit the merge (status $merge_status)"
 
-# No slurmdbd here, so no sacct: scontrol keeps finished jobs for MinJobAge.
-records=$(scontrol -o show job "$array_job")
-ok=1
-for task in 0 1; do
-  rec=$(grep -E "ArrayJobId=$array_job ArrayTaskId=$task " <<<"$records" || true)
-  st=$(grep -oE 'JobState=[A-Z_]+' <<<"$rec" || true)
-  ec=$(grep -oE ' ExitCode=[0-9]+:[0-9]+' <<<"$rec" || true)
-  echo "shard task $task: ${st:-no record} ${ec# }"
-  [[ $st == JobState=COMPLETED && $ec == " ExitCode=0:0" ]] || ok=0
-done
-((ok)) || fail "not every shard task COMPLETED with exit code 0"
+slurm_tasks_ok "$array_job" 2 || fail "not every shard task COMPLETED with exit code 0"
 merge_rec=$(scontrol -o show job "$merge_job")
 echo "merge job $merge_job: $(grep -oE 'JobState=[A-Z_]+' <<<"$merge_rec") $(grep -oE ' ExitCode=[0-9]+:[0-9]+' <<<"$merge_rec")"
 ((merge_status == one_status)) ||
