@@ -3,8 +3,9 @@
 // input: exit 2 before anything runs), flies every (scenario, seed) as a `tofu run`
 // subprocess in a pool of jobs, reads each run's summary.json, aggregates each
 // expectation over the seeds (`pass_fraction`), prints a table, optionally writes
-// JUnit XML, and tabulates the estimation methods over the seeds (check_methods.h). The
-// CLI only parses arguments into CheckCommandOptions.
+// JUnit XML, and tabulates the estimation methods over the seeds (check_methods.h). Across
+// machines, a shard runs part of the grid and a merge takes the shards' runs in place of
+// its own (check_shards.h). The CLI only parses arguments into CheckCommandOptions.
 
 #include <cstdint>
 #include <optional>
