@@ -1,5 +1,7 @@
 #include "core/random.h"
 
+#include "core/hash.h"
+
 namespace tofu::core {
 namespace {
 
@@ -10,19 +12,10 @@ uint64_t SplitMix64(uint64_t x) {
   return x ^ (x >> 31);
 }
 
-uint64_t Fnv1a(std::string_view s) {
-  uint64_t h = 0xcbf29ce484222325ULL;
-  for (const char c : s) {
-    h ^= static_cast<uint8_t>(c);
-    h *= 0x100000001b3ULL;
-  }
-  return h;
-}
-
 }  // namespace
 
 uint64_t StreamSeed(uint64_t scenario_seed, std::string_view stream_name) {
-  return SplitMix64(SplitMix64(scenario_seed) ^ Fnv1a(stream_name));
+  return SplitMix64(SplitMix64(scenario_seed) ^ Fnv1a64(stream_name));
 }
 
 RandomStream::RandomStream(uint64_t scenario_seed, std::string_view stream_name)

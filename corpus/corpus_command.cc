@@ -3,10 +3,8 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <charconv>
 #include <chrono>
 #include <cmath>
-#include <cstdlib>
 #include <fstream>
 #include <map>
 #include <set>
@@ -55,17 +53,6 @@ void WriteAtomically(const fs::path& path, const std::string& text) {
   if (ec) throw core::IoError(fmt::format("cannot write {}: {}", path.string(), ec.message()));
 }
 
-std::string ShardStem(const Shard& shard) {
-  return fmt::format("shard_{:04d}_of_{:04d}", shard.index, shard.count);
-}
-
-std::optional<std::uint64_t> ParseWhole(std::string_view text) {
-  std::uint64_t v = 0;
-  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
-  if (ec != std::errc() || end != text.data() + text.size() || text.empty()) return std::nullopt;
-  return v;
-}
-
 // The corpus directory for `spec`: created with corpus.yaml, or an existing one made
 // from the very same spec text. Anything else is refused (exit 2), untouched.
 void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
@@ -100,7 +87,9 @@ void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
 
 std::vector<std::uint64_t> ShardEpisodes(const CorpusSpec& spec, const Shard& shard) {
   std::vector<std::uint64_t> episodes;
-  for (std::uint64_t i = shard.index; i < spec.episodes; i += shard.count) episodes.push_back(i);
+  for (std::uint64_t i = 0; i < spec.episodes; ++i) {
+    if (shard.Owns(i)) episodes.push_back(i);
+  }
   return episodes;
 }
 
@@ -192,45 +181,6 @@ void SetCorpusAttributes(const Hdf5Group& root, const CorpusSpec& spec, const Sh
 
 }  // namespace
 
-Shard ResolveShard(const std::optional<std::string>& shard_arg, const std::optional<std::uint64_t>& shard_count) {
-  Shard shard;
-  std::string origin;
-  if (shard_arg) {
-    origin = "--shard";
-    const std::size_t slash = shard_arg->find('/');
-    const auto index = slash == std::string::npos ? std::nullopt : ParseWhole(std::string_view(*shard_arg).substr(0, slash));
-    const auto count = slash == std::string::npos ? std::nullopt : ParseWhole(std::string_view(*shard_arg).substr(slash + 1));
-    if (!index || !count) {
-      throw core::InputError({}, "--shard", fmt::format("expected I/N (e.g. 0/4), got '{}'", *shard_arg));
-    }
-    shard = {*index, *count};
-  } else if (const char* id = std::getenv("SLURM_ARRAY_TASK_ID")) {
-    origin = "SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT";
-    const char* count = std::getenv("SLURM_ARRAY_TASK_COUNT");
-    const auto i = ParseWhole(id);
-    const auto n = count ? ParseWhole(count) : std::nullopt;
-    if (!i || !n) {
-      throw core::InputError({}, origin, fmt::format("expected whole numbers, got '{}' and '{}'", id, count ? count : "(unset)"));
-    }
-    // `sbatch --array=A-B` numbers tasks from A; shards are counted from 0.
-    const char* min = std::getenv("SLURM_ARRAY_TASK_MIN");
-    const auto lo = min ? ParseWhole(min) : std::optional<std::uint64_t>(0);
-    shard = {*i - std::min(*i, lo.value_or(0)), *n};
-  } else if (const char* k8s = std::getenv("JOB_COMPLETION_INDEX")) {
-    origin = "JOB_COMPLETION_INDEX";
-    const auto i = ParseWhole(k8s);
-    if (!i) throw core::InputError({}, origin, fmt::format("expected a whole number, got '{}'", k8s));
-    if (!shard_count) throw core::InputError({}, "--shard-count", "JOB_COMPLETION_INDEX is set: give the job's completions as --shard-count N");
-    shard = {*i, *shard_count};
-  } else {
-    return shard;
-  }
-  if (shard.count == 0 || shard.index >= shard.count) {
-    throw core::InputError({}, origin, fmt::format("shard {}/{} is out of range (expected 0 <= I < N)", shard.index, shard.count));
-  }
-  return shard;
-}
-
 int RunCorpusPlan(const fs::path& spec_path, const fs::path& out_dir, bool quiet) {
   const CorpusSpec spec = LoadCorpusSpec(spec_path);
   if (fs::exists(out_dir) && !fs::is_empty(out_dir) && !fs::exists(out_dir / "plan.json")) {
@@ -275,7 +225,7 @@ int RunCorpusGenerate(const GenerateOptions& options) {
   const CorpusSpec spec = LoadCorpusSpec(options.spec);
   PrepareCorpusDirectory(spec, options.out_dir);
   const Shard shard = options.shard;
-  const std::string stem = ShardStem(shard);
+  const std::string stem = harness::ShardStem(shard);
   const fs::path shard_file = options.out_dir / (stem + ".h5");
   const fs::path manifest_part = options.out_dir / (stem + ".manifest.json");
   // Another layout's shards in the same directory would hold the same episodes twice.

@@ -15,19 +15,12 @@
 #include <optional>
 #include <string>
 
+#include "harness/shard.h"
+
 namespace tofu::corpus {
 
-struct Shard {
-  std::uint64_t index = 0;
-  std::uint64_t count = 1;
-};
-
-/// The shard of this process: `--shard I/N` if given, else SLURM_ARRAY_TASK_ID and
-/// SLURM_ARRAY_TASK_COUNT (a Slurm array job), else JOB_COMPLETION_INDEX (a Kubernetes
-/// Indexed Job) with `shard_count`, else 0/1. Throws core::InputError for a malformed
-/// or out-of-range shard (naming where it came from).
-Shard ResolveShard(const std::optional<std::string>& shard_arg,
-                   const std::optional<std::uint64_t>& shard_count);
+// The shard of a `generate` (harness/shard.h: the same rule and sources as `tofu check`).
+using harness::Shard;
 
 struct GenerateOptions {
   std::filesystem::path spec;

@@ -22,6 +22,7 @@
 
 #include "core/error.h"
 #include "harness/check_methods.h"
+#include "harness/check_shards.h"
 #include "harness/yaml_reader.h"
 #include "replay/file_io.h"
 #include "replay/interrupt.h"
@@ -32,7 +33,6 @@ namespace tofu::harness {
 
 using replay::InterruptSignal;
 using replay::InterruptSignalName;
-using replay::SweepStaleStaging;
 using replay::ThrowIfInterrupted;
 using replay::WaitForInterrupt;
 using replay::WriteFileAtomically;
@@ -47,6 +47,7 @@ using internal::FormatDouble;
 
 // One run to do and, once done, what came of it.
 struct Job {
+  uint64_t cell = 0;  // in the check's grid (check_shards.h)
   size_t scenario_index = 0;
   std::string scenario_path;
   SeedRun run;
@@ -255,31 +256,6 @@ void ReadSummary(SeedRun& run) {
   }
 }
 
-// Removes what an earlier check left of a scenario's runs (seed_<n> and seed_<n>.log),
-// so that stale seeds beyond --seeds are not taken for this check's, and the staging
-// directories of killed runs (seed_<n>.tmp-<pid> of a process that is gone). Touches
-// nothing else.
-void RemoveStaleRuns(const fs::path& scenario_dir) {
-  std::error_code ec;
-  if (!fs::is_directory(scenario_dir, ec)) return;
-  std::vector<fs::path> stale;  // collected first: no removal while the directory is read
-  std::set<fs::path> staged;
-  for (const auto& entry : fs::directory_iterator(scenario_dir)) {
-    std::string name = entry.path().filename().string();
-    if (const size_t tmp = name.find(".tmp-"); name.starts_with("seed_") && tmp != std::string::npos) {
-      staged.insert(scenario_dir / name.substr(0, tmp));
-      continue;
-    }
-    if (name.ends_with(".log")) name.resize(name.size() - 4);
-    if (name.starts_with("seed_") && name.size() > 5 &&
-        std::all_of(name.begin() + 5, name.end(), [](char c) { return c >= '0' && c <= '9'; })) {
-      stale.push_back(entry.path());
-    }
-  }
-  for (const fs::path& path : stale) fs::remove_all(path);
-  for (const fs::path& run : staged) SweepStaleStaging(run);
-}
-
 // ---- reporting ----
 
 std::string FormatValue(const std::optional<double>& v) {
@@ -420,6 +396,17 @@ void ValidateOptions(const CheckCommandOptions& options) {
   std::error_code ec;
   if (fs::exists(options.out_dir, ec) && !fs::is_directory(options.out_dir, ec)) {
     throw InputError({options.out_dir}, "--out", "exists and is not a directory");
+  }
+  const bool sharded = !options.shard.origin.empty();
+  if (sharded && !options.merge_dirs.empty()) {
+    throw InputError({}, options.shard.origin,
+                     "a merge (--merge) runs no shard: leave out --shard, and merge every shard");
+  }
+  if (sharded && options.junit_path) {
+    throw InputError({}, "--junit",
+                     fmt::format("shard {}/{} (from {}) writes no JUnit: give --junit to the merge "
+                                 "(tofu check ... --merge DIR...), which has every seed",
+                                 options.shard.index, options.shard.count, options.shard.origin));
   }
   if (options.junit_path) {
     if (options.junit_path->empty()) throw InputError({"--junit"}, "", "expected a file, got ''");
@@ -803,23 +790,21 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
 
 namespace {
 
-// Each scenario's seeds as jobs, its stale runs removed and its directory under `out`
-// made; longest simulated scenarios first.
-std::vector<Job> QueueRuns(const std::vector<Scenario>& scenarios, int seeds, const fs::path& out) {
+// The runs of the grid that `shard` owns (all of it without one), longest simulated
+// scenarios first. Nothing is touched on disk.
+std::vector<Job> PlanRuns(const std::vector<Scenario>& scenarios, const CheckGrid& grid,
+                          const Shard& shard, const fs::path& out) {
   std::vector<Job> queue;
-  for (size_t i = 0; i < scenarios.size(); ++i) {
-    const fs::path scenario_dir = out / scenarios[i].name;
-    RemoveStaleRuns(scenario_dir);
-    fs::create_directories(scenario_dir);
-    for (int k = 0; k < seeds; ++k) {
-      Job job;
-      job.scenario_index = i;
-      job.scenario_path = scenarios[i].source_file;
-      job.run.seed = scenarios[i].seed + static_cast<uint64_t>(k);
-      job.run.run_dir = (scenario_dir / fmt::format("seed_{}", job.run.seed)).string();
-      job.run.log_path = job.run.run_dir + ".log";
-      queue.push_back(std::move(job));
-    }
+  for (uint64_t cell = 0; cell < grid.Cells(); ++cell) {
+    if (!shard.Owns(cell)) continue;
+    Job job;
+    job.cell = cell;
+    job.scenario_index = cell / static_cast<uint64_t>(grid.seeds);
+    job.scenario_path = scenarios[job.scenario_index].source_file;
+    job.run.seed = grid.SeedOf(cell);
+    job.run.run_dir = grid.RunDirectory(out, cell).string();
+    job.run.log_path = job.run.run_dir + ".log";
+    queue.push_back(std::move(job));
   }
   // Longest simulated scenarios first: the suite ends sooner when its longest run does not
   // start last (stable, so seeds keep their order; the report does not depend on it).
@@ -827,6 +812,74 @@ std::vector<Job> QueueRuns(const std::vector<Scenario>& scenarios, int seeds, co
     return scenarios[a.scenario_index].duration_s > scenarios[b.scenario_index].duration_s;
   });
   return queue;
+}
+
+// Each scenario's folder under `out` made, with what an earlier check left of the runs
+// this process will make removed: every seed on one machine (stale seeds beyond --seeds
+// are not taken for this check's), a shard's own seeds only (other shards may be writing
+// beside it; the merge removes the rest). Shard records that would describe other runs
+// go too.
+void PrepareRunFolders(const CheckGrid& grid, const Shard& shard, const fs::path& out) {
+  for (size_t i = 0; i < grid.scenarios.size(); ++i) {
+    const CheckGrid::Entry& e = grid.scenarios[i];
+    const uint64_t first_cell = i * static_cast<uint64_t>(grid.seeds);
+    RemoveStaleRuns(out / e.name, [&](uint64_t seed) {
+      if (shard.origin.empty()) return true;
+      const bool in_grid =
+          seed >= e.first_seed && seed - e.first_seed < static_cast<uint64_t>(grid.seeds);
+      return in_grid && shard.Owns(first_cell + (seed - e.first_seed));
+    });
+    fs::create_directories(out / e.name);
+  }
+  RemoveShardRecords(out, shard);
+}
+
+// A shard's end: its record, which the merge needs to take its runs as one machine's.
+int FinishShard(const CheckCommandOptions& options, const CheckGrid& grid,
+                const std::vector<Job>& queue, const fs::path& out) {
+  std::map<uint64_t, RecordedRun> runs;
+  for (const Job& job : queue) {
+    runs[job.cell] = {job.run.exit_code, job.run.error, job.run.wall_time_s};
+  }
+  try {
+    WriteShardRecord(out, options.shard, grid, runs);
+  } catch (const core::IoError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return core::kExitIoError;
+  }
+  if (!options.quiet) {
+    fmt::print("shard {}/{}: {} runs recorded in {}; the check's verdict is the merge's "
+               "(tofu check ... --merge)\n",
+               options.shard.index, options.shard.count, queue.size(),
+               (out / ShardRecordName(options.shard)).string());
+  }
+  return core::kExitOk;
+}
+
+// The merge in place of the pool: every run of the grid as the shards recorded it, its
+// files gathered under `out`. False (said why) when the shards do not make up the grid.
+bool TakeShardRuns(const CheckCommandOptions& options, const CheckGrid& grid,
+                   std::vector<Job>& queue, const fs::path& out) {
+  std::map<uint64_t, RecordedRun> runs;
+  try {
+    runs = MergeShards(options.merge_dirs, grid, out);
+  } catch (const InputError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return false;
+  }
+  for (Job& job : queue) {
+    const RecordedRun& r = runs.at(job.cell);
+    job.run.exit_code = r.exit_code;
+    job.run.error = r.error;
+    job.run.wall_time_s = r.wall_time_s;
+  }
+  if (!options.quiet) {
+    fmt::print(stderr, "tofu check: merged {} shard directories: {} scenarios x {} seeds = {} "
+                       "runs -> {}\n",
+               options.merge_dirs.size(), grid.scenarios.size(), grid.seeds, queue.size(),
+               out.string());
+  }
+  return true;
 }
 
 // What went wrong over all runs of the check.
@@ -859,33 +912,10 @@ std::vector<ScenarioCheck> CheckScenarios(const std::vector<Scenario>& scenarios
   return checks;
 }
 
-}  // namespace
-
-int RunCheckCommand(const CheckCommandOptions& options) {
-  // Everything that can be wrong with the input is found before anything runs or is
-  // written.
-  std::vector<Scenario> scenarios;
-  try {
-    ValidateOptions(options);
-    const std::vector<std::string> paths =
-        ExpandScenarioInputs(options.inputs.empty() ? std::vector<std::string>{"scenarios"}
-                                                    : options.inputs);
-    if (!LoadAll(paths, scenarios)) return core::kExitBadInput;
-  } catch (const InputError& e) {
-    fmt::print(stderr, "tofu: error: {}\n", e.what());
-    return core::kExitBadInput;
-  }
-
-  const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
-  const fs::path out = fs::absolute(options.out_dir).lexically_normal();
-  std::vector<Job> queue = QueueRuns(scenarios, options.seeds, out);
-  int jobs = options.jobs;
-  if (jobs == 0) jobs = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  if (!options.quiet) {
-    fmt::print(stderr, "tofu check: {} scenarios x {} seeds = {} runs, {} at a time -> {}\n",
-               scenarios.size(), options.seeds, queue.size(), jobs, out.string());
-  }
-  RunPool(binary, queue, jobs, options.quiet);
+// After the runs (or the merge): the table, the JUnit and the method tables of the whole
+// grid, and the check's exit code.
+int ReportCheck(const CheckCommandOptions& options, const std::vector<Scenario>& scenarios,
+                std::vector<Job>& queue, const fs::path& out) {
   CheckFailures failures;
   const std::vector<ScenarioCheck> checks = CheckScenarios(scenarios, queue, failures);
 
@@ -913,6 +943,49 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   if (failures.io_failed) return core::kExitIoError;
   if (failures.simulation_failed) return core::kExitSimulationError;
   return failures.expectation_failed ? core::kExitExpectationFailed : core::kExitOk;
+}
+
+}  // namespace
+
+int RunCheckCommand(const CheckCommandOptions& options) {
+  // Everything that can be wrong with the input is found before anything runs or is
+  // written.
+  std::vector<Scenario> scenarios;
+  CheckGrid grid;
+  try {
+    ValidateOptions(options);
+    const std::vector<std::string> paths =
+        ExpandScenarioInputs(options.inputs.empty() ? std::vector<std::string>{"scenarios"}
+                                                    : options.inputs);
+    if (!LoadAll(paths, scenarios)) return core::kExitBadInput;
+    grid = MakeCheckGrid(scenarios, options.seeds);
+  } catch (const InputError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return core::kExitBadInput;
+  }
+
+  const fs::path out = fs::absolute(options.out_dir).lexically_normal();
+  std::vector<Job> queue = PlanRuns(scenarios, grid, options.shard, out);
+  if (!options.merge_dirs.empty()) {
+    if (!TakeShardRuns(options, grid, queue, out)) return core::kExitBadInput;
+    return ReportCheck(options, scenarios, queue, out);
+  }
+  PrepareRunFolders(grid, options.shard, out);
+  const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
+  int jobs = options.jobs;
+  if (jobs == 0) jobs = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  if (!options.quiet) {
+    const std::string part =
+        options.shard.origin.empty()
+            ? std::string()
+            : fmt::format("shard {}/{} (from {}) of ", options.shard.index, options.shard.count,
+                          options.shard.origin);
+    fmt::print(stderr, "tofu check: {}{} scenarios x {} seeds: {} runs, {} at a time -> {}\n",
+               part, scenarios.size(), options.seeds, queue.size(), jobs, out.string());
+  }
+  RunPool(binary, queue, jobs, options.quiet);
+  if (!options.shard.origin.empty()) return FinishShard(options, grid, queue, out);
+  return ReportCheck(options, scenarios, queue, out);
 }
 
 }  // namespace tofu::harness

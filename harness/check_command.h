@@ -3,8 +3,9 @@
 // input: exit 2 before anything runs), flies every (scenario, seed) as a `tofu run`
 // subprocess in a pool of jobs, reads each run's summary.json, aggregates each
 // expectation over the seeds (`pass_fraction`), prints a table, optionally writes
-// JUnit XML, and tabulates the estimation methods over the seeds (check_methods.h). The
-// CLI only parses arguments into CheckCommandOptions.
+// JUnit XML, and tabulates the estimation methods over the seeds (check_methods.h). Across
+// machines, a shard runs part of the grid and a merge takes the shards' runs in place of
+// its own (check_shards.h). The CLI only parses arguments into CheckCommandOptions.
 
 #include <cstdint>
 #include <optional>
@@ -15,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include "harness/scenario.h"
+#include "harness/shard.h"
 
 namespace tofu::harness {
 
@@ -31,12 +33,22 @@ struct CheckCommandOptions {
   bool quiet = false;                     ///< no progress and no table (failures still)
   /// The `tofu` executable to spawn for each run; empty: this process's (/proc/self/exe).
   std::string tofu_binary;
+  /// This process's part of the scenario x seed grid (check_shards.h); an empty origin:
+  /// the whole grid. A shard writes its runs and its record, and no JUnit, table or
+  /// method table: the merge does, over all shards.
+  Shard shard;
+  /// Instead of running: the shards' --out directories to merge (`--merge DIR...`).
+  std::vector<std::string> merge_dirs;
 };
 
 /// Runs the check and returns the exit code: kExitOk when every expectation held over
 /// the seeds, kExitExpectationFailed when one did not, kExitBadInput on bad input (the
 /// message names file:line:column and key; nothing is run or written) or when a run
-/// reported bad input, kExitSimulationError when a simulation failed.
+/// reported bad input, kExitSimulationError when a simulation failed. A shard returns
+/// kExitOk once its runs have ended and its record is written, whatever their verdicts
+/// (an expectation's pass_fraction needs every seed: the merge decides). A merge
+/// (`merge_dirs`) runs nothing and returns what one machine's check of the same grid
+/// would have; missing, repeated or foreign shards are bad input (nothing written).
 int RunCheckCommand(const CheckCommandOptions& options);
 
 /// The scenario files named by `inputs`, in order (directories expanded to their sorted

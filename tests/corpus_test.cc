@@ -85,27 +85,6 @@ TEST(CorpusSpec, EpisodeDependsOnlyOnSeedAndIndex) {
   EXPECT_NE(PlanEpisode(reseeded, 3).scenario_yaml, a.scenario_yaml);
 }
 
-TEST(CorpusSpec, ShardComesFromFlagOrArrayEngines) {
-  EXPECT_EQ(ResolveShard(std::string("2/5"), std::nullopt).index, 2u);
-  EXPECT_THROW(ResolveShard(std::string("5/5"), std::nullopt), core::InputError);
-  EXPECT_THROW(ResolveShard(std::string("1-4"), std::nullopt), core::InputError);
-  ::setenv("SLURM_ARRAY_TASK_ID", "4", 1);
-  ::setenv("SLURM_ARRAY_TASK_COUNT", "3", 1);
-  ::setenv("SLURM_ARRAY_TASK_MIN", "3", 1);  // --array=3-5
-  const Shard slurm = ResolveShard(std::nullopt, std::nullopt);
-  EXPECT_EQ(slurm.index, 1u);
-  EXPECT_EQ(slurm.count, 3u);
-  ::unsetenv("SLURM_ARRAY_TASK_ID");
-  ::unsetenv("SLURM_ARRAY_TASK_COUNT");
-  ::unsetenv("SLURM_ARRAY_TASK_MIN");
-  ::setenv("JOB_COMPLETION_INDEX", "2", 1);
-  EXPECT_THROW(ResolveShard(std::nullopt, std::nullopt), core::InputError);  // count needed
-  EXPECT_EQ(ResolveShard(std::nullopt, 4).index, 2u);
-  EXPECT_THROW(ResolveShard(std::nullopt, 2), core::InputError);  // 2 >= 2
-  ::unsetenv("JOB_COMPLETION_INDEX");
-  EXPECT_EQ(ResolveShard(std::nullopt, std::nullopt).count, 1u);
-}
-
 TEST(CorpusEpisode, OverlappingFaultsOfOneKindKeepOneEventEach) {
   // Two dropouts of the VIO overlap: labels read start, start, end, end.
   harness::RunRecord record;

@@ -12,38 +12,16 @@
 # problem, a cluster that does not start included, is a failure.
 set -euo pipefail
 
-if [[ $# -ne 3 ]]; then
-  echo "usage: slurm_corpus_check.sh TOFU SOURCE_DIR WORK_DIR" >&2
-  exit 2
-fi
-tofu=$(realpath "$1")
-src=$(realpath "$2")
-work=$(realpath -m "$3")
+# shellcheck source=tests/slurm_test_support.sh
+source "$(dirname "${BASH_SOURCE[0]}")/slurm_test_support.sh"
+slurm_test_arguments "$@"  # tofu, src, work
 spec=$src/corpora/smoke.yaml
-cluster=$src/scripts/slurm_local_cluster.sh
 job_script=$src/scripts/corpus.sbatch
 
-missing=
-for c in slurmctld slurmd sbatch scontrol sinfo munged munge; do
-  command -v "$c" >/dev/null || missing+=" $c"
-done
-if [[ -n $missing ]]; then
-  echo "SKIP: not installed:$missing (Debian: slurmctld slurmd slurm-client munge)"
-  exit 77
-fi
-if [[ $(id -u) != 0 ]]; then
-  echo "SKIP: a local Slurm cluster needs root (slurmd starts jobs as their users)"
-  exit 77
-fi
-
-fail() {
-  echo "FAIL: $*" >&2
-  exit 1
-}
+slurm_skip_unless_possible
 [[ -x $tofu ]] || fail "no tofu binary at $tofu"
 [[ -f $spec ]] || fail "no spec $spec"
 
-state=$work/slurm
 out=$work/corpus
 logs=$out.logs  # corpus.sbatch's per-task logs
 rm -rf "$out" "$logs" "$work"/tofu-corpus-*.out "$work/sbatch.out"
@@ -53,31 +31,8 @@ mkdir -p "$work"
 # ports (6817/6818) does not make this test fail, nor this test stop theirs.
 export TOFU_SLURMCTLD_PORT=${TOFU_SLURMCTLD_PORT:-6917}
 export TOFU_SLURMD_PORT=${TOFU_SLURMD_PORT:-6918}
-export SLURM_CONF=$state/etc/slurm.conf
-
-show_logs() {
-  local f
-  for f in "$logs"/*.out "$work"/tofu-corpus-*.out "$state"/log/slurmctld.log "$state"/log/slurmd.log; do
-    [[ -s $f ]] || continue
-    echo "---- last lines of $f"
-    tail -n 25 "$f"
-  done
-}
-cleanup() {
-  local status=$?
-  trap - EXIT INT TERM
-  ((status == 0)) || show_logs
-  if [[ -n $sbatch_pid ]]; then kill "$sbatch_pid" 2>/dev/null || true; fi
-  "$cluster" stop "$state" || status=1
-  exit "$status"
-}
-sbatch_pid=
-trap cleanup EXIT
-trap 'exit 130' INT TERM
-
-# The watchdog outlives ctest's 600 s TIMEOUT by a minute: if ctest kills this script with
-# SIGKILL the trap never runs, and the watchdog stops the daemons instead.
-"$cluster" start --max-lifetime 660 "$state" || fail "the local Slurm cluster did not start"
+slurm_logs=("$logs/*.out" "$work/tofu-corpus-*.out")
+slurm_start "$work/slurm" "$src/scripts/slurm_local_cluster.sh"
 
 # Submitted from WORK_DIR, so the per-task --output files of corpus.sbatch land there.
 cd "$work"
@@ -94,17 +49,9 @@ job=${job%%;*}
 [[ -n $job ]] || fail "sbatch did not submit (status $status)"
 echo "array job $job: sbatch --wait exit status $status"
 
-# No slurmdbd here, so no sacct: scontrol keeps finished jobs for MinJobAge (10 min in
-# slurm_local_cluster.sh's slurm.conf), one record per array task.
-records=$(scontrol -o show job "$job")
 ok=1
+slurm_tasks_ok "$job" 2 || ok=0
 for task in 0 1; do
-  rec=$(grep -E "ArrayJobId=$job ArrayTaskId=$task " <<<"$records" || true)
-  st=$(grep -oE 'JobState=[A-Z_]+' <<<"$rec" || true)
-  ec=$(grep -oE ' ExitCode=[0-9]+:[0-9]+' <<<"$rec" || true)
-  times=$(grep -oE '(StartTime|EndTime)=[^ ]+' <<<"$rec" | tr '\n' ' ' || true)
-  echo "task $task: ${st:-no record} ${ec# } $times"
-  [[ $st == JobState=COMPLETED && $ec == " ExitCode=0:0" ]] || ok=0
   log=$logs/slurm-${job}_${task}.out
   [[ -s $log ]] || { echo "task $task: no log $log"; ok=0; }
 done

@@ -28,6 +28,7 @@
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
+#include "harness/shard.h"
 #include "renders/render_command.h"
 #include "replay/consistency_command.h"
 #include "replay/file_io.h"
@@ -408,7 +409,7 @@ std::vector<Command> AddCorpusCommands(CLI::App& parent) {
          tofu::corpus::GenerateOptions options;
          options.spec = o->spec;
          options.out_dir = o->out;
-         options.shard = tofu::corpus::ResolveShard(o->shard, o->shard_count);
+         options.shard = tofu::harness::ResolveShard(o->shard, o->shard_count);
          options.quiet = o->quiet;
          std::optional<ProgressBar> bar;
          if (!o->quiet && ::isatty(STDERR_FILENO)) {
@@ -478,10 +479,15 @@ Command AddCheckCommand(CLI::App& parent) {
   struct Options {
     tofu::harness::CheckCommandOptions check;
     std::optional<std::string> report;
+    std::optional<std::string> shard;
+    std::optional<std::uint64_t> shard_count;
   };
   auto o = std::make_shared<Options>();
   CLI::App* check = parent.add_subcommand(
-      "check", "Run scenarios over seeds as CI: table, JUnit XML, exit code");
+      "check",
+      "Run scenarios over seeds as CI: table, JUnit XML, exit code; across machines, "
+      "--shard I/N runs one part of the scenario x seed grid and --merge DIR... writes "
+      "what one machine would");
   check->add_option("scenarios", o->check.inputs,
                     "Scenario files or directories of *.yaml (default: scenarios)");
   check->add_option("--junit", o->check.junit_path, "Write JUnit XML to this file");
@@ -496,7 +502,38 @@ Command AddCheckCommand(CLI::App& parent) {
   check->add_flag("--quiet", o->check.quiet, "No progress and no table (failures still)");
   check->add_option("--report", o->report,
                     "After the check, write its HTML report (tofu report) to this directory");
+  check->add_option("--shard", o->shard,
+                    "I/N: run only the cells c of the scenario x seed grid (c = scenario index "
+                    "x seeds + seed offset) with c % N == I, and record them in "
+                    "<out>/check_shard_<I>_of_<N>.json; no JUnit, table or report (the merge "
+                    "writes them). Default: from SLURM_ARRAY_TASK_ID/COUNT or "
+                    "JOB_COMPLETION_INDEX, else the whole grid");
+  check->add_option("--shard-count", o->shard_count,
+                    "N, with JOB_COMPLETION_INDEX (a Kubernetes Indexed Job's completions)")
+      ->check(WholeNumber(1, 1000000));
+  check->add_option("--merge", o->check.merge_dirs,
+                    "DIR...: run nothing; merge the --out directories of shards 0..N-1 of this "
+                    "same check (same scenarios and --seeds) into --out and write the JUnit, "
+                    "table, method tables and report one machine would, with its exit code");
+  check->footer(
+      "Across machines (README, `tofu check`): run `tofu check SCENARIOS --seeds S --out "
+      "DIR_I --shard I/N` for I = 0..N-1 (or as a Slurm array / Kubernetes Indexed Job: "
+      "scripts/check.sbatch), then `tofu check SCENARIOS --seeds S --out OUT --junit FILE "
+      "--report DIR --merge DIR_0 ... DIR_N-1`. Shards may share one --out on a shared file "
+      "system. A shard exits 0 once its runs are recorded; the merge exits as one machine's "
+      "check would.");
   return {check, true, [o] {
+            // A merge is no shard, even when it runs inside an array task's environment.
+            if (o->check.merge_dirs.empty() || o->shard) {
+              o->check.shard = tofu::harness::ResolveShard(o->shard, o->shard_count);
+            }
+            if (o->report && !o->check.shard.origin.empty()) {
+              throw tofu::core::InputError(
+                  {}, "--report",
+                  fmt::format("shard {}/{} (from {}) writes no report: give --report to the "
+                              "merge (tofu check ... --merge DIR...), which has every seed",
+                              o->check.shard.index, o->check.shard.count, o->check.shard.origin));
+            }
             if (o->report) return CheckWithReport(o->check, *o->report);
             return tofu::harness::RunCheckCommand(o->check);
           }};
