@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
+#include "core/version.h"
 #include "corpus/corpus_spec.h"
 #include "corpus/episode_writer.h"
 #include "corpus/hdf5_file.h"
@@ -175,8 +176,8 @@ void SetCorpusAttributes(const Hdf5Group& root, const CorpusSpec& spec, const Sh
   root.SetAttribute("shard_index", static_cast<std::int64_t>(shard.index));
   root.SetAttribute("shard_count", static_cast<std::int64_t>(shard.count));
   root.SetAttribute("schema_version", static_cast<std::int64_t>(kSchemaVersion));
-  root.SetAttribute("tofu_version", TOFU_VERSION_STRING);
-  root.SetAttribute("tofu_commit", TOFU_GIT_COMMIT);
+  root.SetAttribute("tofu_version", core::TofuVersion());
+  root.SetAttribute("tofu_commit", core::TofuCommit());
 }
 
 }  // namespace

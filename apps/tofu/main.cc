@@ -21,6 +21,8 @@
 
 #include "core/error.h"
 #include "core/units.h"
+#include "core/version.h"
+#include "tofu/api.h"
 #include "corpus/corpus_command.h"
 #include "harness/check_command.h"
 #include "harness/evaluation.h"
@@ -733,6 +735,9 @@ int RunMapped(const Command& command) {
 
 int main(int argc, char** argv) {
   CLI::App app{"tofu: simulation-in-the-loop test harness for multi-sensor state estimation"};
+  app.set_version_flag("--version", fmt::format("tofu {} (commit {}, tofu/api.h version {})",
+                                                tofu::core::TofuVersion(), tofu::core::TofuCommit(),
+                                                TOFU_API_VERSION));
   app.require_subcommand(1);
   // In the order of `tofu --help`.
   std::vector<Command> commands;
@@ -750,6 +755,8 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
     app.exit(e);
