@@ -1000,10 +1000,6 @@ void MultiGraphEstimator::SetMissionCandidates(const std::vector<std::string>& n
   impl.mission_candidates = names;
 }
 
-std::string MultiGraphEstimator::MissionFrameSource() const {
-  return impl_->mission ? impl_->mission->source() : std::string();
-}
-
 std::vector<EstimatorOutput> MultiGraphEstimator::TakeOutputs() {
   std::vector<EstimatorOutput> out;
   out.swap(impl_->outputs);

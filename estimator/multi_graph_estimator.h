@@ -242,8 +242,6 @@ class MultiGraphEstimator {
   /// Consensus names every sensor it has not excluded, so that one it cannot judge yet
   /// still serves when its positions fit.
   void SetMissionCandidates(const std::vector<std::string>& names);
-  /// The surveyed sensor the published T_ML follows now (empty: none).
-  std::string MissionFrameSource() const;
 
   /// Outputs produced since the last call.
   std::vector<EstimatorOutput> TakeOutputs();

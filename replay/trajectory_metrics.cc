@@ -142,8 +142,7 @@ Eigen::Isometry3d Align(const std::vector<const Pair*>& pairs, const TrajectoryE
       yaw = std::atan2(H(0, 1) - H(1, 0), H(0, 0) + H(1, 1));
     } else {
       // Projection of the attitude offsets onto rotations about z.
-      yaw = std::atan2(attitude_sum(1, 0) - attitude_sum(0, 1),
-                       attitude_sum(0, 0) + attitude_sum(1, 1));
+      yaw = core::YawOfNearestZRotation(attitude_sum);
       *from_attitude = true;
     }
     R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
