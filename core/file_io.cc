@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
 
 #include <fmt/format.h>
 
@@ -101,6 +102,24 @@ std::string ReadWholeFile(const fs::path& path, std::string_view what, std::size
                            fmt::format("cannot read the {}: {}", what, std::strerror(read_errno)));
   }
   return text;
+}
+
+std::vector<std::string> LogTail(const fs::path& path, std::size_t max_lines) {
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  std::string line;
+  while (std::getline(in, line)) {
+    if (const std::size_t cr = line.find_last_of('\r'); cr != std::string::npos) {
+      line = line.substr(cr + 1);
+    }
+    if (line.find_first_not_of(" \t") == std::string::npos) continue;
+    if (line.size() > 400) line = line.substr(0, 400) + "...";
+    lines.push_back(line);
+  }
+  if (lines.size() > max_lines) {
+    lines.erase(lines.begin(), lines.end() - static_cast<std::ptrdiff_t>(max_lines));
+  }
+  return lines;
 }
 
 }  // namespace tofu::core

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <string>
 #include <string_view>
+#include <vector>
 
 namespace tofu::core {
 
@@ -42,6 +43,12 @@ class LineReader {
   char* buffer_ = nullptr;  // getline's, grown to the longest line
   std::size_t capacity_ = 0;
 };
+
+/// The last `max_lines` lines of a log that hold more than blanks, as a terminal showed
+/// them (a progress bar redraws with '\r': only what follows the last one), each cut to
+/// 400 characters: what a failed command said, for a table or a report. A missing or
+/// unreadable log has none.
+std::vector<std::string> LogTail(const std::filesystem::path& path, std::size_t max_lines);
 
 /// The size limit of configuration files a user writes by hand (scenarios, calibration,
 /// corpus specs, sensor.yaml): 16 MiB, a thousand times the largest the project has.

@@ -1,26 +1,25 @@
 #include "corpus/corpus_command.h"
 
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <fstream>
 #include <map>
 #include <set>
-#include <sstream>
 #include <system_error>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
+#include "core/file_io.h"
 #include "core/version.h"
 #include "corpus/corpus_spec.h"
 #include "corpus/episode_writer.h"
 #include "corpus/hdf5_file.h"
 #include "harness/run.h"
 #include "harness/scenario.h"
+#include "replay/file_io.h"
 #include "replay/replay.h"
 #include "replay/trajectory_metrics.h"
 #include "sim/faults.h"
@@ -34,26 +33,6 @@ namespace fs = std::filesystem;
 constexpr const char* kSpecFile = "corpus.yaml";
 constexpr int kSchemaVersion = 1;
 
-std::string ReadText(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-// Written beside its destination and renamed: a reader never sees half a file.
-void WriteAtomically(const fs::path& path, const std::string& text) {
-  const fs::path partial = path.string() + fmt::format(".partial{}", ::getpid());
-  {
-    std::ofstream out(partial, std::ios::binary | std::ios::trunc);
-    out << text;
-    if (!out) throw core::IoError(fmt::format("cannot write {}", partial.string()));
-  }
-  std::error_code ec;
-  fs::rename(partial, path, ec);
-  if (ec) throw core::IoError(fmt::format("cannot write {}: {}", path.string(), ec.message()));
-}
-
 // The corpus directory for `spec`: created with corpus.yaml, or an existing one made
 // from the very same spec text. Anything else is refused (exit 2), untouched.
 void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
@@ -62,7 +41,7 @@ void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
     throw core::InputError({dir.string()}, "--out", "exists and is not a directory");
   }
   if (fs::exists(spec_copy)) {
-    if (ReadText(spec_copy) != spec.text) {
+    if (core::ReadWholeFile(spec_copy, "corpus spec") != spec.text) {
       throw core::InputError({dir.string()}, "--out",
                              fmt::format("holds the shards of another spec ({} differs from {}); "
                                          "use another directory", spec_copy.string(), spec.file));
@@ -83,7 +62,7 @@ void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
                            "is not empty and not a corpus directory (no corpus.yaml): refused, untouched");
   }
   fs::create_directories(dir);
-  WriteAtomically(spec_copy, spec.text);  // concurrent shards write the same bytes
+  replay::WriteFileAtomically(spec_copy, spec.text);  // concurrent shards write the same bytes
 }
 
 std::vector<std::uint64_t> ShardEpisodes(const CorpusSpec& spec, const Shard& shard) {
@@ -295,7 +274,7 @@ int RunCorpusGenerate(const GenerateOptions& options) {
   std::error_code ec;
   fs::rename(partial, shard_file, ec);
   if (ec) throw core::IoError(fmt::format("cannot write {}: {}", shard_file.string(), ec.message()));
-  WriteAtomically(manifest_part, rows.dump(1) + "\n");
+  replay::WriteFileAtomically(manifest_part, rows.dump(1) + "\n");
   fs::remove_all(work);
   if (!options.quiet) {
     fmt::print("{}: {} episodes ({} resumed) in {}\n", stem, episodes.size(), resumed, shard_file.string());
@@ -419,7 +398,7 @@ std::map<std::string, std::string> RecordedContentHashes(const fs::path& shard,
   if (!fs::exists(part)) {
     problems.push_back(fmt::format("{}: missing", part.filename().string()));
   } else {
-    for (const auto& row : nlohmann::json::parse(ReadText(part))) {
+    for (const auto& row : nlohmann::json::parse(core::ReadWholeFile(part, "shard manifest"))) {
       recorded_hash[row.at("id").get<std::string>()] = row.at("content_hash").get<std::string>();
     }
   }
@@ -507,9 +486,9 @@ void WriteManifests(const fs::path& dir, const CorpusSpec& spec, CorpusTally& ta
     csv += ManifestCsvRow(r, methods);
     json.push_back(ManifestJson(r));
   }
-  WriteAtomically(dir / "manifest.csv", csv);
-  WriteAtomically(dir / "manifest.json", json.dump(1) + "\n");
-  WriteAtomically(dir / "CARD.md", CardText(spec, rows, tally.events, tally.balance, tally.version, tally.commit));
+  replay::WriteFileAtomically(dir / "manifest.csv", csv);
+  replay::WriteFileAtomically(dir / "manifest.json", json.dump(1) + "\n");
+  replay::WriteFileAtomically(dir / "CARD.md", CardText(spec, rows, tally.events, tally.balance, tally.version, tally.commit));
 }
 
 }  // namespace
@@ -518,7 +497,8 @@ int RunCorpusVerify(const fs::path& dir, bool quiet) {
   if (!fs::is_directory(dir) || !fs::exists(dir / kSpecFile)) {
     throw core::InputError({dir.string()}, "", "not a corpus directory (expected corpus.yaml and shard_*.h5)");
   }
-  const CorpusSpec spec = ParseCorpusSpec(ReadText(dir / kSpecFile), (dir / kSpecFile).string());
+  const CorpusSpec spec = ParseCorpusSpec(core::ReadWholeFile(dir / kSpecFile, "corpus spec", core::kMaxConfigFileBytes),
+                                          (dir / kSpecFile).string());
   std::vector<std::string> problems;
   const std::vector<fs::path> shards = ShardFiles(dir, problems);
   CorpusTally tally;

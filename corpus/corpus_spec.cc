@@ -19,10 +19,10 @@
 namespace tofu::corpus {
 namespace {
 
-using harness::internal::FormatDouble;
-using harness::internal::NumberRule;
-using harness::internal::YamlMap;
-using harness::internal::YamlValue;
+using core::FormatDouble;
+using core::NumberRule;
+using harness::YamlMap;
+using harness::YamlValue;
 
 using core::kPi;
 
@@ -308,7 +308,7 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
   CorpusSpec spec;
   spec.file = file_label;
   spec.text = text;
-  const YamlValue root = harness::internal::ParseDocument(text, file_label);
+  const YamlValue root = harness::ParseDocument(text, file_label);
   YamlMap top = root.Map({"name", "description", "seed", "episodes", "duration_s", "worlds",
                           "trajectory", "sensors", "wind", "faults", "external", "plugins",
                           "estimation", "closed_loop"});
@@ -348,8 +348,8 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
   if (external || plugins) {
     YAML::Emitter clients;
     clients << YAML::BeginMap;
-    harness::internal::EmitClients(clients,
-                                   harness::internal::ReadClients(external, plugins, file_label));
+    harness::EmitClients(clients,
+                                   harness::ReadClients(external, plugins, file_label));
     clients << YAML::EndMap;
     spec.clients_yaml = std::string(clients.c_str()) + "\n";
   }

@@ -19,8 +19,10 @@
 #include <thread>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include "core/error.h"
+#include "core/file_io.h"
 #include "harness/check_methods.h"
 #include "harness/check_shards.h"
 #include "harness/yaml_reader.h"
@@ -41,7 +43,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using core::InputError;
-using internal::FormatDouble;
+using core::FormatDouble;
 
 // ---- running ----
 
@@ -60,25 +62,6 @@ std::string SelfExecutable() {
   return ec ? std::string("/proc/self/exe") : self.string();
 }
 
-// The last few non-empty lines of a run's log: what `tofu run` said when it failed.
-std::string LogTail(const std::string& path, size_t max_lines = 5) {
-  std::ifstream in(path);
-  std::vector<std::string> lines;
-  std::string line;
-  while (std::getline(in, line)) {
-    // A progress bar redraws with '\r'; keep only what is visible at the end of the line.
-    if (const size_t cr = line.find_last_of('\r'); cr != std::string::npos) {
-      line = line.substr(cr + 1);
-    }
-    if (line.find_first_not_of(" \t") == std::string::npos) continue;
-    if (line.size() > 400) line = line.substr(0, 400) + "...";
-    lines.push_back(line);
-  }
-  if (lines.size() > max_lines) lines.erase(lines.begin(), lines.end() - max_lines);
-  std::string tail;
-  for (const std::string& l : lines) tail += fmt::format("{}{}", tail.empty() ? "" : "\n", l);
-  return tail;
-}
 
 // Starts `tofu run` for a job with stdin from /dev/null and stdout+stderr into its log.
 // Returns the child's pid, or -1 with the reason in job.run.error.
@@ -251,8 +234,8 @@ void ReadSummary(SeedRun& run) {
   if (run.summary.is_object() && run.summary.contains("failure") &&
       run.summary["failure"].is_string()) {
     run.error += ": " + run.summary["failure"].get<std::string>();
-  } else if (const std::string tail = LogTail(run.log_path); !tail.empty()) {
-    run.error += ":\n" + tail;
+  } else if (const std::vector<std::string> tail = core::LogTail(run.log_path, 5); !tail.empty()) {
+    run.error += fmt::format(":\n{}", fmt::join(tail, "\n"));
   }
 }
 

@@ -33,7 +33,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using internal::FormatDouble;
+using core::FormatDouble;
 
 constexpr const char* kOracle = "oracle";
 constexpr const char* kAteOverOracle = "ate_over_oracle";

@@ -8,7 +8,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
-namespace tofu::harness::internal {
+namespace tofu::harness {
 namespace {
 
 namespace fs = std::filesystem;
@@ -212,4 +212,4 @@ const ClientSpec* FindClient(const std::vector<ClientSpec>& clients, const std::
   return nullptr;
 }
 
-}  // namespace tofu::harness::internal
+}  // namespace tofu::harness

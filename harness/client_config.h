@@ -26,7 +26,7 @@
 #include "harness/yaml_reader.h"
 #include "replay/estimation_config.h"
 
-namespace tofu::harness::internal {
+namespace tofu::harness {
 
 /// Reads `external:` and `plugins:` (either may be absent). `scenario_file`: the file the
 /// scenario was read from (its directory resolves relative paths).
@@ -41,4 +41,4 @@ void EmitClients(YAML::Emitter& out, const std::vector<replay::ClientSpec>& clie
 const replay::ClientSpec* FindClient(const std::vector<replay::ClientSpec>& clients,
                                      const std::string& name);
 
-}  // namespace tofu::harness::internal
+}  // namespace tofu::harness

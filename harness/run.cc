@@ -337,7 +337,7 @@ class Flight {
     const replay::ClientSpec* client = nullptr;
     if (scenario_.control && scenario_.control->controller) {
       controller_name_ = *scenario_.control->controller;
-      client = internal::FindClient(scenario_.clients, controller_name_);
+      client = FindClient(scenario_.clients, controller_name_);
     }
     controller_ = StartController(client, scenario_.controller, record_.robot.rigid_body,
                                   record_.robot.allocation);
@@ -359,6 +359,7 @@ class Flight {
     for (const SensorConfig& config : scenario_.sensors) {
       try {
         models_.push_back(MakeSensorModel(config, *world_, scenario_.seed));
+        imu_models_.push_back(dynamic_cast<const sim::ImuModel*>(models_.back().get()));
       } catch (const std::invalid_argument& e) {
         throw core::InputError({scenario_.source_file, 0, 0}, "sensors." + config.name, e.what());
       }
@@ -509,7 +510,7 @@ class Flight {
     const sim::SensorInput input{truth, *world_, rotor_thrust_N};
     for (size_t i = 0; i < models_.size(); ++i) {
       SensorStream& stream = record_.sensors[i];
-      const auto* imu = dynamic_cast<const sim::ImuModel*>(models_[i].get());
+      const sim::ImuModel* imu = imu_models_[i];
       std::pair<Eigen::Vector3d, Eigen::Vector3d> bias;
       if (imu != nullptr) bias = {imu->gyro_bias_radps(), imu->accel_bias_mps2()};
       sensor_scratch_.clear();
@@ -615,6 +616,8 @@ class Flight {
 
   // Sensors.
   std::vector<std::unique_ptr<sim::SensorModel>> models_;
+  /// models_[i] when it is an IMU (whose biases are recorded with its samples), else null.
+  std::vector<const sim::ImuModel*> imu_models_;
   std::vector<sim::FaultInjector> injectors_;
   std::vector<uint32_t> conditions_;
   std::vector<sim::SensorSample> sensor_scratch_;

@@ -39,12 +39,10 @@ namespace {
 
 using internal::EmitOptionFields;
 using internal::FinishOptionsMap;
-using internal::FormatDouble;
-using internal::NumberRule;
+using core::FormatDouble;
+using core::NumberRule;
 using internal::OptionKeys;
 using internal::ReadOptionFields;
-using internal::YamlMap;
-using internal::YamlValue;
 using namespace internal::config;
 
 std::string SensorTypeList() { return fmt::format("{}", fmt::join(kSensorTypeNames, ", ")); }
@@ -256,7 +254,7 @@ ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
   if (const auto controller = map.Optional("controller")) {
     const std::string name = controller->String();
     if (name != kBuiltinControllerName) {
-      if (internal::FindClient(scenario.clients, name) == nullptr) {
+      if (FindClient(scenario.clients, name) == nullptr) {
         std::string known;
         for (const replay::ClientSpec& c : scenario.clients) known += ", " + c.Name();
         controller->Fail(fmt::format("controller '{}' is neither {} (tofu's own) nor a client of "
@@ -575,7 +573,7 @@ Expectation ReadExpectation(const YamlValue& item, const std::vector<SensorConfi
   if (info == nullptr) {
     std::vector<std::string> names;
     for (const MetricInfo& known : MetricCatalog()) names.push_back(known.name);
-    const std::string suggestion = internal::ClosestMatch(expectation.metric, names);
+    const std::string suggestion = ClosestMatch(expectation.metric, names);
     metric.Fail(
         fmt::format("unknown metric '{}'{}; known metrics: {}", expectation.metric,
                     suggestion.empty() ? "" : fmt::format(" (did you mean '{}'?)", suggestion),
@@ -872,7 +870,7 @@ replay::EstimationConfig ParseEstimationBlock(const std::string& yaml_text,
                                               const std::string& file_label,
                                               const std::vector<std::string>& sensors,
                                               const std::string& imu) {
-  const YamlValue root = internal::ParseDocument(yaml_text, file_label);
+  const YamlValue root = ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"estimation"});
   // The block's checks need only which stream is the IMU and the others' names.
   std::vector<SensorConfig> configs;
@@ -904,7 +902,7 @@ bool SurveyedInMission(const Scenario& scenario, const SensorConfig& sensor) {
 }
 
 Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label) {
-  const YamlValue root = internal::ParseDocument(yaml_text, file_label);
+  const YamlValue root = ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
                           "sensors", "faults", "consistency", "external", "plugins",
@@ -971,7 +969,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
     scenario.consistency = ReadConsistency(*consistency);
   }
   scenario.clients =
-      internal::ReadClients(map.Optional("external"), map.Optional("plugins"), file_label);
+      ReadClients(map.Optional("external"), map.Optional("plugins"), file_label);
   if (const auto estimation = map.Optional("estimation")) {
     scenario.estimation = ReadEstimation(*estimation, scenario.sensors, scenario.clients);
     // What a client's setup carries: the block as the resolved scenario writes it.
@@ -1124,7 +1122,7 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   EmitSensors(out, scenario.sensors);
   EmitFaults(out, scenario.faults);
   if (scenario.consistency) EmitConsistency(out, *scenario.consistency);
-  internal::EmitClients(out, scenario.clients);
+  EmitClients(out, scenario.clients);
   if (scenario.estimation) EmitEstimation(out, *scenario.estimation);
   if (scenario.control) EmitControl(out, *scenario.control);
   EmitMission(out, scenario.mission);

@@ -14,7 +14,7 @@
 #include <system_error>
 #include <utility>
 
-namespace tofu::harness::internal {
+namespace tofu::harness {
 namespace {
 
 // yaml-cpp tags: "?" for plain scalars, "!" for quoted ones.
@@ -478,4 +478,4 @@ YamlValue ParseDocument(const std::string& text, const std::string& file_label) 
   return value;
 }
 
-}  // namespace tofu::harness::internal
+}  // namespace tofu::harness

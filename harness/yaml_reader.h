@@ -23,7 +23,7 @@
 #include "core/error.h"
 #include "core/option_fields.h"
 
-namespace tofu::harness::internal {
+namespace tofu::harness {
 
 // The number rule and the round-trip formatting of option tables (core/option_fields.h).
 using core::FormatDouble;
@@ -140,4 +140,4 @@ class YamlMap {
 /// documents and a root that is not a map are InputErrors. Returns the root value.
 YamlValue ParseDocument(const std::string& text, const std::string& file_label);
 
-}  // namespace tofu::harness::internal
+}  // namespace tofu::harness

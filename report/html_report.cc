@@ -265,21 +265,10 @@ std::vector<std::string> CheckScenarioFolders(const fs::path& check_dir) {
 }
 
 // The last lines of a log as it looks on a terminal (a progress bar redraws with '\r').
-std::string LogTail(const fs::path& path, size_t max_lines) {
-  std::ifstream in(path);
-  std::vector<std::string> lines;
-  std::string line;
-  while (std::getline(in, line)) {
-    if (const size_t cr = line.find_last_of('\r'); cr != std::string::npos)
-      line = line.substr(cr + 1);
-    if (line.find_first_not_of(" \t") == std::string::npos) continue;
-    if (line.size() > 400) line = line.substr(0, 400) + "...";
-    lines.push_back(line);
-  }
-  if (lines.size() > max_lines)
-    lines.erase(lines.begin(), lines.end() - static_cast<long>(max_lines));
+// A run's log tail as the page shows it: a line each, each ended.
+std::string LogTailText(const fs::path& path, std::size_t max_lines) {
   std::string tail;
-  for (const std::string& l : lines) tail += l + "\n";
+  for (const std::string& line : core::LogTail(path, max_lines)) tail += line + "\n";
   return tail;
 }
 
@@ -1210,7 +1199,7 @@ CheckScenario ReadCheckScenario(const fs::path& check_dir, const std::string& na
     r.run.seed = seed;
     r.run.run_dir = (dir / fmt::format("seed_{}", seed)).string();
     r.run.log_path = (dir / fmt::format("seed_{}.log", seed)).string();
-    r.log_tail = LogTail(r.run.log_path, 12);
+    r.log_tail = LogTailText(r.run.log_path, 12);
     if (!IsRunDirectory(r.run.run_dir)) {
       r.run.exit_code = core::kExitBadInput;
       r.run.error = "no run directory: the run was refused or did not start (see its log)";

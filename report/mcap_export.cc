@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
+#include "core/file_io.h"
 #include "renders/events.h"
 #include "renders/run_data.h"
 #include "replay/csv_reader.h"
@@ -619,10 +620,6 @@ void ExportScene(const RunData& run, Channels& out) {
   out.Add("/scene", "foxglove.SceneUpdate", t0, t0, scene.str());
 }
 
-std::string ReadText(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
 
 }  // namespace
 
@@ -648,7 +645,7 @@ McapExportResult ExportRunToMcap(const fs::path& run_dir, const fs::path& mcap_f
     writer.AddMetadata("scenario", {{"name", run.scenario_name},
                                     {"world", run.world},
                                     {"robot", run.robot},
-                                    {"scenario.yaml", ReadText(run_dir / "scenario.yaml")}});
+                                    {"scenario.yaml", core::ReadWholeFile(run_dir / "scenario.yaml", "scenario file")}});
     writer.AddMetadata("tofu", {{"version", TOFU_VERSION_STRING},
                                 {"run", fs::absolute(run_dir).lexically_normal().filename().string()}});
     writer.Close();

@@ -186,8 +186,8 @@ TEST_F(CheckCommandTest, EstimationMethodsAreTabulatedOverTheSeeds) {
   const std::string csv = ReadFile(out_ / "methods.csv");
   EXPECT_EQ(csv.rfind("#scenario,method,metric,seeds,median,worst\n", 0), 0u) << csv;
   EXPECT_CONTAINS(csv, fmt::format("est_hover,naive,ate_m,2,{},{}\n",
-                                   harness::internal::FormatDouble(0.5 * (ates[0] + ates[1])),
-                                   harness::internal::FormatDouble(std::max(ates[0], ates[1]))));
+                                   core::FormatDouble(0.5 * (ates[0] + ates[1])),
+                                   core::FormatDouble(std::max(ates[0], ates[1]))));
   EXPECT_CONTAINS(csv, "est_hover,oracle,ate_over_oracle,2,1,1\n");
 }
 

@@ -288,8 +288,8 @@ TEST(Gnss, EnuFrameIsConfigurable) {
 
 // ---- YAML ----
 
-harness::internal::YamlValue SensorValue(const std::string& yaml) {
-  const auto root = harness::internal::ParseDocument(yaml, "gnss.yaml");
+harness::YamlValue SensorValue(const std::string& yaml) {
+  const auto root = harness::ParseDocument(yaml, "gnss.yaml");
   return root.Map({"sensors"}).Required("sensors").Map({"rtk"}).Required("rtk");
 }
 

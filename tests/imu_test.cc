@@ -597,9 +597,9 @@ constexpr char kLabel[] = "imu.yaml";
 
 // The options map at sensors.imu of `yaml` (lines 1 and 2 are "sensors:" and "  imu:").
 ImuOptions ReadAt(const std::string& yaml) {
-  const harness::internal::YamlValue root = harness::internal::ParseDocument(yaml, kLabel);
-  harness::internal::YamlMap sensors = root.Map({"sensors"});
-  harness::internal::YamlMap imu = sensors.Required("sensors").Map({"imu"});
+  const harness::YamlValue root = harness::ParseDocument(yaml, kLabel);
+  harness::YamlMap sensors = root.Map({"sensors"});
+  harness::YamlMap imu = sensors.Required("sensors").Map({"imu"});
   return harness::internal::ReadSensorOptions<sim::ImuOptions>(imu.Required("imu"));
 }
 

@@ -244,8 +244,8 @@ TEST(LidarOdometryModel, NoiseOffReproducesTheLidarKinematics) {
 
 // ---- YAML ----
 
-harness::internal::YamlValue Root(const std::string& yaml) {
-  return harness::internal::ParseDocument(yaml, "lio.yaml");
+harness::YamlValue Root(const std::string& yaml) {
+  return harness::ParseDocument(yaml, "lio.yaml");
 }
 
 TEST(LidarOdometryOptionsReader, ReadsAGoodMapAndRoundTrips) {

@@ -293,8 +293,8 @@ TEST(TotalStation, NoiseMatchesTheReportedCovariance) {
 
 // ---- YAML ----
 
-harness::internal::YamlValue SensorValue(const std::string& yaml) {
-  const auto root = harness::internal::ParseDocument(yaml, "ts.yaml");
+harness::YamlValue SensorValue(const std::string& yaml) {
+  const auto root = harness::ParseDocument(yaml, "ts.yaml");
   auto sensors = root.Map({"sensors"}).Required("sensors");
   return sensors.Map({"station"}).Required("station");
 }

@@ -363,8 +363,8 @@ TEST(VioModel, DriftGrowsWithTheSquareRootOfDistance) {
 
 // ---- YAML ----
 
-harness::internal::YamlValue Root(const std::string& yaml) {
-  return harness::internal::ParseDocument(yaml, "vio.yaml");
+harness::YamlValue Root(const std::string& yaml) {
+  return harness::ParseDocument(yaml, "vio.yaml");
 }
 
 TEST(VioOptionsReader, ReadsAGoodMapAndRoundTrips) {
