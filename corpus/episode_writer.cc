@@ -228,7 +228,7 @@ void WriteMethod(const Hdf5Group& group, const replay::ReplayResult& result,
   std::vector<double> p, q, v, ba, bg, std_p;
   std::vector<std::uint8_t> valid;
   std::vector<std::uint32_t> fused;
-  for (const estimator::EstimatorOutput& o : result.outputs) {
+  replay::ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
     t.push_back(o.t_ns);
     Append(p, o.state.p_LI);
     Append(q, o.state.q_LI);
@@ -242,7 +242,7 @@ void WriteMethod(const Hdf5Group& group, const replay::ReplayResult& result,
     }
     valid.push_back(o.valid ? 1 : 0);
     fused.push_back(Mask(o.fused, sensors));
-  }
+  });
   group.SetAttribute("method", result.method.name);
   group.WriteInt64("t_ns", t);
   group.WriteDouble("p_LI_m", p, 3);

@@ -151,7 +151,7 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
   for (ReplayResult& result : results) {
     const ReplayMethod& method = result.method;
     MethodEvaluation e;
-    e.outputs = result.outputs.size();
+    e.outputs = replay::OutputCount(result);
     if (result.failure) e.failure = replay::ClientFailureText(result);
     // The outputs are released once written, before the trajectory is scored: what the
     // scoring below needs of them is in files (trajectory, position covariances).

@@ -109,7 +109,9 @@ class InLoopMethods {
   bool any_clean() const { return any_clean_; }
   bool started() const { return !runners_.empty() || names_.empty(); }
 
-  void Start(const RunRecord& record) {
+  /// `spill_dir`: where the methods' outputs go as they are produced (a run directory),
+  /// else they are kept in memory.
+  void Start(const RunRecord& record, const std::optional<std::filesystem::path>& spill_dir) {
     std::vector<std::pair<std::string, StreamKind>> kinds;
     for (const SensorStream& s : record.sensors) {
       const StreamKind kind = s.type == "imu" ? StreamKind::kImu
@@ -125,6 +127,7 @@ class InLoopMethods {
       const ReplayMethod method = ParseReplayMethod(name, log, config_.clients);
       clean_.push_back(method.clean_streams);
       runners_.emplace_back(log, method, setup.estimator, setup.sensors, setup.consensus, texts);
+      if (spill_dir) runners_.back().SpillOutputsTo(*spill_dir);
     }
     // The labels known so far: the fault schedule, and the conditions of the first step.
     for (const LabelEvent& label : schedule_) AddLabel(label);
@@ -454,7 +457,7 @@ class Flight {
       const estimator::EstimatorOutput* newest = nullptr;
       if (in_loop_->started()) {
         const MethodRunner& flying = in_loop_->SyncFlying();
-        if (!flying.outputs().empty()) newest = &flying.outputs().back();
+        newest = flying.newest_output();
       }
       if (!pilot_->handed_over() && pilot_->TryHandover(t_ns, newest)) {
         record_.closed_loop->handover_ns = t_ns;
@@ -557,7 +560,7 @@ class Flight {
     if (!in_loop_->started()) {
       // The models have latched their reference frames by now (first step).
       for (size_t i = 0; i < models_.size(); ++i) record_.sensors[i].T_WS = models_[i]->T_WS();
-      in_loop_->Start(record_);
+      in_loop_->Start(record_, options_.record_dir);
     }
     const auto feed = [&](bool clean) {
       return [&, clean](const ArrivedSample& a) {

@@ -43,7 +43,7 @@ void WriteEstimateCsv(const std::filesystem::path& file, const ReplayResult& res
       "q_LI_z [],v_L_x [m s^-1],v_L_y [m s^-1],v_L_z [m s^-1],b_a_x [m s^-2],b_a_y [m s^-2],"
       "b_a_z [m s^-2],b_g_x [rad s^-1],b_g_y [rad s^-1],b_g_z [rad s^-1],std_p_x [m],"
       "std_p_y [m],std_p_z [m],valid,fused\n");
-  for (const estimator::EstimatorOutput& o : result.outputs) {
+  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
     Eigen::Quaterniond q = o.state.q_LI.normalized();
     if (q.w() < 0) q.coeffs() *= -1.0;
     std::string fused;
@@ -61,7 +61,7 @@ void WriteEstimateCsv(const std::filesystem::path& file, const ReplayResult& res
         o.state.v_L_mps.x(), o.state.v_L_mps.y(), o.state.v_L_mps.z(), o.bias.accel_mps2.x(),
         o.bias.accel_mps2.y(), o.bias.accel_mps2.z(), o.bias.gyro_radps.x(),
         o.bias.gyro_radps.y(), o.bias.gyro_radps.z(), std_p, o.valid ? 1 : 0, fused);
-  }
+  });
   csv.Commit();
 }
 
@@ -385,6 +385,19 @@ struct MethodRunner::Impl {
   std::chrono::steady_clock::duration busy{};
   std::vector<api::Estimate> estimates;  // scratch
   std::optional<core::Time> last_estimate_ns;
+  std::shared_ptr<OutputSpill> spill;  // SpillOutputsTo
+  std::optional<estimator::EstimatorOutput> newest;  // of a spilled method
+  std::size_t output_count = 0;
+
+  void Keep(estimator::EstimatorOutput output) {
+    ++output_count;
+    if (spill == nullptr) {
+      result.outputs.push_back(std::move(output));
+      return;
+    }
+    spill->Append(output);
+    newest = std::move(output);
+  }
 
   std::size_t IndexOf(const std::string& sensor) const {
     for (std::size_t i = 0; i < stream_names.size(); ++i) {
@@ -431,7 +444,7 @@ struct MethodRunner::Impl {
         }
         last_estimate_ns = e.t_ns;
       }
-      result.outputs.push_back(FromApiEstimate(std::move(e)));
+      Keep(FromApiEstimate(std::move(e)));
     }
     estimates.clear();
   }
@@ -478,7 +491,7 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement, core:
   Impl& m = *impl_;
   if (!m.estimator) return 0;  // a failed client
   const auto start = std::chrono::steady_clock::now();
-  const std::size_t before = m.result.outputs.size();
+  const std::size_t before = m.output_count;
   if (!m.first_t_ns || measurement.t_ns < *m.first_t_ns) m.first_t_ns = measurement.t_ns;
   m.last_t_ns = std::max(m.last_t_ns, measurement.t_ns);
   const api::Measurement sample =
@@ -491,7 +504,7 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement, core:
     }
   }
   m.busy += std::chrono::steady_clock::now() - start;
-  return m.result.outputs.size() - before;
+  return m.output_count - before;
 }
 
 void MethodRunner::Sync() {
@@ -513,8 +526,17 @@ void MethodRunner::AddLabel(const LabelEvent& label) {
   if (impl_->builtin != nullptr) impl_->builtin->AddLabel(label);
 }
 
-const std::vector<estimator::EstimatorOutput>& MethodRunner::outputs() const {
-  return impl_->result.outputs;
+const estimator::EstimatorOutput* MethodRunner::newest_output() const {
+  const Impl& m = *impl_;
+  if (m.spill != nullptr) return m.newest ? &*m.newest : nullptr;
+  return m.result.outputs.empty() ? nullptr : &m.result.outputs.back();
+}
+
+void MethodRunner::SpillOutputsTo(const std::filesystem::path& dir) {
+  Impl& m = *impl_;
+  if (m.output_count > 0) throw std::logic_error("SpillOutputsTo after the first output");
+  m.spill = std::make_shared<OutputSpill>(dir);
+  m.result.spilled = m.spill;
 }
 
 namespace {
@@ -523,12 +545,11 @@ namespace {
 // re-admission, false exclusion, switches): its fused sets become decisions, one at each
 // change; every other sensor is excluded meanwhile.
 std::vector<estimator::ConsensusRecord> DecisionsFromFusedSets(
-    const std::vector<estimator::EstimatorOutput>& outputs,
-    const std::vector<std::string>& sensors) {
+    const ReplayResult& result, const std::vector<std::string>& sensors) {
   std::vector<estimator::ConsensusRecord> records;
   std::optional<std::vector<std::string>> previous;
-  for (const estimator::EstimatorOutput& o : outputs) {
-    if (!o.initialized || (previous && *previous == o.fused)) continue;
+  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
+    if (!o.initialized || (previous && *previous == o.fused)) return;
     estimator::ConsensusRecord r;
     r.t_ns = o.t_ns;
     r.window_end_ns = o.t_ns;
@@ -544,7 +565,7 @@ std::vector<estimator::ConsensusRecord> DecisionsFromFusedSets(
     r.decision.changed = previous.has_value();
     previous = o.fused;
     records.push_back(std::move(r));
-  }
+  });
   return records;
 }
 
@@ -567,9 +588,9 @@ ReplayResult MethodRunner::Finish() && {
   if (m.first_t_ns) result.log_duration_s = core::TimeToSeconds(m.last_t_ns - *m.first_t_ns);
   result.first_measurement_ns = m.first_t_ns;
   if (m.builtin == nullptr) {
-    const bool reports_fused = std::any_of(result.outputs.begin(), result.outputs.end(),
-                                           [](const auto& o) { return !o.fused.empty(); });
-    if (reports_fused) result.consensus = DecisionsFromFusedSets(result.outputs, m.sensor_names);
+    bool reports_fused = false;
+    ForEachOutput(result, [&](const estimator::EstimatorOutput& o) { reports_fused |= !o.fused.empty(); });
+    if (reports_fused) result.consensus = DecisionsFromFusedSets(result, m.sensor_names);
     return result;
   }
   const estimator::MultiGraphEstimator& estimator = m.builtin->estimator();
@@ -607,13 +628,25 @@ ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
   return std::move(runner).Finish();
 }
 
+std::size_t OutputCount(const ReplayResult& result) {
+  return result.spilled != nullptr ? result.spilled->size() : result.outputs.size();
+}
+
+void ForEachOutput(const ReplayResult& result,
+                   const std::function<void(const estimator::EstimatorOutput&)>& visit) {
+  if (result.spilled != nullptr) {
+    result.spilled->ForEach(visit);
+    return;
+  }
+  for (const estimator::EstimatorOutput& o : result.outputs) visit(o);
+}
+
 std::vector<PoseSample> OutputTrajectory(const ReplayResult& result) {
   std::vector<PoseSample> trajectory;
-  trajectory.reserve(result.outputs.size());  // not grown by doubling: an hour is 46 MB
-  for (const estimator::EstimatorOutput& o : result.outputs) {
-    if (!o.valid) continue;
-    trajectory.push_back(PoseSample{o.t_ns, o.state.p_LI, o.state.q_LI.normalized()});
-  }
+  trajectory.reserve(OutputCount(result));  // not grown by doubling: an hour is 46 MB
+  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
+    if (o.valid) trajectory.push_back(PoseSample{o.t_ns, o.state.p_LI, o.state.q_LI.normalized()});
+  });
   return trajectory;
 }
 
@@ -621,6 +654,8 @@ std::vector<LocalConsistencySeries> LocalConsistency(
     const RecordedLog& log, const ReplayResult& result, estimator::ConsistencyMetric metric,
     const estimator::ConsistencyOptions& options, double rate_hz) {
   std::vector<LocalConsistencySeries> out;
+  // Looks outputs up by time: the in-memory ones (`tofu estimate`'s), not a flight's spill.
+  if (result.spilled != nullptr) throw std::logic_error("LocalConsistency: outputs were spilled");
   if (result.outputs.empty()) return out;
   for (const RecordedStream& stream : log.streams) {
     if (stream.kind == StreamKind::kImu) continue;
@@ -772,15 +807,15 @@ std::optional<nlohmann::ordered_json> TiltErrorJson(const RecordedLog& log, cons
   if (log.ground_truth.empty()) return std::nullopt;
   double sum_sq = 0.0, max_deg = 0.0, final_deg = 0.0;
   std::size_t n = 0;
-  for (const estimator::EstimatorOutput& o : result.outputs) {
-    if (!o.valid) continue;
+  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
+    if (!o.valid) return;
     const GroundTruthPose* g = TruthAt(log.ground_truth, o.t_ns);
-    if (g == nullptr) continue;
+    if (g == nullptr) return;
     final_deg = TiltErrorDeg(o.state.q_LI, g->q_WI);
     sum_sq += final_deg * final_deg;
     max_deg = std::max(max_deg, final_deg);
     ++n;
-  }
+  });
   if (n == 0) return std::nullopt;
   return nlohmann::ordered_json{
       {"rms_deg", std::sqrt(sum_sq / n)}, {"max_deg", max_deg}, {"final_deg", final_deg}};
@@ -793,26 +828,26 @@ std::optional<nlohmann::ordered_json> BiasErrorJson(const RecordedLog& log, cons
   }
   double gyro_sum_sq = 0.0, accel_sum_sq = 0.0;
   std::size_t n = 0;
-  const estimator::EstimatorOutput* last = nullptr;
+  estimator::ImuBias last;
   const GroundTruthPose* last_truth = nullptr;
-  for (const estimator::EstimatorOutput& o : result.outputs) {
-    if (!o.valid) continue;
+  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
+    if (!o.valid) return;
     const GroundTruthPose* g = TruthAt(log.ground_truth, o.t_ns);
-    if (g == nullptr || !g->b_g_radps || !g->b_a_mps2) continue;
+    if (g == nullptr || !g->b_g_radps || !g->b_a_mps2) return;
     gyro_sum_sq += (o.bias.gyro_radps - *g->b_g_radps).squaredNorm();
     accel_sum_sq += (o.bias.accel_mps2 - *g->b_a_mps2).squaredNorm();
     ++n;
-    last = &o;
+    last = o.bias;
     last_truth = g;
-  }
+  });
   if (n == 0) return std::nullopt;
   const auto vec = [](const Eigen::Vector3d& v) { return std::vector<double>{v.x(), v.y(), v.z()}; };
   return nlohmann::ordered_json{
       {"gyro_rms_radps", std::sqrt(gyro_sum_sq / n)},
       {"accel_rms_mps2", std::sqrt(accel_sum_sq / n)},
-      {"gyro_final_radps", vec(last->bias.gyro_radps)},
+      {"gyro_final_radps", vec(last.gyro_radps)},
       {"gyro_true_final_radps", vec(*last_truth->b_g_radps)},
-      {"accel_final_mps2", vec(last->bias.accel_mps2)},
+      {"accel_final_mps2", vec(last.accel_mps2)},
       {"accel_true_final_mps2", vec(*last_truth->b_a_mps2)}};
 }
 
@@ -853,35 +888,39 @@ std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const Repla
 
 namespace {
 
-// WriteMethodResult; with `release` (result.outputs itself), the outputs are released
-// once everything that reads them is written, before the trajectory is scored.
+// WriteMethodResult; with `release` (the result itself), the outputs (in memory or
+// spilled) are released once everything that reads them is written, before the trajectory
+// is scored.
 MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResult& result,
                                        const std::filesystem::path& out_dir,
-                                       std::vector<estimator::EstimatorOutput>* release) {
+                                       ReplayResult* release) {
   const std::string stem = "estimate_" + SafeFileName(result.method.name);
   WriteEstimateCsv(out_dir / (stem + ".csv"), result);
   MethodFiles files;
   files.trajectory = OutputTrajectory(result);
   std::size_t valid = 0;
-  for (const estimator::EstimatorOutput& o : result.outputs) {
-    if (!o.valid) continue;
+  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
+    if (!o.valid) return;
     if (o.position_covariance_m2) {
       files.position_covariances.emplace_back(valid, *o.position_covariance_m2);
     }
     ++valid;
-  }
+  });
   const std::vector<PoseSample>& trajectory = files.trajectory;
   WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
 
   nlohmann::ordered_json j;
   j["method"] = result.method.name;
   j["fused"] = result.method.fused;
-  j["outputs"] = result.outputs.size();
+  j["outputs"] = OutputCount(result);
   j["valid_outputs"] = trajectory.size();
   // What reads the outputs, before they may go.
   const std::optional<nlohmann::ordered_json> tilt_error = TiltErrorJson(log, result);
   const std::optional<nlohmann::ordered_json> bias_error = BiasErrorJson(log, result);
-  if (release != nullptr) std::vector<estimator::EstimatorOutput>().swap(*release);
+  if (release != nullptr) {
+    std::vector<estimator::EstimatorOutput>().swap(release->outputs);
+    release->spilled.reset();
+  }
   std::optional<TrajectoryErrors>& errors = files.errors;
   if (!log.ground_truth.empty() && trajectory.size() > 10) {
     // The ground truth as poses, sorted in place by the scoring; the errors file reads the
@@ -1022,7 +1061,7 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
 
 MethodFiles WriteMethodResultReleasingOutputs(const RecordedLog& log, ReplayResult& result,
                                               const std::filesystem::path& out_dir) {
-  return WriteMethodResultReleasing(log, result, out_dir, &result.outputs);
+  return WriteMethodResultReleasing(log, result, out_dir, &result);
 }
 
 namespace {
@@ -1125,7 +1164,7 @@ void PrintMethodRow(const ReplayMethod& method, const ReplayResult& result,
              errors ? fmt::format("{:.4f}", errors->ate_position_rmse_m) : "n/a",
              errors ? fmt::format("{:.3f}", errors->rotation_rmse_deg) : "n/a",
              errors ? fmt::format("{:.4f}", errors->rpe_translation_rmse_m) : "n/a",
-             fmt::format("{}/{}", trajectory.size(), result.outputs.size()),
+             fmt::format("{}/{}", trajectory.size(), OutputCount(result)),
              result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0,
              files.solve_mean_ms, files.solve_p99_ms);
 }

@@ -20,6 +20,7 @@
 #include "estimator/multi_graph_estimator.h"
 #include "replay/estimation_config.h"
 #include "replay/labels.h"
+#include "replay/output_spill.h"
 #include "replay/recorded_log.h"
 #include "replay/trajectory_metrics.h"
 
@@ -75,7 +76,11 @@ std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log);
 
 struct ReplayResult {
   ReplayMethod method;
+  /// The outputs in memory, in the order produced; empty when they went to `spilled`
+  /// (read both through ForEachOutput) or were released once written.
   std::vector<estimator::EstimatorOutput> outputs;
+  /// A flight's outputs, on disk as they were produced (MethodRunner::SpillOutputsTo).
+  std::shared_ptr<const OutputSpill> spilled;
   estimator::EstimatorCounters counters;
   estimator::LocalSmootherStats solver;
   std::map<std::string, estimator::AlignmentEstimate> alignment;  ///< at the end
@@ -139,8 +144,12 @@ class MethodRunner {
   /// transitions); the log's own labels (labels.csv) are known from the start. Other
   /// methods ignore labels.
   void AddLabel(const LabelEvent& label);
-  /// Every output so far (the newest last).
-  const std::vector<estimator::EstimatorOutput>& outputs() const;
+  /// The newest output, or null before the first.
+  const estimator::EstimatorOutput* newest_output() const;
+  /// Writes every output to an anonymous file in `dir` as it is produced instead of
+  /// keeping it in memory (a flight's run directory: its memory then stays flat however
+  /// long it flies). Before the first Add.
+  void SpillOutputsTo(const std::filesystem::path& dir);
   /// The result; wall_time_s is the time spent inside Add. Ends a client (finish).
   ReplayResult Finish() &&;
 
@@ -158,6 +167,11 @@ ReplayResult Replay(const RecordedLog& log, const ReplayMethod& method,
                     const std::function<void(double)>& progress = nullptr,
                     const estimator::ConsensusEstimatorOptions& consensus = {},
                     const ClientTexts& texts = {});
+
+/// How many outputs a result holds (in memory or spilled), and each of them in order.
+std::size_t OutputCount(const ReplayResult& result);
+void ForEachOutput(const ReplayResult& result,
+                   const std::function<void(const estimator::EstimatorOutput&)>& visit);
 
 /// The valid outputs as a trajectory of T_LI.
 std::vector<PoseSample> OutputTrajectory(const ReplayResult& result);
@@ -222,9 +236,8 @@ struct MethodFiles {
 /// into out_dir; ':' and '+' in the method name become '_' in file names.
 MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
                               const std::filesystem::path& out_dir);
-/// The same, releasing result.outputs (left empty) once the files that read them are
-/// written and before the trajectory is scored: for a caller done with them (the run's
-/// scoring; an hour of outputs at 200 Hz is 280 MB).
+/// The same, releasing result.outputs (left empty) and the spill once the files that
+/// read them are written: for a caller done with them (the run's scoring).
 MethodFiles WriteMethodResultReleasingOutputs(const RecordedLog& log, ReplayResult& result,
                                               const std::filesystem::path& out_dir);
 /// decisions.csv: the header, and the rows of one consensus method (every evaluation:

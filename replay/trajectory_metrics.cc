@@ -84,40 +84,75 @@ Eigen::Matrix3d ProjectToSO3(const Eigen::Matrix3d& M) {
   return svd.matrixU() * D * svd.matrixV().transpose();
 }
 
-struct Pair {
-  Time t_ns;
-  PoseSample estimate;  // T_LI
-  PoseSample truth;     // T_WI
+// The matched samples: each an estimate sample (T_LI) and the ground truth (T_WI)
+// interpolated at its time. Only the estimate's index is stored; both poses are rebuilt
+// from their sources, with the same arithmetic, whenever they are read: two stored poses
+// per sample would be 98 MB for an hour at 200 Hz.
+class Matches {
+ public:
+  // `normalize`: the estimate's quaternions still need it (taken as they came).
+  Matches(const std::vector<PoseSample>& estimate, bool normalize, const std::vector<PoseSample>& gt,
+          Time max_gap)
+      : estimate_(estimate), normalize_(normalize), gt_(gt), max_gap_(max_gap) {}
+
+  void Add(std::size_t estimate_index) { index_.push_back(estimate_index); }
+  void Reserve(std::size_t n) { index_.reserve(n); }
+  std::size_t size() const { return index_.size(); }
+  bool empty() const { return index_.empty(); }
+  Time t_ns(std::size_t k) const { return estimate_[index_[k]].t_ns; }
+  PoseSample estimate(std::size_t k) const {
+    PoseSample e = estimate_[index_[k]];
+    if (normalize_) e.q.normalize();
+    return e;
+  }
+  PoseSample truth(std::size_t k) const { return *InterpolateAt(gt_, t_ns(k), max_gap_); }
+
+ private:
+  const std::vector<PoseSample>& estimate_;
+  bool normalize_;
+  const std::vector<PoseSample>& gt_;
+  Time max_gap_;
+  std::vector<std::uint32_t> index_;
 };
 
-// T_WL from the pairs inside the alignment range (see TrajectoryErrorOptions).
-Eigen::Isometry3d Align(const std::vector<const Pair*>& pairs, const TrajectoryErrorOptions& options,
-                        bool* from_attitude) {
+// T_WL from the matches inside the alignment range (see TrajectoryErrorOptions); sets the
+// number of them it aligned on.
+Eigen::Isometry3d Align(const Matches& matches, const TrajectoryErrorOptions& options,
+                        bool* from_attitude, std::size_t* aligned_on) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   *from_attitude = false;
-  if (options.alignment == TrajectoryAlignment::kNone || pairs.empty()) return T;
-  const double n = static_cast<double>(pairs.size());
+  const auto in_range = [&](std::size_t k) {
+    return matches.t_ns(k) >= options.align_from_ns && matches.t_ns(k) <= options.align_to_ns;
+  };
+  std::size_t count = 0;
+  for (std::size_t k = 0; k < matches.size(); ++k) count += in_range(k) ? 1 : 0;
+  *aligned_on = count;
+  if (options.alignment == TrajectoryAlignment::kNone || count == 0) return T;
+  const double n = static_cast<double>(count);
 
   // Centroids, centred cross-covariance H = sum a b^T (a: estimate, b: truth), the truth's
   // scatter, and the sum of attitude offsets R_WI R_LI^T.
   Eigen::Vector3d mu_est = Eigen::Vector3d::Zero();
   Eigen::Vector3d mu_true = Eigen::Vector3d::Zero();
-  for (const Pair* p : pairs) {
-    mu_est += p->estimate.p;
-    mu_true += p->truth.p;
+  for (std::size_t k = 0; k < matches.size(); ++k) {
+    if (!in_range(k)) continue;
+    mu_est += matches.estimate(k).p;
+    mu_true += matches.truth(k).p;
   }
   mu_est /= n;
   mu_true /= n;
   Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d attitude_sum = Eigen::Matrix3d::Zero();
-  for (const Pair* p : pairs) {
-    const Eigen::Vector3d a = p->estimate.p - mu_est;
-    const Eigen::Vector3d b = p->truth.p - mu_true;
+  for (std::size_t k = 0; k < matches.size(); ++k) {
+    if (!in_range(k)) continue;
+    const PoseSample estimate = matches.estimate(k);
+    const PoseSample truth = matches.truth(k);
+    const Eigen::Vector3d a = estimate.p - mu_est;
+    const Eigen::Vector3d b = truth.p - mu_true;
     H += a * b.transpose();
     scatter += b * b.transpose();
-    attitude_sum +=
-        p->truth.q.toRotationMatrix() * p->estimate.q.toRotationMatrix().transpose();
+    attitude_sum += truth.q.toRotationMatrix() * estimate.q.toRotationMatrix().transpose();
   }
   scatter /= n;
   const double min_variance = options.min_alignment_spread_m * options.min_alignment_spread_m;
@@ -127,7 +162,7 @@ Eigen::Isometry3d Align(const std::vector<const Pair*>& pairs, const TrajectoryE
     // Horn/Umeyama without scale: R = V diag(1, 1, det(V U^T)) U^T for H = U S V^T,
     // determined when the positions span a plane (second principal variance).
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(scatter);
-    if (pairs.size() >= 3 && eig.eigenvalues()(1) >= min_variance) {
+    if (count >= 3 && eig.eigenvalues()(1) >= min_variance) {
       R = ProjectToSO3(H.transpose());
     } else {
       R = ProjectToSO3(attitude_sum);
@@ -138,7 +173,7 @@ Eigen::Isometry3d Align(const std::vector<const Pair*>& pairs, const TrajectoryE
     // psi = atan2(sum(a_x b_y - a_y b_x), sum(a_x b_x + a_y b_y)); needs horizontal spread.
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(scatter.topLeftCorner<2, 2>());
     double yaw = 0.0;
-    if (pairs.size() >= 2 && eig.eigenvalues()(1) >= min_variance) {
+    if (count >= 2 && eig.eigenvalues()(1) >= min_variance) {
       yaw = std::atan2(H(0, 1) - H(1, 0), H(0, 0) + H(1, 1));
     } else {
       // Projection of the attitude offsets onto rotations about z.
@@ -312,37 +347,23 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
   const std::vector<PoseSample>& est_source = in_order ? estimate : est;
 
   // Match every estimate sample with interpolated ground truth.
-  std::vector<Pair> pairs;
-  pairs.reserve(est_source.size());
-  for (const PoseSample& sample : est_source) {
-    PoseSample e = sample;
-    if (in_order) {
-      if (!IsFinite(e)) {
-        ++r.skipped_non_finite;
-        continue;
-      }
-      e.q.normalize();
+  Matches pairs(est_source, in_order, gt, options.max_interpolation_gap_ns);
+  pairs.Reserve(est_source.size());
+  for (std::size_t i = 0; i < est_source.size(); ++i) {
+    const PoseSample& e = est_source[i];
+    if (in_order && !IsFinite(e)) {
+      ++r.skipped_non_finite;
+      continue;
     }
-    const std::optional<PoseSample> truth =
-        InterpolateAt(gt, e.t_ns, options.max_interpolation_gap_ns);
-    if (!truth) {
+    if (!InterpolateAt(gt, e.t_ns, options.max_interpolation_gap_ns)) {
       ++r.skipped_no_ground_truth;
       continue;
     }
-    pairs.push_back({e.t_ns, e, *truth});
+    pairs.Add(i);
   }
   r.matched = pairs.size();
-  // The pairs hold both trajectories from here on: an hour at 200 Hz is 46 MB a copy.
-  std::vector<PoseSample>().swap(gt);
-  std::vector<PoseSample>().swap(est);
 
-  // Alignment from the pairs inside the alignment range.
-  std::vector<const Pair*> in_range;
-  for (const Pair& p : pairs) {
-    if (p.t_ns >= options.align_from_ns && p.t_ns <= options.align_to_ns) in_range.push_back(&p);
-  }
-  r.aligned_on = in_range.size();
-  r.T_WL = Align(in_range, options, &r.alignment_from_attitude);
+  r.T_WL = Align(pairs, options, &r.alignment_from_attitude, &r.aligned_on);
 
   // ATE and attitude error per matched sample.
   const Eigen::Matrix3d R_WL = r.T_WL.linear();
@@ -350,14 +371,16 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
   r.t_s.reserve(pairs.size());
   r.position_error_m.reserve(pairs.size());
   r.rotation_error_deg.reserve(pairs.size());
-  for (const Pair& p : pairs) {
-    const Eigen::Vector3d p_W = r.T_WL * p.estimate.p;
-    const Eigen::Matrix3d R_WI = R_WL * p.estimate.q.toRotationMatrix();
-    r.t_ns.push_back(p.t_ns);
-    r.t_s.push_back(core::TimeToSeconds(p.t_ns));
-    r.position_error_m.push_back((p_W - p.truth.p).norm());
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    const PoseSample T_LI = pairs.estimate(k);
+    const PoseSample T_WI = pairs.truth(k);
+    const Eigen::Vector3d p_W = r.T_WL * T_LI.p;
+    const Eigen::Matrix3d R_WI = R_WL * T_LI.q.toRotationMatrix();
+    r.t_ns.push_back(pairs.t_ns(k));
+    r.t_s.push_back(core::TimeToSeconds(pairs.t_ns(k)));
+    r.position_error_m.push_back((p_W - T_WI.p).norm());
     r.rotation_error_deg.push_back(
-        core::RotationAngleBetween(p.truth.q.toRotationMatrix(), R_WI) * kDegPerRad);
+        core::RotationAngleBetween(T_WI.q.toRotationMatrix(), R_WI) * kDegPerRad);
   }
   if (pairs.empty()) {
     r.ate_position_rmse_m = r.ate_position_mean_m = r.ate_position_median_m =
@@ -378,16 +401,18 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
   std::vector<double> rpe_translation;
   std::vector<double> rpe_rotation;
   if (options.rpe_delta_ns > 0) {
+    // The matched times are sorted (matches keep the estimate's order): r.t_ns.
     for (size_t i = 0; i < pairs.size(); ++i) {
-      const Time target = pairs[i].t_ns + options.rpe_delta_ns;
-      const auto it = std::lower_bound(pairs.begin() + static_cast<std::ptrdiff_t>(i), pairs.end(),
-                                       target, [](const Pair& p, Time v) { return p.t_ns < v; });
-      if (it == pairs.end()) break;
-      if (it->t_ns - target > options.rpe_tolerance_ns) continue;
+      const Time target = r.t_ns[i] + options.rpe_delta_ns;
+      const auto it = std::lower_bound(r.t_ns.begin() + static_cast<std::ptrdiff_t>(i), r.t_ns.end(),
+                                       target);
+      if (it == r.t_ns.end()) break;
+      if (*it - target > options.rpe_tolerance_ns) continue;
+      const std::size_t j = static_cast<std::size_t>(it - r.t_ns.begin());
       const Eigen::Isometry3d d_true =
-          ToIsometry(pairs[i].truth).inverse() * ToIsometry(it->truth);
+          ToIsometry(pairs.truth(i)).inverse() * ToIsometry(pairs.truth(j));
       const Eigen::Isometry3d d_est =
-          ToIsometry(pairs[i].estimate).inverse() * ToIsometry(it->estimate);
+          ToIsometry(pairs.estimate(i)).inverse() * ToIsometry(pairs.estimate(j));
       const Eigen::Isometry3d E = d_true.inverse() * d_est;
       rpe_translation.push_back(E.translation().norm());
       rpe_rotation.push_back(core::LogSO3(E.linear()).norm() * kDegPerRad);
