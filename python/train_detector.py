@@ -117,6 +117,8 @@ class SensorTrack:
         self.name, self.type = stream.name, stream.type
         self.t = stream.t_ns.astype(np.float64) * 1e-9
         self.p = stream.values[:, :3]
+        # The nominal period: the median spacing is the configured rate (a sensor's
+        # dropouts and faults do not move it), which a flight computer knows beforehand.
         self.period = float(np.median(np.diff(self.t))) if len(self.t) > 1 else np.nan
         cov = stream.covariance
         if cov is None:
@@ -130,19 +132,25 @@ class SensorTrack:
         self.speed = np.linalg.norm(stream.values[:, 7:10], axis=1) if cols >= 13 else None
         # The twist v_s (in the sensor frame s) rotated into the sensor's reference frame S.
         self.twist_S = quat_rotate(self.q, stream.values[:, 7:10]) if cols >= 13 else None
-        # Linear interpolation onto the grid, valid only between two samples at most 2.5
-        # periods apart (no bridging of a dropout: that would also look into its future).
+        # Zero-order hold onto the grid: each grid time takes the newest sample at or before
+        # it (a detector at time t has nothing later), and none when that sample is more
+        # than 2.5 periods old (a dropout is not bridged). Compared in integer nanoseconds,
+        # so that a sample stamped exactly at a grid time counts as at it.
         self.grid = np.full((len(grid_t), 3), np.nan)
         if len(self.t) >= 2:
-            nxt = np.searchsorted(self.t, grid_t, side="left")
-            prv = np.clip(nxt - 1, 0, len(self.t) - 1)
-            nxt_c = np.clip(nxt, 0, len(self.t) - 1)
-            exact = (nxt < len(self.t)) & (self.t[nxt_c] == grid_t)
-            ok = (nxt > 0) & (nxt < len(self.t)) & (self.t[nxt_c] - self.t[prv] <= 2.5 * self.period)
-            ok |= exact
-            for k in range(3):
-                self.grid[:, k] = np.interp(grid_t, self.t, self.p[:, k])
-            self.grid[~ok] = np.nan
+            grid_ns = np.round(np.asarray(grid_t) * 1e9).astype(np.int64)
+            t_ns = stream.t_ns.astype(np.int64)
+            held = np.searchsorted(t_ns, grid_ns, side="right") - 1
+            held_c = np.clip(held, 0, len(t_ns) - 1)
+            age_s = (grid_ns - t_ns[held_c]) * 1e-9
+            ok = (held >= 0) & (age_s <= 2.5 * self.period)
+            self.grid[ok] = self.p[held_c[ok]]
+
+    def var_before(self, b: float) -> float:
+        """Mean reported position variance of the samples before b (none later: causal)."""
+        hi = int(np.searchsorted(self.t, b, side="left"))
+        v = self.var[:hi]
+        return float(np.mean(v[np.isfinite(v)])) if np.any(np.isfinite(v)) else np.nan
 
 
 def own_features(tr: SensorTrack, a: float, b: float, imu) -> dict:
@@ -236,7 +244,7 @@ def pair_features(s: SensorTrack, r: SensorTrack, ga: int, gb: int, gh: int) -> 
         res_h = np.linalg.norm(xs[h_idx] @ rot.T + tr - xr[h_idx], axis=1)
         res_w = np.linalg.norm(xs[w_ok] @ rot.T + tr - xr[w_ok], axis=1)
         out["pred"] = float(res_w.mean())
-        var = np.nanmean(s.var) + np.nanmean(r.var)
+        var = s.var_before(gb * GRID_S) + r.var_before(gb * GRID_S)
         out["pred_nis"] = float(np.mean(res_w ** 2) / var) if var > 0 else np.nan
         out["pred_jump"] = float(res_w.mean() - np.median(res_h))
         # How well the past pins the rotation down: RMS extent along its two main axes

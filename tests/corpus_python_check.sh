@@ -6,7 +6,8 @@
 # and kind; a window emptied by a dropout is labelled dropout although no sample carries
 # the mask) -- bad corpus directories are exit 2 naming the file, and
 # python/train_detector.py runs end to end on it (train = eval = smoke: this proves it runs,
-# the numbers are not checked) and writes its table and JSON.
+# the numbers are not checked), writes its table and JSON, and judges no window from a
+# sample later than the window.
 #   corpus_python_check.sh TOFU SOURCE_DIR WORK_DIR
 set -euo pipefail
 tofu="$1"
@@ -121,6 +122,82 @@ for method in ("detector", "consensus"):
     row = r[method]["all faults"]
     assert row["windows"] > 0 and row["events"] > 0, row
     assert row["recall"] is not None and 0.0 <= row["recall"] <= 1.0, row
+EOF
+# The detector is causal: altering every sample after a time t_cut (positions moved 5 m,
+# reported covariances x100) changes neither the grid values at or before t_cut nor any
+# feature of a window that ends by t_cut. A grid filled by interpolation towards the next
+# sample, or a variance averaged over the whole stream, fails it.
+PYTHONPATH="$source_dir/python" "$python" - "$corpus" <<'EOF' || fail "the detector looks ahead"
+import dataclasses, sys
+import numpy as np
+import tofu_corpus as tc
+import train_detector as td
+
+
+def altered(stream, cut_ns):
+    after = stream.t_ns > cut_ns
+    values = stream.values.copy()
+    values[after, :3] += 5.0
+    cov = None if stream.covariance is None else stream.covariance.copy()
+    if cov is not None:
+        cov[after] *= 100.0
+    return dataclasses.replace(stream, values=values, covariance=cov)
+
+
+class Altered:
+    """An episode whose position streams are altered after cut_ns."""
+    def __init__(self, ep, cut_ns):
+        self._ep, self._cut = ep, cut_ns
+
+    def __getattr__(self, name):
+        return getattr(self._ep, name)
+
+    def stream(self, name):
+        st = self._ep.stream(name)
+        return altered(st, self._cut) if st.type in td.POSITION_TYPES else st
+
+
+def same(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return a.shape == b.shape and bool(np.all((a == b) | (np.isnan(a) & np.isnan(b))))
+
+
+# The grid of one stream sampled off the grid (period 0.1 s, first sample at 0.037 s).
+t_ns = (37_000_000 + 100_000_000 * np.arange(60)).astype(np.int64)
+values = np.column_stack([np.arange(60.0), np.zeros(60), np.zeros(60)])
+stream = tc.Stream(name="s", type="lidar_odometry", t_ns=t_ns, arrival_ns=t_ns,
+                   values=values, covariance=np.full((60, 6), 1e-4),
+                   fault_mask=np.zeros(60, np.uint32), condition_mask=np.zeros(60, np.uint32),
+                   fault_bits=(), condition_bits=(), columns="")
+grid_t = np.arange(0.0, 6.0 + 1e-9, td.GRID_S)
+base = td.SensorTrack(stream, grid_t).grid
+assert np.isnan(base[0]).all(), "a grid time before the first sample has a value"
+assert base[1, 0] == 0.0 and base[5, 0] == 4.0, "the grid is not the newest sample before it"
+for cut in (1_000_000_000, 2_437_000_000, 3_050_000_000):
+    grid = td.SensorTrack(altered(stream, cut), grid_t).grid
+    upto = np.round(grid_t * 1e9).astype(np.int64) <= cut
+    assert same(grid[upto], base[upto]), f"grid at or before {cut} ns changed"
+    assert not same(grid, base), f"altering after {cut} ns changed nothing"
+
+# Every feature of every window of each smoke episode, its streams altered after t_cut.
+checked = 0
+with tc.Corpus(sys.argv[1]) as corpus:
+    for ep in corpus.episodes():
+        cut_ns = int(0.55 * ep.duration_s * 1e9) + 3_000_000  # not on the grid
+        rows, _ = td.episode_rows(ep)
+        rows_altered, _ = td.episode_rows(Altered(ep, cut_ns))
+        assert len(rows) == len(rows_altered)
+        changed = 0
+        for r, q in zip(rows, rows_altered):
+            if r["end_ns"] <= cut_ns:
+                bad = [k for k, x, y in zip(td.FEATURES, r["x"], q["x"]) if not same(x, y)]
+                assert not bad, f"{ep.id} {r['sensor']} window ending {r['end_ns']} ns: {bad}"
+                checked += 1
+            else:
+                changed += not same(r["x"], q["x"])
+        assert changed, f"{ep.id}: altering the streams changed no later window"
+assert checked > 0
+print(f"corpus_python_check: causal: {checked} sensor windows unchanged by later samples")
 EOF
 echo "corpus_python_check: detector: $(grep -m 1 '^| all faults |' "$work/detector/results.md")"
 echo "corpus_python_check: PASS"
