@@ -22,6 +22,8 @@ const std::vector<std::string> kMethodTableMetrics = {
     "ate_m",
     "rotation_rmse_deg",
     "nees_position_mean",
+    "nees_position_median",
+    "position_containment_95",
     "max_detection_delay_s",
     "max_readmission_delay_s",
     "false_exclusion_fraction",
@@ -96,7 +98,10 @@ MethodMetricSummary Summarise(const std::string& metric, std::vector<double> val
   const size_t n = values.size();
   // Values are finite or +inf: the mean of the middle two is +inf when one of them is.
   s.median = n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-  s.worst = metric == "valid_fraction" ? values.front() : values.back();
+  // Fractions where less is worse: valid outputs, and containment (a covariance that
+  // holds the truth less often than it says is the dangerous one).
+  const bool lower_is_worse = metric == "valid_fraction" || metric == "position_containment_95";
+  s.worst = lower_is_worse ? values.front() : values.back();
   return s;
 }
 
@@ -253,16 +258,17 @@ std::string MethodsMarkdown(const std::vector<ScenarioMethodTable>& tables) {
                        t.seeds == 1 ? "" : "s");
     out +=
         "| method | ATE median / worst [m] | ATE/oracle median / worst | rotation RMSE median "
-        "[deg] | NEES median | max detection delay worst [s] | re-admission worst [s] | "
-        "false exclusion worst |\n"
-        "|---|---:|---:|---:|---:|---:|---:|---:|\n";
+        "[deg] | NEES median | 95 % containment median | max detection delay worst [s] | "
+        "re-admission worst [s] | false exclusion worst |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
     for (const MethodTableRow& row : t.methods) {
       out += fmt::format(
-          "| {} | {} | {} | {} | {} | {} | {} | {} |\n", MdText(row.method),
+          "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n", MdText(row.method),
           MdCell(row.Find("ate_m"), t.seeds, true, true),
           MdCell(row.Find(kAteOverOracle), t.seeds, true, true),
           MdCell(row.Find("rotation_rmse_deg"), t.seeds, true, false),
-          MdCell(row.Find("nees_position_mean"), t.seeds, true, false),
+          MdCell(row.Find("nees_position_median"), t.seeds, true, false),
+          MdCell(row.Find("position_containment_95"), t.seeds, true, false),
           MdCell(row.Find("max_detection_delay_s"), t.seeds, false, true, "missed"),
           MdCell(row.Find("max_readmission_delay_s"), t.seeds, false, true, "never"),
           MdCell(row.Find("false_exclusion_fraction"), t.seeds, false, true));

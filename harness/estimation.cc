@@ -82,6 +82,10 @@ std::vector<estimator::ConsensusRecord> RestatedAtFaultOnsets(
   return records;
 }
 
+// The 95 % quantile of χ² with 3 degrees of freedom: the NEES bound of the position
+// covariance's 95 % ellipsoid.
+constexpr double kChiSquare3Dof95 = 7.814727903251178;
+
 // Decimation of errors.csv: one row per 50 ms of estimate time.
 constexpr core::Time kErrorRowPeriodNs = 50'000'000;
 
@@ -143,8 +147,10 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
   std::vector<std::string> sensor_names;
   for (const estimator::SensorSpec& s : specs) sensor_names.push_back(s.name);
 
-  std::string errors_csv =
-      "#timestamp [ns],method,position_error [m],rotation_error [deg],valid,nees\n";
+  // errors.csv: every method's rows, written as they are formatted (a row per output with
+  // a covariance: an hour of two methods would be 90 MB of text held).
+  replay::AtomicFileWriter errors_csv(run_dir / "errors.csv");
+  errors_csv.Append("#timestamp [ns],method,position_error [m],rotation_error [deg],valid,nees\n");
   std::string decisions_csv = kDecisionsCsvHeader;
   bool any_consensus = false;
   std::vector<MethodEvaluation> evaluations;
@@ -153,15 +159,15 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
     MethodEvaluation e;
     e.outputs = replay::OutputCount(result);
     if (result.failure) e.failure = replay::ClientFailureText(result);
-    // The outputs are released once written, before the trajectory is scored: what the
-    // scoring below needs of them is in files (trajectory, position covariances).
-    const MethodFiles files = replay::WriteMethodResultReleasingOutputs(log, result, run_dir);
+    MethodFiles files = replay::WriteMethodResult(log, result, run_dir);
+    const std::size_t valid_outputs = files.trajectory.size();
+    std::vector<PoseSample>().swap(files.trajectory);  // the outputs are read again below
 
     e.method = method.name;
     e.run_duration_s = run_duration_s;
     e.wall_time_s = result.wall_time_s;
     e.valid_fraction = e.outputs == 0 ? 0.0
-                                      : static_cast<double>(files.trajectory.size()) /
+                                      : static_cast<double>(valid_outputs) /
                                             static_cast<double>(e.outputs);
     if (files.errors) {
       const TrajectoryErrors& t = *files.errors;
@@ -175,42 +181,43 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
       // errors.csv rows and the NEES of the reported position covariance, in L.
       const Eigen::Matrix3d R_LW = t.T_WL.linear().transpose();
       double nees_sum = 0.0;
-      std::size_t k = 0;
+      std::vector<double> nees_values;
+      std::size_t k = 0;  // next of the matched samples (t.t_ns)
       std::optional<core::Time> last_row;
-      std::size_t c = 0;  // next of files.position_covariances
-      for (std::size_t i = 0; i < files.trajectory.size(); ++i) {
-        const PoseSample& o = files.trajectory[i];  // the i-th valid output
-        while (c < files.position_covariances.size() && files.position_covariances[c].first < i) {
-          ++c;
-        }
-        const Eigen::Matrix3d* covariance =
-            c < files.position_covariances.size() && files.position_covariances[c].first == i
-                ? &files.position_covariances[c].second
-                : nullptr;
+      replay::ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
+        if (!o.valid) return;
         while (k < t.t_ns.size() && t.t_ns[k] < o.t_ns) ++k;
-        if (k == t.t_ns.size()) break;
-        if (t.t_ns[k] != o.t_ns) continue;  // no ground truth there
+        if (k == t.t_ns.size()) return;
+        if (t.t_ns[k] != o.t_ns) return;  // no ground truth there
         std::optional<double> nees;
-        if (covariance != nullptr) {
+        if (o.position_covariance_m2) {
           if (const auto p_WI = TruthPositionAt(log.ground_truth, o.t_ns)) {
-            const Eigen::Vector3d e_L = R_LW * (t.T_WL * o.p - *p_WI);
-            const Eigen::Matrix3d& P = *covariance;
+            const Eigen::Vector3d e_L = R_LW * (t.T_WL * o.state.p_LI - *p_WI);
+            const Eigen::Matrix3d& P = *o.position_covariance_m2;
             const Eigen::LDLT<Eigen::Matrix3d> ldlt(P);
             if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
               nees = e_L.dot(ldlt.solve(e_L));
               nees_sum += *nees;
+              nees_values.push_back(*nees);
               ++e.nees_samples;
             }
           }
         }
         if (nees || !last_row || o.t_ns - *last_row >= kErrorRowPeriodNs) {
           last_row = o.t_ns;
-          errors_csv += fmt::format("{},{},{:.6f},{:.4f},1,{}\n", o.t_ns, method.name,
-                                    t.position_error_m[k], t.rotation_error_deg[k],
-                                    nees ? fmt::format("{:.4g}", *nees) : std::string());
+          errors_csv.Format("{},{},{:.6f},{:.4f},1,{}\n", o.t_ns, method.name,
+                            t.position_error_m[k], t.rotation_error_deg[k],
+                            nees ? fmt::format("{:.4g}", *nees) : std::string());
         }
+      });
+      if (e.nees_samples > 0) {
+        e.nees_position_mean = nees_sum / static_cast<double>(e.nees_samples);
+        const auto inside = std::count_if(nees_values.begin(), nees_values.end(),
+                                          [](double v) { return v <= kChiSquare3Dof95; });
+        e.position_containment_95 =
+            static_cast<double>(inside) / static_cast<double>(nees_values.size());
+        e.nees_position_median = replay::Median(std::move(nees_values));
       }
-      if (e.nees_samples > 0) e.nees_position_mean = nees_sum / static_cast<double>(e.nees_samples);
     }
 
     // Consensus, and a client that says which sensors it fuses: detection, re-admission,
@@ -238,9 +245,12 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
       WriteFileAtomically(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
                           ConsistencyMatrixCsv(result));
     }
+    // Done with the outputs: an in-memory method's are freed, a spilled one's file closes.
+    std::vector<estimator::EstimatorOutput>().swap(result.outputs);
+    result.spilled.reset();
     evaluations.push_back(std::move(e));
   }
-  WriteFileAtomically(run_dir / "errors.csv", errors_csv);
+  errors_csv.Commit();
   if (any_consensus) WriteFileAtomically(run_dir / "decisions.csv", decisions_csv);
   return evaluations;
 }

@@ -65,7 +65,13 @@ struct MethodEvaluation {
   std::optional<double> rotation_rmse_deg;
   std::optional<double> rpe_m;
   std::optional<double> rpe_deg;
+  /// NEES of the reported position covariance against the true error, e_Lᵀ P⁻¹ e_L, over
+  /// the outputs with a covariance and ground truth: its mean and median (3 and 2.37 for
+  /// a consistent 3-DoF covariance), and the fraction of samples inside the covariance's
+  /// 95 % ellipsoid (NEES ≤ χ²₃(0.95) = 7.81; 0.95 when consistent).
   std::optional<double> nees_position_mean;
+  std::optional<double> nees_position_median;
+  std::optional<double> position_containment_95;
   std::size_t nees_samples = 0;
   // Consensus methods.
   int switches = 0;

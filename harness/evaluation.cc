@@ -148,6 +148,8 @@ std::optional<double> MethodMetricValue(const RunRecord& record, const std::stri
   if (pattern == "methods.<method>.rotation_rmse_deg") return m->rotation_rmse_deg;
   if (pattern == "methods.<method>.rpe_m") return m->rpe_m;
   if (pattern == "methods.<method>.nees_position_mean") return m->nees_position_mean;
+  if (pattern == "methods.<method>.nees_position_median") return m->nees_position_median;
+  if (pattern == "methods.<method>.position_containment_95") return m->position_containment_95;
   if (pattern == "methods.<method>.valid_fraction") return m->valid_fraction;
   if (!m->consensus) return std::nullopt;  // selection metrics only mean something there
   if (pattern == "methods.<method>.switches") return static_cast<double>(m->switches);
@@ -171,6 +173,8 @@ nlohmann::json MethodsJson(const RunRecord& record) {
                         {"rpe_m", OptionalNumber(m.rpe_m)},
                         {"rpe_deg", OptionalNumber(m.rpe_deg)},
                         {"nees_position_mean", OptionalNumber(m.nees_position_mean)},
+                        {"nees_position_median", OptionalNumber(m.nees_position_median)},
+                        {"position_containment_95", OptionalNumber(m.position_containment_95)},
                         {"nees_samples", m.nees_samples},
                         {"outputs", m.outputs},
                         {"valid_fraction", m.valid_fraction}};

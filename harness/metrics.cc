@@ -40,6 +40,12 @@ const std::vector<MetricInfo>& MetricCatalog() {
       {"methods.<method>.rpe_m", "m", "RMS relative position error over 1 s", false},
       {"methods.<method>.nees_position_mean", "",
        "mean NEES of the reported position covariance (3 when consistent)", false},
+      {"methods.<method>.nees_position_median", "",
+       "median NEES of the reported position covariance (2.37 when consistent)", false},
+      {"methods.<method>.position_containment_95", "fraction",
+       "samples whose true position is inside the reported covariance's 95 % ellipsoid "
+       "(NEES <= 7.81; 0.95 when consistent)",
+       false},
       {"methods.<method>.valid_fraction", "fraction", "valid outputs / outputs", false},
       {"methods.<method>.switches", "count", "changes of the fused set (consensus)", false},
       {"methods.<method>.missed_faults", "count",

@@ -886,26 +886,12 @@ std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const Repla
   return best;
 }
 
-namespace {
-
-// WriteMethodResult; with `release` (the result itself), the outputs (in memory or
-// spilled) are released once everything that reads them is written, before the trajectory
-// is scored.
-MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResult& result,
-                                       const std::filesystem::path& out_dir,
-                                       ReplayResult* release) {
+MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
+                              const std::filesystem::path& out_dir) {
   const std::string stem = "estimate_" + SafeFileName(result.method.name);
   WriteEstimateCsv(out_dir / (stem + ".csv"), result);
   MethodFiles files;
   files.trajectory = OutputTrajectory(result);
-  std::size_t valid = 0;
-  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
-    if (!o.valid) return;
-    if (o.position_covariance_m2) {
-      files.position_covariances.emplace_back(valid, *o.position_covariance_m2);
-    }
-    ++valid;
-  });
   const std::vector<PoseSample>& trajectory = files.trajectory;
   WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
 
@@ -917,10 +903,6 @@ MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResul
   // What reads the outputs, before they may go.
   const std::optional<nlohmann::ordered_json> tilt_error = TiltErrorJson(log, result);
   const std::optional<nlohmann::ordered_json> bias_error = BiasErrorJson(log, result);
-  if (release != nullptr) {
-    std::vector<estimator::EstimatorOutput>().swap(release->outputs);
-    release->spilled.reset();
-  }
   std::optional<TrajectoryErrors>& errors = files.errors;
   if (!log.ground_truth.empty() && trajectory.size() > 10) {
     // The ground truth as poses, sorted in place by the scoring; the errors file reads the
@@ -1050,18 +1032,6 @@ MethodFiles WriteMethodResultReleasing(const RecordedLog& log, const ReplayResul
   files.update_budget_ms = budget_ms;
   WriteFileAtomically(out_dir / ("timing_" + stem + ".json"), timing.dump(2) + "\n");
   return files;
-}
-
-}  // namespace
-
-MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
-                              const std::filesystem::path& out_dir) {
-  return WriteMethodResultReleasing(log, result, out_dir, nullptr);
-}
-
-MethodFiles WriteMethodResultReleasingOutputs(const RecordedLog& log, ReplayResult& result,
-                                              const std::filesystem::path& out_dir) {
-  return WriteMethodResultReleasing(log, result, out_dir, &result);
 }
 
 namespace {

@@ -227,19 +227,12 @@ struct MethodFiles {
   double solve_p99_ms = 0.0;
   double update_budget_ms = 0.0;  ///< the keyframe period
   std::optional<InputCheck> input_check;  ///< with ground truth and a fused pose stream
-  /// The valid outputs that reported a position covariance: (index into trajectory,
-  /// covariance of p_LI [m²]).
-  std::vector<std::pair<std::size_t, Eigen::Matrix3d>> position_covariances;
 };
 /// Writes one method's estimate_<method>.csv/.tum/.json (with T_WL, the alignment of L
 /// to W, when scored), estimate_<method>_errors.csv and timing_estimate_<method>.json
 /// into out_dir; ':' and '+' in the method name become '_' in file names.
 MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
                               const std::filesystem::path& out_dir);
-/// The same, releasing result.outputs (left empty) and the spill once the files that
-/// read them are written: for a caller done with them (the run's scoring).
-MethodFiles WriteMethodResultReleasingOutputs(const RecordedLog& log, ReplayResult& result,
-                                              const std::filesystem::path& out_dir);
 /// decisions.csv: the header, and the rows of one consensus method (every evaluation:
 /// t_ns, method, fused, excluded, unavailable, reason; sensor lists joined with '+').
 inline constexpr const char* kDecisionsCsvHeader =

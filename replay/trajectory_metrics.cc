@@ -194,6 +194,15 @@ double Rms(const std::vector<double>& v) {
   return std::sqrt(sum / static_cast<double>(v.size()));
 }
 
+Eigen::Isometry3d ToIsometry(const PoseSample& s) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = s.q.toRotationMatrix();
+  T.translation() = s.p;
+  return T;
+}
+
+}  // namespace
+
 double Median(std::vector<double> v) {
   if (v.empty()) return kNaN;
   const size_t mid = v.size() / 2;
@@ -203,15 +212,6 @@ double Median(std::vector<double> v) {
   const double lower = *std::max_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid));
   return 0.5 * (lower + upper);
 }
-
-Eigen::Isometry3d ToIsometry(const PoseSample& s) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = s.q.toRotationMatrix();
-  T.translation() = s.p;
-  return T;
-}
-
-}  // namespace
 
 std::optional<Time> ParseSecondsAsNanoseconds(std::string_view text) {
   // value = 0.d1 d2 d3 ... x 10^point, d1 != 0; only the first digits matter: an int64 of

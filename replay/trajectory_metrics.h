@@ -64,6 +64,10 @@ struct TrajectoryErrorOptions {
   core::Time rpe_tolerance_ns = 100'000'000;
 };
 
+/// The median of `values` (the mean of the two middle ones for an even count); NaN when
+/// there is none.
+double Median(std::vector<double> values);
+
 struct TrajectoryErrors {
   std::size_t matched = 0;          ///< estimate samples with ground truth (and finite)
   std::size_t skipped_no_ground_truth = 0;  ///< no ground truth within the gap

@@ -25,7 +25,10 @@ the calibration.yaml of bridge_sensors, indoor_outdoor_window and window_sensors
 line each, nothing else differed), and when calibration.yaml gained `mission:` (issue 34:
 the launch pad and the surveyed frames every estimator is told; each calibration.yaml is
 the golden one with that section appended, checked before re-recording, nothing else
-differed).
+differed), and when each method's summary gained the median NEES and the 95 % containment
+of its position covariance (issue 34 item 4: the summary.json of bridge_inspection,
+indoor_outdoor_window, paper_consensus_indoor and wall_contact_inspection, two keys per
+method added, nothing else differed).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)
