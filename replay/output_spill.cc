@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 
@@ -124,6 +125,13 @@ estimator::EstimatorOutput Decode(RecordReader& in) {
 
 OutputSpill::OutputSpill(const std::filesystem::path& dir) : dir_(dir) {
   fd_ = ::open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
+  if (fd_ < 0 && (errno == EOPNOTSUPP || errno == EISDIR)) {
+    // A file system without O_TMPFILE (NFS, older kernels): a named file, unlinked at once,
+    // so it has no name either once this constructor returns.
+    std::string name = (dir / ".tofu-spill-XXXXXX").string();
+    fd_ = ::mkostemp(name.data(), O_CLOEXEC);
+    if (fd_ >= 0) ::unlink(name.c_str());
+  }
   if (fd_ < 0) {
     throw core::IoError(fmt::format("cannot create the estimate spill file in {}: {}",
                                     dir.string(), std::strerror(errno)));
@@ -183,6 +191,10 @@ void OutputSpill::ForEach(const std::function<void(const estimator::EstimatorOut
       filled += static_cast<std::size_t>(n);
       offset += static_cast<std::uint64_t>(n);
       continue;
+    }
+    if (bytes <= sizeof(bytes)) {
+      throw core::IoError(fmt::format("the estimate spill file in {} is corrupt (record {})",
+                                      dir_.string(), visited));
     }
     RecordReader record(buffer.data() + at + sizeof(bytes), bytes - sizeof(bytes));
     visit(Decode(record));
