@@ -347,7 +347,7 @@ do_stop() {
 do_start() {
   local c
   for c in slurmctld slurmd sinfo squeue sbatch scancel munged munge unmunge setsid ss; do
-    command -v "$c" >/dev/null || die "'$c' not found: install Debian's slurmctld slurmd slurm-client munge (scripts/packages.txt)"
+    command -v "$c" >/dev/null || die "'$c' not found: install Debian's slurmctld slurmd slurm-client munge (scripts/packages-test.txt)"
   done
   [[ $(id -u) == 0 ]] || die "must run as root (slurmd starts jobs as their submitting user)"
   mkdir -p "$S"/etc "$S"/state "$S"/spool "$RUN" "$LOGS"
