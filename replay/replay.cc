@@ -387,10 +387,8 @@ struct MethodRunner::Impl {
   std::optional<core::Time> last_estimate_ns;
   std::shared_ptr<OutputSpill> spill;  // SpillOutputsTo
   std::optional<estimator::EstimatorOutput> newest;  // of a spilled method
-  std::size_t output_count = 0;
 
   void Keep(estimator::EstimatorOutput output) {
-    ++output_count;
     if (spill == nullptr) {
       result.outputs.push_back(std::move(output));
       return;
@@ -491,7 +489,7 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement, core:
   Impl& m = *impl_;
   if (!m.estimator) return 0;  // a failed client
   const auto start = std::chrono::steady_clock::now();
-  const std::size_t before = m.output_count;
+  const std::size_t before = OutputCount(m.result);
   if (!m.first_t_ns || measurement.t_ns < *m.first_t_ns) m.first_t_ns = measurement.t_ns;
   m.last_t_ns = std::max(m.last_t_ns, measurement.t_ns);
   const api::Measurement sample =
@@ -504,7 +502,7 @@ std::size_t MethodRunner::Add(const core::StampedMeasurement& measurement, core:
     }
   }
   m.busy += std::chrono::steady_clock::now() - start;
-  return m.output_count - before;
+  return OutputCount(m.result) - before;
 }
 
 void MethodRunner::Sync() {
@@ -534,7 +532,7 @@ const estimator::EstimatorOutput* MethodRunner::newest_output() const {
 
 void MethodRunner::SpillOutputsTo(const std::filesystem::path& dir) {
   Impl& m = *impl_;
-  if (m.output_count > 0) throw std::logic_error("SpillOutputsTo after the first output");
+  if (OutputCount(m.result) > 0) throw std::logic_error("SpillOutputsTo after the first output");
   m.spill = std::make_shared<OutputSpill>(dir);
   m.result.spilled = m.spill;
 }
