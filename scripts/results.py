@@ -1,0 +1,1051 @@
+#!/usr/bin/python3
+"""The measured numbers of docs/RESULTS.md and README.md, regenerated (issue 35, item 4).
+
+Each *source* below is a declared list of tofu commands (`tofu check DIR --seeds N`,
+`tofu run`, `tofu estimate`) and a function that reads their output files (summary.json of
+every seed, estimate_*.json) into named values ("key": "text as printed"). The values and
+a stamp per source (tofu's commit from `tofu --version`, seeds, date, machine, the
+commands and their wall time) go to one generated file, docs/results/results.json. The
+documents then take every generated number from that file, in regions delimited by
+markers that do not render:
+
+    <!-- results:table NAME -->            a table (TABLES below), stamped, to
+    ...                                     <!-- /results -->
+    <!-- r:KEY -->5.5<!-- /r -->            one number (or range) inline
+
+    scripts/results.py                      run every source, write results.json and the docs
+    scripts/results.py --only euroc         run one source (repeatable); the others keep theirs
+    scripts/results.py --render             rewrite the docs from results.json, run nothing
+    scripts/results.py --check              run nothing; exit 1 when a marked number or table
+                                            differs from results.json (file:line and key),
+                                            or when a number README states as measured
+                                            (a paragraph citing docs/RESULTS.md) is unmarked
+Options: --tofu PATH (default build/tofu), --jobs N (tofu check --jobs, default 1),
+--runs DIR (outputs, default runs/results), --reuse (take a command's outputs from a
+previous run into the same --runs when its <name>.run.json records the same command),
+--root DIR (the repository whose docs are read and written; default this script's).
+Exit codes: 0 ok, 1 --check found a difference, 2 bad input or a failed command.
+"""
+import argparse
+import datetime
+import decimal
+import json
+import math
+import os
+import pathlib
+import platform
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+
+SCRIPT_ROOT = pathlib.Path(__file__).resolve().parent.parent
+DATA = pathlib.Path("docs/results/results.json")
+DOCS = [pathlib.Path("docs/RESULTS.md"), pathlib.Path("README.md")]
+EUROC = pathlib.Path("../shared/data/euroc_v1_02")
+
+
+class ResultsError(Exception):
+    """Bad input or a failed command; the message says which."""
+
+
+# ---- formatting: every number is printed by one of these -------------------------------
+
+def fixed(x, digits):
+    if x is None:
+        return "-"
+    if math.isinf(x):
+        return "inf"
+    return f"{x:.{digits}f}"
+
+
+def sig(x, digits=3):
+    """x to `digits` significant digits, without exponent below 1e4 (0.0339, 1.95, 16.1)."""
+    if x is None:
+        return "-"
+    if math.isinf(x):
+        return "inf"
+    if x == 0:
+        return "0"
+    exponent = math.floor(math.log10(abs(x)))
+    if exponent >= 4:
+        return sci(x, digits)
+    decimals = max(digits - 1 - exponent, 0)
+    return f"{x:.{decimals}f}"
+
+
+def sci(x, digits=2):
+    """0.38, 4.7e3, 8.1e5: significant digits, exponent only from 1e3 on."""
+    if x is None:
+        return "-"
+    if abs(x) < 1000:
+        return sig(x, digits)
+    mantissa, exponent = f"{x:.{digits - 1}e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def span(values, fmt):
+    """'a-b' of the smallest and largest (one value when they print alike)."""
+    values = [v for v in values if v is not None]
+    if not values:
+        return "-"
+    low, high = fmt(min(values)), fmt(max(values))
+    return low if low == high else f"{low}-{high}"
+
+
+def percent(x, digits=1):
+    return "-" if x is None else ("inf" if math.isinf(x) else f"{100 * x:.{digits}f} %")
+
+
+def seeds_label(seeds):
+    seeds = sorted(seeds)
+    if len(seeds) == 1:
+        return f"seed {seeds[0]}"
+    if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1:
+        return f"seeds {seeds[0]}-{seeds[-1]}"
+    return "seeds " + ", ".join(str(s) for s in seeds)
+
+
+# ---- running tofu -----------------------------------------------------------------------
+
+class Runner:
+    """Runs a source's commands in the repository root, records each command's wall time
+    in <runs>/<name>.run.json (reused with --reuse when the command is the same)."""
+
+    def __init__(self, args, root):
+        self.tofu = str(pathlib.Path(args.tofu).resolve()) if os.sep in args.tofu else args.tofu
+        self.jobs = args.jobs
+        self.runs = (root / args.runs).resolve()
+        self.reuse = args.reuse
+        self.root = root
+        self.commands = []
+        self.seconds = 0.0
+
+    def tofu_cmd(self, name, *arguments, ok=(0,)):
+        """Run `tofu ARGUMENTS` once (name: its record); exit codes in ok are accepted
+        (tofu check exits 1 when an expectation fails: that is a result, not an error)."""
+        arguments = [self._relative(a) for a in arguments]
+        self._run(name, [self.tofu, *arguments], ["tofu", *arguments], ok)
+
+    def script_cmd(self, name, script, *arguments):
+        """Run one of scripts/ with Debian's python3; its output is in <runs>/<name>.log."""
+        arguments = [script, *[self._relative(a) for a in arguments]]
+        self._run(name, ["/usr/bin/python3", *arguments], arguments, (0,))
+
+    def log(self, name):
+        return (self.runs / f"{name}.log").read_text()
+
+    def _run(self, name, command, shown, ok):
+        record = self.runs / f"{name}.run.json"
+        if self.reuse and record.exists():
+            previous = json.loads(record.read_text())
+            if previous.get("command", [])[1:] == command[1:] and previous.get("exit_code") in ok:
+                self.commands.append({"command": " ".join(shown), "seconds": previous["seconds"],
+                                      "exit_code": previous["exit_code"],
+                                      "started": previous.get("started"), "reused": True})
+                self.seconds += previous["seconds"]
+                return
+        record.parent.mkdir(parents=True, exist_ok=True)
+        log = self.runs / f"{name}.log"
+        start = time.monotonic()
+        started = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+        with open(log, "w") as out:
+            code = subprocess.call(command, cwd=self.root, stdout=out, stderr=subprocess.STDOUT)
+        seconds = round(time.monotonic() - start, 1)
+        record.write_text(json.dumps({"command": command, "exit_code": code, "seconds": seconds,
+                                      "started": started}, indent=1) + "\n")
+        if code not in ok:
+            raise ResultsError(f"`{' '.join(shown)}` exited {code} (log: {log})")
+        self.commands.append({"command": " ".join(shown), "seconds": seconds, "exit_code": code,
+                              "started": started})
+        self.seconds += seconds
+
+    def _relative(self, argument):
+        """Paths inside the repository as relative paths (the recorded command is then the
+        same in every clone)."""
+        if isinstance(argument, pathlib.Path):
+            try:
+                return str(argument.resolve().relative_to(self.root))
+            except ValueError:
+                return str(argument)
+        return str(argument)
+
+    def out(self, *parts):
+        return self.runs.joinpath(*parts)
+
+
+def tofu_version(tofu, root):
+    text = subprocess.run([tofu, "--version"], cwd=root, capture_output=True, text=True,
+                          check=True).stdout.strip()
+    match = re.search(r"commit ([0-9a-f]+(?:-dirty)?|unknown)", text)
+    if not match:
+        raise ResultsError(f"`{tofu} --version` does not name a commit: '{text}'")
+    return text, match.group(1)
+
+
+def machine():
+    model = platform.processor() or "unknown CPU"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()}-core {model}"
+
+
+def load_json(path):
+    try:
+        return json.loads(pathlib.Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise ResultsError(f"{path}: {e}") from None
+
+
+def seed_summaries(check_dir, scenario, seeds):
+    """summary.json of every seed of a `tofu check --out CHECK_DIR` of one scenario."""
+    out = {}
+    for seed in seeds:
+        out[seed] = load_json(check_dir / scenario / f"seed_{seed}" / "summary.json")
+    return out
+
+
+def expectation(summary, metric, nth=0):
+    hits = [e for e in summary["expectations"] if e["metric"] == metric]
+    if len(hits) <= nth:
+        raise ResultsError(f"{summary['scenario']} seed {summary['seed']}: no expectation "
+                           f"#{nth + 1} on {metric}")
+    return hits[nth]["value"]
+
+
+# ---- sources ---------------------------------------------------------------------------
+# Each: name, the seeds it flies (for the stamp), run(runner) and extract(runner) -> values.
+
+EUROC_CUTS = [(0, 40), (5, 35), (10, 30), (15, 25), (20, 20)]
+IMU_NOISE_SCALES = [1, 3, 10, 30]
+
+
+def _cut_euroc(src, dst, start_s, length_s):
+    """The excerpt restricted to [first IMU sample + start, + length], every stream and the
+    ground truth, as tests/euroc_cuts_test.cc cuts it in memory."""
+    imu_lines = (src / "mav0/imu0/data.csv").read_text().splitlines(keepends=True)
+    first = next(int(line.split(",")[0]) for line in imu_lines if line and line[0] != "#")
+    lo = first + int(start_s * 1_000_000_000)
+    hi = lo + int(length_s * 1_000_000_000)
+
+    def keep_csv(lines):
+        return "".join(line for line in lines
+                       if line.startswith("#") or lo <= int(line.split(",")[0]) <= hi)
+
+    for rel in ("mav0/imu0/data.csv", "mav0/state_groundtruth_estimate0/data.csv"):
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        (dst / rel).write_text(keep_csv((src / rel).read_text().splitlines(keepends=True)))
+    for tum in src.glob("*.tum"):
+        kept = []
+        for line in tum.read_text().splitlines(keepends=True):
+            if not line.strip() or line.startswith("#"):
+                kept.append(line)
+                continue
+            t_ns = int(decimal.Decimal(line.split()[0]) * 1_000_000_000)
+            if lo <= t_ns <= hi:
+                kept.append(line)
+        (dst / tum.name).write_text("".join(kept))
+
+
+def run_euroc(r):
+    src = (r.root / EUROC).resolve()
+    if not (src / "mav0/imu0/data.csv").exists():
+        raise ResultsError(f"{src}: the EuRoC V1_02 excerpt is missing (docs/RESULTS.md)")
+    for start, length in EUROC_CUTS:
+        cut = r.out("euroc", f"cut_{start}", "log")
+        if cut.exists():
+            shutil.rmtree(cut)
+        _cut_euroc(src, cut, start, length)
+        r.tofu_cmd(f"euroc/cut_{start}", "estimate", cut, "--quiet",
+                   "--out", r.out("euroc", f"cut_{start}", "estimate"))
+    for k in IMU_NOISE_SCALES:
+        r.tofu_cmd(f"euroc/imu_noise_{k}", "estimate", src, "--quiet", "--imu-noise-scale", k,
+                   "--out", r.out("euroc", f"imu_noise_{k}"))
+
+
+def extract_euroc(r):
+    v = {}
+    fused_ate, fused_rot, vio_ate, vio_rot, ratios, tilt_rms = [], [], [], [], [], []
+    for start, _ in EUROC_CUTS:
+        d = load_json(r.out("euroc", f"cut_{start}", "estimate", "estimate_single_pose_estimate.json"))
+        c = f"euroc.cut{start}."
+        check = d["input_check"]
+        fused_ate.append(check["ate_m"])
+        fused_rot.append(check["rotation_rmse_deg"])
+        vio_ate.append(check["input_ate_m"])
+        vio_rot.append(check["input_rotation_rmse_deg"])
+        ratios.append(check["ate_m"] / check["input_ate_m"])
+        v[c + "ate_cm"] = fixed(100 * check["ate_m"], 1)
+        v[c + "rot_deg"] = fixed(check["rotation_rmse_deg"], 2)
+        v[c + "vio_ate_cm"] = fixed(100 * check["input_ate_m"], 1)
+        v[c + "vio_rot_deg"] = fixed(check["input_rotation_rmse_deg"], 2)
+        v[c + "ratio"] = fixed(ratios[-1], 2)
+        init = d["initialisation"][0]
+        method = init["method"].replace("_", "-")
+        if init["method"] == "rest":
+            v[c + "init"] = f"rest, {fixed(init['after_first_sample_s'], 1)} s after the first IMU sample"
+        else:
+            window = init.get("window_s")
+            v[c + "init"] = (f"{method}, {fixed(init['after_first_sample_s'], 1)} s"
+                             + (f" (window {fixed(window, 1)} s)" if window else ""))
+        v[c + "gravity_init_deg"] = fixed(init["gravity_direction_error_deg"], 2)
+        noise = d["stream_noise"]["pose_estimate"]
+        tilt = d["tilt_error"]
+        tilt_rms.append(tilt["rms_deg"])
+        v[c + "tilt_rms_deg"] = fixed(tilt["rms_deg"], 2)
+        v[c + "tilt_max_deg"] = fixed(tilt["max_deg"], 2)
+        # "(floor)": the measured scatter is below the floor the weights are clamped to
+        measured = init.get("relative_position_std_m")
+        floor = measured is not None and measured < noise["between_position_std_m"]
+        v[c + "noise"] = (f"{fixed(1000 * noise['between_position_std_m'], 1)} mm / "
+                          f"{fixed(noise['between_rotation_std_deg'], 2)}°"
+                          + (" (floor)" if floor else "")
+                          + ("" if noise.get("source", "measured") == "measured"
+                             else f" ({noise['source']})"))
+        b = d["bias_error"]
+        gyro_final = math.dist(b["gyro_final_radps"], b["gyro_true_final_radps"])
+        accel_final = math.dist(b["accel_final_mps2"], b["accel_true_final_mps2"])
+        v[c + "gyro_bias"] = f"{fixed(1000 * b['gyro_rms_radps'], 1)} / {fixed(1000 * gyro_final, 1)}"
+        v[c + "accel_bias"] = f"{fixed(b['accel_rms_mps2'], 3)} / {fixed(accel_final, 3)}"
+    v["euroc.mean.ate_cm"] = fixed(100 * statistics.fmean(fused_ate), 1)
+    v["euroc.mean.rot_deg"] = fixed(statistics.fmean(fused_rot), 2)
+    v["euroc.mean.vio_ate_cm"] = fixed(100 * statistics.fmean(vio_ate), 1)
+    v["euroc.mean.vio_rot_deg"] = fixed(statistics.fmean(vio_rot), 2)
+    v["euroc.mean.ratio"] = fixed(statistics.fmean(fused_ate) / statistics.fmean(vio_ate), 2)
+    v["euroc.mean.tilt_rms_deg"] = fixed(statistics.fmean(tilt_rms), 2)
+    for k in IMU_NOISE_SCALES:
+        d = load_json(r.out("euroc", f"imu_noise_{k}", "estimate_single_pose_estimate.json"))
+        v[f"euroc.imu_noise_{k}"] = f"{fixed(d['ate']['position_rmse_m'], 3)} / {fixed(d['ate']['rotation_rmse_deg'], 2)}"
+    return v
+
+
+ARENA_METHODS = ["raw:vio", "single:vio", "single:leica", "fuse:vio+leica"]
+# raw:<sensor> (the stream itself, scored) is written beside single:<sensor>; not a --method
+ARENA_ESTIMATED = [m for m in ARENA_METHODS if not m.startswith("raw:")]
+
+
+def run_estimator_arena(r):
+    run_dir = r.out("estimator_arena", "run")
+    r.tofu_cmd("estimator_arena/run", "run", "scenarios/estimator_arena.yaml", "--quiet",
+               "--out", run_dir)
+    r.tofu_cmd("estimator_arena/estimate", "estimate", run_dir, "--quiet",
+               "--method", *ARENA_ESTIMATED, "--out", r.out("estimator_arena", "estimate"))
+    for k in IMU_NOISE_SCALES:
+        r.tofu_cmd(f"estimator_arena/imu_noise_{k}", "estimate", run_dir, "--quiet",
+                   "--method", "single:vio", "single:leica", "--imu-noise-scale", k,
+                   "--out", r.out("estimator_arena", f"imu_noise_{k}"))
+
+
+def _estimate_file(directory, method):
+    return directory / ("estimate_" + method.replace(":", "_").replace("+", "_") + ".json")
+
+
+def _find_estimate(directory, method):
+    wanted = _estimate_file(directory, method)
+    if wanted.exists():
+        return load_json(wanted)
+    for path in sorted(directory.glob("estimate_*.json")):
+        d = load_json(path)
+        if d.get("method") == method:
+            return d
+    raise ResultsError(f"{directory}: no estimate_*.json of method {method}")
+
+
+def extract_estimator_arena(r):
+    v = {}
+    for method in ARENA_METHODS:
+        d = _find_estimate(r.out("estimator_arena", "estimate"), method)
+        key = "arena." + method.replace(":", "_").replace("+", "_")
+        v[key + ".ate_m"] = sig(d["ate"]["position_rmse_m"], 3)
+        v[key + ".rot_deg"] = fixed(d["ate"]["rotation_rmse_deg"], 2)
+        v[key + ".rpe_m"] = sig(d["ate"]["rpe_translation_rmse_m"], 2)
+    for k in IMU_NOISE_SCALES:
+        for method in ("single:vio", "single:leica"):
+            d = _find_estimate(r.out("estimator_arena", f"imu_noise_{k}"), method)
+            v[f"arena.imu_noise_{k}.{method.split(':')[1]}"] = (
+                f"{sig(d['ate']['position_rmse_m'], 2)} / {fixed(d['ate']['rotation_rmse_deg'], 2)}")
+    return v
+
+
+PAPER_METRICS = [("cm", "CM"), ("mae", "MAE [m/s]"), ("pcc", "PCC"), ("kl", "KL")]
+PAPER_METRIC_PAIRS = ["leica-vio", "leica-truth"]
+
+
+def run_paper_metric(r):
+    for scenario in ("paper_metric_evaluation", "paper_metric_divergence"):
+        run_dir = r.out("paper_metric", scenario)
+        r.tofu_cmd(f"paper_metric/{scenario}", "run", f"scenarios/{scenario}.yaml", "--quiet",
+                   "--out", run_dir)
+        for pair in PAPER_METRIC_PAIRS:
+            r.script_cmd(f"paper_metric/{scenario}_{pair}", "scripts/plot_consistency.py", run_dir,
+                         "--pair", pair, "--out", r.out("paper_metric", f"{scenario}_{pair}.png"))
+
+
+def _consistency_table(text, where):
+    """The rows scripts/plot_consistency.py prints: metric -> its cells as printed."""
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("| ") and len(cells) == 7 and cells[0] in dict(PAPER_METRICS):
+            rows[cells[0]] = dict(zip(["healthy", "noisy", "diverging", "noisy_over_healthy",
+                                       "diverging_over_noisy", "delay_s"], cells[1:]))
+    if len(rows) != len(PAPER_METRICS):
+        raise ResultsError(f"{where}: expected a row per metric {[m for m, _ in PAPER_METRICS]}, "
+                           f"found {sorted(rows)}")
+    return rows
+
+
+def extract_paper_metric(r):
+    v = {}
+    for scenario, short in (("paper_metric_evaluation", "evaluation"), ("paper_metric_divergence", "divergence")):
+        for pair in PAPER_METRIC_PAIRS:
+            name = f"paper_metric/{scenario}_{pair}"
+            rows = _consistency_table(r.log(name), r.out(f"{name}.log"))
+            for metric, cells in rows.items():
+                for column, text in cells.items():
+                    v[f"paper_metric.{short}.{pair}.{metric}.{column}"] = text
+    return v
+
+
+def _check_source(name, scenario_path, seeds):
+    def run(r):
+        r.tofu_cmd(name, "check", scenario_path, "--seeds", seeds, "--jobs", r.jobs, "--quiet",
+                   "--out", r.out(name), ok=(0, 1, 3))
+    return run
+
+
+PAPER_SEEDS = list(range(1, 11))
+PAPER_METHODS = [("consensus", "consensus (threshold 0.3, priority leica > lio > vio)"),
+                 ("naive", "naive: every sensor all the time, true frame transforms"),
+                 ("single:vio@clean", "VIO alone, uncorrupted (`single:vio@clean`, the paper's reference)"),
+                 ("single:vio", "VIO alone, corrupted (`single:vio`)")]
+
+
+def extract_paper_consensus(r):
+    s = seed_summaries(r.out("paper_consensus"), "paper_consensus_indoor", PAPER_SEEDS)
+    v = {}
+    for method, _ in PAPER_METHODS:
+        m = s[1]["methods"][method]
+        key = "paper_consensus.seed1." + method
+        v[key + ".ate_m"] = sig(m["ate_m"], 3)
+        rot = m["rotation_rmse_deg"]
+        v[key + ".rot_deg"] = sig(rot, 2) if rot < 10 else fixed(rot, 1)
+        v[key + ".nees"] = sci(m["nees_position_mean"], 2)
+    for group in (PAPER_SEEDS[:5], PAPER_SEEDS[5:]):
+        g = f"paper_consensus.seeds{group[0]}_{group[-1]}."
+        cons = [s[i]["methods"]["consensus"]["ate_m"] for i in group]
+        naive = [s[i]["methods"]["naive"]["ate_m"] for i in group]
+        clean = [s[i]["methods"]["single:vio@clean"]["ate_m"] for i in group]
+        v[g + "consensus"] = " ".join(sig(x, 2) for x in cons)
+        v[g + "naive"] = " ".join(sig(x, 3) for x in naive)
+        v[g + "clean_vio"] = " ".join(sig(x, 2) for x in clean)
+        v[g + "over_naive"] = span([c / n for c, n in zip(cons, naive)], lambda x: fixed(100 * x, 1)) + " %"
+        v[g + "over_clean"] = span([c / n for c, n in zip(cons, clean)], lambda x: fixed(x, 2))
+    cons = {i: s[i]["methods"]["consensus"] for i in PAPER_SEEDS}
+    v["paper_consensus.over_naive"] = span(
+        [cons[i]["ate_m"] / s[i]["methods"]["naive"]["ate_m"] for i in PAPER_SEEDS],
+        lambda x: fixed(100 * x, 1)) + " %"
+    v["paper_consensus.over_clean"] = span(
+        [cons[i]["ate_m"] / s[i]["methods"]["single:vio@clean"]["ate_m"] for i in PAPER_SEEDS],
+        lambda x: fixed(x, 2))
+    v["paper_consensus.rot_deg"] = span([cons[i]["rotation_rmse_deg"] for i in PAPER_SEEDS],
+                                        lambda x: fixed(x, 2))
+    v["paper_consensus.nees"] = span([cons[i]["nees_position_mean"] for i in PAPER_SEEDS],
+                                     lambda x: fixed(x, 2))
+    for fault in ("divergence", "non_gaussian_noise"):
+        delays = [d["delay_s"] for i in PAPER_SEEDS for d in cons[i]["detections"]
+                  if d["fault"] == fault]
+        if any(d is None for d in delays):
+            v[f"paper_consensus.detection.{fault}"] = "missed in some seed"
+        else:
+            v[f"paper_consensus.detection.{fault}"] = span(delays, lambda x: fixed(x, 1)) + " s"
+    v["paper_consensus.false_exclusion_max_s"] = fixed(
+        max(max(cons[i]["false_exclusion_s"].values()) for i in PAPER_SEEDS), 1)
+    v["paper_consensus.false_exclusion"] = span(
+        [cons[i]["false_exclusion_fraction"] for i in PAPER_SEEDS], lambda x: fixed(100 * x, 1)) + " %"
+    seed1 = cons[1]
+    v["paper_consensus.seed1.ate_cm"] = fixed(100 * seed1["ate_m"], 1)
+    v["paper_consensus.seed1.clean_vio_ate_cm"] = fixed(
+        100 * s[1]["methods"]["single:vio@clean"]["ate_m"], 1)
+    v["paper_consensus.seed1.naive_ate_m"] = fixed(s[1]["methods"]["naive"]["ate_m"], 1)
+    v["paper_consensus.seed1.max_detection_s"] = fixed(seed1["max_detection_delay_s"], 1)
+    v["paper_consensus.passed"] = f"{sum(1 for i in PAPER_SEEDS if s[i]['passed'])} of {len(PAPER_SEEDS)}"
+    return v
+
+
+CLOSED_LOOP_SEEDS = list(range(1, 11))
+
+
+def _naive_hit(check_dir, scenario, seed):
+    summary = load_json(check_dir / scenario / f"seed_{seed}" / "closed_loop" / "naive" / "summary.json")
+    geoms = []
+    for c in summary["collisions"]:
+        if c["structure_geom"] not in geoms:
+            geoms.append(c["structure_geom"])
+    text = ", ".join(geoms) if geoms else "-"
+    if summary.get("failure"):
+        text += "; simulation failed"
+    return text
+
+
+def extract_closed_loop_wall(r):
+    scenario = "closed_loop_vio_divergence_wall"
+    check_dir = r.out("closed_loop_wall")
+    s = seed_summaries(check_dir, scenario, CLOSED_LOOP_SEEDS)
+    v = {}
+    k = "closed_loop_wall."
+    for i in CLOSED_LOOP_SEEDS:
+        cl = s[i]["closed_loop"]
+        c, n = cl["consensus"], cl["naive"]
+        key = f"{k}seed{i}."
+        v[key + "consensus_rmse_m"] = fixed(c["tracking_rmse_m"], 3)
+        v[key + "consensus_max_m"] = fixed(c["tracking_max_m"], 3)
+        v[key + "consensus_hits"] = str(c["collisions"])
+        v[key + "consensus_dist_m"] = fixed(c["min_structure_distance_m"], 2)
+        v[key + "naive_rmse_m"] = fixed(n["tracking_rmse_m"], 3)
+        v[key + "naive_over_consensus"] = fixed(n["tracking_rmse_m"] / c["tracking_rmse_m"], 2)
+        v[key + "naive_hits"] = str(n["collisions"])
+        v[key + "naive_first_hit_s"] = fixed(n["time_to_first_collision_s"], 1)
+        v[key + "naive_hit"] = _naive_hit(check_dir, scenario, i)
+        v[key + "naive_diverged"] = "yes" if n["diverged"] else "no"
+        v[key + "open_loop_ate"] = (f"{fixed(s[i]['methods']['consensus']['ate_m'], 3)} / "
+                                    f"{fixed(s[i]['methods']['naive']['ate_m'], 3)}")
+    groups = {"1_5": CLOSED_LOOP_SEEDS[:5], "6_10": CLOSED_LOOP_SEEDS[5:], "1_10": CLOSED_LOOP_SEEDS}
+    for name, seeds in groups.items():
+        cl = [s[i]["closed_loop"] for i in seeds]
+        v[f"{k}seeds{name}.naive_over_consensus"] = span(
+            [x["naive"]["tracking_rmse_m"] / x["consensus"]["tracking_rmse_m"] for x in cl],
+            lambda x: f"{x:.0f}") + "x"
+    v[k + "seeds6_10.consensus_rmse_m"] = span(
+        [s[i]["closed_loop"]["consensus"]["tracking_rmse_m"] for i in CLOSED_LOOP_SEEDS[5:]],
+        lambda x: fixed(x, 3)) + " m"
+    cl = [s[i]["closed_loop"] for i in CLOSED_LOOP_SEEDS]
+    v[k + "consensus_rmse_cm"] = span([x["consensus"]["tracking_rmse_m"] for x in cl],
+                                      lambda x: fixed(100 * x, 1)) + " cm"
+    v[k + "consensus_min_dist_m"] = fixed(min(x["consensus"]["min_structure_distance_m"] for x in cl), 2)
+    v[k + "naive_first_hit_s"] = span([x["naive"]["time_to_first_collision_s"] for x in cl],
+                                      lambda x: fixed(x, 1)) + " s"
+    v[k + "naive_hit_seeds"] = f"{sum(1 for x in cl if x['naive']['collisions'] > 0)} of {len(cl)}"
+    v[k + "detection_s"] = span([s[i]["methods"]["consensus"]["max_detection_delay_s"]
+                                 for i in CLOSED_LOOP_SEEDS], lambda x: fixed(x, 1)) + " s"
+    v[k + "passed"] = f"{sum(1 for i in CLOSED_LOOP_SEEDS if s[i]['passed'])} of {len(CLOSED_LOOP_SEEDS)}"
+    one = s[1]
+    v[k + "seed1.consensus_rmse_cm"] = fixed(100 * one["closed_loop"]["consensus"]["tracking_rmse_m"], 1)
+    v[k + "seed1.naive_first_hit_s"] = fixed(one["closed_loop"]["naive"]["time_to_first_collision_s"], 1)
+    v[k + "seed1.detection_s"] = fixed(one["methods"]["consensus"]["max_detection_delay_s"], 1)
+    return v
+
+
+SUITE_SEEDS = list(range(1, 11))
+
+
+def _suite_scenarios(root):
+    return sorted(p.stem for p in (root / "scenarios/suite").glob("*.yaml"))
+
+
+def extract_suite(r):
+    v = {}
+    for scenario in _suite_scenarios(r.root):
+        s = seed_summaries(r.out("suite"), scenario, SUITE_SEEDS)
+        m = {i: s[i]["methods"] for i in SUITE_SEEDS}
+        key = f"suite.{scenario}."
+        for i in SUITE_SEEDS:  # as harness/check_methods.cc: a fault ending before the run did
+            for meth in m[i].values():
+                meth["_run_end_s"] = s[i]["simulated_s"]
+        for i in SUITE_SEEDS:
+            failed = [e for e in s[i]["expectations"] if not e["passed"]]
+            v[f"{key}seed{i}.failed"] = "; ".join(
+                f"{e['metric']} {sig(e['value'], 3) if e['value'] is not None else 'none'}"
+                f" (bound {'≥ ' + sig(e['min'], 3) if e['min'] is not None else ''}"
+                f"{', ' if e['min'] is not None and e['max'] is not None else ''}"
+                f"{'≤ ' + sig(e['max'], 3) if e['max'] is not None else ''})" for e in failed)
+        key = f"suite.{scenario}."
+
+        def values(method, metric, seeds=SUITE_SEEDS):
+            return [m[i][method].get(metric) for i in seeds]
+
+        def med(xs):
+            xs = [x for x in xs if x is not None]
+            return statistics.median(xs) if xs else None
+
+        def worst(xs, missing=None):
+            if any(x is None for x in xs):
+                return missing
+            return max(xs)
+
+        def delay_worst(method, metric, counted):
+            # None in a seed: missed (detection) / never re-admitted, when a fault was there
+            out = []
+            for i in SUITE_SEEDS:
+                x = m[i][method].get(metric)
+                if x is None and counted(m[i][method]):
+                    return math.inf
+                if x is not None:
+                    out.append(x)
+            return max(out) if out else None
+
+        def missed(meth):
+            return meth.get("faults_detected", 0) < meth.get("faults", 0)
+
+        def never_readmitted(meth):
+            return any(d.get("detected") and d.get("readmission_delay_s") is None
+                       and d.get("end_s") is not None and d["end_s"] < meth["_run_end_s"] - 1e-6
+                       for d in meth.get("detections", []))
+
+        passed = sum(1 for i in SUITE_SEEDS if s[i]["passed"])
+        v[key + "passed"] = f"{passed}/{len(SUITE_SEEDS)}"
+        ate = values("consensus", "ate_m")
+        v[key + "consensus_ate"] = f"{sig(med(ate), 3)} / {sig(max(ate), 3)}"
+        cs = values("consensus:consistent_set", "ate_m")
+        oracle = values("oracle", "ate_m")
+        cs_over = [c / o for c, o in zip(cs, oracle)]
+        v[key + "cs_ate"] = (f"{sig(med(cs), 3)} / {sig(max(cs), 3)} "
+                             f"({fixed(med(cs_over), 2)} / {fixed(max(cs_over), 2)})")
+        v[key + "oracle_ate"] = sig(med(oracle), 3)
+        singles = sorted(meth for meth in m[1] if meth.startswith("single:") and meth.endswith("@clean"))
+        best = min(singles, key=lambda meth: med(values(meth, "ate_m")))
+        best_ate = values(best, "ate_m")
+        v[key + "best_single"] = f"{best[len('single:'):-len('@clean')]} {sig(med(best_ate), 3)}"
+        v[key + "oracle_over_best"] = fixed(med([o / b for o, b in zip(oracle, best_ate)]), 2)
+        for method, name in (("consensus", "c"), ("consensus:consistent_set", "cs")):
+            meth = lambda i: m[i][method]  # noqa: E731
+            det = delay_worst(method, "max_detection_delay_s", missed)
+            read = delay_worst(method, "max_readmission_delay_s", never_readmitted)
+            v[f"{key}{name}.detection_worst_s"] = "-" if det is None else ("inf" if math.isinf(det) else f"{det:.1f}")
+            v[f"{key}{name}.readmission_worst_s"] = "-" if read is None else ("inf" if math.isinf(read) else f"{read:.1f}")
+            v[f"{key}{name}.false_exclusion_worst"] = percent(max(meth(i)["false_exclusion_fraction"] for i in SUITE_SEEDS))
+            v[f"{key}{name}.nees_median"] = sci(med([meth(i)["nees_position_mean"] for i in SUITE_SEEDS]), 2)
+            v[f"{key}{name}.rotation_over_oracle"] = fixed(med(
+                [meth(i)["rotation_rmse_deg"] / m[i]["oracle"]["rotation_rmse_deg"] for i in SUITE_SEEDS]), 2)
+    return v
+
+
+SOURCES = {
+    "paper_metric": {"describe": "`tofu run` of scenarios/paper_metric_evaluation.yaml and "
+                                 "paper_metric_divergence.yaml (seed 1), then scripts/plot_consistency.py "
+                                 "on each for the pairs leica-vio and leica-truth",
+                     "seeds": [1], "run": run_paper_metric, "extract": extract_paper_metric},
+    "euroc": {"describe": "`tofu estimate` on the EuRoC V1_02 excerpt (../shared/data/euroc_v1_02) "
+                          "cut at five start times, and with --imu-noise-scale 1, 3, 10, 30",
+              "seeds": None, "run": run_euroc, "extract": extract_euroc},
+    "estimator_arena": {"describe": "`tofu run scenarios/estimator_arena.yaml` (seed 1), then `tofu "
+                                    "estimate` of four methods, and with --imu-noise-scale 1, 3, 10, 30",
+                        "seeds": [1], "run": run_estimator_arena, "extract": extract_estimator_arena},
+    "paper_consensus": {"describe": "`tofu check scenarios/paper_consensus_indoor.yaml --seeds 10`",
+                        "seeds": PAPER_SEEDS,
+                        "run": _check_source("paper_consensus", "scenarios/paper_consensus_indoor.yaml", 10),
+                        "extract": extract_paper_consensus},
+    "closed_loop_wall": {"describe": "`tofu check scenarios/closed_loop_vio_divergence_wall.yaml --seeds 10`",
+                         "seeds": CLOSED_LOOP_SEEDS,
+                         "run": _check_source("closed_loop_wall",
+                                              "scenarios/closed_loop_vio_divergence_wall.yaml", 10),
+                         "extract": extract_closed_loop_wall},
+    "suite": {"describe": "`tofu check scenarios/suite --seeds 10`", "seeds": SUITE_SEEDS,
+              "run": _check_source("suite", "scenarios/suite", 10), "extract": extract_suite},
+}
+
+
+# ---- tables: rendered from the values at render time, so a hand edit is found ----------
+
+class Values:
+    """The generated values of every source; records which sources a table read."""
+
+    def __init__(self, data):
+        self.data = data
+        self.index = {}
+        for name, source in data.get("sources", {}).items():
+            for key, text in source["values"].items():
+                self.index[key] = (name, text)
+        self.used = set()
+
+    def __call__(self, key):
+        if key not in self.index:
+            raise KeyError(key)
+        name, text = self.index[key]
+        self.used.add(name)
+        return text
+
+    def __contains__(self, key):
+        return key in self.index
+
+
+def md_table(header, rows):
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def table_euroc_cuts(V):
+    rows = []
+    for start, length in EUROC_CUTS:
+        c = f"euroc.cut{start}."
+        rows.append([f"{start} + {length}", f"**{V(c + 'ate_cm')} / {V(c + 'rot_deg')}**",
+                     f"{V(c + 'vio_ate_cm')} / {V(c + 'vio_rot_deg')}", V(c + "ratio"), V(c + "init"),
+                     V(c + "gravity_init_deg"), f"{V(c + 'tilt_rms_deg')} / {V(c + 'tilt_max_deg')}",
+                     V(c + "noise"), V(c + "gyro_bias"), V(c + "accel_bias")])
+    rows.append(["mean", f"{V('euroc.mean.ate_cm')} / {V('euroc.mean.rot_deg')}",
+                 f"{V('euroc.mean.vio_ate_cm')} / {V('euroc.mean.vio_rot_deg')}", V("euroc.mean.ratio"),
+                 "", "", V("euroc.mean.tilt_rms_deg"), "", "", ""])
+    return md_table(["cut: start + length [s]", "fused ATE [cm] / rot [deg]", "VIO alone, same span",
+                     "fused/VIO ATE", "initialised", "gravity error at init [deg]",
+                     "gravity error RMS / max over the cut [deg]",
+                     "stream noise measured (per relative pose)", "gyro bias error RMS / final [mrad/s]",
+                     "accel bias error RMS / final [m/s²]"], rows)
+
+
+def table_imu_noise(V):
+    rows = []
+    for k in IMU_NOISE_SCALES:
+        cells = [V(f"euroc.imu_noise_{k}"), V(f"arena.imu_noise_{k}.vio"), V(f"arena.imu_noise_{k}.leica")]
+        label = {1: "1 (datasheet)", 10: "10 (default)"}.get(k, str(k))
+        if k == 10:
+            label, cells = f"**{label}**", [f"**{c}**" for c in cells]
+        rows.append([label, *cells])
+    return md_table(["k", "EuRoC V1_02 ATE [m] / rot [deg]", "estimator_arena, single:vio",
+                     "single:leica"], rows)
+
+
+def table_estimator_arena(V):
+    labels = {"raw:vio": "VIO alone (`raw:vio`)", "single:vio": "IMU + VIO (`single:vio`)",
+              "single:leica": "IMU + total station (`single:leica`)",
+              "fuse:vio+leica": "IMU + VIO + total station (`fuse:vio+leica`; the graph starts on the total station at 0 s)"}
+    rows = []
+    for method in ARENA_METHODS:
+        key = "arena." + method.replace(":", "_").replace("+", "_")
+        rows.append([labels[method], V(key + ".ate_m"), V(key + ".rot_deg"), V(key + ".rpe_m")])
+    return md_table(["method", "ATE [m]", "rotation RMSE [deg]", "RPE 1 s [m]"], rows)
+
+
+def table_paper_consensus_seed1(V):
+    rows = []
+    for method, label in PAPER_METHODS:
+        key = "paper_consensus.seed1." + method
+        ate = V(key + ".ate_m")
+        rows.append([label, f"**{ate}**" if method == "consensus" else ate, V(key + ".rot_deg"),
+                     V(key + ".nees")])
+    return md_table(["method (seed 1)", "ATE [m]", "rotation RMSE [deg]", "NEES (3 = consistent)"], rows)
+
+
+def table_paper_consensus_seeds(V):
+    rows = []
+    for a, b in ((1, 5), (6, 10)):
+        g = f"paper_consensus.seeds{a}_{b}."
+        rows.append([f"{a}-{b}", V(g + "consensus"), V(g + "naive"), V(g + "clean_vio"),
+                     V(g + "over_naive"), V(g + "over_clean")])
+    return md_table(["seeds", "consensus ATE [m]", "naive ATE [m]", "clean VIO ATE [m]",
+                     "consensus / naive", "consensus / clean VIO"], rows)
+
+
+def table_closed_loop_wall(V):
+    rows = []
+    for i in CLOSED_LOOP_SEEDS:
+        k = f"closed_loop_wall.seed{i}."
+        rows.append([str(i), V(k + "consensus_rmse_m"), V(k + "naive_rmse_m"), V(k + "naive_over_consensus"),
+                     V(k + "naive_hits"), V(k + "naive_first_hit_s"), V(k + "naive_hit"),
+                     V(k + "naive_diverged"), V(k + "open_loop_ate")])
+    return md_table(["seed", "consensus: tracking RMSE [m]", "naive: tracking RMSE [m]", "naive / consensus",
+                     "hits", "first hit [s]", "hit", "diverged", "open-loop ATE consensus / naive [m]"], rows)
+
+
+def _mission_frame_wall(V, seeds):
+    rows = []
+    for i in seeds:
+        k = f"closed_loop_wall.seed{i}."
+        rows.append([str(i), f"{V(k + 'consensus_rmse_m')} / {V(k + 'consensus_max_m')}",
+                     V(k + "consensus_rmse_m"), V(k + "consensus_hits"), V(k + "consensus_dist_m"),
+                     V(k + "naive_rmse_m"), V(k + "naive_hits")])
+    return md_table(["seed", "consensus: tracking RMSE / max [m]", "RMSE in window [m]", "hits", "dist [m]",
+                     "naive: tracking RMSE [m]", "hits"], rows)
+
+
+def table_suite(V):
+    rows = []
+    for scenario in _suite_scenarios(SCRIPT_ROOT):
+        k = f"suite.{scenario}."
+        rows.append([f"{scenario} ({V(k + 'passed')} pass)", V(k + "consensus_ate"), V(k + "cs_ate"),
+                     V(k + "oracle_ate"), V(k + "best_single"), V(k + "oracle_over_best"),
+                     f"{V(k + 'c.detection_worst_s')} ({V(k + 'cs.detection_worst_s')})",
+                     f"{V(k + 'c.readmission_worst_s')} ({V(k + 'cs.readmission_worst_s')})",
+                     f"{V(k + 'c.false_exclusion_worst')} ({V(k + 'cs.false_exclusion_worst')})",
+                     f"{V(k + 'c.nees_median')} ({V(k + 'cs.nees_median')})",
+                     f"{V(k + 'c.rotation_over_oracle')} ({V(k + 'cs.rotation_over_oracle')})"])
+    return md_table(["scenario", "consensus ATE med/worst",
+                     "consistent_set ATE med/worst (× oracle med/worst)", "oracle med",
+                     "best single @clean (med)", "oracle × best single (med)", "detection worst [s] (cs)",
+                     "re-admission worst [s] (cs)", "false excl. worst (cs)", "NEES med consensus (cs)",
+                     "rotation × oracle med (cs)"], rows)
+
+
+def table_suite_failures(V):
+    rows = []
+    for scenario in _suite_scenarios(SCRIPT_ROOT):
+        for i in SUITE_SEEDS:
+            failed = V(f"suite.{scenario}.seed{i}.failed")
+            if failed:
+                rows.append([scenario, str(i), failed])
+    if not rows:
+        rows.append(["(none)", "", ""])
+    return md_table(["scenario", "seed", "failed expectations: value (bound)"], rows)
+
+
+def table_paper_metric_phases(V):
+    rows = []
+    for pair in PAPER_METRIC_PAIRS:
+        for metric, label in PAPER_METRICS:
+            k = f"paper_metric.evaluation.{pair}.{metric}."
+            rows.append([pair, label] + [V(k + c) for c in ("healthy", "noisy", "diverging",
+                                                            "noisy_over_healthy", "diverging_over_noisy")])
+    return md_table(["pair", "metric", "healthy", "noisy (50-100 s)", "diverging (100-130 s)",
+                     "noisy / healthy", "diverging / noisy"], rows)
+
+
+def table_paper_metric_divergence(V):
+    rows = []
+    for pair in PAPER_METRIC_PAIRS:
+        rows.append([f"{pair}: delay [s]"] +
+                    [V(f"paper_metric.divergence.{pair}.{m}.delay_s") for m, _ in PAPER_METRICS])
+    rows.append(["leica-vio: median healthy → diverging (60-90 s)"] +
+                [f"{V(f'paper_metric.divergence.leica-vio.{m}.healthy')} → "
+                 f"{V(f'paper_metric.divergence.leica-vio.{m}.diverging')}" for m, _ in PAPER_METRICS])
+    return md_table(["pair", "CM", "MAE", "PCC", "KL"], rows)
+
+
+TABLES = {
+    "paper_metric_phases": table_paper_metric_phases,
+    "paper_metric_divergence": table_paper_metric_divergence,
+    "euroc_cuts": table_euroc_cuts,
+    "imu_noise": table_imu_noise,
+    "estimator_arena": table_estimator_arena,
+    "paper_consensus_seed1": table_paper_consensus_seed1,
+    "paper_consensus_seeds": table_paper_consensus_seeds,
+    "closed_loop_wall": table_closed_loop_wall,
+    "mission_frame_wall_1_5": lambda V: _mission_frame_wall(V, CLOSED_LOOP_SEEDS[:5]),
+    "mission_frame_wall_6_10": lambda V: _mission_frame_wall(V, CLOSED_LOOP_SEEDS[5:]),
+    "suite": table_suite,
+    "suite_failures": table_suite_failures,
+}
+
+
+# ---- rendering and checking ------------------------------------------------------------
+
+# An inline value stays on one line; a table's markers stand alone on their lines.
+INLINE = re.compile(r"<!-- r:([A-Za-z0-9_.:@+-]+) -->([^<\n]*)<!-- /r -->")
+TABLE = re.compile(r"^(<!-- results:table ([A-Za-z0-9_]+) -->\n)(.*?)^(<!-- /results -->)$", re.S | re.M)
+
+
+def stamp_line(data, sources):
+    parts = []
+    for name in sorted(sources):
+        st = data["sources"][name]["stamp"]
+        seeds = f", {st['seeds']}" if st.get("seeds") else ""
+        parts.append(f"`{name}` ({st['commit']}{seeds}, {st['date']}, {st['machine']})")
+    return ("*Generated by `scripts/results.py` from " + "; ".join(parts) +
+            ": docs/results/results.json.*")
+
+
+def render_text(text, data, path, errors):
+    """The document with every marked region filled from data; unknown keys or tables go
+    to errors as 'path:line: ...'."""
+
+    def line_of(pos):
+        return text.count("\n", 0, pos) + 1
+
+    def table(match):
+        name = match.group(2)
+        if name not in TABLES:
+            errors.append(f"{path}:{line_of(match.start())}: unknown table '{name}' "
+                          f"(scripts/results.py TABLES)")
+            return match.group(0)
+        V = Values(data)
+        try:
+            body = TABLES[name](V)
+        except KeyError as e:
+            errors.append(f"{path}:{line_of(match.start())}: table '{name}' needs value {e} "
+                          f"that docs/results/results.json does not hold (run scripts/results.py)")
+            return match.group(0)
+        return f"{match.group(1)}{body}\n\n{stamp_line(data, V.used)}\n{match.group(4)}"
+
+    text = TABLE.sub(table, text)
+    V = Values(data)
+
+    def inline(match):
+        key = match.group(1)
+        if key not in V:
+            errors.append(f"{path}:{line_of(match.start())}: unknown value '{key}' "
+                          f"(not in docs/results/results.json)")
+            return match.group(0)
+        return f"<!-- r:{key} -->{V(key)}<!-- /r -->"
+
+    return INLINE.sub(inline, text)
+
+
+def region_differences(path, current, rendered):
+    """file:line and key of each marked region whose text differs from the rendered one."""
+    out = []
+    cur_regions = [(m.start(), m.group(1), m.group(2)) for m in INLINE.finditer(current)]
+    new_regions = [(m.group(1), m.group(2)) for m in INLINE.finditer(rendered)]
+    for (pos, key, text), (_, want) in zip(cur_regions, new_regions):
+        if text != want:
+            out.append(f"{path}:{current.count(chr(10), 0, pos) + 1}: value r:{key} is '{text}' "
+                       f"here, '{want}' in docs/results/results.json")
+    cur_tables = [(m.start(3), m.group(2), m.group(3)) for m in TABLE.finditer(current)]
+    new_tables = [m.group(3) for m in TABLE.finditer(rendered)]
+    for (pos, name, body), want in zip(cur_tables, new_tables):
+        if body == want:
+            continue
+        have_lines, want_lines = body.split("\n"), want.split("\n")
+        offset = next((i for i, (a, b) in enumerate(zip(have_lines, want_lines)) if a != b),
+                      min(len(have_lines), len(want_lines)) - 1)
+        line = current.count("\n", 0, pos) + 1 + offset
+        generated = want_lines[offset] if offset < len(want_lines) else ""
+        out.append(f"{path}:{line}: table '{name}' differs from docs/results/results.json; "
+                   f"generated line: '{generated}'")
+    if not out and current != rendered:
+        out.append(f"{path}: differs from its rendering outside the marked regions")
+    return out
+
+
+# The README states these numbers without measuring them: the scenario's inputs (fault
+# onsets, the flight's distance to the wall). Every other number with a unit in a README
+# paragraph that cites docs/RESULTS.md must be a marked, generated value.
+README_GIVEN = ["diverges at 18 s", "turns noisy at 82 s", "diverges from 12 s", "0.6 m from it",
+                "inflated 10x"]
+MEASURED_NUMBER = re.compile(r"(?<![\w.])\d+(?:\.\d+)?(?:-\d+(?:\.\d+)?)?\s?(?:cm|mm|m|s|x|%|°)(?![\w])")
+
+
+def unmarked_readme_numbers(text, path):
+    out = []
+    pos = 0
+    for paragraph in re.split(r"\n\s*\n", text):
+        start = text.index(paragraph, pos)
+        pos = start + len(paragraph)
+        if "docs/RESULTS.md" not in paragraph:
+            continue
+        masked = INLINE.sub(lambda m: " " * len(m.group(0)), paragraph)
+        masked = re.sub(r"`[^`]*`", lambda m: " " * len(m.group(0)), masked)
+        for given in README_GIVEN:
+            masked = masked.replace(given, " " * len(given))
+        for m in MEASURED_NUMBER.finditer(masked):
+            line = text.count("\n", 0, start + m.start()) + 1
+            out.append(f"{path}:{line}: '{m.group(0)}' is stated as measured (its paragraph cites "
+                       f"docs/RESULTS.md) but is not a generated value: mark it "
+                       f"<!-- r:KEY -->…<!-- /r --> (scripts/results.py), or list it in README_GIVEN "
+                       f"if it is a scenario input")
+    return out
+
+
+def broken_markers(text, path):
+    """Markers that open a region no rule matches (a closing marker deleted, a value
+    spread over lines): their numbers would otherwise go unchecked."""
+    out = []
+    inline = {m.start() for m in INLINE.finditer(text)}
+    for m in re.finditer(r"<!-- r:", text):
+        if m.start() not in inline:
+            out.append(f"{path}:{text.count(chr(10), 0, m.start()) + 1}: a value marker without "
+                       f"its '<!-- /r -->' on the same line")
+    tables = {m.start() for m in TABLE.finditer(text)}
+    for m in re.finditer(r"^<!-- results:table ", text, re.M):
+        if m.start() not in tables:
+            out.append(f"{path}:{text.count(chr(10), 0, m.start()) + 1}: a table marker without "
+                       f"its '<!-- /results -->' line")
+    return out
+
+
+def check(root, data):
+    problems = []
+    for rel in DOCS:
+        path = root / rel
+        current = path.read_text()
+        problems += broken_markers(current, rel)
+        errors = []
+        rendered = render_text(current, data, rel, errors)
+        problems += errors
+        if rendered != current:
+            problems += region_differences(rel, current, rendered)
+        if rel.name == "README.md":
+            problems += unmarked_readme_numbers(current, rel)
+    return problems
+
+
+def write_docs(root, data):
+    problems = []
+    for rel in DOCS:
+        path = root / rel
+        current = path.read_text()
+        rendered = render_text(current, data, rel, problems)
+        if rendered != current:
+            path.write_text(rendered)
+            print(f"results: rewrote {rel}")
+    return problems
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n".join(__doc__.split("\n")[1:]))
+    parser.add_argument("--only", action="append", choices=sorted(SOURCES), help="run this source only")
+    parser.add_argument("--tofu", default="build/tofu")
+    parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument("--runs", default="runs/results")
+    parser.add_argument("--reuse", action="store_true")
+    parser.add_argument("--render", action="store_true", help="rewrite the docs from results.json only")
+    parser.add_argument("--check", action="store_true", help="compare the docs with results.json only")
+    parser.add_argument("--root", default=str(SCRIPT_ROOT))
+    args = parser.parse_args()
+    root = pathlib.Path(args.root).resolve()
+    data_path = root / DATA
+    try:
+        data = load_json(data_path) if data_path.exists() else {"sources": {}}
+        if args.check:
+            problems = check(root, data)
+            for p in problems:
+                print(p, file=sys.stderr)
+            if problems:
+                print(f"results: {len(problems)} difference(s) between the docs and {DATA}; "
+                      "regenerate with scripts/results.py (or --render)", file=sys.stderr)
+                return 1
+            print(f"results: README.md and docs/RESULTS.md agree with {DATA}")
+            return 0
+        if not args.render:
+            runner_args = args
+            version, commit = tofu_version(
+                str(pathlib.Path(args.tofu).resolve()) if os.sep in args.tofu else args.tofu, root)
+            for name in args.only or list(SOURCES):
+                source = SOURCES[name]
+                r = Runner(runner_args, root)
+                print(f"results: {name}: {source['describe']}", flush=True)
+                source["run"](r)
+                values = source["extract"](r)
+                # Re-read: another results.py (--only) may have stored a source meanwhile.
+                if data_path.exists():
+                    data = load_json(data_path)
+                data["sources"][name] = {
+                    "describe": source["describe"],
+                    "stamp": {"commit": commit, "tofu": version,
+                              "seeds": seeds_label(source["seeds"]) if source["seeds"] else None,
+                              "date": min(c["started"] for c in r.commands)[:10], "machine": machine(),
+                              "seconds": round(r.seconds, 1), "commands": r.commands},
+                    "values": dict(sorted(values.items())),
+                }
+                print(f"results: {name}: {len(values)} values, {r.seconds:.0f} s", flush=True)
+                data["sources"] = dict(sorted(data["sources"].items()))
+                data_path.parent.mkdir(parents=True, exist_ok=True)
+                data_path.write_text(json.dumps(data, indent=1, ensure_ascii=False) + "\n")
+        problems = write_docs(root, data)
+        for p in problems:
+            print(p, file=sys.stderr)
+        return 2 if problems else 0
+    except (ResultsError, subprocess.CalledProcessError, OSError) as e:
+        print(f"results: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
