@@ -20,7 +20,6 @@ namespace tofu::harness {
 
 using replay::ConsistencyMatrixCsv;
 using replay::DecisionRows;
-using replay::GroundTruthPose;
 using replay::kDecisionsCsvHeader;
 using replay::LabelEvent;
 using replay::MethodFiles;
@@ -43,17 +42,17 @@ namespace fs = std::filesystem;
 
 
 // Ground-truth position of I at t, linearly interpolated; nullopt outside or across a gap.
-std::optional<Eigen::Vector3d> TruthPositionAt(const std::vector<GroundTruthPose>& truth, core::Time t) {
+std::optional<Eigen::Vector3d> TruthPositionAt(const std::vector<PoseSample>& truth, core::Time t) {
   const auto it = std::lower_bound(truth.begin(), truth.end(), t,
-                                   [](const GroundTruthPose& g, core::Time tt) { return g.t_ns < tt; });
+                                   [](const PoseSample& g, core::Time tt) { return g.t_ns < tt; });
   if (it == truth.end()) return std::nullopt;
-  if (it->t_ns == t) return it->p_WI;
+  if (it->t_ns == t) return it->p;
   if (it == truth.begin()) return std::nullopt;
-  const GroundTruthPose& a = *std::prev(it);
-  const GroundTruthPose& b = *it;
+  const PoseSample& a = *std::prev(it);
+  const PoseSample& b = *it;
   if (b.t_ns - a.t_ns > 50'000'000) return std::nullopt;
   const double u = static_cast<double>(t - a.t_ns) / static_cast<double>(b.t_ns - a.t_ns);
-  return (1.0 - u) * a.p_WI + u * b.p_WI;
+  return (1.0 - u) * a.p + u * b.p;
 }
 
 // A client's decisions are its fused set at each change (replay's DecisionsFromFusedSets):

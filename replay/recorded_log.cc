@@ -257,10 +257,10 @@ SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
   return {kind, rows, !defaulted_covariance};
 }
 
-// Ground truth CSV: T_WX from the columns <p>_x.. and <q>_w.., composed with T_XI.
-std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::string_view p_prefix,
-                                                std::string_view q_prefix,
-                                                const Eigen::Isometry3d& T_XI) {
+// Ground truth CSV: T_WX from the columns <p>_x.. and <q>_w.., composed with T_XI, into
+// log.ground_truth (and its biases when the file has both triples).
+void ReadGroundTruthCsv(const fs::path& path, std::string_view p_prefix, std::string_view q_prefix,
+                        const Eigen::Isometry3d& T_XI, RecordedLog& log) {
   CsvReader csv(path, fmt::format("#timestamp [ns],{}x [m],{}y [m],{}z [m],{}w [],{}x [],{}y [],"
                                 "{}z [],...",
                                 p_prefix, p_prefix, p_prefix, q_prefix, q_prefix, q_prefix,
@@ -281,27 +281,31 @@ std::vector<GroundTruthPose> ReadGroundTruthCsv(const fs::path& path, std::strin
   };
   const std::optional<std::array<int, 3>> b_g = optional_triple("b_w_RS_S_");
   const std::optional<std::array<int, 3>> b_a = optional_triple("b_a_RS_S_");
-  std::vector<GroundTruthPose> out;
+  const auto triple = [&](const std::array<int, 3>& cols) {
+    return Eigen::Vector3d(csv.Number(cols[0]), csv.Number(cols[1]), csv.Number(cols[2]));
+  };
+  std::vector<PoseSample>& out = log.ground_truth;
+  out.clear();
   out.reserve(csv.RowsUpperBound());
+  log.ground_truth_biases.clear();
+  if (b_g && b_a) log.ground_truth_biases.reserve(csv.RowsUpperBound());
   while (csv.Next()) {
-    GroundTruthPose g;
+    PoseSample g;
     g.t_ns = csv.Integer(t_col);
-    if (b_g) g.b_g_radps = Eigen::Vector3d(csv.Number((*b_g)[0]), csv.Number((*b_g)[1]), csv.Number((*b_g)[2]));
-    if (b_a) g.b_a_mps2 = Eigen::Vector3d(csv.Number((*b_a)[0]), csv.Number((*b_a)[1]), csv.Number((*b_a)[2]));
+    if (b_g && b_a) log.ground_truth_biases.push_back({triple(*b_g), triple(*b_a)});
     const Eigen::Vector3d p_WX(csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2]));
     const Eigen::Quaterniond q_WX =
         NormalisedIfFinite(csv.Number(q[0]), csv.Number(q[1]), csv.Number(q[2]), csv.Number(q[3]));
     if (identity) {
-      g.p_WI = p_WX;
-      g.q_WI = q_WX;
+      g.p = p_WX;
+      g.q = q_WX;
     } else {
-      g.p_WI = p_WX + q_WX * T_XI.translation();
-      g.q_WI = (q_WX * q_XI).normalized();
+      g.p = p_WX + q_WX * T_XI.translation();
+      g.q = (q_WX * q_XI).normalized();
     }
-    if (g.q_WI.w() < 0.0) g.q_WI.coeffs() *= -1.0;
+    if (g.q.w() < 0.0) g.q.coeffs() *= -1.0;
     out.push_back(g);
   }
-  return out;
 }
 
 // labels.csv of a run directory (run_directory.cc LabelsCsv).
@@ -715,11 +719,10 @@ void ReadGroundTruthAndLabels(const fs::path& directory, const LogLayout& layout
   std::error_code ec;
   if (fs::is_regular_file(layout.ground_truth_file, ec)) {
     if (layout.run_directory) {
-      log.ground_truth = ReadGroundTruthCsv(layout.ground_truth_file, "p_WB_", "q_WB_", T_BI_true);
+      ReadGroundTruthCsv(layout.ground_truth_file, "p_WB_", "q_WB_", T_BI_true, log);
       log.notes.push_back("ground truth: groundtruth.csv (T_WB) x T_B_I (true IMU mount)");
     } else {
-      log.ground_truth =
-          ReadGroundTruthCsv(layout.ground_truth_file, "p_RS_R_", "q_RS_", T_BI_true);
+      ReadGroundTruthCsv(layout.ground_truth_file, "p_RS_R_", "q_RS_", T_BI_true, log);
       log.notes.push_back("ground truth: mav0/state_groundtruth_estimate0/data.csv (T_WB) x T_B_I");
     }
   } else {

@@ -40,6 +40,7 @@
 #include "core/measurement.h"
 #include "core/time.h"
 #include "replay/labels.h"
+#include "replay/trajectory_metrics.h"
 
 namespace tofu::replay {
 
@@ -84,14 +85,10 @@ struct RecordedImuNoise {
   double accel_random_walk_mps3_per_sqrthz = 0.0;
 };
 
-/// Pose of the IMU frame I in the ground-truth world W.
-struct GroundTruthPose {
-  core::Time t_ns = 0;
-  Eigen::Vector3d p_WI = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond q_WI = Eigen::Quaterniond::Identity();
-  /// The IMU biases, when the ground truth carries them (EuRoC: b_w_RS_S_*, b_a_RS_S_*).
-  std::optional<Eigen::Vector3d> b_g_radps;
-  std::optional<Eigen::Vector3d> b_a_mps2;
+/// The IMU biases a ground truth carries (EuRoC: b_w_RS_S_*, b_a_RS_S_*).
+struct GroundTruthBias {
+  Eigen::Vector3d b_g_radps = Eigen::Vector3d::Zero();
+  Eigen::Vector3d b_a_mps2 = Eigen::Vector3d::Zero();
 };
 
 struct RecordedLogOptions {
@@ -129,7 +126,11 @@ struct RecordedLog {
   bool imu_samples_are_interval_averages = false;
   /// Pose of the IMU frame I in W, in file order; empty without ground truth. Layout (a):
   /// T_WI = T_WB T_BI with the IMU's true mount (true_T_Bs when calibration.yaml has one).
-  std::vector<GroundTruthPose> ground_truth;
+  /// Kept as PoseSample, the form scoring reads, so an hour of it is never copied.
+  std::vector<PoseSample> ground_truth;
+  /// One per ground_truth sample when the ground truth carries both biases; else empty
+  /// (kept apart: optional biases in every sample doubled an hour's 46 MB).
+  std::vector<GroundTruthBias> ground_truth_biases;
   /// Layout (a): labels.csv (conditions and scheduled faults), by time; empty otherwise.
   std::vector<LabelEvent> labels;
   std::vector<std::string> notes;       ///< what was read and what was assumed

@@ -67,13 +67,8 @@ void WriteEstimateCsv(const std::filesystem::path& file, const ReplayResult& res
 
 // Per-sample errors with both trajectories in W (the estimate through the alignment), for
 // plots: scripts/plot_estimate.py draws this file.
-const Eigen::Vector3d& PositionOf(const PoseSample& s) { return s.p; }
-const Eigen::Vector3d& PositionOf(const GroundTruthPose& g) { return g.p_WI; }
-
-// `truth`: PoseSample or GroundTruthPose (a recorded log's, read without a copy).
-template <typename Truth>
 void WriteErrorsCsv(const std::filesystem::path& file, const TrajectoryErrors& errors,
-                    const std::vector<PoseSample>& estimate, const std::vector<Truth>& truth) {
+                    const std::vector<PoseSample>& estimate, const std::vector<PoseSample>& truth) {
   AtomicFileWriter csv(file);
   csv.Append(
       "#timestamp [ns],position_error [m],rotation_error [deg],p_W_est_x [m],p_W_est_y [m],"
@@ -85,11 +80,11 @@ void WriteErrorsCsv(const std::filesystem::path& file, const TrajectoryErrors& e
     while (e + 1 < estimate.size() && estimate[e].t_ns < t) ++e;
     while (g + 1 < truth.size() && truth[g + 1].t_ns <= t) ++g;
     const Eigen::Vector3d p_est = errors.T_WL * estimate[e].p;
-    Eigen::Vector3d p_true = PositionOf(truth[g]);
+    Eigen::Vector3d p_true = truth[g].p;
     if (g + 1 < truth.size() && truth[g + 1].t_ns > truth[g].t_ns) {
       const double u = static_cast<double>(t - truth[g].t_ns) /
                        static_cast<double>(truth[g + 1].t_ns - truth[g].t_ns);
-      p_true = (1 - u) * PositionOf(truth[g]) + u * PositionOf(truth[g + 1]);
+      p_true = (1 - u) * truth[g].p + u * truth[g + 1].p;
     }
     csv.Format("{},{:.6f},{:.4f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f}\n", t,
                errors.position_error_m[k], errors.rotation_error_deg[k], p_est.x(), p_est.y(),
@@ -760,10 +755,10 @@ double TiltErrorDeg(const Eigen::Quaterniond& q_LI, const Eigen::Quaterniond& q_
 }
 
 // The ground truth nearest in time (200 Hz and more: within half a period).
-const GroundTruthPose* TruthAt(const std::vector<GroundTruthPose>& truth, core::Time t_ns) {
+const PoseSample* TruthAt(const std::vector<PoseSample>& truth, core::Time t_ns) {
   if (truth.empty()) return nullptr;
   auto it = std::lower_bound(truth.begin(), truth.end(), t_ns,
-                             [](const GroundTruthPose& g, core::Time t) { return g.t_ns < t; });
+                             [](const PoseSample& g, core::Time t) { return g.t_ns < t; });
   if (it == truth.end()) return &truth.back();
   if (it != truth.begin() && t_ns - std::prev(it)->t_ns < it->t_ns - t_ns) --it;
   return &*it;
@@ -788,8 +783,8 @@ nlohmann::ordered_json InitialisationJson(const RecordedLog& log, const ReplayRe
       e["relative_position_std_m"] = r.relative_position_std_m;
       e["relative_rotation_std_deg"] = core::DegFromRad(r.relative_rotation_std_rad);
     }
-    if (const GroundTruthPose* g = TruthAt(log.ground_truth, r.t_ns)) {
-      e["gravity_direction_error_deg"] = TiltErrorDeg(r.state.q_LI, g->q_WI);
+    if (const PoseSample* g = TruthAt(log.ground_truth, r.t_ns)) {
+      e["gravity_direction_error_deg"] = TiltErrorDeg(r.state.q_LI, g->q);
     }
     list.push_back(e);
   }
@@ -807,9 +802,9 @@ std::optional<nlohmann::ordered_json> TiltErrorJson(const RecordedLog& log, cons
   std::size_t n = 0;
   ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
     if (!o.valid) return;
-    const GroundTruthPose* g = TruthAt(log.ground_truth, o.t_ns);
+    const PoseSample* g = TruthAt(log.ground_truth, o.t_ns);
     if (g == nullptr) return;
-    final_deg = TiltErrorDeg(o.state.q_LI, g->q_WI);
+    final_deg = TiltErrorDeg(o.state.q_LI, g->q);
     sum_sq += final_deg * final_deg;
     max_deg = std::max(max_deg, final_deg);
     ++n;
@@ -820,23 +815,23 @@ std::optional<nlohmann::ordered_json> TiltErrorJson(const RecordedLog& log, cons
 }
 
 std::optional<nlohmann::ordered_json> BiasErrorJson(const RecordedLog& log, const ReplayResult& result) {
-  if (log.ground_truth.empty() || !log.ground_truth.front().b_g_radps ||
-      !log.ground_truth.front().b_a_mps2) {
+  if (log.ground_truth.empty() || log.ground_truth_biases.size() != log.ground_truth.size()) {
     return std::nullopt;
   }
   double gyro_sum_sq = 0.0, accel_sum_sq = 0.0;
   std::size_t n = 0;
   estimator::ImuBias last;
-  const GroundTruthPose* last_truth = nullptr;
+  const GroundTruthBias* last_truth = nullptr;
   ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
     if (!o.valid) return;
-    const GroundTruthPose* g = TruthAt(log.ground_truth, o.t_ns);
-    if (g == nullptr || !g->b_g_radps || !g->b_a_mps2) return;
-    gyro_sum_sq += (o.bias.gyro_radps - *g->b_g_radps).squaredNorm();
-    accel_sum_sq += (o.bias.accel_mps2 - *g->b_a_mps2).squaredNorm();
+    const PoseSample* g = TruthAt(log.ground_truth, o.t_ns);
+    if (g == nullptr) return;
+    const GroundTruthBias& b = log.ground_truth_biases[g - log.ground_truth.data()];
+    gyro_sum_sq += (o.bias.gyro_radps - b.b_g_radps).squaredNorm();
+    accel_sum_sq += (o.bias.accel_mps2 - b.b_a_mps2).squaredNorm();
     ++n;
     last = o.bias;
-    last_truth = g;
+    last_truth = &b;
   });
   if (n == 0) return std::nullopt;
   const auto vec = [](const Eigen::Vector3d& v) { return std::vector<double>{v.x(), v.y(), v.z()}; };
@@ -844,9 +839,9 @@ std::optional<nlohmann::ordered_json> BiasErrorJson(const RecordedLog& log, cons
       {"gyro_rms_radps", std::sqrt(gyro_sum_sq / n)},
       {"accel_rms_mps2", std::sqrt(accel_sum_sq / n)},
       {"gyro_final_radps", vec(last.gyro_radps)},
-      {"gyro_true_final_radps", vec(*last_truth->b_g_radps)},
+      {"gyro_true_final_radps", vec(last_truth->b_g_radps)},
       {"accel_final_mps2", vec(last.accel_mps2)},
-      {"accel_true_final_mps2", vec(*last_truth->b_a_mps2)}};
+      {"accel_true_final_mps2", vec(last_truth->b_a_mps2)}};
 }
 
 }  // namespace
@@ -855,8 +850,6 @@ std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const Repla
                                              const std::vector<PoseSample>& trajectory,
                                              const TrajectoryErrors& errors) {
   if (log.ground_truth.empty() || trajectory.empty()) return std::nullopt;
-  std::vector<PoseSample> truth;
-  for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
   std::optional<InputCheck> best;
   for (const RecordedStream& stream : log.streams) {
     if (stream.kind != StreamKind::kPose) continue;
@@ -868,7 +861,7 @@ std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const Repla
     const std::vector<PoseSample> raw =
         RawPoseTrajectory(log, stream, trajectory.front().t_ns, trajectory.back().t_ns);
     if (raw.size() <= 10) continue;
-    const TrajectoryErrors raw_errors = EvaluateTrajectory(raw, truth);
+    const TrajectoryErrors raw_errors = EvaluateTrajectory(raw, log.ground_truth);
     if (best && best->input_ate_m <= raw_errors.ate_position_rmse_m) continue;
     InputCheck check;
     check.input = "raw:" + stream.name;
@@ -903,12 +896,7 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
   const std::optional<nlohmann::ordered_json> bias_error = BiasErrorJson(log, result);
   std::optional<TrajectoryErrors>& errors = files.errors;
   if (!log.ground_truth.empty() && trajectory.size() > 10) {
-    // The ground truth as poses, sorted in place by the scoring; the errors file reads the
-    // log's own (one copy of an hour's ground truth at a time, not three).
-    std::vector<PoseSample> truth;
-    truth.reserve(log.ground_truth.size());
-    for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
-    errors = EvaluateTrajectory(trajectory, std::move(truth));
+    errors = EvaluateTrajectory(trajectory, log.ground_truth);
     WriteErrorsCsv(out_dir / (stem + "_errors.csv"), *errors, trajectory, log.ground_truth);
     j["ate"] = {{"alignment", "se3"},
                 {"matched", errors->matched},
@@ -1143,8 +1131,7 @@ void WriteRawStreamBaselines(const RecordedLog& log, core::Time first_output_ns,
                              core::Time last_output_ns, const std::filesystem::path& out_dir,
                              bool quiet) {
   if (log.ground_truth.empty() || first_output_ns > last_output_ns) return;
-  std::vector<PoseSample> truth;
-  for (const GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
+  const std::vector<PoseSample>& truth = log.ground_truth;
   for (const RecordedStream& stream : log.streams) {
     if (stream.kind != StreamKind::kPose) continue;
     const std::vector<PoseSample> raw = RawPoseTrajectory(log, stream, first_output_ns,

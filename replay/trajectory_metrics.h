@@ -108,11 +108,6 @@ struct TrajectoryErrors {
 TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
                                     const std::vector<PoseSample>& ground_truth,
                                     const TrajectoryErrorOptions& options = {});
-/// The same, sorting and normalising `ground_truth` in place instead of in a copy (an hour
-/// at 200 Hz is 46 MB a copy).
-TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
-                                    std::vector<PoseSample>&& ground_truth,
-                                    const TrajectoryErrorOptions& options = {});
 
 /// Decimal seconds text ("12.5", "1403715529.112143517", "1.403715529112143517e+09",
 /// "-3E-3") to nanoseconds, exactly: the digits are shifted, never multiplied in floating

@@ -53,10 +53,7 @@ constexpr Time kSecond = core::kNanosecondsPerSecond;
 constexpr Time kMillisecond = 1'000'000;
 
 std::vector<PoseSample> Truth(const RecordedLog& log) {
-  std::vector<PoseSample> truth;
-  truth.reserve(log.ground_truth.size());
-  for (const replay::GroundTruthPose& g : log.ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
-  return truth;
+  return log.ground_truth;
 }
 
 // SE(3)-aligned errors of the samples of `estimate` in [from_ns, to_ns], aligned on that

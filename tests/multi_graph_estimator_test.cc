@@ -53,9 +53,7 @@ class MultiGraphEstimatorTest : public ::testing::Test {
   }
 
   static std::vector<replay::PoseSample> Truth() {
-    std::vector<replay::PoseSample> truth;
-    for (const auto& g : log_->ground_truth) truth.push_back({g.t_ns, g.p_WI, g.q_WI});
-    return truth;
+    return log_->ground_truth;
   }
 
   static fs::path* run_dir_;

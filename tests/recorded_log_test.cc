@@ -301,12 +301,12 @@ TEST_F(RecordedLogTest, GroundTruthIsTheImuFramesPose) {
   const auto euroc = CsvRows(Dir("ws") / "mav0" / "state_groundtruth_estimate0" / "data.csv");
   ASSERT_EQ(euroc.size(), body.size());
   for (size_t i = 0; i < body.size(); i += 97) {
-    const GroundTruthPose& g = log.ground_truth[i];
+    const PoseSample& g = log.ground_truth[i];
     EXPECT_EQ(g.t_ns, std::stoll(euroc[i][0]));
-    for (int k = 0; k < 3; ++k) EXPECT_NEAR(g.p_WI(k), std::stod(euroc[i][1 + k]), 2e-6) << i;
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(g.p(k), std::stod(euroc[i][1 + k]), 2e-6) << i;
     const Eigen::Quaterniond q(std::stod(euroc[i][4]), std::stod(euroc[i][5]),
                                std::stod(euroc[i][6]), std::stod(euroc[i][7]));
-    EXPECT_LT(q.angularDistance(g.q_WI), 1e-7) << i;
+    EXPECT_LT(q.angularDistance(g.q), 1e-7) << i;
   }
 }
 
@@ -396,9 +396,9 @@ TEST(RecordedLogEuroc, ReadsImuTumPosesAndGroundTruthWithExactStamps) {
   EXPECT_EQ(imu.front().first->t_ns, 1403715523912140000);
   EXPECT_EQ(std::get<core::ImuMeasurement>(imu.front().first->value).acc_I_mps2.x(), 9.218251);
   EXPECT_EQ(log.ground_truth.front().t_ns, 1403715524907143168);
-  EXPECT_EQ(log.ground_truth.front().p_WI.x(), 0.515356);
-  EXPECT_NEAR(log.ground_truth.front().q_WI.w(), 0.161996, 1e-6);
-  EXPECT_NEAR(log.ground_truth.front().q_WI.x(), 0.789985, 1e-6);
+  EXPECT_EQ(log.ground_truth.front().p.x(), 0.515356);
+  EXPECT_NEAR(log.ground_truth.front().q.w(), 0.161996, 1e-6);
+  EXPECT_NEAR(log.ground_truth.front().q.x(), 0.789985, 1e-6);
 
   // No arrival column: arrival = t, and the streams interleave by time.
   for (size_t i = 0; i < log.measurements.size(); ++i) {

@@ -291,6 +291,40 @@ TEST(TrajectoryMetrics, NonFiniteSamplesAreSkippedAndCounted) {
 
 // ---- time text and TUM files ----
 
+// A clean ground truth (sorted, finite, one sample per stamp) is read in place; any other is
+// cleaned in a copy first. The two must give the same bits, or an hour-long run's scores
+// would depend on whether its ground truth needed cleaning.
+TEST(TrajectoryMetrics, GroundTruthReadInPlaceScoresLikeACleanedCopy) {
+  std::vector<PoseSample> gt = GroundTruth(5 * kMs, 20.0);
+  // Quaternions a little off unit, as read from a CSV with 9 decimals.
+  for (std::size_t i = 0; i < gt.size(); ++i) gt[i].q.coeffs() *= 1.0 + 1e-9 * static_cast<double>(i % 7);
+  std::vector<PoseSample> est =
+      Transformed(gt, Pose(0.1, -0.05, 0.7, Eigen::Vector3d(1.0, -2.0, 0.5)), 3);
+  for (std::size_t i = 0; i < est.size(); ++i) est[i].t_ns += 1'700'000;  // between truth samples
+  // Out of order, a duplicate stamp (the first kept) and a NaN sample: the copy path.
+  std::vector<PoseSample> messy(gt.rbegin(), gt.rend());
+  std::stable_sort(messy.begin(), messy.end(),
+                   [](const PoseSample& a, const PoseSample& b) { return a.t_ns < b.t_ns; });
+  PoseSample duplicate = gt[100];
+  duplicate.p.x() += 5.0;
+  messy.insert(messy.begin() + 101, duplicate);
+  PoseSample nan_sample = gt[200];
+  nan_sample.t_ns += 1;
+  nan_sample.p.y() = std::numeric_limits<double>::quiet_NaN();
+  messy.push_back(nan_sample);
+  std::swap(messy[10], messy[11]);
+
+  const TrajectoryErrors in_place = EvaluateTrajectory(est, gt);
+  const TrajectoryErrors copied = EvaluateTrajectory(est, messy);
+  ASSERT_GT(in_place.matched, 1000u);
+  EXPECT_EQ(in_place.matched, copied.matched);
+  EXPECT_EQ(in_place.position_error_m, copied.position_error_m);
+  EXPECT_EQ(in_place.rotation_error_deg, copied.rotation_error_deg);
+  EXPECT_EQ(in_place.rpe_translation_rmse_m, copied.rpe_translation_rmse_m);
+  EXPECT_TRUE(in_place.T_WL.matrix() == copied.T_WL.matrix());
+  EXPECT_LT(in_place.ate_position_rmse_m, 0.005);  // the 1.7 ms shift at ~1 m/s
+}
+
 TEST(TrajectoryMetrics, SecondsTextParsesToExactNanoseconds) {
   EXPECT_EQ(ParseSecondsAsNanoseconds("1.403715529112143517e+09"), 1403715529112143517);
   EXPECT_EQ(ParseSecondsAsNanoseconds("1403715529.112143517"), 1403715529112143517);
@@ -428,8 +462,7 @@ TEST(TrajectoryMetricsEuroc, VisualEstimateOfV102HasTheDocumentedAte) {
   if (!fs::is_directory(dir)) GTEST_SKIP() << "EuRoC excerpt not found at " << dir;
   const std::vector<PoseSample> estimate = ReadTumTrajectory(dir / "pose_estimate.tum");
   const RecordedLog log = ReadRecordedLog(dir);
-  std::vector<PoseSample> gt;
-  for (const GroundTruthPose& g : log.ground_truth) gt.push_back({g.t_ns, g.p_WI, g.q_WI});
+  const std::vector<PoseSample>& gt = log.ground_truth;
   const TrajectoryErrors se3 = EvaluateTrajectory(estimate, gt);
   // data/README.md: SE(3)-aligned, 0.092 m position RMSE.
   // The estimate runs 0.9 s past the end of the ground truth (608.41 s).
