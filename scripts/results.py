@@ -495,18 +495,22 @@ def _naive_hit(check_dir, scenario, seed):
     return text
 
 
-def extract_closed_loop_wall(r):
-    scenario = "closed_loop_vio_divergence_wall"
-    check_dir = r.out("closed_loop_wall")
+def _closed_loop_values(r, name, scenario, window_nth, open_loop_methods):
+    """Per seed and over seeds: the flights on consensus and on naive fusion (summary.json
+    closed_loop), the open-loop ATE of open_loop_methods; "RMSE in window": the
+    window_nth expectation on closed_loop.consensus.tracking_rmse_m (its window)."""
+    check_dir = r.out(name)
     s = seed_summaries(check_dir, scenario, CLOSED_LOOP_SEEDS)
     v = {}
-    k = "closed_loop_wall."
+    k = f"{name}."
     for i in CLOSED_LOOP_SEEDS:
         cl = s[i]["closed_loop"]
         c, n = cl["consensus"], cl["naive"]
         key = f"{k}seed{i}."
         v[key + "consensus_rmse_m"] = fixed(c["tracking_rmse_m"], 3)
         v[key + "consensus_max_m"] = fixed(c["tracking_max_m"], 3)
+        v[key + "consensus_window_rmse_m"] = fixed(
+            expectation(s[i], "closed_loop.consensus.tracking_rmse_m", window_nth), 3)
         v[key + "consensus_hits"] = str(c["collisions"])
         v[key + "consensus_dist_m"] = fixed(c["min_structure_distance_m"], 2)
         v[key + "naive_rmse_m"] = fixed(n["tracking_rmse_m"], 3)
@@ -515,17 +519,18 @@ def extract_closed_loop_wall(r):
         v[key + "naive_first_hit_s"] = fixed(n["time_to_first_collision_s"], 1)
         v[key + "naive_hit"] = _naive_hit(check_dir, scenario, i)
         v[key + "naive_diverged"] = "yes" if n["diverged"] else "no"
-        v[key + "open_loop_ate"] = (f"{fixed(s[i]['methods']['consensus']['ate_m'], 3)} / "
-                                    f"{fixed(s[i]['methods']['naive']['ate_m'], 3)}")
+        v[key + "open_loop_ate"] = " / ".join(fixed(s[i]["methods"][m]["ate_m"], 3)
+                                              for m in open_loop_methods)
     groups = {"1_5": CLOSED_LOOP_SEEDS[:5], "6_10": CLOSED_LOOP_SEEDS[5:], "1_10": CLOSED_LOOP_SEEDS}
-    for name, seeds in groups.items():
-        cl = [s[i]["closed_loop"] for i in seeds]
-        v[f"{k}seeds{name}.naive_over_consensus"] = span(
+    for group, seeds in groups.items():
+        cl = [s[i]["closed_loop"] for i in seeds if i in s]
+        if not cl:
+            continue
+        v[f"{k}seeds{group}.naive_over_consensus"] = span(
             [x["naive"]["tracking_rmse_m"] / x["consensus"]["tracking_rmse_m"] for x in cl],
             lambda x: f"{x:.0f}") + "x"
-    v[k + "seeds6_10.consensus_rmse_m"] = span(
-        [s[i]["closed_loop"]["consensus"]["tracking_rmse_m"] for i in CLOSED_LOOP_SEEDS[5:]],
-        lambda x: fixed(x, 3)) + " m"
+        v[f"{k}seeds{group}.consensus_rmse_m"] = span(
+            [x["consensus"]["tracking_rmse_m"] for x in cl], lambda x: fixed(x, 3)) + " m"
     cl = [s[i]["closed_loop"] for i in CLOSED_LOOP_SEEDS]
     v[k + "consensus_rmse_cm"] = span([x["consensus"]["tracking_rmse_m"] for x in cl],
                                       lambda x: fixed(100 * x, 1)) + " cm"
@@ -536,10 +541,106 @@ def extract_closed_loop_wall(r):
     v[k + "detection_s"] = span([s[i]["methods"]["consensus"]["max_detection_delay_s"]
                                  for i in CLOSED_LOOP_SEEDS], lambda x: fixed(x, 1)) + " s"
     v[k + "passed"] = f"{sum(1 for i in CLOSED_LOOP_SEEDS if s[i]['passed'])} of {len(CLOSED_LOOP_SEEDS)}"
+    return s, v
+
+
+def extract_closed_loop_wall(r):
+    s, v = _closed_loop_values(r, "closed_loop_wall", "closed_loop_vio_divergence_wall", 0,
+                               ["consensus", "naive"])
     one = s[1]
+    k = "closed_loop_wall."
     v[k + "seed1.consensus_rmse_cm"] = fixed(100 * one["closed_loop"]["consensus"]["tracking_rmse_m"], 1)
     v[k + "seed1.naive_first_hit_s"] = fixed(one["closed_loop"]["naive"]["time_to_first_collision_s"], 1)
     v[k + "seed1.detection_s"] = fixed(one["methods"]["consensus"]["max_detection_delay_s"], 1)
+    return v
+
+
+def extract_closed_loop_corridor(r):
+    s, v = _closed_loop_values(r, "closed_loop_corridor", "closed_loop_corridor_occlusion", 1,
+                               ["consensus", "naive"])
+    for i in CLOSED_LOOP_SEEDS:
+        leica = s[i]["closed_loop"]["single:leica"]
+        events = {e["event"]: e["t_s"] for e in reversed(leica["events"])}  # the first of each
+        key = f"closed_loop_corridor.seed{i}.leica_"
+        v[key + "failsafe_s"] = fixed(events.get("failsafe_start"), 1)
+        v[key + "landed_s"] = fixed(events.get("landed"), 1)
+        v[key + "rmse_m"] = fixed(leica["tracking_rmse_m"], 2)
+        v[key + "hits"] = str(leica["collisions"])
+    return v
+
+
+def extract_closed_loop_window(r):
+    _, v = _closed_loop_values(r, "closed_loop_window", "closed_loop_indoor_outdoor_window", 1,
+                               ["consensus", "naive", "single:vio"])
+    return v
+
+
+CLIENT_SEEDS = list(range(1, 11))
+CLIENT_GROUPS = {"1_5": CLIENT_SEEDS[:5], "6_10": CLIENT_SEEDS[5:]}
+
+
+def extract_clients(r):
+    """scenarios/clients: the user's method (EKF, plug-in) beside consensus and flown on,
+    and the user's controller; millimetres unless stated."""
+    v = {}
+    mm = lambda digits: (lambda x: fixed(1000 * x, digits))  # noqa: E731
+    s = {name: seed_summaries(r.out("clients"), name, CLIENT_SEEDS)
+         for name in ("python_ekf_wall", "cpp_plugin_filter", "python_controller")}
+
+    def vio_delay(method):
+        delays = [d["delay_s"] for d in method.get("detections", [])
+                  if d["sensor"] == "vio" and d["fault"] == "divergence"]
+        return delays[0] if delays and delays[0] is not None else math.inf
+
+    for group, seeds in CLIENT_GROUPS.items():
+        ekf = [s["python_ekf_wall"][i] for i in seeds]
+        k = f"clients.python_ekf_wall.seeds{group}."
+        m = [x["methods"]["external:python_ekf"] for x in ekf]
+        cl = [x["closed_loop"]["external:python_ekf"] for x in ekf]
+        v[k + "ate_mm"] = span([x["ate_m"] for x in m], mm(2))
+        v[k + "rot_deg"] = span([x["rotation_rmse_deg"] for x in m], lambda x: fixed(x, 2))
+        v[k + "nees"] = span([x["nees_position_mean"] for x in m], lambda x: fixed(x, 2))
+        v[k + "vio_detection_s"] = span([vio_delay(x) for x in m], lambda x: fixed(x, 2))
+        v[k + "consensus_ate_mm"] = span([x["methods"]["consensus"]["ate_m"] for x in ekf], mm(1))
+        v[k + "closed_loop_mm"] = (span([x["tracking_rmse_m"] for x in cl], mm(1)) + " / " +
+                                   span([x["tracking_max_m"] for x in cl], mm(1)))
+        v[k + "nearest_m"] = span([x["min_structure_distance_m"] for x in cl], lambda x: fixed(x, 3))
+
+        plug = [s["cpp_plugin_filter"][i] for i in seeds]
+        k = f"clients.cpp_plugin_filter.seeds{group}."
+        m = [x["methods"]["plugin:complementary"] for x in plug]
+        cl = [x["closed_loop"]["plugin:complementary"] for x in plug]
+        v[k + "ate_mm"] = span([x["ate_m"] for x in m], mm(2))
+        v[k + "rot_deg"] = span([x["rotation_rmse_deg"] for x in m], lambda x: fixed(x, 2))
+        v[k + "nees"] = span([x["nees_position_mean"] for x in m], lambda x: fixed(x, 2))
+        v[k + "consensus_ate_mm"] = span([x["methods"]["consensus"]["ate_m"] for x in plug], mm(1))
+        v[k + "closed_loop_mm"] = (span([x["tracking_rmse_m"] for x in cl], mm(1)) + " / " +
+                                   span([x["tracking_max_m"] for x in cl], mm(1)))
+        v[k + "failsafe_events"] = span([x["failsafe_events"] for x in cl], lambda x: f"{x:.0f}")
+
+        ctl = [s["python_controller"][i] for i in seeds]
+        k = f"clients.python_controller.seeds{group}."
+        cl = [x["closed_loop"]["consensus"] for x in ctl]
+        v[k + "truth_tracking_mm"] = span([x["metrics"]["tracking.position_rmse_m"] for x in ctl], mm(2))
+        v[k + "closed_loop_mm"] = (span([x["tracking_rmse_m"] for x in cl], mm(1)) + " / " +
+                                   span([x["tracking_max_m"] for x in cl], mm(1)))
+        v[k + "estimate_mm"] = span([x["estimate_ate_m"] for x in cl], mm(1))
+        v[k + "collisions"] = str(int(sum(x["metrics"]["collisions.count"] for x in ctl) +
+                                      sum(c["collisions"] for c in cl)))
+    ekf = list(s["python_ekf_wall"].values())
+    v["clients.python_ekf_wall.consensus_over_ekf"] = span(
+        [x["methods"]["consensus"]["ate_m"] / x["methods"]["external:python_ekf"]["ate_m"] for x in ekf],
+        lambda x: fixed(x, 1)) + "x"
+    v["clients.python_ekf_wall.rot_max_deg"] = fixed(
+        max(x["methods"]["external:python_ekf"]["rotation_rmse_deg"] for x in ekf), 1)
+    v["clients.python_ekf_wall.vio_detection_s"] = span(
+        [vio_delay(x["methods"]["external:python_ekf"]) for x in ekf], lambda x: fixed(x, 1)) + " s"
+    v["clients.python_ekf_wall.consensus_vio_detection_s"] = span(
+        [vio_delay(x["methods"]["consensus"]) for x in ekf], lambda x: fixed(x, 1)) + " s"
+    v["clients.python_ekf_wall.nees"] = span(
+        [x["methods"]["external:python_ekf"]["nees_position_mean"] for x in ekf], lambda x: fixed(x, 1))
+    runs = [x for name in s for x in s[name].values()]
+    v["clients.passed"] = f"{sum(1 for x in runs if x['passed'])} of {len(runs)}"
     return v
 
 
@@ -647,6 +748,20 @@ SOURCES = {
                          "run": _check_source("closed_loop_wall",
                                               "scenarios/closed_loop_vio_divergence_wall.yaml", 10),
                          "extract": extract_closed_loop_wall},
+    "closed_loop_corridor": {"describe": "`tofu check scenarios/closed_loop_corridor_occlusion.yaml --seeds 10`",
+                             "seeds": CLOSED_LOOP_SEEDS,
+                             "run": _check_source("closed_loop_corridor",
+                                                  "scenarios/closed_loop_corridor_occlusion.yaml", 10),
+                             "extract": extract_closed_loop_corridor},
+    "closed_loop_window": {"describe": "`tofu check scenarios/closed_loop_indoor_outdoor_window.yaml --seeds 10`",
+                           "seeds": CLOSED_LOOP_SEEDS,
+                           "run": _check_source("closed_loop_window",
+                                                "scenarios/closed_loop_indoor_outdoor_window.yaml", 10),
+                           "extract": extract_closed_loop_window},
+    "clients": {"describe": "`tofu check scenarios/clients --seeds 10` (the C++ plug-in from "
+                            "build/examples/cpp_plugin, README's commands, or TOFU_PLUGIN_DIR)",
+                "seeds": CLIENT_SEEDS, "run": _check_source("clients", "scenarios/clients", 10),
+                "extract": extract_clients},
     "suite": {"describe": "`tofu check scenarios/suite --seeds 10`", "seeds": SUITE_SEEDS,
               "run": _check_source("suite", "scenarios/suite", 10), "extract": extract_suite},
 }
@@ -743,23 +858,40 @@ def table_paper_consensus_seeds(V):
                      "consensus / naive", "consensus / clean VIO"], rows)
 
 
-def table_closed_loop_wall(V):
+def _closed_loop_table(V, name, extra_header=(), extra=lambda i: [], open_loop="consensus / naive"):
     rows = []
     for i in CLOSED_LOOP_SEEDS:
-        k = f"closed_loop_wall.seed{i}."
+        k = f"{name}.seed{i}."
         rows.append([str(i), V(k + "consensus_rmse_m"), V(k + "naive_rmse_m"), V(k + "naive_over_consensus"),
                      V(k + "naive_hits"), V(k + "naive_first_hit_s"), V(k + "naive_hit"),
-                     V(k + "naive_diverged"), V(k + "open_loop_ate")])
+                     V(k + "naive_diverged"), V(k + "open_loop_ate")] + extra(i))
     return md_table(["seed", "consensus: tracking RMSE [m]", "naive: tracking RMSE [m]", "naive / consensus",
-                     "hits", "first hit [s]", "hit", "diverged", "open-loop ATE consensus / naive [m]"], rows)
+                     "hits", "first hit [s]", "hit", "diverged", f"open-loop ATE {open_loop} [m]",
+                     *extra_header], rows)
 
 
-def _mission_frame_wall(V, seeds):
+def table_closed_loop_wall(V):
+    return _closed_loop_table(V, "closed_loop_wall")
+
+
+def table_closed_loop_corridor(V):
+    def leica(i):
+        k = f"closed_loop_corridor.seed{i}.leica_"
+        return [V(k + "failsafe_s"), V(k + "landed_s"), V(k + "rmse_m"), V(k + "hits")]
+    return _closed_loop_table(V, "closed_loop_corridor", ["single:leica: failsafe at [s]", "landed [s]",
+                                                          "tracking RMSE [m]", "hits"], leica)
+
+
+def table_closed_loop_window(V):
+    return _closed_loop_table(V, "closed_loop_window", open_loop="consensus / naive / VIO")
+
+
+def _mission_frame(V, name, seeds):
     rows = []
     for i in seeds:
-        k = f"closed_loop_wall.seed{i}."
+        k = f"{name}.seed{i}."
         rows.append([str(i), f"{V(k + 'consensus_rmse_m')} / {V(k + 'consensus_max_m')}",
-                     V(k + "consensus_rmse_m"), V(k + "consensus_hits"), V(k + "consensus_dist_m"),
+                     V(k + "consensus_window_rmse_m"), V(k + "consensus_hits"), V(k + "consensus_dist_m"),
                      V(k + "naive_rmse_m"), V(k + "naive_hits")])
     return md_table(["seed", "consensus: tracking RMSE / max [m]", "RMSE in window [m]", "hits", "dist [m]",
                      "naive: tracking RMSE [m]", "hits"], rows)
@@ -817,7 +949,40 @@ def table_paper_metric_divergence(V):
     return md_table(["pair", "CM", "MAE", "PCC", "KL"], rows)
 
 
+def table_clients_ekf(V):
+    rows = []
+    for group, seeds in CLIENT_GROUPS.items():
+        k = f"clients.python_ekf_wall.seeds{group}."
+        rows.append([seeds_label(seeds)[len("seeds "):]] + [V(k + c) for c in (
+            "ate_mm", "rot_deg", "nees", "vio_detection_s", "consensus_ate_mm", "closed_loop_mm", "nearest_m")])
+    return md_table(["seeds", "EKF ATE", "EKF rotation RMSE [deg]", "EKF NEES", "EKF VIO detection [s]",
+                     "consensus ATE", "closed loop on the EKF: tracking RMSE / max", "nearest structure [m]"], rows)
+
+
+def table_clients_plugin(V):
+    rows = []
+    for group, seeds in CLIENT_GROUPS.items():
+        k = f"clients.cpp_plugin_filter.seeds{group}."
+        rows.append([seeds_label(seeds)[len("seeds "):]] + [V(k + c) for c in (
+            "ate_mm", "rot_deg", "nees", "consensus_ate_mm", "closed_loop_mm", "failsafe_events")])
+    return md_table(["seeds", "filter ATE", "filter rotation RMSE [deg]", "filter NEES", "consensus ATE",
+                     "closed loop: tracking RMSE / max", "failsafe events"], rows)
+
+
+def table_clients_controller(V):
+    rows = []
+    for group, seeds in CLIENT_GROUPS.items():
+        k = f"clients.python_controller.seeds{group}."
+        rows.append([seeds_label(seeds)[len("seeds "):]] + [V(k + c) for c in (
+            "truth_tracking_mm", "closed_loop_mm", "estimate_mm", "collisions")])
+    return md_table(["seeds", "tracking on ground truth RMSE", "closed loop on consensus: tracking RMSE / max",
+                     "estimate error", "collisions"], rows)
+
+
 TABLES = {
+    "clients_ekf": table_clients_ekf,
+    "clients_plugin": table_clients_plugin,
+    "clients_controller": table_clients_controller,
     "paper_metric_phases": table_paper_metric_phases,
     "paper_metric_divergence": table_paper_metric_divergence,
     "euroc_cuts": table_euroc_cuts,
@@ -826,8 +991,14 @@ TABLES = {
     "paper_consensus_seed1": table_paper_consensus_seed1,
     "paper_consensus_seeds": table_paper_consensus_seeds,
     "closed_loop_wall": table_closed_loop_wall,
-    "mission_frame_wall_1_5": lambda V: _mission_frame_wall(V, CLOSED_LOOP_SEEDS[:5]),
-    "mission_frame_wall_6_10": lambda V: _mission_frame_wall(V, CLOSED_LOOP_SEEDS[5:]),
+    "closed_loop_corridor": table_closed_loop_corridor,
+    "closed_loop_window": table_closed_loop_window,
+    "mission_frame_wall_1_5": lambda V: _mission_frame(V, "closed_loop_wall", CLOSED_LOOP_SEEDS[:5]),
+    "mission_frame_wall_6_10": lambda V: _mission_frame(V, "closed_loop_wall", CLOSED_LOOP_SEEDS[5:]),
+    "mission_frame_corridor_1_5": lambda V: _mission_frame(V, "closed_loop_corridor", CLOSED_LOOP_SEEDS[:5]),
+    "mission_frame_corridor_6_10": lambda V: _mission_frame(V, "closed_loop_corridor", CLOSED_LOOP_SEEDS[5:]),
+    "mission_frame_window_1_5": lambda V: _mission_frame(V, "closed_loop_window", CLOSED_LOOP_SEEDS[:5]),
+    "mission_frame_window_6_10": lambda V: _mission_frame(V, "closed_loop_window", CLOSED_LOOP_SEEDS[5:]),
     "suite": table_suite,
     "suite_failures": table_suite_failures,
 }
