@@ -531,6 +531,20 @@ def _closed_loop_values(r, name, scenario, window_nth, open_loop_methods):
             lambda x: f"{x:.0f}") + "x"
         v[f"{k}seeds{group}.consensus_rmse_m"] = span(
             [x["consensus"]["tracking_rmse_m"] for x in cl], lambda x: fixed(x, 3)) + " m"
+        v[f"{k}seeds{group}.consensus_rmse_cm"] = span(
+            [x["consensus"]["tracking_rmse_m"] for x in cl], lambda x: fixed(100 * x, 1)) + " cm"
+        window = [expectation(s[i], "closed_loop.consensus.tracking_rmse_m", window_nth) for i in seeds]
+        v[f"{k}seeds{group}.consensus_window_rmse_m"] = span(window, lambda x: fixed(x, 3)) + " m"
+        v[f"{k}seeds{group}.consensus_window_rmse_cm"] = span(window, lambda x: fixed(100 * x, 1)) + " cm"
+        v[f"{k}seeds{group}.naive_over_consensus_ratio"] = span(
+            [x["naive"]["tracking_rmse_m"] / x["consensus"]["tracking_rmse_m"] for x in cl],
+            lambda x: fixed(x, 2)) + "x"
+        v[f"{k}seeds{group}.naive_worse"] = (
+            f"{sum(1 for x in cl if x['naive']['tracking_rmse_m'] > x['consensus']['tracking_rmse_m'])}"
+            f" of {len(cl)}")
+        for method in open_loop_methods:
+            v[f"{k}seeds{group}.open_loop_ate_m.{method}"] = span(
+                [s[i]["methods"][method]["ate_m"] for i in seeds], lambda x: fixed(x, 3)) + " m"
     cl = [s[i]["closed_loop"] for i in CLOSED_LOOP_SEEDS]
     v[k + "consensus_rmse_cm"] = span([x["consensus"]["tracking_rmse_m"] for x in cl],
                                       lambda x: fixed(100 * x, 1)) + " cm"
@@ -566,6 +580,13 @@ def extract_closed_loop_corridor(r):
         v[key + "landed_s"] = fixed(events.get("landed"), 1)
         v[key + "rmse_m"] = fixed(leica["tracking_rmse_m"], 2)
         v[key + "hits"] = str(leica["collisions"])
+    leica = [s[i]["closed_loop"]["single:leica"] for i in CLOSED_LOOP_SEEDS]
+    firsts = [{e["event"]: e["t_s"] for e in reversed(x["events"])} for x in leica]
+    v["closed_loop_corridor.leica_failsafe_s"] = span([f.get("failsafe_start") for f in firsts],
+                                                      lambda x: fixed(x, 1)) + " s"
+    v["closed_loop_corridor.leica_landed_s"] = span([f.get("landed") for f in firsts],
+                                                    lambda x: fixed(x, 1)) + " s"
+    v["closed_loop_corridor.leica_hits"] = str(sum(x["collisions"] for x in leica))
     return v
 
 
