@@ -549,6 +549,10 @@ def _closed_loop_values(r, name, scenario, window_nth, open_loop_methods):
     v[k + "consensus_rmse_cm"] = span([x["consensus"]["tracking_rmse_m"] for x in cl],
                                       lambda x: fixed(100 * x, 1)) + " cm"
     v[k + "consensus_min_dist_m"] = fixed(min(x["consensus"]["min_structure_distance_m"] for x in cl), 2)
+    v[k + "consensus_dist_cm"] = span([x["consensus"]["min_structure_distance_m"] for x in cl],
+                                      lambda x: f"{100 * x:.0f}") + " cm"
+    window = [expectation(s[i], "closed_loop.consensus.tracking_rmse_m", window_nth) for i in CLOSED_LOOP_SEEDS]
+    v[k + "window_rmse_above_5cm"] = f"{sum(1 for x in window if x > 0.05)} of {len(window)}"
     v[k + "naive_first_hit_s"] = span([x["naive"]["time_to_first_collision_s"] for x in cl],
                                       lambda x: fixed(x, 1)) + " s"
     v[k + "naive_hit_seeds"] = f"{sum(1 for x in cl if x['naive']['collisions'] > 0)} of {len(cl)}"
