@@ -73,7 +73,9 @@ enum class FlightMode { kTruth, kEstimate, kFailsafeHold, kFailsafeLand, kLanded
 const char* FlightModeName(FlightMode mode);
 
 /// Something the pilot did: "handover", "failsafe_start" (detail: the reason),
-/// "failsafe_end", "failsafe_land", "landed" (disarmed).
+/// "failsafe_end", "failsafe_land", "landed" (disarmed); or how the flight ended early:
+/// "ended_after_collision" (detail: the simulation's failure after the robot had hit
+/// something).
 struct FlightEvent {
   core::Time t_ns = 0;
   std::string event;

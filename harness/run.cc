@@ -244,6 +244,16 @@ class Flight {
 
   int64_t total_steps() const { return total_steps_; }
 
+  // The simulation failed after the robot had hit the structure or the ground (MuJoCo's
+  // non-finite accelerations of a robot tumbling under saturated thrust): the crash ended
+  // the flight, which is scored as flown with this stated among its events. A failure
+  // before any contact stays the simulation's failure (RunRecord::failure).
+  bool EndsAfterCollision(const core::SimulationError& e) {
+    if (!pilot_ || record_.collisions.empty()) return false;
+    ended_after_collision_ = FlightEvent{world_->time_ns(), "ended_after_collision", e.what()};
+    return true;
+  }
+
   // One physics step: control (when due), physics, ground truth (when due), sensors, the
   // release of what has arrived, contacts and structure distance.
   void Step(int64_t step) {
@@ -285,6 +295,7 @@ class Flight {
       record_.in_loop = in_loop_->Finish();
     }
     if (pilot_) record_.closed_loop->events = pilot_->events();
+    if (ended_after_collision_) record_.closed_loop->events.push_back(*ended_after_collision_);
     // Scheduled faults as labels, merged with the condition transitions by time.
     const core::Time run_end_ns = record_.physics_steps * dt_ns_;
     for (const sim::FaultLabel& label : sim::FaultLabels(scenario_.faults, run_end_ns)) {
@@ -616,6 +627,7 @@ class Flight {
   std::optional<sim::Wind> wind_;
   std::optional<ClosedLoopPilot> pilot_;
   bool disarmed_ = false;
+  std::optional<FlightEvent> ended_after_collision_;
 
   // Sensors.
   std::vector<std::unique_ptr<sim::SensorModel>> models_;
@@ -661,7 +673,7 @@ RunRecord Simulate(const Scenario& scenario, const SimulateOptions& options) {
   try {
     for (int64_t step = 0; step < flight.total_steps(); ++step) flight.Step(step);
   } catch (const core::SimulationError& e) {
-    record.failure = e.what();
+    if (!flight.EndsAfterCollision(e)) record.failure = e.what();
   }
   flight.Finish();
   if (options.progress) options.progress(1.0);

@@ -234,6 +234,54 @@ TEST(ClosedLoop, TheHandoverAndTheFlightUseNoGroundTruth) {
   }
 }
 
+// A flight whose simulation fails after the robot has hit something ended with its crash:
+// it is scored as flown, the end stated among its events, and it is not the run's failure
+// (the robot tumbling on the ground broke MuJoCo in closed_loop_indoor_outdoor_window,
+// seeds 2 and 8). The same failure before any contact is the simulation's failure. The
+// failure is injected through the tamper hook (a SimulationError thrown inside a step).
+TEST(ClosedLoop, ASimulationFailureAfterACollisionEndsTheFlightButIsNotTheRunsFailure) {
+  std::string yaml = kScenario;
+  // The reference 0.9 m from the east wall, the VIO diverging towards it (in its estimate:
+  // away from it): flown on VIO alone the robot touches the wall at 11.8 s (measured).
+  for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
+           {"[4.5, -2.0, 1.5]", "[5.2, -2.0, 1.5]"},
+           {"[4.5, 1.0, 1.5]", "[5.2, 1.0, 1.5]"},
+           {"axis: [1, 0, 0]", "axis: [-1, 0, 0]"}}) {
+    ASSERT_NE(yaml.find(from), std::string::npos) << from;
+    yaml.replace(yaml.find(from), from.size(), to);
+  }
+  harness::Scenario scenario = harness::ParseScenario(yaml, "closed_loop_crash.yaml");
+  scenario.estimation->methods = {"single:vio"};
+  scenario.control->methods = {"single:vio"};
+  const auto fly_failing_at = [&](core::Time fail_ns) {
+    harness::SimulateOptions options;
+    options.fly_on = "single:vio";
+    options.tamper = [fail_ns](const std::string&, sim::SensorSample& sample) {
+      if (sample.arrival_ns >= fail_ns) throw core::SimulationError("injected physics failure");
+    };
+    return harness::Simulate(scenario, options);
+  };
+
+  const harness::RunRecord crashed = fly_failing_at(11'950'000'000);
+  ASSERT_FALSE(crashed.collisions.empty()) << "the flight no longer hits the wall";
+  EXPECT_FALSE(crashed.failure) << *crashed.failure;
+  ASSERT_FALSE(crashed.closed_loop->events.empty());
+  const harness::FlightEvent& end = crashed.closed_loop->events.back();
+  EXPECT_EQ(end.event, "ended_after_collision");
+  EXPECT_NE(end.detail.find("injected physics failure"), std::string::npos) << end.detail;
+  EXPECT_GE(end.t_ns, crashed.collisions.front().start_ns);
+  ASSERT_EQ(crashed.in_loop.size(), 1u);  // the methods were finished and can be scored
+  EXPECT_GT(replay::OutputCount(crashed.in_loop.front()), 2000u);
+
+  const harness::RunRecord failed = fly_failing_at(5'000'000'000);
+  EXPECT_TRUE(failed.collisions.empty());
+  ASSERT_TRUE(failed.failure);
+  EXPECT_NE(failed.failure->find("injected physics failure"), std::string::npos);
+  for (const harness::FlightEvent& e : failed.closed_loop->events) {
+    EXPECT_NE(e.event, "ended_after_collision");
+  }
+}
+
 // ---- the pilot ----
 
 estimator::EstimatorOutput Output(core::Time t_ns, const Eigen::Vector3d& p_LI, double yaw_rad,
