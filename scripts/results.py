@@ -1,9 +1,10 @@
 #!/usr/bin/python3
 """The measured numbers of docs/RESULTS.md and README.md, regenerated (issue 35, item 4).
 
-Each *source* below is a declared list of tofu commands (`tofu check DIR --seeds N`,
-`tofu run`, `tofu estimate`) and a function that reads their output files (summary.json of
-every seed, estimate_*.json) into named values ("key": "text as printed"). The values and
+Each *source* (SOURCES below) is a declared list of commands (`tofu check DIR --seeds N`,
+`tofu run`, `tofu estimate`, scripts/plot_consistency.py) and a function that reads their
+output files (summary.json of every seed, estimate_*.json, the script's printed table) into
+named values ("key": "text as printed"). The values and
 a stamp per source (tofu's commit from `tofu --version`, seeds, date, machine, the
 commands and their wall time) go to one generated file, docs/results/results.json. The
 documents then take every generated number from that file, in regions delimited by
@@ -664,6 +665,9 @@ def extract_clients(r):
         [vio_delay(x["methods"]["consensus"]) for x in ekf], lambda x: fixed(x, 1)) + " s"
     v["clients.python_ekf_wall.nees"] = span(
         [x["methods"]["external:python_ekf"]["nees_position_mean"] for x in ekf], lambda x: fixed(x, 1))
+    ctl = [x["closed_loop"]["consensus"] for x in s["python_controller"].values()]
+    v["clients.python_controller.tracking_minus_estimate_mm"] = span(
+        [x["tracking_rmse_m"] - x["estimate_ate_m"] for x in ctl], mm(1))
     runs = [x for name in s for x in s[name].values()]
     v["clients.passed"] = f"{sum(1 for x in runs if x['passed'])} of {len(runs)}"
     return v
