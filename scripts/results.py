@@ -24,7 +24,8 @@ markers that do not render:
 Options: --tofu PATH (default build/tofu), --jobs N (tofu check --jobs, default 1),
 --runs DIR (outputs, default runs/results), --reuse (take a command's outputs from a
 previous run into the same --runs when its <name>.run.json records the same command),
---root DIR (the repository whose docs are read and written; default this script's).
+--root DIR (the repository whose docs are read and written; default this script's),
+--euroc DIR (the EuRoC excerpt; default ../shared/data/euroc_v1_02 beside the repository).
 Exit codes: 0 ok, 1 --check found a difference, 2 bad input or a failed command.
 """
 import argparse
@@ -121,6 +122,7 @@ class Runner:
         self.runs = (root / args.runs).resolve()
         self.reuse = args.reuse
         self.root = root
+        self.euroc = pathlib.Path(args.euroc)
         self.commands = []
         self.seconds = 0.0
 
@@ -256,7 +258,7 @@ def _cut_euroc(src, dst, start_s, length_s):
 
 
 def run_euroc(r):
-    src = (r.root / EUROC).resolve()
+    src = (r.root / r.euroc).resolve()
     if not (src / "mav0/imu0/data.csv").exists():
         raise ResultsError(f"{src}: the EuRoC V1_02 excerpt is missing (docs/RESULTS.md)")
     for start, length in EUROC_CUTS:
@@ -1195,6 +1197,8 @@ def main():
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--runs", default="runs/results")
     parser.add_argument("--reuse", action="store_true")
+    parser.add_argument("--euroc", default=str(EUROC),
+                        help="the EuRoC V1_02 excerpt (default ../shared/data/euroc_v1_02, from --root)")
     parser.add_argument("--render", action="store_true", help="rewrite the docs from results.json only")
     parser.add_argument("--check", action="store_true", help="compare the docs with results.json only")
     parser.add_argument("--root", default=str(SCRIPT_ROOT))
