@@ -9,6 +9,7 @@
 
 #include "harness/evaluation.h"
 #include "harness/scenario.h"
+#include "replay/labels.h"
 #include "sim/faults.h"
 #include "sim/sensor.h"
 
@@ -188,7 +189,7 @@ std::vector<FaultEvent> FaultEvents(const harness::RunRecord& record, const Epis
   // start, start, end, end. Each start is its own event, closed by the next end in order
   // (first in, first out), so every fault keeps its row and its severity. The pairing is
   // the evaluation's (harness/evaluation.h), which scores the merged intervals.
-  for (const harness::LabelInterval& i : harness::PairedLabelIntervals(record.labels, end_ns)) {
+  for (const replay::LabelInterval& i : replay::PairedLabelIntervals(record.labels, end_ns)) {
     close(i.sensor, i.label, i.source, i.start_ns, i.end_ns, i.open);
   }
   std::stable_sort(events.begin(), events.end(), [](const FaultEvent& a, const FaultEvent& b) {

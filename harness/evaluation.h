@@ -38,47 +38,6 @@ std::optional<double> MetricValue(const RunRecord& record, const std::string& me
 
 Evaluation Evaluate(const RunRecord& record);
 
-/// A label's activity on one sensor: active in [start_ns, end_ns).
-struct LabelInterval {
-  std::string sensor;
-  std::string label;   ///< fault kind ("divergence") or condition name ("occluded")
-  std::string source;  ///< "fault" or "condition"
-  core::Time start_ns = 0;
-  core::Time end_ns = 0;
-  bool open = false;  ///< still active at the end: end_ns is the end given
-};
-
-/// Each activation of a label as its own interval. Two scheduled faults of one kind on one
-/// sensor may overlap, and their transitions then read start, start, end, end: each start
-/// is closed by the next end of its (sensor, label, source), first in first out, so every
-/// fault keeps its own interval (the corpus's event table: one row per fault). Starts
-/// never ended close at `end_ns`, marked open. Order: closed intervals by their end
-/// transition, then the open ones by (sensor, label, source) and start.
-std::vector<LabelInterval> PairedLabelIntervals(const std::vector<replay::LabelEvent>& labels,
-                                                core::Time end_ns);
-
-/// The time each (sensor, label, source) was active, as disjoint intervals: overlapping
-/// or touching activations merged (faults 8-14 s and 10-16 s are active 8-16 s), which is
-/// what the sensor's samples were labelled with and what a fault detector had to notice.
-/// Faults are scored on these (EvaluateEstimation): one detection per interval, and no
-/// exclusion inside one is a false exclusion. Sorted by (start, sensor, label).
-std::vector<LabelInterval> MergedLabelIntervals(const std::vector<replay::LabelEvent>& labels,
-                                                core::Time end_ns);
-
-/// What a consensus method's decisions score against the run's labels.
-struct ConsensusScores {
-  int switches = 0;  ///< changes of the fused set once something was fused
-  /// Per fault interval (MergedLabelIntervals) except dropouts, by onset.
-  std::vector<FaultDetection> detections;
-  /// Per sensor of `sensors` (and any other excluded one): seconds excluded while none of
-  /// its fault or condition intervals was active.
-  std::map<std::string, double> false_exclusion_s;
-};
-ConsensusScores ScoreConsensusDecisions(const std::vector<estimator::ConsensusRecord>& decisions,
-                                        const std::vector<replay::LabelEvent>& labels,
-                                        core::Time run_end_ns,
-                                        const std::vector<std::string>& sensors);
-
 /// The judgement of a closed-loop flight (RunRecord::closed_loop) against ground truth;
 /// the `closed_loop.<method>.*` metrics.
 struct ClosedLoopMetrics {

@@ -48,4 +48,31 @@ class SensorHealth {
   std::map<std::string, Timeline> timelines_;
 };
 
+/// A label's activity on one sensor: active in [start_ns, end_ns).
+struct LabelInterval {
+  std::string sensor;
+  std::string label;   ///< fault kind ("divergence") or condition name ("occluded")
+  std::string source;  ///< "fault" or "condition"
+  core::Time start_ns = 0;
+  core::Time end_ns = 0;
+  bool open = false;  ///< still active at the end: end_ns is the end given
+};
+
+/// Each activation of a label as its own interval. Two scheduled faults of one kind on one
+/// sensor may overlap, and their transitions then read start, start, end, end: each start
+/// is closed by the next end of its (sensor, label, source), first in first out, so every
+/// fault keeps its own interval (the corpus's event table: one row per fault). Starts
+/// never ended close at `end_ns`, marked open. Order: closed intervals by their end
+/// transition, then the open ones by (sensor, label, source) and start.
+std::vector<LabelInterval> PairedLabelIntervals(const std::vector<LabelEvent>& labels,
+                                                core::Time end_ns);
+
+/// The time each (sensor, label, source) was active, as disjoint intervals: overlapping
+/// or touching activations merged (faults 8-14 s and 10-16 s are active 8-16 s), which is
+/// what the sensor's samples were labelled with and what a fault detector had to notice.
+/// Faults are scored on these (method_evaluation.h): one detection per interval, and no
+/// exclusion inside one is a false exclusion. Sorted by (start, sensor, label).
+std::vector<LabelInterval> MergedLabelIntervals(const std::vector<LabelEvent>& labels,
+                                                core::Time end_ns);
+
 }  // namespace tofu::replay

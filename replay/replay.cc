@@ -746,29 +746,12 @@ std::vector<LocalConsistencySeries> LocalConsistency(
 
 namespace {
 
-// The angle between the estimated and the true gravity direction seen from the IMU frame.
-double TiltErrorDeg(const Eigen::Quaterniond& q_LI, const Eigen::Quaterniond& q_WI) {
-  const Eigen::Vector3d down_I_est = q_LI.conjugate() * -Eigen::Vector3d::UnitZ();
-  const Eigen::Vector3d down_I_true = q_WI.conjugate() * -Eigen::Vector3d::UnitZ();
-  return core::DegFromRad(
-      std::atan2(down_I_est.cross(down_I_true).norm(), down_I_est.dot(down_I_true)));
-}
-
-// The ground truth nearest in time (200 Hz and more: within half a period).
-const PoseSample* TruthAt(const std::vector<PoseSample>& truth, core::Time t_ns) {
-  if (truth.empty()) return nullptr;
-  auto it = std::lower_bound(truth.begin(), truth.end(), t_ns,
-                             [](const PoseSample& g, core::Time t) { return g.t_ns < t; });
-  if (it == truth.end()) return &truth.back();
-  if (it != truth.begin() && t_ns - std::prev(it)->t_ns < it->t_ns - t_ns) --it;
-  return &*it;
-}
-
 // How and when the local graph started, and, with ground truth, how wrong its gravity
-// direction was: the angle between the estimated and the true down direction in I.
-nlohmann::ordered_json InitialisationJson(const RecordedLog& log, const ReplayResult& result) {
+// direction was.
+nlohmann::ordered_json InitialisationJson(const ReplayResult& result, const MethodScores& scores) {
   nlohmann::ordered_json list = nlohmann::ordered_json::array();
-  for (const estimator::InitialisationRecord& r : result.initialisations) {
+  for (std::size_t i = 0; i < result.initialisations.size(); ++i) {
+    const estimator::InitialisationRecord& r = result.initialisations[i];
     nlohmann::ordered_json e;
     e["t_ns"] = r.t_ns;
     if (result.first_measurement_ns) {
@@ -783,107 +766,36 @@ nlohmann::ordered_json InitialisationJson(const RecordedLog& log, const ReplayRe
       e["relative_position_std_m"] = r.relative_position_std_m;
       e["relative_rotation_std_deg"] = core::DegFromRad(r.relative_rotation_std_rad);
     }
-    if (const PoseSample* g = TruthAt(log.ground_truth, r.t_ns)) {
-      e["gravity_direction_error_deg"] = TiltErrorDeg(r.state.q_LI, g->q);
+    if (const std::optional<double>& error_deg = scores.initialisation_tilt_error_deg[i]) {
+      e["gravity_direction_error_deg"] = *error_deg;
     }
     list.push_back(e);
   }
   return list;
 }
 
-// The estimated IMU biases against the ground truth's (EuRoC carries them): RMS over the
-// valid outputs and at the last one.
-// The estimated gravity direction against the true one, over the valid outputs: roll and
-// pitch error, free of the yaw and origin that an SE(3) alignment hides (L and W are both
-// gravity-aligned, so no alignment is needed). What an IMU-aided estimate must get right.
-std::optional<nlohmann::ordered_json> TiltErrorJson(const RecordedLog& log, const ReplayResult& result) {
-  if (log.ground_truth.empty()) return std::nullopt;
-  double sum_sq = 0.0, max_deg = 0.0, final_deg = 0.0;
-  std::size_t n = 0;
-  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
-    if (!o.valid) return;
-    const PoseSample* g = TruthAt(log.ground_truth, o.t_ns);
-    if (g == nullptr) return;
-    final_deg = TiltErrorDeg(o.state.q_LI, g->q);
-    sum_sq += final_deg * final_deg;
-    max_deg = std::max(max_deg, final_deg);
-    ++n;
-  });
-  if (n == 0) return std::nullopt;
-  return nlohmann::ordered_json{
-      {"rms_deg", std::sqrt(sum_sq / n)}, {"max_deg", max_deg}, {"final_deg", final_deg}};
+nlohmann::ordered_json TiltErrorJson(const TiltError& tilt) {
+  return {{"rms_deg", tilt.rms_deg}, {"max_deg", tilt.max_deg}, {"final_deg", tilt.final_deg}};
 }
 
-std::optional<nlohmann::ordered_json> BiasErrorJson(const RecordedLog& log, const ReplayResult& result) {
-  if (log.ground_truth.empty() || log.ground_truth_biases.size() != log.ground_truth.size()) {
-    return std::nullopt;
-  }
-  double gyro_sum_sq = 0.0, accel_sum_sq = 0.0;
-  std::size_t n = 0;
-  estimator::ImuBias last;
-  const GroundTruthBias* last_truth = nullptr;
-  ForEachOutput(result, [&](const estimator::EstimatorOutput& o) {
-    if (!o.valid) return;
-    const PoseSample* g = TruthAt(log.ground_truth, o.t_ns);
-    if (g == nullptr) return;
-    const GroundTruthBias& b = log.ground_truth_biases[g - log.ground_truth.data()];
-    gyro_sum_sq += (o.bias.gyro_radps - b.b_g_radps).squaredNorm();
-    accel_sum_sq += (o.bias.accel_mps2 - b.b_a_mps2).squaredNorm();
-    ++n;
-    last = o.bias;
-    last_truth = &b;
-  });
-  if (n == 0) return std::nullopt;
+nlohmann::ordered_json BiasErrorJson(const BiasError& bias) {
   const auto vec = [](const Eigen::Vector3d& v) { return std::vector<double>{v.x(), v.y(), v.z()}; };
-  return nlohmann::ordered_json{
-      {"gyro_rms_radps", std::sqrt(gyro_sum_sq / n)},
-      {"accel_rms_mps2", std::sqrt(accel_sum_sq / n)},
-      {"gyro_final_radps", vec(last.gyro_radps)},
-      {"gyro_true_final_radps", vec(last_truth->b_g_radps)},
-      {"accel_final_mps2", vec(last.accel_mps2)},
-      {"accel_true_final_mps2", vec(last_truth->b_a_mps2)}};
+  return {{"gyro_rms_radps", bias.gyro_rms_radps},
+          {"accel_rms_mps2", bias.accel_rms_mps2},
+          {"gyro_final_radps", vec(bias.gyro_final_radps)},
+          {"gyro_true_final_radps", vec(bias.gyro_true_final_radps)},
+          {"accel_final_mps2", vec(bias.accel_final_mps2)},
+          {"accel_true_final_mps2", vec(bias.accel_true_final_mps2)}};
 }
 
 }  // namespace
 
-std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const ReplayResult& result,
-                                             const std::vector<PoseSample>& trajectory,
-                                             const TrajectoryErrors& errors) {
-  if (log.ground_truth.empty() || trajectory.empty()) return std::nullopt;
-  std::optional<InputCheck> best;
-  for (const RecordedStream& stream : log.streams) {
-    if (stream.kind != StreamKind::kPose) continue;
-    const bool fused_by_method =
-        result.method.kind == ReplayMethod::Kind::kConsensus ||
-        std::find(result.method.fused.begin(), result.method.fused.end(), stream.name) !=
-            result.method.fused.end();
-    if (!fused_by_method) continue;
-    const std::vector<PoseSample> raw =
-        RawPoseTrajectory(log, stream, trajectory.front().t_ns, trajectory.back().t_ns);
-    if (raw.size() <= 10) continue;
-    const TrajectoryErrors raw_errors = EvaluateTrajectory(raw, log.ground_truth);
-    if (best && best->input_ate_m <= raw_errors.ate_position_rmse_m) continue;
-    InputCheck check;
-    check.input = "raw:" + stream.name;
-    check.input_ate_m = raw_errors.ate_position_rmse_m;
-    check.input_rotation_deg = raw_errors.rotation_rmse_deg;
-    best = check;
-  }
-  if (!best) return std::nullopt;
-  best->worse_in_position = errors.ate_position_rmse_m > best->input_ate_m;
-  best->worse_in_rotation = errors.rotation_rmse_deg > best->input_rotation_deg;
-  best->ate_m = errors.ate_position_rmse_m;
-  best->rotation_deg = errors.rotation_rmse_deg;
-  return best;
-}
-
 MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
-                              const std::filesystem::path& out_dir) {
+                              const MethodScores& scores, const std::filesystem::path& out_dir) {
   const std::string stem = "estimate_" + SafeFileName(result.method.name);
   WriteEstimateCsv(out_dir / (stem + ".csv"), result);
   MethodFiles files;
-  files.trajectory = OutputTrajectory(result);
-  const std::vector<PoseSample>& trajectory = files.trajectory;
+  const std::vector<PoseSample>& trajectory = scores.trajectory;
   WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
 
   nlohmann::ordered_json j;
@@ -891,12 +803,7 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
   j["fused"] = result.method.fused;
   j["outputs"] = OutputCount(result);
   j["valid_outputs"] = trajectory.size();
-  // What reads the outputs, before they may go.
-  const std::optional<nlohmann::ordered_json> tilt_error = TiltErrorJson(log, result);
-  const std::optional<nlohmann::ordered_json> bias_error = BiasErrorJson(log, result);
-  std::optional<TrajectoryErrors>& errors = files.errors;
-  if (!log.ground_truth.empty() && trajectory.size() > 10) {
-    errors = EvaluateTrajectory(trajectory, log.ground_truth);
+  if (const std::optional<TrajectoryErrors>& errors = scores.errors) {
     WriteErrorsCsv(out_dir / (stem + "_errors.csv"), *errors, trajectory, log.ground_truth);
     j["ate"] = {{"alignment", "se3"},
                 {"matched", errors->matched},
@@ -955,7 +862,7 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
                   {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}}};
   }
   j["T_AL_used"] = used;
-  j["initialisation"] = InitialisationJson(log, result);
+  j["initialisation"] = InitialisationJson(result, scores);
   nlohmann::ordered_json noise = nlohmann::ordered_json::object();
   for (const auto& [name, n] : result.stream_noise) {
     noise[name] = {{"between_position_std_m", n.between_position_std_m},
@@ -966,18 +873,15 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
   j["imu_gaps"] = {{"count", result.counters.imu_gaps},
                    {"total_s", result.counters.imu_gap_total_s},
                    {"restarts_after_gap", result.counters.restarts_after_gap}};
-  if (tilt_error) j["tilt_error"] = *tilt_error;
-  if (bias_error) j["bias_error"] = *bias_error;
-  if (errors) {
-    files.input_check = CheckAgainstInputs(log, result, trajectory, *errors);
-    if (const std::optional<InputCheck>& c = files.input_check) {
-      j["input_check"] = {{"input", c->input},
-                          {"input_ate_m", c->input_ate_m},
-                          {"input_rotation_rmse_deg", c->input_rotation_deg},
-                          {"ate_m", c->ate_m},
-                          {"rotation_rmse_deg", c->rotation_deg},
-                          {"worse_than_input", c->worse_in_position || c->worse_in_rotation}};
-    }
+  if (scores.tilt) j["tilt_error"] = TiltErrorJson(*scores.tilt);
+  if (scores.bias) j["bias_error"] = BiasErrorJson(*scores.bias);
+  if (const std::optional<InputCheck>& c = scores.input_check) {
+    j["input_check"] = {{"input", c->input},
+                        {"input_ate_m", c->input_ate_m},
+                        {"input_rotation_rmse_deg", c->input_rotation_deg},
+                        {"ate_m", c->ate_m},
+                        {"rotation_rmse_deg", c->rotation_deg},
+                        {"worse_than_input", c->worse_in_position || c->worse_in_rotation}};
   }
   if (result.method.client) {
     j["client"] = result.method.client->Name();
@@ -1101,8 +1005,8 @@ void PrintClientFailure(const ReplayResult& result) {
   fmt::print(stderr, "error: {}\n", ClientFailureText(result));
 }
 
-void WarnIfWorseThanInput(const ReplayMethod& method, const MethodFiles& files) {
-  if (const std::optional<InputCheck>& c = files.input_check;
+void WarnIfWorseThanInput(const ReplayMethod& method, const MethodScores& scores) {
+  if (const std::optional<InputCheck>& c = scores.input_check;
       c && (c->worse_in_position || c->worse_in_rotation)) {
     fmt::print(stderr,
                "warning: {} is worse than its input {} on the same span (ATE {:.4f} m vs "
@@ -1113,9 +1017,9 @@ void WarnIfWorseThanInput(const ReplayMethod& method, const MethodFiles& files) 
 }
 
 void PrintMethodRow(const ReplayMethod& method, const ReplayResult& result,
-                    const MethodFiles& files) {
-  const std::vector<PoseSample>& trajectory = files.trajectory;
-  const std::optional<TrajectoryErrors>& errors = files.errors;
+                    const MethodScores& scores, const MethodFiles& files) {
+  const std::vector<PoseSample>& trajectory = scores.trajectory;
+  const std::optional<TrajectoryErrors>& errors = scores.errors;
   fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8.0f} {:>10.3f} {:>10.3f}\n", method.name,
              errors ? fmt::format("{:.4f}", errors->ate_position_rmse_m) : "n/a",
              errors ? fmt::format("{:.3f}", errors->rotation_rmse_deg) : "n/a",
@@ -1125,23 +1029,16 @@ void PrintMethodRow(const ReplayMethod& method, const ReplayResult& result,
              files.solve_mean_ms, files.solve_p99_ms);
 }
 
-// Each pose stream on its own (T_AI = T_As T_Is⁻¹) over the span the methods covered:
-// what fusion has to beat.
+// Each pose stream on its own over the span the methods covered (ScoreRawStreams).
 void WriteRawStreamBaselines(const RecordedLog& log, core::Time first_output_ns,
                              core::Time last_output_ns, const std::filesystem::path& out_dir,
                              bool quiet) {
-  if (log.ground_truth.empty() || first_output_ns > last_output_ns) return;
-  const std::vector<PoseSample>& truth = log.ground_truth;
-  for (const RecordedStream& stream : log.streams) {
-    if (stream.kind != StreamKind::kPose) continue;
-    const std::vector<PoseSample> raw = RawPoseTrajectory(log, stream, first_output_ns,
-                                                          last_output_ns);
-    if (raw.size() <= 10) continue;
-    const TrajectoryErrors errors = EvaluateTrajectory(raw, truth);
-    const std::string stem = "estimate_raw_" + SafeFileName(stream.name);
-    WriteErrorsCsv(out_dir / (stem + "_errors.csv"), errors, raw, truth);
+  for (const RawStreamScore& raw : ScoreRawStreams(log, first_output_ns, last_output_ns)) {
+    const TrajectoryErrors& errors = raw.errors;
+    const std::string stem = "estimate_raw_" + SafeFileName(raw.stream);
+    WriteErrorsCsv(out_dir / (stem + "_errors.csv"), errors, raw.trajectory, log.ground_truth);
     nlohmann::ordered_json j;
-    j["method"] = "raw:" + stream.name;
+    j["method"] = "raw:" + raw.stream;
     j["ate"] = {{"alignment", "se3"},
                 {"matched", errors.matched},
                 {"position_rmse_m", errors.ate_position_rmse_m},
@@ -1153,7 +1050,7 @@ void WriteRawStreamBaselines(const RecordedLog& log, core::Time first_output_ns,
     WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
     if (!quiet) {
       fmt::print("{:<28} {:>9.4f} {:>9.3f} {:>9.4f}   (the stream alone, same span)\n",
-                 "raw:" + stream.name, errors.ate_position_rmse_m, errors.rotation_rmse_deg,
+                 "raw:" + raw.stream, errors.ate_position_rmse_m, errors.rotation_rmse_deg,
                  errors.rpe_translation_rmse_m);
     }
   }
@@ -1194,12 +1091,24 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   core::Time last_output_ns = std::numeric_limits<core::Time>::min();
   bool failed = false;
   bool failed_client = false;  // a user's estimator failed: exit 3, as a failed flight
+  // The same scores as a run's (labels.csv of a run directory: detection and false
+  // exclusions too), of which the files below show what `tofu estimate` always showed.
+  ScoringContext scoring;
+  // The run ends with its last sample (a tofu run starts at t = 0, as its labels do).
+  for (const core::StampedMeasurement& m : log.measurements) {
+    scoring.run_duration_s = std::max(scoring.run_duration_s, core::TimeToSeconds(m.t_ns));
+  }
+  for (const estimator::SensorSpec& s : specs) scoring.sensors.push_back(s.name);
+  scoring.consensus_threshold = consensus_options.selection.threshold;
   for (const ReplayMethod& method : methods) {
     std::function<void(double)> progress;
     if (options.progress) progress = [&](double f) { options.progress(method.name, f); };
     const ReplayResult result = Replay(log_for(method), method, estimator_options, specs,
                                        progress, consensus_options, texts);
-    const MethodFiles files = WriteMethodResult(log_for(method), result, out_dir);
+    const RecordedLog& method_log = log_for(method);
+    scoring.labels = &method_log.labels;
+    const MethodScores scores = ScoreMethod(method_log, result, scoring);
+    const MethodFiles files = WriteMethodResult(method_log, result, scores, out_dir);
     if (result.failure) {
       PrintClientFailure(result);
       failed_client = true;
@@ -1209,16 +1118,16 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
       WriteFileAtomically(out_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
                           ConsistencyMatrixCsv(result));
     }
-    if (!files.trajectory.empty()) {
-      first_output_ns = std::min(first_output_ns, files.trajectory.front().t_ns);
-      last_output_ns = std::max(last_output_ns, files.trajectory.back().t_ns);
+    if (!scores.trajectory.empty()) {
+      first_output_ns = std::min(first_output_ns, scores.trajectory.front().t_ns);
+      last_output_ns = std::max(last_output_ns, scores.trajectory.back().t_ns);
     }
-    WarnIfWorseThanInput(method, files);
+    WarnIfWorseThanInput(method, scores);
     if (const std::optional<std::string> starved = NothingToFuse(result, log_for(method).imu_stream)) {
       fmt::print(stderr, "error: {}\n", *starved);
       failed = true;
     }
-    if (!options.quiet) PrintMethodRow(method, result, files);
+    if (!options.quiet) PrintMethodRow(method, result, scores, files);
   }
   if (decisions_csv != kDecisionsCsvHeader) WriteFileAtomically(out_dir / "decisions.csv", decisions_csv);
   WriteRawStreamBaselines(log, first_output_ns, last_output_ns, out_dir, options.quiet);

@@ -20,6 +20,7 @@
 #include "estimator/multi_graph_estimator.h"
 #include "replay/estimation_config.h"
 #include "replay/labels.h"
+#include "replay/method_evaluation.h"
 #include "replay/output_spill.h"
 #include "replay/recorded_log.h"
 #include "replay/trajectory_metrics.h"
@@ -195,21 +196,6 @@ std::vector<LocalConsistencySeries> LocalConsistency(
 std::vector<PoseSample> RawPoseTrajectory(const RecordedLog& log, const RecordedStream& stream,
                                           core::Time from_ns, core::Time to_ns);
 
-/// The fused estimate against the best pose stream it fused, on the same span (the
-/// estimate's valid outputs), with ground truth: fusion must not make its input worse.
-struct InputCheck {
-  std::string input;  ///< "raw:<stream>"
-  double input_ate_m = 0.0;
-  double input_rotation_deg = 0.0;
-  bool worse_in_position = false;
-  bool worse_in_rotation = false;
-  double ate_m = 0.0;
-  double rotation_deg = 0.0;
-};
-std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const ReplayResult& result,
-                                             const std::vector<PoseSample>& trajectory,
-                                             const TrajectoryErrors& errors);
-
 /// A method none of whose sensors had a single sample accepted by the estimator (all
 /// non-finite, out of order, ...): what was rejected, per sensor. nullopt otherwise and
 /// for imu_only. `tofu estimate` exits 1 with it; a scenario fails its run.
@@ -219,20 +205,18 @@ std::optional<std::string> NothingToFuse(const ReplayResult& result, const std::
 /// the method did not fail.
 std::string ClientFailureText(const ReplayResult& result);
 
-/// What WriteMethodResult wrote and measured.
+/// The solver's cost WriteMethodResult wrote to timing_estimate_<method>.json.
 struct MethodFiles {
-  std::vector<PoseSample> trajectory;     ///< the valid outputs (T_LI)
-  std::optional<TrajectoryErrors> errors;  ///< with ground truth and > 10 valid outputs
   double solve_mean_ms = 0.0;
   double solve_p99_ms = 0.0;
   double update_budget_ms = 0.0;  ///< the keyframe period
-  std::optional<InputCheck> input_check;  ///< with ground truth and a fused pose stream
 };
 /// Writes one method's estimate_<method>.csv/.tum/.json (with T_WL, the alignment of L
-/// to W, when scored), estimate_<method>_errors.csv and timing_estimate_<method>.json
-/// into out_dir; ':' and '+' in the method name become '_' in file names.
+/// to W, and the scores when scored), estimate_<method>_errors.csv and
+/// timing_estimate_<method>.json into out_dir; ':' and '+' in the method name become '_'
+/// in file names. Computes nothing it writes but the timing: `scores` is ScoreMethod's.
 MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
-                              const std::filesystem::path& out_dir);
+                              const MethodScores& scores, const std::filesystem::path& out_dir);
 /// decisions.csv: the header, and the rows of one consensus method (every evaluation:
 /// t_ns, method, fused, excluded, unavailable, reason; sensor lists joined with '+').
 inline constexpr const char* kDecisionsCsvHeader =

@@ -401,7 +401,6 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
   // ATE and attitude error per matched sample.
   const Eigen::Matrix3d R_WL = r.T_WL.linear();
   r.t_ns.reserve(pairs.size());
-  r.t_s.reserve(pairs.size());
   r.position_error_m.reserve(pairs.size());
   r.rotation_error_deg.reserve(pairs.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
@@ -410,7 +409,6 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
     const Eigen::Vector3d p_W = r.T_WL * T_LI.p;
     const Eigen::Matrix3d R_WI = R_WL * T_LI.q.toRotationMatrix();
     r.t_ns.push_back(pairs.t_ns(k));
-    r.t_s.push_back(core::TimeToSeconds(pairs.t_ns(k)));
     r.position_error_m.push_back((p_W - T_WI.p).norm());
     r.rotation_error_deg.push_back(
         core::RotationAngleBetween(T_WI.q.toRotationMatrix(), R_WI) * kDegPerRad);

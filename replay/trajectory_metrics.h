@@ -94,10 +94,8 @@ struct TrajectoryErrors {
   double rpe_rotation_rmse_deg = 0.0;
   double rpe_delta_s = 0.0;
 
-  /// Per matched sample, in time order (for errors.csv and plots). t_s is seconds of
-  /// the estimate stamp (a value for plots, never a key).
+  /// Per matched sample, in time order (for errors.csv and plots).
   std::vector<core::Time> t_ns;
-  std::vector<double> t_s;
   std::vector<double> position_error_m;
   std::vector<double> rotation_error_deg;
 };

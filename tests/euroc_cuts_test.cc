@@ -77,13 +77,7 @@ ReplayResult ReplaySingle(const RecordedLog& log) {
 // The fused estimate's errors and its input's on the same span (what `tofu estimate`
 // reports as input_check).
 replay::InputCheck Check(const RecordedLog& log, const ReplayResult& result) {
-  const std::vector<replay::PoseSample> trajectory = replay::OutputTrajectory(result);
-  replay::TrajectoryErrorOptions options;
-  options.alignment = replay::TrajectoryAlignment::kSE3;
-  const replay::TrajectoryErrors errors =
-      replay::EvaluateTrajectory(trajectory, log.ground_truth, options);
-  const std::optional<replay::InputCheck> check =
-      replay::CheckAgainstInputs(log, result, trajectory, errors);
+  const std::optional<replay::InputCheck> check = replay::ScoreMethod(log, result, {}).input_check;
   EXPECT_TRUE(check.has_value());
   return check.value_or(replay::InputCheck{});
 }

@@ -23,7 +23,12 @@
 namespace tofu::harness {
 namespace {
 
+using replay::ConsensusScores;
 using replay::LabelEvent;
+using replay::LabelInterval;
+using replay::MergedLabelIntervals;
+using replay::PairedLabelIntervals;
+using replay::ScoreConsensusDecisions;
 
 constexpr double kRadPerDeg = std::numbers::pi / 180.0;
 constexpr char kLabel[] = "inline.yaml";
