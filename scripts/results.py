@@ -494,7 +494,8 @@ def _naive_hit(check_dir, scenario, seed):
             geoms.append(c["structure_geom"])
     text = ", ".join(geoms) if geoms else "-"
     if summary.get("failure"):
-        text += "; simulation failed"
+        at = re.search(r"at t = ([0-9.]+) s", summary["failure"])
+        text += "; simulation failed" + (f" at {float(at.group(1)):.1f} s" if at else "")
     return text
 
 
@@ -694,7 +695,8 @@ def extract_suite(r):
         for i in SUITE_SEEDS:
             failed = [e for e in s[i]["expectations"] if not e["passed"]]
             v[f"{key}seed{i}.failed"] = "; ".join(
-                f"{e['metric']} {sig(e['value'], 3) if e['value'] is not None else 'none'}"
+                f"{e['metric']}" + (f" / {e['relative_to']}" if e.get("relative_to") else "") +
+                f" {sig(e['value'], 3) if e['value'] is not None else 'none'}"
                 f" (bound {'≥ ' + sig(e['min'], 3) if e['min'] is not None else ''}"
                 f"{', ' if e['min'] is not None and e['max'] is not None else ''}"
                 f"{'≤ ' + sig(e['max'], 3) if e['max'] is not None else ''})" for e in failed)
