@@ -790,35 +790,30 @@ nlohmann::ordered_json BiasErrorJson(const BiasError& bias) {
 
 }  // namespace
 
-MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
-                              const MethodScores& scores, const std::filesystem::path& out_dir) {
-  const std::string stem = "estimate_" + SafeFileName(result.method.name);
-  WriteEstimateCsv(out_dir / (stem + ".csv"), result);
-  MethodFiles files;
-  const std::vector<PoseSample>& trajectory = scores.trajectory;
-  WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
+namespace {
 
-  nlohmann::ordered_json j;
-  j["method"] = result.method.name;
-  j["fused"] = result.method.fused;
-  j["outputs"] = OutputCount(result);
-  j["valid_outputs"] = trajectory.size();
-  if (const std::optional<TrajectoryErrors>& errors = scores.errors) {
-    WriteErrorsCsv(out_dir / (stem + "_errors.csv"), *errors, trajectory, log.ground_truth);
-    j["ate"] = {{"alignment", "se3"},
-                {"matched", errors->matched},
-                {"position_rmse_m", errors->ate_position_rmse_m},
-                {"position_max_m", errors->ate_position_max_m},
-                {"rotation_rmse_deg", errors->rotation_rmse_deg},
-                {"rpe_delta_s", errors->rpe_delta_s},
-                {"rpe_translation_rmse_m", errors->rpe_translation_rmse_m},
-                {"rpe_rotation_rmse_deg", errors->rpe_rotation_rmse_deg}};
-    // The alignment of L to W, so that renders can place the estimate in the world.
-    const Eigen::Quaterniond q_WL(errors->T_WL.linear());
-    const Eigen::Vector3d p_WL = errors->T_WL.translation();
-    j["T_WL"] = {{"p_m", {p_WL.x(), p_WL.y(), p_WL.z()}},
-                 {"q_wxyz", {q_WL.w(), q_WL.x(), q_WL.y(), q_WL.z()}}};
-  }
+// The ATE block of estimate_<method>.json and of a raw stream's JSON.
+nlohmann::ordered_json AteJson(const TrajectoryErrors& errors) {
+  return {{"alignment", "se3"},
+          {"matched", errors.matched},
+          {"position_rmse_m", errors.ate_position_rmse_m},
+          {"position_max_m", errors.ate_position_max_m},
+          {"rotation_rmse_deg", errors.rotation_rmse_deg},
+          {"rpe_delta_s", errors.rpe_delta_s},
+          {"rpe_translation_rmse_m", errors.rpe_translation_rmse_m},
+          {"rpe_rotation_rmse_deg", errors.rpe_rotation_rmse_deg}};
+}
+
+nlohmann::ordered_json PoseJson(const Eigen::Isometry3d& T, const char* p_key, const char* q_key) {
+  const Eigen::Quaterniond q(T.linear());
+  const Eigen::Vector3d p = T.translation();
+  return {{p_key, {p.x(), p.y(), p.z()}}, {q_key, {q.w(), q.x(), q.y(), q.z()}}};
+}
+
+// What the estimator did with its input: per-stream counters, the solver's, the frame
+// alignments (and the T_AL each sensor was fused with at the end: known, frozen at fusion
+// start, or the alignment graph's usable estimate).
+void AddEstimatorState(const ReplayResult& result, nlohmann::ordered_json& j) {
   nlohmann::ordered_json streams;
   for (const auto& [name, c] : result.counters.streams) {
     streams[name] = {{"accepted", c.accepted},
@@ -842,26 +837,82 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
                  {"restarts_after_gap", result.counters.restarts_after_gap}};
   nlohmann::ordered_json alignment;
   for (const auto& [name, a] : result.alignment) {
-    const Eigen::Quaterniond q(a.T_AL.linear());
-    alignment[name] = {{"valid", a.valid},
-                       {"p_AL_m", {a.T_AL.translation().x(), a.T_AL.translation().y(),
-                                   a.T_AL.translation().z()}},
-                       {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}},
-                       {"observable_rotation_dofs", a.observable_rotation_dofs},
-                       {"yaw_observable", a.yaw_observable},
-                       {"rms_residual_m", a.rms_residual_m},
-                       {"pairs", a.pairs}};
+    nlohmann::ordered_json entry = {{"valid", a.valid}};
+    entry.update(PoseJson(a.T_AL, "p_AL_m", "q_AL_wxyz"));
+    entry.update(nlohmann::ordered_json{{"observable_rotation_dofs", a.observable_rotation_dofs},
+                                        {"yaw_observable", a.yaw_observable},
+                                        {"rms_residual_m", a.rms_residual_m},
+                                        {"pairs", a.pairs}});
+    alignment[name] = entry;
   }
   j["alignment"] = alignment;
-  // The T_AL each sensor's measurements were (or would be) fused with at the end: known,
-  // frozen at fusion start, or the alignment graph's usable estimate.
   nlohmann::ordered_json used;
-  for (const auto& [name, T_AL] : result.T_AL_used) {
-    const Eigen::Quaterniond q(T_AL.linear());
-    used[name] = {{"p_AL_m", {T_AL.translation().x(), T_AL.translation().y(), T_AL.translation().z()}},
-                  {"q_AL_wxyz", {q.w(), q.x(), q.y(), q.z()}}};
-  }
+  for (const auto& [name, T_AL] : result.T_AL_used) used[name] = PoseJson(T_AL, "p_AL_m", "q_AL_wxyz");
   j["T_AL_used"] = used;
+}
+
+// A client method: its name, its failure, and its own report (a JSON object; one that is
+// not stays out).
+void AddClient(const ReplayResult& result, nlohmann::ordered_json& j) {
+  j["client"] = result.method.client->Name();
+  if (result.failure) {
+    j["failure"] = *result.failure;
+    j["failure_stderr_tail"] = result.failure_stderr_tail;
+  }
+  const auto report = nlohmann::ordered_json::parse(result.client_report_json, nullptr, false);
+  if (!report.is_discarded() && report.is_object() && !report.empty()) {
+    j["client_report"] = report;
+  }
+}
+
+// timing_<stem>.json: the wall clock, and whether the method could run on the robot (each
+// local update, one per keyframe, within the keyframe period; keeping up with its input).
+MethodFiles WriteTimingJson(const ReplayResult& result, const std::filesystem::path& file) {
+  MethodFiles files;
+  const std::vector<double>& solve_s = result.solver.solve_time_s;
+  files.solve_mean_ms =
+      solve_s.empty() ? 0.0
+                      : 1e3 * std::accumulate(solve_s.begin(), solve_s.end(), 0.0) / solve_s.size();
+  files.solve_p99_ms = 1e3 * Percentile(solve_s, 0.99);
+  nlohmann::ordered_json timing = {
+      {"wall_time_s", result.wall_time_s},
+      {"real_time_factor", result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0},
+      {"solve_mean_ms", files.solve_mean_ms},
+      {"solve_p50_ms", 1e3 * Percentile(solve_s, 0.5)},
+      {"solve_p99_ms", files.solve_p99_ms}};
+  files.update_budget_ms = 1e3 * core::TimeToSeconds(result.keyframe_period_ns);
+  timing["realtime_budget"] = {
+      {"update_budget_ms", files.update_budget_ms},
+      {"update_p99_within_budget",
+       files.update_budget_ms > 0 && files.solve_p99_ms <= files.update_budget_ms},
+      {"keeps_up_with_input", result.wall_time_s < result.log_duration_s},
+      {"note", "wall-clock on the machine that ran it: the update's p99 against the keyframe "
+               "period (one local update per keyframe), and total time against data time"}};
+  WriteFileAtomically(file, timing.dump(2) + "\n");
+  return files;
+}
+
+}  // namespace
+
+MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result,
+                              const MethodScores& scores, const std::filesystem::path& out_dir) {
+  const std::string stem = "estimate_" + SafeFileName(result.method.name);
+  WriteEstimateCsv(out_dir / (stem + ".csv"), result);
+  const std::vector<PoseSample>& trajectory = scores.trajectory;
+  WriteTumTrajectory(out_dir / (stem + ".tum"), trajectory);
+
+  nlohmann::ordered_json j;
+  j["method"] = result.method.name;
+  j["fused"] = result.method.fused;
+  j["outputs"] = OutputCount(result);
+  j["valid_outputs"] = trajectory.size();
+  if (const std::optional<TrajectoryErrors>& errors = scores.errors) {
+    WriteErrorsCsv(out_dir / (stem + "_errors.csv"), *errors, trajectory, log.ground_truth);
+    j["ate"] = AteJson(*errors);
+    // The alignment of L to W, so that renders can place the estimate in the world.
+    j["T_WL"] = PoseJson(errors->T_WL, "p_m", "q_wxyz");
+  }
+  AddEstimatorState(result, j);
   j["initialisation"] = InitialisationJson(result, scores);
   nlohmann::ordered_json noise = nlohmann::ordered_json::object();
   for (const auto& [name, n] : result.stream_noise) {
@@ -883,45 +934,9 @@ MethodFiles WriteMethodResult(const RecordedLog& log, const ReplayResult& result
                         {"rotation_rmse_deg", c->rotation_deg},
                         {"worse_than_input", c->worse_in_position || c->worse_in_rotation}};
   }
-  if (result.method.client) {
-    j["client"] = result.method.client->Name();
-    if (result.failure) {
-      j["failure"] = *result.failure;
-      j["failure_stderr_tail"] = result.failure_stderr_tail;
-    }
-    // A client's report is its own JSON object; one that is not stays out, named.
-    const auto report = nlohmann::ordered_json::parse(result.client_report_json, nullptr, false);
-    if (!report.is_discarded() && report.is_object() && !report.empty()) {
-      j["client_report"] = report;
-    }
-  }
+  if (result.method.client) AddClient(result, j);
   WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
-
-  double& mean_ms = files.solve_mean_ms;
-  mean_ms = result.solver.solve_time_s.empty()
-                             ? 0.0
-                             : 1e3 * std::accumulate(result.solver.solve_time_s.begin(),
-                                                     result.solver.solve_time_s.end(), 0.0) /
-                                   result.solver.solve_time_s.size();
-  files.solve_p99_ms = 1e3 * Percentile(result.solver.solve_time_s, 0.99);
-  nlohmann::ordered_json timing = {
-      {"wall_time_s", result.wall_time_s},
-      {"real_time_factor", result.wall_time_s > 0 ? result.log_duration_s / result.wall_time_s : 0.0},
-      {"solve_mean_ms", mean_ms},
-      {"solve_p50_ms", 1e3 * Percentile(result.solver.solve_time_s, 0.5)},
-      {"solve_p99_ms", files.solve_p99_ms}};
-  // Whether the method could run on the robot: each local update (one per keyframe) must
-  // finish within the keyframe period, and the estimator must keep up with its input.
-  const double budget_ms = 1e3 * core::TimeToSeconds(result.keyframe_period_ns);
-  timing["realtime_budget"] = {
-      {"update_budget_ms", budget_ms},
-      {"update_p99_within_budget", budget_ms > 0 && files.solve_p99_ms <= budget_ms},
-      {"keeps_up_with_input", result.wall_time_s < result.log_duration_s},
-      {"note", "wall-clock on the machine that ran it: the update's p99 against the keyframe "
-               "period (one local update per keyframe), and total time against data time"}};
-  files.update_budget_ms = budget_ms;
-  WriteFileAtomically(out_dir / ("timing_" + stem + ".json"), timing.dump(2) + "\n");
-  return files;
+  return WriteTimingJson(result, out_dir / ("timing_" + stem + ".json"));
 }
 
 namespace {
@@ -1039,14 +1054,7 @@ void WriteRawStreamBaselines(const RecordedLog& log, core::Time first_output_ns,
     WriteErrorsCsv(out_dir / (stem + "_errors.csv"), errors, raw.trajectory, log.ground_truth);
     nlohmann::ordered_json j;
     j["method"] = "raw:" + raw.stream;
-    j["ate"] = {{"alignment", "se3"},
-                {"matched", errors.matched},
-                {"position_rmse_m", errors.ate_position_rmse_m},
-                {"position_max_m", errors.ate_position_max_m},
-                {"rotation_rmse_deg", errors.rotation_rmse_deg},
-                {"rpe_delta_s", errors.rpe_delta_s},
-                {"rpe_translation_rmse_m", errors.rpe_translation_rmse_m},
-                {"rpe_rotation_rmse_deg", errors.rpe_rotation_rmse_deg}};
+    j["ate"] = AteJson(errors);
     WriteFileAtomically(out_dir / (stem + ".json"), j.dump(2) + "\n");
     if (!quiet) {
       fmt::print("{:<28} {:>9.4f} {:>9.3f} {:>9.4f}   (the stream alone, same span)\n",
