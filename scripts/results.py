@@ -496,6 +496,9 @@ def _naive_hit(check_dir, scenario, seed):
     if summary.get("failure"):
         at = re.search(r"at t = ([0-9.]+) s", summary["failure"])
         text += "; simulation failed" + (f" at {float(at.group(1)):.1f} s" if at else "")
+    for event in (summary.get("closed_loop_flight") or {}).get("events", []):
+        if event["event"] == "ended_after_collision":
+            text += f"; flight ended at {event['t_s']:.1f} s (physics broke after the crash)"
     return text
 
 
