@@ -186,7 +186,7 @@ TEST(RunFormat, EveryKindReadBackIsBitForBitWhatTheInLoopEstimatorsAreGiven) {
 TEST(RunFormat, AsRecordedKeepsTheFilesPrecisionAndCanonicalSign) {
   Values v;
   const core::PoseMeasurement pose = Pose(v, true);
-  const auto& recorded = std::get<core::PoseMeasurement>(AsRecorded(pose));
+  const core::PoseMeasurement recorded = std::get<core::PoseMeasurement>(AsRecorded(pose));
   EXPECT_GE(recorded.q_Ss.w(), 0.0);
   EXPECT_NEAR(recorded.q_Ss.angularDistance(pose.q_Ss), 0.0, 1e-8);
   EXPECT_LE((recorded.p_Ss - pose.p_Ss).cwiseAbs().maxCoeff(), 0.5e-6);
