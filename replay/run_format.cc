@@ -6,6 +6,7 @@
 #include <iterator>
 #include <variant>
 
+#include <fmt/compile.h>
 #include <fmt/format.h>
 
 #include "core/error.h"
@@ -173,9 +174,16 @@ bool ValuesOf(SensorField field, const core::Measurement& measured, const core::
   return true;
 }
 
-// The one printing of a number, shared by the writer and AsRecorded.
+// The one printing of a number, shared by the writer and AsRecorded. The tables'
+// precisions are compiled: a pose row is 61 numbers, and a format string parsed for each
+// made `tofu run` of wall_sensors 9 % slower than one format call per row (compiled: 10 %
+// faster).
 template <typename Out>
 Out FormatNumber(Out out, double value, const SensorColumnGroup& group) {
+  if (group.exponent && group.decimals == 6) return fmt::format_to(out, FMT_COMPILE("{:.6e}"), value);
+  if (!group.exponent && group.decimals == 6) return fmt::format_to(out, FMT_COMPILE("{:.6f}"), value);
+  if (!group.exponent && group.decimals == 7) return fmt::format_to(out, FMT_COMPILE("{:.7f}"), value);
+  if (!group.exponent && group.decimals == 9) return fmt::format_to(out, FMT_COMPILE("{:.9f}"), value);
   return group.exponent ? fmt::format_to(out, "{:.{}e}", value, group.decimals)
                         : fmt::format_to(out, "{:.{}f}", value, group.decimals);
 }
