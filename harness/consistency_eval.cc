@@ -52,7 +52,7 @@ ConsistencyEvaluation EvaluateConsistency(const RunRecord& record,
   const core::Time alignment_period_ns = core::PeriodFromRate(config.alignment_rate_hz);
   const core::Time alignment_window_ns = core::SecondsToTime(config.alignment_window_s);
   for (const SensorStream& stream : record.sensors) {
-    if (stream.type == "imu" || stream.delivered.empty()) continue;
+    if (stream.kind == replay::StreamKind::kImu || stream.delivered.empty()) continue;
     const sim::MountSite* site = record.robot.FindSite(stream.site);
     if (site == nullptr) continue;
     const Eigen::Matrix3d R_Bs = site->q_Bs.toRotationMatrix();

@@ -21,6 +21,7 @@
 #include "harness/run_recorder.h"
 #include "harness/sample_stream.h"
 #include "replay/recorded_log.h"
+#include "replay/run_format.h"
 #include "sim/allocation.h"
 #include "sim/controller.h"
 #include "sim/wind.h"
@@ -94,7 +95,7 @@ class CollisionTracker {
 };
 
 // The estimation methods that run inside the flight: each fed, in arrival order, the
-// samples as the run directory will record them (RecordedMeasurement), configured from
+// samples as the run directory will record them (replay::AsRecorded), configured from
 // the calibration the run will write (DescribeRunStreams), so that `tofu estimate` on
 // the written run reproduces them. Set up at the first release, once the models have
 // latched their reference frames.
@@ -113,12 +114,7 @@ class InLoopMethods {
   /// else they are kept in memory.
   void Start(const RunRecord& record, const std::optional<std::filesystem::path>& spill_dir) {
     std::vector<std::pair<std::string, StreamKind>> kinds;
-    for (const SensorStream& s : record.sensors) {
-      const StreamKind kind = s.type == "imu" ? StreamKind::kImu
-                              : (s.type == "vio" || s.type == "lidar_odometry") ? StreamKind::kPose
-                                                                                : StreamKind::kPosition;
-      kinds.emplace_back(s.name, kind);
-    }
+    for (const SensorStream& s : record.sensors) kinds.emplace_back(s.name, s.kind);
     const std::string calibration_yaml = CalibrationYamlText(record);
     const RecordedLog log = DescribeRunStreams(kinds, calibration_yaml, "");
     const EstimationSetup setup = MakeEstimationSetup(log, config_);
@@ -145,7 +141,7 @@ class InLoopMethods {
   void Feed(bool clean_stream, const std::vector<SensorStream>& streams, const ArrivedSample& a) {
     const SensorStream& stream = streams[a.stream];
     const core::StampedMeasurement m{stream.name, a.sample->t_ns,
-                                     RecordedMeasurement(stream.type, a.sample->measured)};
+                                     replay::AsRecorded(a.sample->measured)};
     for (std::size_t i = 0; i < runners_.size(); ++i) {
       if (clean_[i] == clean_stream) runners_[i].Add(m, a.sample->arrival_ns);
     }
@@ -385,6 +381,7 @@ class Flight {
       SensorStream stream;
       stream.name = config.name;
       stream.type = std::string(SensorTypeName(config.options));
+      stream.kind = SensorStreamKind(config.options);
       stream.site = SensorSite(config.options);
       stream.sky_directions_S = models_.back()->sky_directions_S();
       record_.sensors.push_back(std::move(stream));
@@ -416,7 +413,7 @@ class Flight {
         stream.clean.reserve(expected_samples);
         stream.delivered.reserve(expected_samples);
         stream.delivered_faults.reserve(expected_samples);
-        if (stream.type == "imu") stream.imu_biases.reserve(expected_samples);
+        if (stream.kind == StreamKind::kImu) stream.imu_biases.reserve(expected_samples);
       }
     }
 

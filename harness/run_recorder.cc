@@ -1,12 +1,7 @@
 #include "harness/run_recorder.h"
 
-#include <cerrno>
-#include <charconv>
-#include <cmath>
-#include <cstdlib>
-#include <cstring>
+#include <array>
 #include <iterator>
-#include <string_view>
 #include <variant>
 
 #include "core/error.h"
@@ -14,6 +9,7 @@
 #include "core/units.h"
 #include "harness/run.h"
 #include "replay/file_io.h"
+#include "replay/run_format.h"
 #include "sim/faults.h"
 
 namespace tofu::harness {
@@ -52,133 +48,23 @@ std::string FaultText(uint32_t mask) {
   return text;
 }
 
-// Upper triangle of a symmetric matrix, row by row: "c00,c01,...".
-template <int N>
-void AppendUpperTriangle(replay::AtomicFileWriter& out, const Eigen::Matrix<double, N, N>& c) {
-  for (int r = 0; r < N; ++r) {
-    for (int k = r; k < N; ++k) out.Format(",{:.6e}", c(r, k));
-  }
-}
-
-template <int N>
-std::string UpperTriangleHeader(const std::string& prefix, const std::string& unit) {
-  std::string header;
-  for (int r = 0; r < N; ++r) {
-    for (int k = r; k < N; ++k) header += fmt::format(",{}{}{} [{}]", prefix, r, k, unit);
-  }
-  return header;
-}
-
-// sensors/<name>.csv: EuRoC/ASL-style headers with units; the IMU's first seven columns
-// are EuRoC's imu0/data.csv.
-std::string SensorCsvHeader(const std::string& type) {
-  if (type == "imu") {
-    return "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
-           "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2],arrival [ns],"
-           "err_w_x [rad s^-1],err_w_y [rad s^-1],err_w_z [rad s^-1],"
-           "err_a_x [m s^-2],err_a_y [m s^-2],err_a_z [m s^-2],conditions,faults\n";
-  }
-  if (type == "vio" || type == "lidar_odometry") {
-    return fmt::format(
-        "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m],q_Ss_w [],"
-        "q_Ss_x [],q_Ss_y [],q_Ss_z [],v_s_x [m s^-1],v_s_y [m s^-1],v_s_z [m s^-1],"
-        "omega_s_x [rad s^-1],omega_s_y [rad s^-1],omega_s_z [rad s^-1]{}{},"
-        "err_p_x [m],err_p_y [m],err_p_z [m],err_theta_x [rad],err_theta_y [rad],"
-        "err_theta_z [rad],conditions,faults\n",
-        UpperTriangleHeader<6>("cov_pose_", "rad|m"),
-        UpperTriangleHeader<6>("cov_twist_", "m/s|rad/s"));
-  }
-  return fmt::format(
-      "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m]{},"
-      "err_p_x [m],err_p_y [m],err_p_z [m],conditions,faults\n",
-      UpperTriangleHeader<3>("cov_p_", "m^2"));
-}
-
-void AppendSensorRow(replay::AtomicFileWriter& out, const std::string& type, const sim::SensorSample& s,
-                     uint32_t faults) {
-  if (type == "imu") {
-    const auto& m = std::get<core::ImuMeasurement>(s.measured);
-    const auto& t = std::get<core::ImuMeasurement>(s.truth);
-    const Eigen::Vector3d ew = m.gyro_I_radps - t.gyro_I_radps;
-    const Eigen::Vector3d ea = m.acc_I_mps2 - t.acc_I_mps2;
-    out.Format("{},{:.9f},{:.9f},{:.9f},{:.7f},{:.7f},{:.7f},{},{:.9f},{:.9f},{:.9f},{:.7f},"
-                   "{:.7f},{:.7f},{},{}\n",
-                   s.t_ns, m.gyro_I_radps.x(), m.gyro_I_radps.y(), m.gyro_I_radps.z(),
-                   m.acc_I_mps2.x(), m.acc_I_mps2.y(), m.acc_I_mps2.z(), s.arrival_ns, ew.x(),
-                   ew.y(), ew.z(), ea.x(), ea.y(), ea.z(), ConditionText(s.conditions),
-                   FaultText(faults));
-    return;
-  }
-  if (type == "vio" || type == "lidar_odometry") {
-    const auto& m = std::get<core::PoseMeasurement>(s.measured);
-    const auto& t = std::get<core::PoseMeasurement>(s.truth);
-    const Eigen::Quaterniond q = core::CanonicalQuat(m.q_Ss);
-    // True error as the covariance defines it: R_meas = R_true Exp(err_theta).
-    const Eigen::Vector3d err_p = m.p_Ss - t.p_Ss;
-    const Eigen::Vector3d err_theta = core::LogQuat(t.q_Ss.conjugate() * m.q_Ss);
-    out.Format("{},{},{:.6f},{:.6f},{:.6f},{:.9f},{:.9f},{:.9f},{:.9f}",
-                   s.t_ns, s.arrival_ns, m.p_Ss.x(), m.p_Ss.y(), m.p_Ss.z(), q.w(), q.x(), q.y(),
-                   q.z());
-    if (m.has_twist) {
-      out.Format(",{:.6f},{:.6f},{:.6f},{:.6f},{:.6f},{:.6f}",
-                     m.v_s_s_mps.x(), m.v_s_s_mps.y(), m.v_s_s_mps.z(), m.omega_s_s_radps.x(),
-                     m.omega_s_s_radps.y(), m.omega_s_s_radps.z());
-    } else {
-      out.Format(",,,,,,");
-    }
-    AppendUpperTriangle<6>(out, m.covariance);
-    if (m.has_twist) {
-      AppendUpperTriangle<6>(out, m.twist_covariance);
-    } else {
-      out.Append(std::string(21, ','));
-    }
-    out.Format(",{:.6f},{:.6f},{:.6f},{:.7f},{:.7f},{:.7f},{},{}\n",
-                   err_p.x(), err_p.y(), err_p.z(), err_theta.x(), err_theta.y(), err_theta.z(),
-                   ConditionText(s.conditions), FaultText(faults));
-    return;
-  }
-  const auto& m = std::get<core::PositionMeasurement>(s.measured);
-  const auto& t = std::get<core::PositionMeasurement>(s.truth);
-  const Eigen::Vector3d err = m.p_Ss - t.p_Ss;
-  out.Format("{},{},{:.6f},{:.6f},{:.6f}", s.t_ns, s.arrival_ns,
-                 m.p_Ss.x(), m.p_Ss.y(), m.p_Ss.z());
-  AppendUpperTriangle<3>(out, m.covariance);
-  out.Format(",{:.6f},{:.6f},{:.6f},{},{}\n", err.x(), err.y(),
-                 err.z(), ConditionText(s.conditions), FaultText(faults));
-}
-
-// A value as a sensor CSV holds it: formatted as the writer formats it and parsed back
-// as the reader (recorded_log.cc) parses it, so that an in-loop consumer sees exactly
-// what `tofu estimate` reads from the file.
-double AsWritten(double value, std::string_view format) {
-  const std::string text = fmt::format(fmt::runtime(format), value);
-  double parsed = 0.0;
-  const char* first = text.data();
-  const char* last = first + text.size();
-  const auto [end, ec] = std::from_chars(first, last, parsed);
-  if (ec == std::errc::result_out_of_range) return std::strtod(text.c_str(), nullptr);
-  return parsed;
-}
-
-Eigen::Vector3d AsWritten(const Eigen::Vector3d& v, std::string_view format) {
-  return {AsWritten(v.x(), format), AsWritten(v.y(), format), AsWritten(v.z(), format)};
-}
-
-// A symmetric matrix from its upper triangle as written (",{:.6e}" each).
-template <int N>
-Eigen::Matrix<double, N, N> UpperTriangleAsWritten(const Eigen::Matrix<double, N, N>& c) {
-  Eigen::Matrix<double, N, N> out;
-  for (int r = 0; r < N; ++r) {
-    for (int k = r; k < N; ++k) out(r, k) = out(k, r) = AsWritten(c(r, k), "{:.6e}");
-  }
-  return out;
+// A sample's row of sensors/<name>.csv (replay/run_format.h), with the fault bits active
+// at its time (0 for the clean stream); `row` is the caller's buffer, reused row to row.
+void AppendSensorRow(replay::AtomicFileWriter& out, const sim::SensorSample& s, uint32_t faults,
+                     std::string& row) {
+  const std::string conditions = ConditionText(s.conditions);
+  const std::string fault_names = FaultText(faults);
+  row.clear();
+  replay::AppendSensorCsvRow({s.t_ns, s.arrival_ns, &s.measured, &s.truth, conditions, fault_names},
+                             row);
+  out.Append(row);
 }
 
 }  // namespace
 
 RecorderLayout RecorderLayoutOf(const RunRecord& record, bool closed_loop) {
   RecorderLayout layout;
-  for (const SensorStream& s : record.sensors) layout.streams.push_back({s.name, s.type, s.site});
+  for (const SensorStream& s : record.sensors) layout.streams.push_back({s.name, s.kind, s.site});
   layout.robot = record.robot;
   layout.closed_loop = closed_loop;
   return layout;
@@ -210,11 +96,11 @@ RunRecorder::RunRecorder(const fs::path& dir, RecorderLayout layout) : layout_(s
     const RecorderLayout::Stream& stream = layout_.streams[i];
     delivered_.push_back(std::make_unique<replay::AtomicFileWriter>(dir / "sensors" / (stream.name + ".csv")));
     clean_.push_back(std::make_unique<replay::AtomicFileWriter>(dir / "sensors" / "clean" / (stream.name + ".csv")));
-    const std::string header = SensorCsvHeader(stream.type);
+    const std::string header = replay::SensorCsvHeader(stream.kind);
     delivered_.back()->Append(header);
     clean_.back()->Append(header);
     // The EuRoC folder layout of the first IMU, so existing VIO tools read a run.
-    if (stream.type != "imu" || euroc_imu_) continue;
+    if (stream.kind != replay::StreamKind::kImu || euroc_imu_) continue;
     euroc_imu_ = i;
     if (const sim::MountSite* site = layout_.robot.FindSite(stream.site)) {
       p_BI_ = site->p_Bs;
@@ -297,7 +183,7 @@ void RunRecorder::EmitEurocGroundTruth(const sim::TruthState& s, const ImuBias& 
 
 void RunRecorder::AddClean(std::size_t stream, const sim::SensorSample& sample,
                            const ImuBias* imu_bias) {
-  AppendSensorRow(*clean_[stream], layout_.streams[stream].type, sample, 0u);
+  AppendSensorRow(*clean_[stream], sample, 0u, row_);
   if (!euroc_imu_ || stream != *euroc_imu_) return;
   const ImuBias& bias = imu_bias != nullptr ? *imu_bias : kZeroBias;
   // The rows before this sample carry the latest bias at or before them: this one's for
@@ -314,12 +200,15 @@ void RunRecorder::AddClean(std::size_t stream, const sim::SensorSample& sample,
 
 void RunRecorder::AddDelivered(std::size_t stream, const sim::SensorSample& sample,
                                uint32_t faults) {
-  AppendSensorRow(*delivered_[stream], layout_.streams[stream].type, sample, faults);
+  AppendSensorRow(*delivered_[stream], sample, faults, row_);
   if (!euroc_imu_ || stream != *euroc_imu_) return;
-  const auto& m = std::get<core::ImuMeasurement>(sample.measured);
-  euroc_imu_csv_->Format("{},{:.9f},{:.9f},{:.9f},{:.7f},{:.7f},{:.7f}\n", sample.t_ns,
-                 m.gyro_I_radps.x(), m.gyro_I_radps.y(), m.gyro_I_radps.z(), m.acc_I_mps2.x(),
-                 m.acc_I_mps2.y(), m.acc_I_mps2.z());
+  // EuRoC's imu0/data.csv: the first columns of the IMU's own rows, at their precisions.
+  static constexpr std::array kEurocImuFields = {
+      replay::SensorField::kTimestamp, replay::SensorField::kGyro, replay::SensorField::kAccel};
+  row_.clear();
+  replay::AppendSensorCsvFields({sample.t_ns, sample.arrival_ns, &sample.measured, nullptr, "", ""},
+                                kEurocImuFields, row_);
+  euroc_imu_csv_->Append(row_);
 }
 
 void RunRecorder::Close() {
@@ -333,42 +222,6 @@ void RunRecorder::Close() {
   }
   for (auto& file : delivered_) file->Commit();
   for (auto& file : clean_) file->Commit();
-}
-
-core::Measurement RecordedMeasurement(const std::string& stream_type,
-                                      const core::Measurement& value) {
-  if (stream_type == "imu") {
-    const auto& m = std::get<core::ImuMeasurement>(value);
-    core::ImuMeasurement out;
-    out.gyro_I_radps = AsWritten(m.gyro_I_radps, "{:.9f}");
-    out.acc_I_mps2 = AsWritten(m.acc_I_mps2, "{:.7f}");
-    return out;
-  }
-  if (stream_type == "vio" || stream_type == "lidar_odometry") {
-    const auto& m = std::get<core::PoseMeasurement>(value);
-    core::PoseMeasurement out;
-    out.p_Ss = AsWritten(m.p_Ss, "{:.6f}");
-    const Eigen::Quaterniond q = core::CanonicalQuat(m.q_Ss);
-    // The reader normalises what it parsed (when finite and non-zero).
-    Eigen::Quaterniond q_read(AsWritten(q.w(), "{:.9f}"), AsWritten(q.x(), "{:.9f}"),
-                              AsWritten(q.y(), "{:.9f}"), AsWritten(q.z(), "{:.9f}"));
-    const double norm = q_read.norm();
-    if (std::isfinite(norm) && norm > 0.0) q_read.coeffs() /= norm;
-    out.q_Ss = q_read;
-    out.covariance = UpperTriangleAsWritten<6>(m.covariance);
-    if (m.has_twist) {
-      out.has_twist = true;
-      out.v_s_s_mps = AsWritten(m.v_s_s_mps, "{:.6f}");
-      out.omega_s_s_radps = AsWritten(m.omega_s_s_radps, "{:.6f}");
-      out.twist_covariance = UpperTriangleAsWritten<6>(m.twist_covariance);
-    }
-    return out;
-  }
-  const auto& m = std::get<core::PositionMeasurement>(value);
-  core::PositionMeasurement out;
-  out.p_Ss = AsWritten(m.p_Ss, "{:.6f}");
-  out.covariance = UpperTriangleAsWritten<3>(m.covariance);
-  return out;
 }
 
 }  // namespace tofu::harness

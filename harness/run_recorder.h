@@ -1,9 +1,10 @@
 #pragma once
 // The recorder: the run directory's consumer of the run loop (docs/DESIGN.md, "Data flow
-// of one run"). It owns the format of every per-sample file of a run directory
-// (groundtruth.csv/.tum, tracking.csv, sensors/<name>.csv and sensors/clean/<name>.csv,
-// the EuRoC layout under mav0/, control.csv) and writes each row when the run produces
-// it, so that a flight's memory does not grow with the samples it records (issue 19).
+// of one run"). It writes every per-sample file of a run directory: sensors/<name>.csv
+// and sensors/clean/<name>.csv in the format their readers share (replay/run_format.h),
+// and the files of its own format (groundtruth.csv/.tum, tracking.csv, the EuRoC layout
+// under mav0/, control.csv). It writes each row when the run produces it, so that a
+// flight's memory does not grow with the samples it records (issue 19).
 // A run recorded in memory (a test's, a corpus episode's) is written through the same
 // recorder after the flight (run_directory.cc), so both give the same bytes.
 
@@ -22,6 +23,7 @@
 #include "core/measurement.h"
 #include "core/time.h"
 #include "replay/file_io.h"
+#include "replay/run_format.h"
 #include "sim/sensor.h"
 #include "sim/trajectory.h"
 #include "sim/world.h"
@@ -36,7 +38,7 @@ struct TrackingSample;    // run.h
 struct RecorderLayout {
   struct Stream {
     std::string name;
-    std::string type;  ///< SensorStream::type: "imu", "vio", ...
+    replay::StreamKind kind = replay::StreamKind::kImu;  ///< the columns of its CSV
     std::string site;  ///< mount site
   };
   std::vector<Stream> streams;  ///< in the order of the run's sensor list
@@ -94,16 +96,10 @@ class RunRecorder {
   std::unique_ptr<replay::AtomicFileWriter> euroc_imu_csv_;
   std::unique_ptr<replay::AtomicFileWriter> euroc_groundtruth_csv_;
   std::vector<sim::TruthState> pending_truth_;
+  std::string row_;  // a sensor row's text, its buffer kept from row to row
   std::optional<ImuBias> latest_bias_;
   Eigen::Vector3d p_BI_ = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_BI_ = Eigen::Quaterniond::Identity();
 };
-
-/// A sample's value as its row in sensors/<name>.csv holds it (the writer's precision,
-/// the reader's parse and normalisation): what the run loop hands its in-loop consumers,
-/// so that a recorded run replays bit-identically (`tofu estimate`). `stream_type` is
-/// SensorStream::type.
-core::Measurement RecordedMeasurement(const std::string& stream_type,
-                                      const core::Measurement& value);
 
 }  // namespace tofu::harness

@@ -27,6 +27,7 @@
 #include "harness/sensor_config.h"
 #include "harness/yaml_reader.h"
 #include "replay/replay.h"
+#include "replay/run_format.h"
 #include "sim/world.h"
 
 namespace tofu::harness {
@@ -46,6 +47,13 @@ using internal::ReadOptionFields;
 using namespace internal::config;
 
 std::string SensorTypeList() { return fmt::format("{}", fmt::join(kSensorTypeNames, ", ")); }
+
+// A sensor that measures its position in a surveyed frame (not an odometry, whose frame
+// starts where it boots): what the mission frame can follow.
+bool IsAbsoluteSensor(const SensorConfig& sensor) {
+  const replay::SensorModel model = SensorModelOf(sensor.options);
+  return model == replay::SensorModel::kTotalStation || model == replay::SensorModel::kGnss;
+}
 
 std::vector<SensorConfig> ReadSensors(const YamlValue& value) {
   std::vector<SensorConfig> sensors;
@@ -214,12 +222,12 @@ MissionConfig ReadMission(const YamlValue& value, const std::vector<SensorConfig
       if (sensor == sensors.end()) {
         item.Fail(fmt::format("'{}' is not a sensor of the scenario's sensors: block", name));
       }
-      const std::string_view type = SensorTypeName(sensor->options);
-      if (type != "total_station" && type != "gnss") {
-        item.Fail(fmt::format("'{}' is a {} sensor; expected a total_station or gnss sensor (an "
-                              "absolute sensor's frame is surveyed, an odometry's starts where it "
-                              "boots)",
-                              name, type));
+      if (!IsAbsoluteSensor(*sensor)) {
+        item.Fail(fmt::format("'{}' is a {} sensor; expected a {} or {} sensor (an absolute "
+                              "sensor's frame is surveyed, an odometry's starts where it boots)",
+                              name, SensorTypeName(sensor->options),
+                              replay::SensorModelName(replay::SensorModel::kTotalStation),
+                              replay::SensorModelName(replay::SensorModel::kGnss)));
       }
       if (std::find(names.begin(), names.end(), name) != names.end()) {
         item.Fail(fmt::format("'{}' is listed twice", name));
@@ -897,8 +905,7 @@ bool SurveyedInMission(const Scenario& scenario, const SensorConfig& sensor) {
     const std::vector<std::string>& names = *scenario.mission.surveyed;
     return std::find(names.begin(), names.end(), sensor.name) != names.end();
   }
-  const std::string_view type = SensorTypeName(sensor.options);
-  return type == "total_station" || type == "gnss";
+  return IsAbsoluteSensor(sensor);
 }
 
 Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label) {

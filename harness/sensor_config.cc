@@ -5,6 +5,7 @@
 
 #include "harness/config_io.h"
 #include "harness/option_fields_yaml.h"
+#include "replay/run_format.h"
 
 namespace tofu::harness::internal {
 
@@ -54,10 +55,15 @@ template sim::TotalStationOptions ReadSensorOptions<sim::TotalStationOptions>(co
 template sim::GnssOptions ReadSensorOptions<sim::GnssOptions>(const YamlValue&);
 
 SensorOptions ReadSensorOptions(std::string_view type, const YamlValue& value) {
-  if (type == "imu") return ReadSensorOptions<sim::ImuOptions>(value);
-  if (type == "vio") return ReadSensorOptions<sim::VioOptions>(value);
-  if (type == "lidar_odometry") return ReadSensorOptions<sim::LidarOdometryOptions>(value);
-  if (type == "total_station") return ReadSensorOptions<sim::TotalStationOptions>(value);
+  switch (replay::SensorModelOfName(type).value_or(replay::SensorModel::kGnss)) {
+    case replay::SensorModel::kImu: return ReadSensorOptions<sim::ImuOptions>(value);
+    case replay::SensorModel::kVio: return ReadSensorOptions<sim::VioOptions>(value);
+    case replay::SensorModel::kLidarOdometry:
+      return ReadSensorOptions<sim::LidarOdometryOptions>(value);
+    case replay::SensorModel::kTotalStation:
+      return ReadSensorOptions<sim::TotalStationOptions>(value);
+    case replay::SensorModel::kGnss: break;
+  }
   return ReadSensorOptions<sim::GnssOptions>(value);
 }
 

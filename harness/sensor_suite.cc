@@ -8,6 +8,14 @@ std::string_view SensorTypeName(const SensorOptions& options) {
   return kSensorTypeNames[options.index()];
 }
 
+replay::SensorModel SensorModelOf(const SensorOptions& options) {
+  return kSensorOptionModels[options.index()];
+}
+
+replay::StreamKind SensorStreamKind(const SensorOptions& options) {
+  return replay::StreamKindOf(SensorModelOf(options));
+}
+
 const std::string& SensorSite(const SensorOptions& options) {
   return std::visit([](const auto& o) -> const std::string& { return o.site; }, options);
 }

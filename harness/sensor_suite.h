@@ -17,6 +17,7 @@
 
 #include "core/time.h"
 #include "replay/labels.h"
+#include "replay/run_format.h"
 #include "sim/faults.h"
 #include "sim/gnss.h"
 #include "sim/imu.h"
@@ -32,9 +33,18 @@ namespace tofu::harness {
 using SensorOptions = std::variant<sim::ImuOptions, sim::VioOptions, sim::LidarOdometryOptions,
                                    sim::TotalStationOptions, sim::GnssOptions>;
 
-/// Type names as written in YAML (`type:`), in the order of SensorOptions.
+/// The model of each alternative of SensorOptions, in its order.
+inline constexpr std::array<replay::SensorModel, 5> kSensorOptionModels = {
+    replay::SensorModel::kImu, replay::SensorModel::kVio, replay::SensorModel::kLidarOdometry,
+    replay::SensorModel::kTotalStation, replay::SensorModel::kGnss};
+static_assert(kSensorOptionModels.size() == std::variant_size_v<SensorOptions>);
+
+/// Type names as written in YAML (`type:`), in the order of SensorOptions: the run
+/// format's (replay/run_format.h), which calibration.yaml records.
 inline constexpr std::array<std::string_view, 5> kSensorTypeNames = {
-    "imu", "vio", "lidar_odometry", "total_station", "gnss"};
+    replay::SensorModelName(kSensorOptionModels[0]), replay::SensorModelName(kSensorOptionModels[1]),
+    replay::SensorModelName(kSensorOptionModels[2]), replay::SensorModelName(kSensorOptionModels[3]),
+    replay::SensorModelName(kSensorOptionModels[4])};
 
 struct SensorConfig {
   std::string name;  ///< stream name: [a-z0-9_]+, the key under `sensors:`
@@ -45,6 +55,12 @@ struct SensorConfig {
 };
 
 std::string_view SensorTypeName(const SensorOptions& options);
+
+/// The sensor's model (its `type:`).
+replay::SensorModel SensorModelOf(const SensorOptions& options);
+
+/// The kind of stream the sensor records (its rows' columns, replay/run_format.h).
+replay::StreamKind SensorStreamKind(const SensorOptions& options);
 
 /// The mount site a sensor's options name.
 const std::string& SensorSite(const SensorOptions& options);
@@ -61,7 +77,8 @@ std::unique_ptr<sim::SensorModel> MakeSensorModel(const SensorConfig& config,
 /// memory (RunRecord::recorded_to unset); the counts and the digest by every run.
 struct SensorStream {
   std::string name;
-  std::string type;
+  std::string type;  ///< kSensorTypeNames
+  replay::StreamKind kind = replay::StreamKind::kImu;
   std::string site;
   Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();  ///< true reference frame in W
   std::vector<Eigen::Vector3d> sky_directions_S;  ///< GNSS satellites in S (fixed for the run)

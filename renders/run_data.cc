@@ -12,6 +12,7 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "replay/csv_reader.h"
+#include "replay/run_format.h"
 #include "replay/yaml_fields.h"
 
 namespace tofu::renders {
@@ -111,7 +112,7 @@ void ReadCalibration(RunData& run) {
   // The estimates are of the IMU frame I: its nominal mount (what the estimator is given).
   bool imu_found = false;
   for (const auto& [name, c] : run.calibration.sensors) {
-    if (c.type != "imu" || !c.T_Bs) continue;
+    if (replay::StreamKindOfSensorType(c.type) != replay::StreamKind::kImu || !c.T_Bs) continue;
     run.T_BI = *c.T_Bs;
     imu_found = true;
     break;
@@ -128,18 +129,22 @@ void ReadSensors(RunData& run) {
       run.notes.push_back(fmt::format("sensors/{}.csv: not in calibration.yaml, not drawn", name));
       continue;
     }
-    if (cal->second.type == "imu") continue;  // nothing to place in W
-    const CsvTable csv(file, "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m],...,"
-                             "conditions,faults");
+    // An IMU has nothing to place in W (and an hour of it is not worth reading).
+    if (replay::StreamKindOfSensorType(cal->second.type) == replay::StreamKind::kImu) continue;
+    const CsvTable csv(file, std::string(replay::kSensorCsvForm));
     SensorTrack track;
     track.name = name;
     track.type = cal->second.type;
     track.site = cal->second.site;
     track.true_T_WS = cal->second.true_T_WS.value_or(Eigen::Isometry3d::Identity());
-    const int t = csv.Require("timestamp");
-    const int p[3] = {csv.Require("p_Ss_x"), csv.Require("p_Ss_y"), csv.Require("p_Ss_z")};
-    const int conditions = csv.Find("conditions");
-    const int faults = csv.Find("faults");
+    const replay::SensorCsvColumns columns = replay::LocateSensorCsvColumns(csv.keys(), csv.file());
+    using replay::SensorField;
+    const int t = columns.Column(SensorField::kTimestamp);
+    const int p[3] = {columns.Column(SensorField::kPosition, 0),
+                      columns.Column(SensorField::kPosition, 1),
+                      columns.Column(SensorField::kPosition, 2)};
+    const int conditions = columns.Column(SensorField::kConditions);
+    const int faults = columns.Column(SensorField::kFaults);
     for (size_t r = 0; r < csv.rows(); ++r) {
       const Eigen::Vector3d p_Ss(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
       if (!p_Ss.allFinite()) continue;  // a faulted NaN sample: nothing to place
@@ -539,7 +544,7 @@ std::vector<LidarGeometry> LidarGeometries(const RunData& run) {
 std::vector<SkyGeometry> SkyGeometries(const RunData& run) {
   std::vector<SkyGeometry> skies;
   for (const auto& [name, c] : run.calibration.sensors) {
-    if (c.type != "gnss") continue;
+    if (replay::SensorModelOfName(c.type) != replay::SensorModel::kGnss) continue;
     if (c.sky_directions_S.empty()) {
       throw InputError({run.calibration.file}, "sensors." + name + ".sky_directions_S",
                        "missing: this run directory predates the GNSS sky in calibration.yaml; "

@@ -13,6 +13,7 @@
 #include "core/error.h"
 #include "core/units.h"
 #include "renders/overlay.h"
+#include "replay/run_format.h"
 #include "sim/world.h"
 
 namespace tofu::renders {
@@ -236,7 +237,7 @@ struct SceneRenderer::Impl {
       hi = hi.cwiseMax(p.p_W);
     }
     for (const SensorTrack& s : run.sensors) {
-      if (s.type != "total_station") continue;
+      if (replay::SensorModelOfName(s.type) != replay::SensorModel::kTotalStation) continue;
       lo = lo.cwiseMin(s.true_T_WS.translation());
       hi = hi.cwiseMax(s.true_T_WS.translation());
     }
@@ -433,7 +434,7 @@ struct SceneRenderer::Impl {
 
   void AddLineOfSight(core::Time t_ns, const Eigen::Isometry3d& T_WB) {
     for (const SensorTrack& s : run.sensors) {
-      if (s.type != "total_station") continue;
+      if (replay::SensorModelOfName(s.type) != replay::SensorModel::kTotalStation) continue;
       const Eigen::Vector3d station_W = s.true_T_WS.translation();
       const Eigen::Vector3d prism_W = T_WB * Mount(s.site).translation();
       const bool blocked = run.LabelActive(s.name, "occluded", t_ns);

@@ -40,8 +40,14 @@ std::optional<int64_t> ParseInteger(std::string_view s, std::string_view what, s
   return value;
 }
 
-// A number field ("nan"/"inf" included), or the message saying why it is not one.
-std::optional<double> ParseNumber(std::string_view s, std::string* error) {
+int FindKey(const std::vector<std::string>& keys, std::string_view key) {
+  const auto it = std::find(keys.begin(), keys.end(), key);
+  return it == keys.end() ? -1 : static_cast<int>(it - keys.begin());
+}
+
+}  // namespace
+
+std::optional<double> ParseCsvNumber(std::string_view s, std::string* error) {
   if (s.empty()) {
     *error = "empty field, expected a number";
     return std::nullopt;
@@ -61,13 +67,6 @@ std::optional<double> ParseNumber(std::string_view s, std::string* error) {
   }
   return value;
 }
-
-int FindKey(const std::vector<std::string>& keys, std::string_view key) {
-  const auto it = std::find(keys.begin(), keys.end(), key);
-  return it == keys.end() ? -1 : static_cast<int>(it - keys.begin());
-}
-
-}  // namespace
 
 std::string CsvQuoted(std::string_view s) {
   constexpr size_t kMax = 60;
@@ -249,7 +248,7 @@ int64_t CsvReader::Integer(int column, std::string_view what) const {
 
 double CsvReader::Number(int column) const {
   std::string error;
-  const std::optional<double> value = ParseNumber(Text(column), &error);
+  const std::optional<double> value = ParseCsvNumber(Text(column), &error);
   if (!value) throw Error(column, error);
   return *value;
 }
@@ -361,7 +360,7 @@ double CsvTable::Double(std::size_t row, int column, bool allow_empty) const {
   const std::string_view text = Text(row, column);
   if (text.empty() && allow_empty) return std::numeric_limits<double>::quiet_NaN();
   std::string error;
-  const std::optional<double> value = ParseNumber(text, &error);
+  const std::optional<double> value = ParseCsvNumber(text, &error);
   if (!value) Fail(row, column, error);
   return *value;
 }

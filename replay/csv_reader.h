@@ -36,6 +36,11 @@ std::string_view CsvColumnKey(std::string_view field);
 /// A field's text quoted for a message, cut at 60 characters.
 std::string CsvQuoted(std::string_view text);
 
+/// A number field as every reader parses it ("nan"/"inf" included; beyond the double
+/// range an underflow to 0 or an overflow to +-Inf, as strtod); nullopt and the reason in
+/// `error` for an empty or other field. Also the parse the run format's AsRecorded applies.
+std::optional<double> ParseCsvNumber(std::string_view text, std::string* error);
+
 struct CsvOptions {
   /// A row with more fields than the header joins the surplus into its last column (free
   /// text, such as a decision's reason, may contain commas).
@@ -137,6 +142,8 @@ class CsvTable {
            CsvOptions options = {});
 
   const std::string& file() const { return file_; }
+  /// Column keys of the header, in order.
+  const std::vector<std::string>& keys() const { return keys_; }
   std::size_t rows() const { return lines_.size(); }
   int Find(std::string_view key) const;
   /// Index of the column `key`; InputError at the header if it is missing.

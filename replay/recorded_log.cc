@@ -12,6 +12,7 @@
 #include <string_view>
 #include <system_error>
 #include <utility>
+#include <variant>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -45,65 +46,11 @@ std::array<int, N> RequireAll(const CsvReader& csv, std::string_view prefix,
   return columns;
 }
 
-// The N(N+1)/2 columns <prefix>rk (row-major upper triangle, as run_directory.cc writes
-// them); empty if none of them is in the header, InputError if only some are.
-template <int N>
-std::vector<int> UpperTriangleColumns(const CsvReader& csv, std::string_view prefix) {
-  std::vector<int> columns;
-  std::string missing;
-  for (int r = 0; r < N; ++r) {
-    for (int k = r; k < N; ++k) {
-      const std::string key = fmt::format("{}{}{}", prefix, r, k);
-      const int c = csv.Find(key);
-      if (c < 0 && missing.empty()) missing = key;
-      columns.push_back(c);
-    }
-  }
-  const bool any = std::any_of(columns.begin(), columns.end(), [](int c) { return c >= 0; });
-  if (!any) return {};
-  if (!missing.empty()) {
-    throw InputError({csv.name(), 1, 0}, "",
-                     fmt::format("header: has {}* columns but not '{}': expected all {} "
-                                 "upper-triangle entries {}00..{}{}{}",
-                                 prefix, missing, N * (N + 1) / 2, prefix, prefix, N - 1, N - 1));
-  }
-  return columns;
-}
-
-template <int N>
-Eigen::Matrix<double, N, N> ReadUpperTriangle(const CsvReader& csv, const std::vector<int>& cols) {
-  Eigen::Matrix<double, N, N> c;
-  size_t i = 0;
-  for (int r = 0; r < N; ++r) {
-    for (int k = r; k < N; ++k) {
-      c(r, k) = c(k, r) = csv.Number(cols[i++]);
-    }
-  }
-  return c;
-}
-
-Eigen::Quaterniond NormalisedIfFinite(double w, double x, double y, double z) {
-  Eigen::Quaterniond q(w, x, y, z);
-  const double norm = q.norm();
-  if (std::isfinite(norm) && norm > 0.0) q.coeffs() /= norm;
-  return q;
-}
-
 // Where the rows of a stream go while reading.
 struct Sink {
   std::vector<core::StampedMeasurement>* measurements;
   std::vector<Time>* arrival_ns;
 };
-
-// Columns no estimator may see: the recorder's ground-truth labels.
-bool IsLabelColumn(std::string_view key) {
-  return key.substr(0, 4) == "err_" || key == "conditions" || key == "faults";
-}
-
-// What a header should look like, for messages.
-constexpr std::string_view kSensorHeader =
-    "#timestamp [ns],w_RS_S_x [rad s^-1],... (IMU) or #timestamp [ns],arrival [ns],"
-    "p_Ss_x [m],... (pose, position)";
 
 // What ReadSensorCsv found.
 struct SensorCsvContents {
@@ -112,124 +59,13 @@ struct SensorCsvContents {
   bool covariance_stated = true;  ///< false: no covariance columns, the default used
 };
 
-// One sensors/<name>.csv (or EuRoC imu0/data.csv): its kind from the header, every row
-// into `sink`. Returns the kind and the row count; notes what it ignored.
-SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
-                                const RecordedLogOptions& options, Sink sink,
-                                std::vector<std::string>& notes) {
-  CsvReader csv(path, std::string(kSensorHeader));
-  StreamKind kind;
-  if (csv.Find("w_RS_S_x") >= 0) {
-    kind = StreamKind::kImu;
-  } else if (csv.Find("p_Ss_x") >= 0 && csv.Find("q_Ss_w") >= 0) {
-    kind = StreamKind::kPose;
-  } else if (csv.Find("p_Ss_x") >= 0) {
-    kind = StreamKind::kPosition;
-  } else {
-    throw InputError({csv.name(), 1, 0}, "",
-                     "header: cannot tell the stream kind: expected the columns "
-                     "w_RS_S_x/y/z + a_RS_S_x/y/z (IMU), p_Ss_x/y/z + q_Ss_w/x/y/z (pose) or "
-                     "p_Ss_x/y/z (position)");
+// Notes on what ReadSensorCsv assumed and on the columns it left unread.
+void NoteSensorCsv(const CsvReader& csv, const SensorCsvColumns& columns, const std::string& name,
+                   bool defaulted_covariance, bool defaulted_twist_covariance,
+                   std::vector<std::string>& notes) {
+  if (!columns.Has(SensorField::kArrival)) {
+    notes.push_back(fmt::format("{}: no arrival column, arrival = t", name));
   }
-
-  const int t_col = csv.Require("timestamp", "time of validity in ns");
-  const int arrival_col = csv.Find("arrival");
-  size_t rows = 0;
-  const size_t reserve = options.read_measurements ? csv.RowsUpperBound() : 0;
-  sink.measurements->reserve(sink.measurements->size() + reserve);
-  sink.arrival_ns->reserve(sink.arrival_ns->size() + reserve);
-  const auto push = [&](Time t, core::Measurement&& value) {
-    const Time arrival = arrival_col >= 0 ? csv.Integer(arrival_col) : t;
-    sink.measurements->push_back({name, t, std::move(value)});
-    sink.arrival_ns->push_back(arrival);
-    ++rows;
-  };
-
-  // Which columns a kind reads (prefix match), to note the ones it ignores.
-  std::vector<std::string> read_prefixes = {"timestamp", "arrival"};
-  bool defaulted_covariance = false;
-  bool defaulted_twist_covariance = false;
-  if (kind == StreamKind::kImu) {
-    const auto w = RequireAll<3>(csv, "w_RS_S_", "xyz", "IMU angular rate in rad/s");
-    const auto a = RequireAll<3>(csv, "a_RS_S_", "xyz", "IMU specific force in m/s^2");
-    read_prefixes.insert(read_prefixes.end(), {"w_RS_S_", "a_RS_S_"});
-    while (options.read_measurements && csv.Next()) {
-      const Time t = csv.Integer(t_col);
-      core::ImuMeasurement m;
-      m.gyro_I_radps = {csv.Number(w[0]), csv.Number(w[1]), csv.Number(w[2])};
-      m.acc_I_mps2 = {csv.Number(a[0]), csv.Number(a[1]), csv.Number(a[2])};
-      push(t, m);
-    }
-  } else if (kind == StreamKind::kPose) {
-    const auto p = RequireAll<3>(csv, "p_Ss_", "xyz", "position of s in S in m");
-    const auto q = RequireAll<4>(csv, "q_Ss_", "wxyz", "attitude of s in S, Hamilton");
-    read_prefixes.insert(read_prefixes.end(), {"p_Ss_", "q_Ss_"});
-    // Twist: all six columns or none; per row all six fields or all empty.
-    std::array<int, 6> twist{};
-    const bool has_twist_columns = csv.Find("v_s_x") >= 0 || csv.Find("omega_s_x") >= 0;
-    if (has_twist_columns) {
-      const auto v = RequireAll<3>(csv, "v_s_", "xyz", "twist: velocity of s in s, m/s");
-      const auto o = RequireAll<3>(csv, "omega_s_", "xyz", "twist: angular rate of s, rad/s");
-      twist = {v[0], v[1], v[2], o[0], o[1], o[2]};
-      read_prefixes.insert(read_prefixes.end(), {"v_s_", "omega_s_"});
-    }
-    const std::vector<int> cov = UpperTriangleColumns<6>(csv, "cov_pose_");
-    const std::vector<int> cov_twist = UpperTriangleColumns<6>(csv, "cov_twist_");
-    read_prefixes.insert(read_prefixes.end(), {"cov_pose_", "cov_twist_"});
-    while (options.read_measurements && csv.Next()) {
-      const Time t = csv.Integer(t_col);
-      core::PoseMeasurement m;
-      m.p_Ss = {csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2])};
-      m.q_Ss = NormalisedIfFinite(csv.Number(q[0]), csv.Number(q[1]), csv.Number(q[2]),
-                                  csv.Number(q[3]));
-      if (cov.empty()) {
-        m.covariance = options.default_pose_covariance;
-        defaulted_covariance = true;
-      } else {
-        m.covariance = ReadUpperTriangle<6>(csv, cov);
-      }
-      if (has_twist_columns) {
-        const int empty = static_cast<int>(
-            std::count_if(twist.begin(), twist.end(), [&](int c) { return csv.Empty(c); }));
-        if (empty != 0 && empty != 6) {
-          const int c = *std::find_if(twist.begin(), twist.end(),
-                                      [&](int k) { return csv.Empty(k); });
-          throw csv.Error(c, "empty twist field, expected a number: the twist (v_s_*, "
-                             "omega_s_*) is six numbers or six empty fields");
-        }
-        if (empty == 0) {
-          m.has_twist = true;
-          m.v_s_s_mps = {csv.Number(twist[0]), csv.Number(twist[1]), csv.Number(twist[2])};
-          m.omega_s_s_radps = {csv.Number(twist[3]), csv.Number(twist[4]), csv.Number(twist[5])};
-          if (cov_twist.empty()) {
-            defaulted_twist_covariance = true;
-          } else {
-            m.twist_covariance = ReadUpperTriangle<6>(csv, cov_twist);
-          }
-        }
-      }
-      push(t, std::move(m));
-    }
-  } else {
-    const auto p = RequireAll<3>(csv, "p_Ss_", "xyz", "position of s in S in m");
-    const std::vector<int> cov = UpperTriangleColumns<3>(csv, "cov_p_");
-    read_prefixes.insert(read_prefixes.end(), {"p_Ss_", "cov_p_"});
-    while (options.read_measurements && csv.Next()) {
-      const Time t = csv.Integer(t_col);
-      core::PositionMeasurement m;
-      m.p_Ss = {csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2])};
-      if (cov.empty()) {
-        m.covariance = options.default_position_covariance;
-        defaulted_covariance = true;
-      } else {
-        m.covariance = ReadUpperTriangle<3>(csv, cov);
-      }
-      push(t, std::move(m));
-    }
-  }
-
-  // Notes: what was assumed, what was left unread.
-  if (arrival_col < 0) notes.push_back(fmt::format("{}: no arrival column, arrival = t", name));
   if (defaulted_covariance) {
     notes.push_back(fmt::format("{}: no covariance columns, the default covariance is used", name));
   }
@@ -239,12 +75,8 @@ SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
   std::vector<std::string> labels;
   std::vector<std::string> unknown;
   for (const std::string& key : csv.keys()) {
-    const bool read = std::any_of(read_prefixes.begin(), read_prefixes.end(),
-                                  [&](const std::string& prefix) {
-                                    return key.compare(0, prefix.size(), prefix) == 0;
-                                  });
-    if (read) continue;
-    (IsLabelColumn(key) ? labels : unknown).push_back(key);
+    if (columns.IsReadKey(key)) continue;
+    (columns.IsLabelKey(key) ? labels : unknown).push_back(key);
   }
   if (!labels.empty()) {
     notes.push_back(fmt::format("{}: ground-truth label columns not read ({} columns: err_*, "
@@ -254,6 +86,40 @@ SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
   if (!unknown.empty()) {
     notes.push_back(fmt::format("{}: unknown columns ignored: {}", name, fmt::join(unknown, ", ")));
   }
+}
+
+// One sensors/<name>.csv (or EuRoC imu0/data.csv): its kind from the header, every row
+// into `sink`. Returns the kind and the row count; notes what it ignored.
+SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
+                                const RecordedLogOptions& options, Sink sink,
+                                std::vector<std::string>& notes) {
+  CsvReader csv(path, std::string(kSensorCsvForm));
+  const SensorCsvColumns columns = LocateSensorCsvColumns(csv.keys(), csv.name());
+  const int t_col = columns.Column(SensorField::kTimestamp);
+  const int arrival_col = columns.Column(SensorField::kArrival);
+  const SensorCsvDefaults defaults{options.default_pose_covariance,
+                                   options.default_position_covariance};
+  const size_t reserve = options.read_measurements ? csv.RowsUpperBound() : 0;
+  sink.measurements->reserve(sink.measurements->size() + reserve);
+  sink.arrival_ns->reserve(sink.arrival_ns->size() + reserve);
+  size_t rows = 0;
+  bool twist_read = false;
+  while (options.read_measurements && csv.Next()) {
+    const Time t = csv.Integer(t_col);
+    core::Measurement value = ReadSensorCsvRow(csv, columns, defaults);
+    if (const auto* pose = std::get_if<core::PoseMeasurement>(&value)) twist_read |= pose->has_twist;
+    const Time arrival = arrival_col >= 0 ? csv.Integer(arrival_col) : t;
+    sink.measurements->push_back({name, t, std::move(value)});
+    sink.arrival_ns->push_back(arrival);
+    ++rows;
+  }
+
+  const StreamKind kind = columns.kind();
+  const SensorField covariance =
+      kind == StreamKind::kPose ? SensorField::kPoseCovariance : SensorField::kPositionCovariance;
+  const bool defaulted_covariance = kind != StreamKind::kImu && rows > 0 && !columns.Has(covariance);
+  const bool defaulted_twist_covariance = twist_read && !columns.Has(SensorField::kTwistCovariance);
+  NoteSensorCsv(csv, columns, name, defaulted_covariance, defaulted_twist_covariance, notes);
   return {kind, rows, !defaulted_covariance};
 }
 
@@ -295,7 +161,7 @@ void ReadGroundTruthCsv(const fs::path& path, std::string_view p_prefix, std::st
     if (b_g && b_a) log.ground_truth_biases.push_back({triple(*b_g), triple(*b_a)});
     const Eigen::Vector3d p_WX(csv.Number(p[0]), csv.Number(p[1]), csv.Number(p[2]));
     const Eigen::Quaterniond q_WX =
-        NormalisedIfFinite(csv.Number(q[0]), csv.Number(q[1]), csv.Number(q[2]), csv.Number(q[3]));
+        QuaternionAsRead(csv.Number(q[0]), csv.Number(q[1]), csv.Number(q[2]), csv.Number(q[3]));
     if (identity) {
       g.p = p_WX;
       g.q = q_WX;
@@ -308,7 +174,7 @@ void ReadGroundTruthCsv(const fs::path& path, std::string_view p_prefix, std::st
   }
 }
 
-// labels.csv of a run directory (run_directory.cc LabelsCsv).
+// labels.csv of a run directory (harness/run_directory.cc LabelsCsv).
 std::vector<LabelEvent> ReadLabelsCsv(const fs::path& path) {
   CsvReader csv(path, "#timestamp [ns],sensor,label,source,active");
   const int t_col = csv.Require("timestamp", "time in ns");
@@ -572,19 +438,6 @@ void SortByArrival(RecordedLog& log, const std::vector<size_t>& stream_end) {
     }
   }
 }
-
-}  // namespace
-
-const char* StreamKindName(StreamKind kind) {
-  switch (kind) {
-    case StreamKind::kImu: return "imu";
-    case StreamKind::kPose: return "pose";
-    case StreamKind::kPosition: return "position";
-  }
-  return "?";
-}
-
-namespace {
 
 // Where a log's streams and ground truth are: a tofu run directory (sensors/*.csv) or an
 // EuRoC-style log (mav0/imu0/data.csv, *.tum).

@@ -21,11 +21,12 @@
 //     not state them, and, without a calibration.yaml, the IMU mount T_BS (the other
 //     streams and the ground truth then being of the body frame B).
 //
-// CSV columns are found by name (the header's text before " [unit]", without '#'), so
-// extra columns are ignored. Reading is strict about form and lenient about values: a
-// malformed file is a core::InputError naming file, line, column and the expected form,
-// while a NaN/Inf value or an out-of-order stamp is passed through for the estimator to
-// reject and count (DESIGN.md, "Errors").
+// CSV columns are found by name (the header's text before " [unit]", without '#'; the
+// sensor streams' columns are replay/run_format.h's), so extra columns are ignored.
+// Reading is strict about form and lenient about values: a malformed file is a
+// core::InputError naming file, line, column and the expected form, while a NaN/Inf value
+// or an out-of-order stamp is passed through for the estimator to reject and count
+// (DESIGN.md, "Errors").
 
 #include <cstddef>
 #include <filesystem>
@@ -40,19 +41,14 @@
 #include "core/measurement.h"
 #include "core/time.h"
 #include "replay/labels.h"
+#include "replay/run_format.h"
 #include "replay/trajectory_metrics.h"
 
 namespace tofu::replay {
 
-/// What a stream measures, told from its header (IMU: w_RS_S_x..., pose: p_Ss_x and
-/// q_Ss_w, position: p_Ss_x without q) or from its layout (EuRoC imu0, TUM).
-enum class StreamKind { kImu, kPose, kPosition };
-
-/// Name of a kind for notes and messages: "imu", "pose", "position".
-const char* StreamKindName(StreamKind kind);
-
 struct RecordedStream {
   std::string name;
+  /// Told from the header (replay/run_format.h) or from the layout (EuRoC imu0, TUM).
   StreamKind kind = StreamKind::kImu;
   std::filesystem::path file;
   /// Mount frame s of the sensor in the IMU frame I: T_Is = T_BI^-1 T_Bs with the
@@ -144,9 +140,9 @@ struct RecordedLog {
 /// Reads the recorded streams of `directory` (layout (a) or (b) above).
 ///
 /// Pose rows: twist (v_s_*, omega_s_*) present and non-empty -> has_twist; covariances
-/// from the cov_pose_ij / cov_twist_ij / cov_p_ij columns (upper triangle, row-major, as
-/// run_directory.cc writes them), else the options' defaults. Quaternions are normalised
-/// when finite and non-zero. Arrival from the `arrival` column when present, else t.
+/// from the cov_pose_ij / cov_twist_ij / cov_p_ij columns (upper triangle, row-major:
+/// replay/run_format.h), else the options' defaults. Quaternions are normalised when
+/// finite and non-zero. Arrival from the `arrival` column when present, else t.
 ///
 /// Throws core::InputError (file, 1-based line and column, column name, expected form)
 /// for a missing directory, no recognisable stream, no IMU stream (unless

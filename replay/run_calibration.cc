@@ -9,6 +9,7 @@
 #include "core/file_io.h"
 #include "core/lidar_beam_pattern.h"
 #include "core/units.h"
+#include "replay/run_format.h"
 #include "replay/yaml_fields.h"
 
 namespace tofu::replay {
@@ -97,7 +98,9 @@ std::optional<double> RunCalibration::OptionNumber(const std::string& sensor,
 std::optional<core::LidarBeamPattern> RunCalibration::LidarBeams(
     const std::string& sensor) const {
   const auto s = sensors.find(sensor);
-  if (s == sensors.end() || s->second.type != "lidar_odometry") return std::nullopt;
+  if (s == sensors.end() || SensorModelOfName(s->second.type) != SensorModel::kLidarOdometry) {
+    return std::nullopt;
+  }
   const auto fail = [&](std::string_view key, const std::string& expected) {
     const CalibrationScalar& at = s->second.options.at(std::string(key));
     throw core::InputError({file, at.line, at.column},

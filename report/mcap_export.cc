@@ -19,6 +19,7 @@
 #include "renders/events.h"
 #include "renders/run_data.h"
 #include "replay/csv_reader.h"
+#include "replay/run_format.h"
 #include "report/json_text.h"
 #include "report/mcap_schemas.h"
 #include "sim/world.h"
@@ -132,18 +133,19 @@ void ExportGroundTruth(const RunData& run, Channels& out) {
 
 // ---- sensor streams: every row as written, and its measurement mapped into W ----
 
-// The columns <prefix><r><k> of the upper triangle of an N x N symmetric matrix (-1:
-// missing), and the full row-major matrix they give (the convention of ROS and Foxglove
-// covariances; a missing or empty column is null).
-template <int N>
-std::vector<int> UpperTriangleColumns(const CsvTable& csv, const std::string& prefix) {
+using replay::SensorCsvColumns;
+using replay::SensorField;
+
+// The columns of a field (-1: missing): a covariance is N(N+1)/2 of them, its upper
+// triangle (replay/run_format.h).
+std::vector<int> FieldColumns(const SensorCsvColumns& c, SensorField field, int count) {
   std::vector<int> columns;
-  for (int r = 0; r < N; ++r) {
-    for (int k = r; k < N; ++k) columns.push_back(csv.Find(fmt::format("{}{}{}", prefix, r, k)));
-  }
+  for (int i = 0; i < count; ++i) columns.push_back(c.Has(field) ? c.Column(field, i) : -1);
   return columns;
 }
 
+// The full row-major matrix of an upper triangle (the convention of ROS and Foxglove
+// covariances; a missing or empty column is null).
 template <int N>
 std::vector<double> FullCovariance(const CsvTable& csv, std::size_t row, const std::vector<int>& columns) {
   std::vector<double> c(N * N, std::nan(""));
@@ -157,69 +159,67 @@ std::vector<double> FullCovariance(const CsvTable& csv, std::size_t row, const s
   return c;
 }
 
-// The columns every sensor stream has (all but the timestamp may be missing, -1).
-struct SensorRowColumns {
-  int t = -1;
-  int arrival = -1;
-  int conditions = -1;
-  int faults = -1;
-};
-
-core::Time ArrivalNs(const CsvTable& csv, const SensorRowColumns& c, std::size_t r) {
-  const core::Time t_ns = csv.Int(r, c.t);
-  return c.arrival >= 0 ? csv.Int(r, c.arrival) : t_ns;
+core::Time ArrivalNs(const CsvTable& csv, const SensorCsvColumns& c, std::size_t r) {
+  const core::Time t_ns = csv.Int(r, c.Column(SensorField::kTimestamp));
+  return c.Has(SensorField::kArrival) ? csv.Int(r, c.Column(SensorField::kArrival)) : t_ns;
 }
 
-void AddSensorRowFields(JsonText& j, const CsvTable& csv, const SensorRowColumns& c, std::size_t r) {
-  const core::Time t_ns = csv.Int(r, c.t);
-  j.Time("timestamp", t_ns);
-  j.Time("arrival", c.arrival >= 0 ? csv.Int(r, c.arrival) : t_ns);
-  j.Strings("conditions", SplitLabels(c.conditions >= 0 ? csv.Text(r, c.conditions) : ""));
-  j.Strings("faults", SplitLabels(c.faults >= 0 ? csv.Text(r, c.faults) : ""));
+void AddSensorRowFields(JsonText& j, const CsvTable& csv, const SensorCsvColumns& c, std::size_t r) {
+  const int conditions = c.Column(SensorField::kConditions);
+  const int faults = c.Column(SensorField::kFaults);
+  j.Time("timestamp", csv.Int(r, c.Column(SensorField::kTimestamp)));
+  j.Time("arrival", ArrivalNs(csv, c, r));
+  j.Strings("conditions", SplitLabels(conditions >= 0 ? csv.Text(r, conditions) : ""));
+  j.Strings("faults", SplitLabels(faults >= 0 ? csv.Text(r, faults) : ""));
 }
 
-void ExportImuSamples(const CsvTable& csv, const SensorRowColumns& c, const std::string& topic,
+Eigen::Vector3d ReadVector(const CsvTable& csv, std::size_t r, const std::vector<int>& columns) {
+  return {csv.Double(r, columns[0]), csv.Double(r, columns[1]), csv.Double(r, columns[2])};
+}
+
+void ExportImuSamples(const CsvTable& csv, const SensorCsvColumns& c, const std::string& topic,
                       Channels& out) {
-  const int w[3] = {csv.Require("w_RS_S_x"), csv.Require("w_RS_S_y"), csv.Require("w_RS_S_z")};
-  const int a[3] = {csv.Require("a_RS_S_x"), csv.Require("a_RS_S_y"), csv.Require("a_RS_S_z")};
+  const std::vector<int> w = FieldColumns(c, SensorField::kGyro, 3);
+  const std::vector<int> a = FieldColumns(c, SensorField::kAccel, 3);
   for (std::size_t r = 0; r < csv.rows(); ++r) {
     JsonText j;
     j.Begin();
     AddSensorRowFields(j, csv, c, r);
-    j.Vector("angular_velocity_radps",
-             {csv.Double(r, w[0]), csv.Double(r, w[1]), csv.Double(r, w[2])});
-    j.Vector("linear_acceleration_mps2",
-             {csv.Double(r, a[0]), csv.Double(r, a[1]), csv.Double(r, a[2])});
+    j.Vector("angular_velocity_radps", ReadVector(csv, r, w));
+    j.Vector("linear_acceleration_mps2", ReadVector(csv, r, a));
     j.End();
-    out.Add(topic, "tofu.ImuSample", csv.Int(r, c.t), ArrivalNs(csv, c, r), j.str());
+    out.Add(topic, "tofu.ImuSample", csv.Int(r, c.Column(SensorField::kTimestamp)),
+            ArrivalNs(csv, c, r), j.str());
   }
+}
+
+// The measured twist of a pose row, when the row has one.
+void AddTwist(JsonText& j, const CsvTable& csv, const SensorCsvColumns& c, std::size_t r) {
+  const std::vector<int> v = FieldColumns(c, SensorField::kVelocity, 3);
+  if (v[0] < 0 || csv.Text(r, v[0]).empty()) return;
+  j.Vector("linear_velocity_mps", ReadVector(csv, r, v));
+  j.Vector("angular_velocity_radps",
+           ReadVector(csv, r, FieldColumns(c, SensorField::kAngularRate, 3)));
+  j.Numbers("twist_covariance",
+            FullCovariance<6>(csv, r, FieldColumns(c, SensorField::kTwistCovariance, 21)));
 }
 
 // A pose or position stream: each row as measured (in the sensor's reference frame), and
 // mapped into W.
 void ExportMeasurements(const RunData& run, const std::string& name, const CsvTable& csv,
-                        const SensorRowColumns& c, const std::string& topic, Channels& out) {
+                        const SensorCsvColumns& c, const std::string& topic, Channels& out) {
   const renders::SensorTrack* track = run.FindSensor(name);
   const Eigen::Isometry3d T_WS = track ? track->true_T_WS : Eigen::Isometry3d::Identity();
-  const int p[3] = {csv.Require("p_Ss_x"), csv.Require("p_Ss_y"), csv.Require("p_Ss_z")};
-  const bool is_pose = csv.Find("q_Ss_w") >= 0;
-  int q[4] = {-1, -1, -1, -1};
-  int v[3] = {-1, -1, -1};
-  int omega[3] = {-1, -1, -1};
-  if (is_pose) {
-    q[0] = csv.Require("q_Ss_w"), q[1] = csv.Require("q_Ss_x");
-    q[2] = csv.Require("q_Ss_y"), q[3] = csv.Require("q_Ss_z");
-    v[0] = csv.Find("v_s_x"), v[1] = csv.Find("v_s_y"), v[2] = csv.Find("v_s_z");
-    omega[0] = csv.Find("omega_s_x"), omega[1] = csv.Find("omega_s_y"), omega[2] = csv.Find("omega_s_z");
-  }
+  const std::vector<int> p = FieldColumns(c, SensorField::kPosition, 3);
+  const bool is_pose = c.kind() == replay::StreamKind::kPose;
+  const std::vector<int> q = FieldColumns(c, SensorField::kQuaternion, 4);
   const std::string frame = name + "_reference";
-  const std::vector<int> cov_pose = UpperTriangleColumns<6>(csv, "cov_pose_");
-  const std::vector<int> cov_twist = UpperTriangleColumns<6>(csv, "cov_twist_");
-  const std::vector<int> cov_p = UpperTriangleColumns<3>(csv, "cov_p_");
+  const std::vector<int> cov_pose = FieldColumns(c, SensorField::kPoseCovariance, 21);
+  const std::vector<int> cov_p = FieldColumns(c, SensorField::kPositionCovariance, 6);
   for (std::size_t r = 0; r < csv.rows(); ++r) {
-    const core::Time t_ns = csv.Int(r, c.t);
+    const core::Time t_ns = csv.Int(r, c.Column(SensorField::kTimestamp));
     const core::Time arrival_ns = ArrivalNs(csv, c, r);
-    const Eigen::Vector3d p_Ss(csv.Double(r, p[0]), csv.Double(r, p[1]), csv.Double(r, p[2]));
+    const Eigen::Vector3d p_Ss = ReadVector(csv, r, p);
     Eigen::Quaterniond q_Ss = Eigen::Quaterniond::Identity();
     JsonText j;
     j.Begin();
@@ -230,14 +230,7 @@ void ExportMeasurements(const RunData& run, const std::string& name, const CsvTa
                                 csv.Double(r, q[3]));
       j.Pose("pose", p_Ss, q_Ss);
       j.Numbers("covariance", FullCovariance<6>(csv, r, cov_pose));
-      const bool has_twist = v[0] >= 0 && !csv.Text(r, v[0]).empty();
-      if (has_twist) {
-        j.Vector("linear_velocity_mps",
-                 {csv.Double(r, v[0]), csv.Double(r, v[1]), csv.Double(r, v[2])});
-        j.Vector("angular_velocity_radps", {csv.Double(r, omega[0]), csv.Double(r, omega[1]),
-                                            csv.Double(r, omega[2])});
-        j.Numbers("twist_covariance", FullCovariance<6>(csv, r, cov_twist));
-      }
+      AddTwist(j, csv, c, r);
     } else {
       j.Vector("position", p_Ss);
       j.Numbers("covariance", FullCovariance<3>(csv, r, cov_p));
@@ -262,13 +255,9 @@ void ExportSensors(const RunData& run, Channels& out) {
   for (const fs::path& file : renders::SensorCsvFiles(run.directory)) {
     const std::string name = file.stem().string();
     const std::string topic = "/sensors/" + name;
-    const CsvTable csv(file, "#timestamp [ns],... (a sensor stream of README 'Run directory')");
-    SensorRowColumns columns;
-    columns.t = csv.Require("timestamp");
-    columns.arrival = csv.Find("arrival");
-    columns.conditions = csv.Find("conditions");
-    columns.faults = csv.Find("faults");
-    if (csv.Find("w_RS_S_x") >= 0) {
+    const CsvTable csv(file, std::string(replay::kSensorCsvForm));
+    const SensorCsvColumns columns = replay::LocateSensorCsvColumns(csv.keys(), csv.file());
+    if (columns.kind() == replay::StreamKind::kImu) {
       ExportImuSamples(csv, columns, topic, out);
     } else {
       ExportMeasurements(run, name, csv, columns, topic, out);
