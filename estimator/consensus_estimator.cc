@@ -20,6 +20,8 @@ struct RawSample {
   Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_As = Eigen::Quaterniond::Identity();  ///< pose sensors only
   std::optional<Eigen::Vector3d> v_s_mps;  ///< the sensor's own twist, when it reports one
+  Eigen::Matrix3d cov_p_As = Eigen::Matrix3d::Zero();  ///< stated, m² in A
+  Eigen::Matrix3d cov_v_s = Eigen::Matrix3d::Zero();   ///< stated twist velocity, m²/s² in s
 };
 
 // Puts a stream's velocity samples onto the common evaluation grid (multiples of
@@ -33,25 +35,34 @@ class GridResampler {
   GridResampler(core::Time period_ns, core::Time max_gap_ns)
       : period_ns_(period_ns), max_gap_ns_(max_gap_ns) {}
 
+  // cov (may be null: none stated) is interpolated with the same weights: (1−u)Σ₀ + uΣ₁
+  // bounds the interpolated velocity's covariance from above whatever the correlation.
   template <typename Emit>
-  void Add(core::Time t_ns, const Eigen::Vector3d& v, Emit&& emit) {
-    if (last_ && t_ns <= last_->first) return;
-    if (!last_ || t_ns - last_->first > max_gap_ns_) {
-      if (t_ns % period_ns_ == 0) emit(t_ns, v);
+  void Add(core::Time t_ns, const Eigen::Vector3d& v, const Eigen::Matrix3d* cov, Emit&& emit) {
+    if (last_ && t_ns <= last_->t_ns) return;
+    const Eigen::Matrix3d cov_now = cov != nullptr ? *cov : Eigen::Matrix3d::Zero();
+    if (!last_ || t_ns - last_->t_ns > max_gap_ns_) {
+      if (t_ns % period_ns_ == 0) emit(t_ns, v, cov != nullptr ? &cov_now : nullptr);
     } else {
-      const core::Time t0 = last_->first;
+      const core::Time t0 = last_->t_ns;
       for (core::Time g = t0 - t0 % period_ns_ + period_ns_; g <= t_ns; g += period_ns_) {
         const double u = static_cast<double>(g - t0) / static_cast<double>(t_ns - t0);
-        emit(g, (1.0 - u) * last_->second + u * v);
+        const Eigen::Matrix3d cov_g = (1.0 - u) * last_->cov + u * cov_now;
+        emit(g, (1.0 - u) * last_->v + u * v, cov != nullptr ? &cov_g : nullptr);
       }
     }
-    last_ = std::make_pair(t_ns, v);
+    last_ = Last{t_ns, v, cov_now};
   }
 
  private:
+  struct Last {
+    core::Time t_ns;
+    Eigen::Vector3d v;
+    Eigen::Matrix3d cov;
+  };
   core::Time period_ns_;
   core::Time max_gap_ns_;
-  std::optional<std::pair<core::Time, Eigen::Vector3d>> last_;
+  std::optional<Last> last_;
 };
 
 struct LocalSample {
@@ -172,10 +183,15 @@ struct ConsensusEstimator::Impl {
       if (!AllFinite(pose->p_Ss) || !pose->q_Ss.coeffs().allFinite() || pose->q_Ss.norm() < 1e-9) return;
       r.p_As = pose->p_Ss;
       r.q_As = pose->q_Ss.normalized();
-      if (pose->has_twist && pose->v_s_s_mps.allFinite()) r.v_s_mps = pose->v_s_s_mps;
+      r.cov_p_As = pose->covariance.bottomRightCorner<3, 3>();
+      if (pose->has_twist && pose->v_s_s_mps.allFinite()) {
+        r.v_s_mps = pose->v_s_s_mps;
+        r.cov_v_s = pose->twist_covariance.topLeftCorner<3, 3>();
+      }
     } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
       if (!AllFinite(position->p_Ss)) return;
       r.p_As = position->p_Ss;
+      r.cov_p_As = position->covariance;
     } else {
       return;
     }
@@ -238,7 +254,12 @@ struct ConsensusEstimator::Impl {
     if (s.raw.empty()) return;
     const Eigen::Matrix3d R_Is = s.spec.T_Is.linear();
     const Eigen::Vector3d p_Is = s.spec.T_Is.translation();
-    const auto emit = [&](core::Time tg, const Eigen::Vector3d& v) { matrix.Add(s.stream, tg, v); };
+    const auto emit = [&](core::Time tg, const Eigen::Vector3d& v, const Eigen::Matrix3d* cov) {
+      matrix.Add(s.stream, tg, v, cov);
+    };
+    // Covariances only where the metric reads them (kNis): the paper's metrics compare
+    // the numbers alone.
+    const bool stated = options.consistency.metric == ConsistencyMetric::kNis;
     const core::Time half = HalfWindowOf(s);
     if (s.reports_twist) {
       for (const RawSample& r : s.raw) {
@@ -248,7 +269,9 @@ struct ConsensusEstimator::Impl {
         const std::optional<Eigen::Vector3d> omega_I = GyroAt(r.t_ns);
         if (!omega_I || !r.v_s_mps) continue;
         // v_I = R_Is v_s − ω_I × p_Is: the mount point's velocity moved to the IMU point.
-        s.grid->Add(r.t_ns, R_Is * *r.v_s_mps - omega_I->cross(p_Is), emit);
+        const Eigen::Matrix3d cov_I = R_Is * r.cov_v_s * R_Is.transpose();
+        s.grid->Add(r.t_ns, R_Is * *r.v_s_mps - omega_I->cross(p_Is), stated ? &cov_I : nullptr,
+                    emit);
       }
     } else if (s.raw.size() >= 3) {
       DifferentiationOptions diff;
@@ -256,11 +279,13 @@ struct ConsensusEstimator::Impl {
       diff.max_gap_ns = std::max<core::Time>(3 * half, 250'000'000);
       std::vector<core::Time> t;
       std::vector<Eigen::Vector3d> p;
+      std::vector<Eigen::Matrix3d> cov_p;
       for (const RawSample& r : s.raw) {
         t.push_back(r.t_ns);
         p.push_back(r.p_As);
+        if (stated) cov_p.push_back(r.cov_p_As);
       }
-      const VelocitySeries v_A = DifferentiatePositions(t, p, diff);
+      const VelocitySeries v_A = DifferentiatePositions(t, p, cov_p, diff);
       std::optional<Eigen::Matrix3d> R_AL;
       if (s.spec.kind == SensorKind::kPosition) {
         if (const auto T_AL = estimator.AlignmentOf(s.spec.name)) s.last_R_AL = T_AL->linear();
@@ -287,7 +312,10 @@ struct ConsensusEstimator::Impl {
           R_AI = *R_AL * l->R_LI;
         }
         // v_I = R_AIᵀ v_A(s) − ω_I × p_Is.
-        s.grid->Add(tk, R_AI.transpose() * v_A.v_mps[k] - omega_I->cross(p_Is), emit);
+        Eigen::Matrix3d cov_I;
+        if (stated) cov_I = R_AI.transpose() * v_A.cov_m2ps2[k] * R_AI;
+        s.grid->Add(tk, R_AI.transpose() * v_A.v_mps[k] - omega_I->cross(p_Is),
+                    stated ? &cov_I : nullptr, emit);
       }
     }
     // Keep what the next fits need: a half window before the newest done sample.
@@ -296,13 +324,17 @@ struct ConsensusEstimator::Impl {
   }
 
   void AddLocalVelocities(core::Time t_eval) {
-    const auto emit = [&](core::Time tg, const Eigen::Vector3d& v) { matrix.Add(local_stream, tg, v); };
+    // The local estimate states no velocity covariance: kNis takes it as exact next to the
+    // sensor it is compared with (its velocity is IMU-driven, far steadier than a sensor's).
+    const auto emit = [&](core::Time tg, const Eigen::Vector3d& v, const Eigen::Matrix3d*) {
+      matrix.Add(local_stream, tg, v);
+    };
     for (const LocalSample& l : local) {
       if (l.t_ns > t_eval) break;
       if (last_local_velocity_ns && l.t_ns <= *last_local_velocity_ns) continue;
       last_local_velocity_ns = l.t_ns;
       if (!l.valid) continue;
-      local_grid->Add(l.t_ns, l.R_LI.transpose() * l.v_L_mps, emit);
+      local_grid->Add(l.t_ns, l.R_LI.transpose() * l.v_L_mps, nullptr, emit);
     }
     const core::Time keep_from = t_eval - options.consistency.history_ns;
     while (!local.empty() && local.front().t_ns < keep_from) local.pop_front();
@@ -346,6 +378,7 @@ struct ConsensusEstimator::Impl {
     ConsensusRecord record;
     record.t_ns = t_now;
     record.window_end_ns = t_eval;
+    record.metric = options.consistency.metric;
     for (int i = 0; i < n; ++i) {
       for (int j = i + 1; j < n; ++j) {
         const std::optional<double> v = input.available[i] && input.available[j]

@@ -8,7 +8,9 @@
 //     T_AL — and moved over the lever arm with the gyro rate),
 //  2. does the same with the local estimate (R_LIᵀ v_L),
 //  3. evaluates the consistency matrix (Cramér-von Mises distance, eq. 5, over a 1 s
-//     window) of all sensor pairs and of each sensor against the local estimate,
+//     window; or, beyond the paper, kNis: the differences normalised by the covariances
+//     each sensor states, propagated through the differentiation and onto the grid) of all
+//     sensor pairs and of each sensor against the local estimate,
 //  4. lets the ConsensusSelector decide which sensors constrain the local graph
 //     (cross-pattern isolation, two-sensor tie-break against the local estimate), and
 //     hands that set to MultiGraphEstimator::SetFusedSensors.
@@ -70,6 +72,8 @@ struct ConsensusRecord {
   /// The end of the window the values describe: t_ns − evaluation_delay_ns().
   core::Time window_end_ns = 0;
   ConsensusDecision decision;
+  /// The metric of the values (the matrix's: cm as in the paper, or nis).
+  ConsistencyMetric metric = ConsistencyMetric::kCm;
   /// "a-b" for sensor pairs, "a-local" against the local estimate, in matrix order.
   std::vector<std::pair<std::string, std::optional<double>>> values;
 };

@@ -7,6 +7,8 @@
 #include <cstdint>
 #include <limits>
 
+#include <Eigen/Eigenvalues>
+
 #include "core/units.h"
 #include "estimator/consistency_matrix.h"
 
@@ -18,13 +20,15 @@ std::string_view MetricName(ConsistencyMetric metric) {
     case ConsistencyMetric::kPcc: return "pcc";
     case ConsistencyMetric::kKl: return "kl";
     case ConsistencyMetric::kCm: return "cm";
+    case ConsistencyMetric::kNis: return "nis";
   }
   return "unknown";
 }
 
 std::optional<ConsistencyMetric> MetricFromName(std::string_view name) {
   for (const ConsistencyMetric m : {ConsistencyMetric::kMae, ConsistencyMetric::kPcc,
-                                    ConsistencyMetric::kKl, ConsistencyMetric::kCm}) {
+                                    ConsistencyMetric::kKl, ConsistencyMetric::kCm,
+                                    ConsistencyMetric::kNis}) {
     if (MetricName(m) == name) return m;
   }
   return std::nullopt;
@@ -41,6 +45,12 @@ bool ConsistencyOptions::IsValid(std::string* why) const {
   }
   // No metric is defined on an empty sample.
   if (min_samples < 1) return fail("min_samples must be at least 1");
+  if (!(unobserved_std_mps > 0.0) || !std::isfinite(unobserved_std_mps)) {
+    return fail("unobserved_std_mps must be positive and finite");
+  }
+  if (!(std_floor_mps >= 0.0) || !(std_floor_mps < unobserved_std_mps)) {
+    return fail("std_floor_mps must be in [0, unobserved_std_mps)");
+  }
   return true;
 }
 
@@ -328,6 +338,58 @@ double PearsonCorrelation(std::span<const double> x, std::span<const double> y) 
 
 // ---- velocity streams ----
 
+namespace {
+
+// A sample's stated covariance: zero when its stream states none.
+Eigen::Matrix3d StatedCovariance(const VelocitySeries& series, std::size_t k) {
+  return series.cov_m2ps2.size() == series.t_ns.size() ? series.cov_m2ps2[k]
+                                                        : Eigen::Matrix3d::Zero();
+}
+
+// kNis over the pairs WindowConsistency formed: Σ_k Σ_observed (uᵀΔv_k)²/λ over Σ_k dof_k,
+// with (λ, u) the eigenpairs of S_k = Σ_a + Σ_b + floor² I. Under consistency each term
+// has mean 1 whatever the correlation between samples, so the ratio's mean is 1.
+std::optional<double> NormalizedSquaredDifference(const VelocitySeries& a,
+                                                  const VelocitySeries& b, const Scratch& s,
+                                                  const ConsistencyOptions& options) {
+  // Two streams that state nothing about themselves cannot be normalised.
+  if (a.cov_m2ps2.size() != a.t_ns.size() && b.cov_m2ps2.size() != b.t_ns.size()) {
+    return std::nullopt;
+  }
+  const double max_variance = options.unobserved_std_mps * options.unobserved_std_mps;
+  const double floor_variance = options.std_floor_mps * options.std_floor_mps;
+  double sum = 0.0;
+  int64_t dof = 0;
+  for (std::size_t k = 0; k < s.pair_a.size(); ++k) {
+    const double w = s.pair_w[k];
+    const std::size_t b0 = s.b_index[s.pair_b[k]];
+    Eigen::Vector3d v_b = b.v_mps[b0];
+    Eigen::Matrix3d cov_b = StatedCovariance(b, b0);
+    if (w > 0.0) {
+      const std::size_t b1 = s.b_index[s.pair_b[k] + 1];
+      v_b += w * (b.v_mps[b1] - v_b);
+      cov_b = (1.0 - w) * cov_b + w * StatedCovariance(b, b1);
+    }
+    Eigen::Matrix3d S = StatedCovariance(a, s.pair_a[k]) + cov_b;
+    if (!S.allFinite()) continue;  // a sample whose covariance is unknown
+    S.diagonal().array() += floor_variance;
+    const Eigen::Vector3d dv = a.v_mps[s.pair_a[k]] - v_b;
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
+    eigen.computeDirect(0.5 * (S + S.transpose()));
+    for (int d = 0; d < 3; ++d) {
+      const double variance = eigen.eigenvalues()[d];
+      if (!(variance > 0.0) || variance > max_variance) continue;
+      const double along = eigen.eigenvectors().col(d).dot(dv);
+      sum += along * along / variance;
+      ++dof;
+    }
+  }
+  if (dof == 0) return std::nullopt;
+  return sum / static_cast<double>(dof);
+}
+
+}  // namespace
+
 std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocitySeries& b,
                                         core::Time t_eval_ns, ConsistencyMetric metric,
                                         const ConsistencyOptions& options) {
@@ -345,9 +407,11 @@ std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocityS
   FiniteIndices(b, b_lo, b_hi, s.b_index);
   if (s.a_index.size() < min_samples || s.b_index.size() < min_samples) return std::nullopt;
 
-  // MAE and PCC: pair each sample of a with b interpolated linearly at its time, skipping
-  // samples of a outside b's span in the window. Fewer than min_samples pairs: unavailable.
-  const bool paired = metric == ConsistencyMetric::kMae || metric == ConsistencyMetric::kPcc;
+  // MAE, PCC and NIS: pair each sample of a with b interpolated linearly at its time,
+  // skipping samples of a outside b's span in the window. Fewer than min_samples pairs:
+  // unavailable.
+  const bool paired = metric == ConsistencyMetric::kMae || metric == ConsistencyMetric::kPcc ||
+                      metric == ConsistencyMetric::kNis;
   if (paired) {
     s.pair_a.clear();
     s.pair_b.clear();
@@ -373,6 +437,7 @@ std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocityS
     }
     if (s.pair_a.size() < min_samples) return std::nullopt;
   }
+  if (metric == ConsistencyMetric::kNis) return NormalizedSquaredDifference(a, b, s, options);
 
   double total = 0.0;
   for (int axis = 0; axis < 3; ++axis) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <utility>
 
@@ -13,7 +14,8 @@ bool ConsistencyMatrixOptions::IsValid(std::string* why) const {
     return false;
   };
   if (metric != ConsistencyMetric::kMae && metric != ConsistencyMetric::kPcc &&
-      metric != ConsistencyMetric::kKl && metric != ConsistencyMetric::kCm) {
+      metric != ConsistencyMetric::kKl && metric != ConsistencyMetric::kCm &&
+      metric != ConsistencyMetric::kNis) {
     return fail("metric is not a known ConsistencyMetric");
   }
   if (std::string nested; !consistency.IsValid(&nested)) return fail("consistency." + nested);
@@ -92,6 +94,8 @@ void ConsistencyMatrix::EraseFront(Stream& stream, std::size_t count) {
   const auto n = static_cast<std::ptrdiff_t>(count);
   stream.samples.t_ns.erase(stream.samples.t_ns.begin(), stream.samples.t_ns.begin() + n);
   stream.samples.v_mps.erase(stream.samples.v_mps.begin(), stream.samples.v_mps.begin() + n);
+  auto& cov = stream.samples.cov_m2ps2;
+  if (!cov.empty()) cov.erase(cov.begin(), cov.begin() + n);
   stream.base += count;
   stream.counters.dropped += n;
 }
@@ -105,7 +109,8 @@ void ConsistencyMatrix::DropOld(Stream& stream, core::Time cut_ns) {
   EraseFront(stream, static_cast<std::size_t>(end - t.begin()));
 }
 
-AddResult ConsistencyMatrix::Add(int stream_index, core::Time t_ns, const Eigen::Vector3d& v_mps) {
+AddResult ConsistencyMatrix::Add(int stream_index, core::Time t_ns, const Eigen::Vector3d& v_mps,
+                                 const Eigen::Matrix3d* cov_m2ps2) {
   if (stream_index < 0 || stream_index >= StreamCount()) {
     ++rejected_unknown_stream_;
     return AddResult::kRejectedUnknownStream;
@@ -121,6 +126,17 @@ AddResult ConsistencyMatrix::Add(int stream_index, core::Time t_ns, const Eigen:
   }
   stream.has_last = true;
   stream.last_t_ns = t_ns;
+  // A stream states covariances from its first sample on, or never; a later sample
+  // without one is marked unknown (kNis skips it).
+  auto& cov = stream.samples.cov_m2ps2;
+  if (stream.samples.t_ns.empty() && stream.counters.accepted == 0) {
+    stream.states_covariance = cov_m2ps2 != nullptr;
+  }
+  if (stream.states_covariance) {
+    cov.push_back(cov_m2ps2 != nullptr
+                      ? *cov_m2ps2
+                      : Eigen::Matrix3d::Constant(std::numeric_limits<double>::quiet_NaN()));
+  }
   ++stream.counters.accepted;
   stream.samples.t_ns.push_back(t_ns);
   stream.samples.v_mps.push_back(v_mps);

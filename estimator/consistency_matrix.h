@@ -89,10 +89,13 @@ class ConsistencyMatrix final {
   std::optional<int> StreamIndex(std::string_view name) const;
   const ConsistencyMatrixOptions& options() const { return options_; }
 
-  /// Appends one velocity sample (m/s, in the common frame) to a stream. NaN/inf values,
-  /// timestamps not strictly after the stream's last accepted one and unknown streams
-  /// are rejected and counted, never stored.
-  AddResult Add(int stream, core::Time t_ns, const Eigen::Vector3d& v_mps);
+  /// Appends one velocity sample (m/s, in the common frame) to a stream, with its stated
+  /// covariance [m²/s²] when the stream states one (kNis; a stream states covariances
+  /// from its first accepted sample on, or never). NaN/inf values, timestamps not strictly
+  /// after the stream's last accepted one and unknown streams are rejected and counted,
+  /// never stored.
+  AddResult Add(int stream, core::Time t_ns, const Eigen::Vector3d& v_mps,
+                const Eigen::Matrix3d* cov_m2ps2 = nullptr);
 
   /// Computes every pair (i < j) over the window (t_eval − window, t_eval] and returns
   /// them in the order (0,1), (0,2), …, (0,N−1), (1,2), …; the reference stays valid
@@ -122,6 +125,7 @@ class ConsistencyMatrix final {
     StreamCounters counters;
     bool has_last = false;
     core::Time last_t_ns = 0;
+    bool states_covariance = false;  // samples.cov_m2ps2 runs beside the samples
     // Samples erased from the front so far: absolute index = base + index in samples.
     std::size_t base = 0;
     // Per evaluation: the window [lo, hi) into samples, and for CM the sorted axis values

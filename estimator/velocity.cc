@@ -48,10 +48,11 @@ namespace {
 constexpr double kMinRcond = 1e-10;
 
 // Solves the least-squares fit of y(s) = c0 + c1 s (+ c2 s²) for three columns at once
-// and returns c1 (the slope per unit s), or false if the fit is degenerate.
+// and returns c1 (the slope per unit s), or false if the fit is degenerate. With weights,
+// also the slope's linear weights: c1 = Σ_i w_i y_i with w_i = e_1ᵀ N⁻¹ basis(s_i).
 template <int kTerms>
 bool FitSlope(const std::vector<double>& s, const std::vector<Eigen::Vector3d>& y,
-              Eigen::Vector3d& slope) {
+              Eigen::Vector3d& slope, std::vector<double>* weights = nullptr) {
   using Square = Eigen::Matrix<double, kTerms, kTerms>;
   using Rhs = Eigen::Matrix<double, kTerms, 3>;
   Square normal = Square::Zero();
@@ -68,6 +69,14 @@ bool FitSlope(const std::vector<double>& s, const std::vector<Eigen::Vector3d>& 
   if (ldlt.info() != Eigen::Success || !(ldlt.rcond() > kMinRcond)) return false;
   const Rhs coeffs = ldlt.solve(rhs);
   slope = coeffs.row(1).transpose();
+  if (weights != nullptr) {
+    const Eigen::Matrix<double, kTerms, 1> row =
+        ldlt.solve(Eigen::Matrix<double, kTerms, 1>::Unit(1));
+    weights->clear();
+    for (const double si : s) {
+      weights->push_back(row[0] + row[1] * si + (kTerms == 3 ? row[kTerms - 1] * si * si : 0.0));
+    }
+  }
   return slope.allFinite();
 }
 
@@ -79,10 +88,14 @@ struct Accepted {
 
 // The local fits of DifferentiationOptions over accepted samples; relative(k, i) gives
 // sample i's value relative to sample k (so the fit passes near zero at s = 0).
+// With cov_by_source (the covariance of each input sample, independent samples), each
+// output's covariance Σ_i w_i² Σ_i goes to *out_cov.
 template <typename Relative>
 void FitAll(const Accepted& accepted, const DifferentiationOptions& options,
             Relative relative, std::vector<core::Time>& out_t,
-            std::vector<Eigen::Vector3d>& out_d, DifferentiationStats& stats) {
+            std::vector<Eigen::Vector3d>& out_d, DifferentiationStats& stats,
+            const Eigen::Matrix3d* cov_by_source = nullptr,
+            std::vector<Eigen::Matrix3d>* out_cov = nullptr) {
   const auto& t = accepted.t_ns;
   const std::size_t n = t.size();
   const double h_s = core::TimeToSeconds(options.half_window_ns);
@@ -90,6 +103,8 @@ void FitAll(const Accepted& accepted, const DifferentiationOptions& options,
                                                            options.degree + 1));
   std::vector<double> s;
   std::vector<Eigen::Vector3d> y;
+  std::vector<double> weights;
+  std::vector<double>* const want_weights = out_cov != nullptr ? &weights : nullptr;
   std::size_t segment_begin = 0;
   while (segment_begin < n) {
     // One gap-free segment [segment_begin, segment_end).
@@ -116,13 +131,22 @@ void FitAll(const Accepted& accepted, const DifferentiationOptions& options,
         y.push_back(relative(k, i));
       }
       Eigen::Vector3d slope;
-      const bool ok = options.degree == 1 ? FitSlope<2>(s, y, slope) : FitSlope<3>(s, y, slope);
+      const bool ok = options.degree == 1 ? FitSlope<2>(s, y, slope, want_weights)
+                                          : FitSlope<3>(s, y, slope, want_weights);
       if (!ok) {
         ++stats.without_output;
         continue;
       }
       out_t.push_back(t[k]);
       out_d.push_back(slope / h_s);
+      if (out_cov != nullptr) {
+        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+        for (std::size_t i = lo; i < hi; ++i) {
+          const double w = weights[i - lo] / h_s;
+          cov += w * w * cov_by_source[accepted.source[i]];
+        }
+        out_cov->push_back(cov);
+      }
     }
     segment_begin = segment_end;
   }
@@ -156,6 +180,14 @@ VelocitySeries DifferentiatePositions(std::span<const core::Time> t_ns,
                                       std::span<const Eigen::Vector3d> p_Ss,
                                       const DifferentiationOptions& options,
                                       DifferentiationStats* stats) {
+  return DifferentiatePositions(t_ns, p_Ss, {}, options, stats);
+}
+
+VelocitySeries DifferentiatePositions(std::span<const core::Time> t_ns,
+                                      std::span<const Eigen::Vector3d> p_Ss,
+                                      std::span<const Eigen::Matrix3d> cov_p_m2,
+                                      const DifferentiationOptions& options,
+                                      DifferentiationStats* stats) {
   DifferentiationStats local;
   DifferentiationStats& st = stats != nullptr ? *stats : local;
   st = DifferentiationStats{};
@@ -170,7 +202,10 @@ VelocitySeries DifferentiatePositions(std::span<const core::Time> t_ns,
   auto relative = [&](std::size_t k, std::size_t i) -> Eigen::Vector3d {
     return p_Ss[accepted.source[i]] - p_Ss[accepted.source[k]];
   };
-  FitAll(accepted, options, relative, out.t_ns, out.v_mps, st);
+  const bool with_covariance = cov_p_m2.size() >= n && n > 0;
+  FitAll(accepted, options, relative, out.t_ns, out.v_mps, st,
+         with_covariance ? cov_p_m2.data() : nullptr,
+         with_covariance ? &out.cov_m2ps2 : nullptr);
   return out;
 }
 

@@ -99,6 +99,14 @@ VelocitySeries DifferentiatePositions(std::span<const core::Time> t_ns,
                                       std::span<const Eigen::Vector3d> p_Ss,
                                       const DifferentiationOptions& options = {},
                                       DifferentiationStats* stats = nullptr);
+/// The same, with each position's stated covariance [m², in S]: the output also carries
+/// each velocity's covariance Σ_i w_i² Σ_i [m²/s²], w_i the fit's linear weights (the
+/// samples' errors taken as independent). cov_p_m2 shorter than the positions: none.
+VelocitySeries DifferentiatePositions(std::span<const core::Time> t_ns,
+                                      std::span<const Eigen::Vector3d> p_Ss,
+                                      std::span<const Eigen::Matrix3d> cov_p_m2,
+                                      const DifferentiationOptions& options = {},
+                                      DifferentiationStats* stats = nullptr);
 
 /// A body angular-rate stream, strictly increasing timestamps.
 struct AngularRateSeries {

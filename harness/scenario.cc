@@ -105,7 +105,10 @@ ConsistencyConfig ReadConsistency(const YamlValue& value) {
     config.metrics.clear();
     for (const YamlValue& item : metrics->List(/*non_empty=*/true)) {
       const auto metric = estimator::MetricFromName(item.String());
-      if (!metric) item.FailExpected("one of mae, pcc, kl, cm");
+      // nis needs the streams' stated covariances, which only the consensus carries.
+      if (!metric || *metric == estimator::ConsistencyMetric::kNis) {
+        item.FailExpected("one of mae, pcc, kl, cm");
+      }
       config.metrics.push_back(*metric);
     }
   }
@@ -165,9 +168,19 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   }
   if (const auto consensus = map.Optional("consensus")) {
     ConsensusConfig& c = config.consensus;
-    YamlMap cmap = consensus->Map({"threshold", "leave_threshold", "min_dwell_s", "fuse",
-                                   "return_to_priority", "priority", "window_s", "rate_hz"});
-    ReadNumber(cmap, "threshold", NumberRule::Between(1e-6, 100.0, "m/s"), &c.threshold);
+    YamlMap cmap = consensus->Map({"metric", "threshold", "leave_threshold", "min_dwell_s",
+                                   "fuse", "return_to_priority", "priority", "window_s",
+                                   "rate_hz"});
+    if (const auto metric = cmap.Optional("metric")) {
+      const auto parsed = estimator::MetricFromName(metric->String());
+      if (!parsed || (*parsed != estimator::ConsistencyMetric::kCm &&
+                      *parsed != estimator::ConsistencyMetric::kNis)) {
+        metric->FailExpected("cm or nis");
+      }
+      c.metric = *parsed;
+    }
+    ReadNumber(cmap, "threshold", NumberRule::Between(1e-6, 100.0, "m/s for cm, unitless for nis"),
+               &c.threshold);
     if (const auto leave = cmap.Optional("leave_threshold")) {
       c.leave_threshold = leave->Number(NumberRule::Between(1e-6, 100.0, "m/s"));
       if (*c.leave_threshold < c.threshold) {
@@ -779,6 +792,10 @@ void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
   out << YAML::EndSeq;
   const ConsensusConfig& cons = ec.consensus;
   out << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
+  // Only when not the paper's, so the run directories of cm scenarios keep their bytes.
+  if (cons.metric != estimator::ConsistencyMetric::kCm) {
+    out << YAML::Key << "metric" << YAML::Value << std::string(estimator::MetricName(cons.metric));
+  }
   EmitNumber(out, "threshold", cons.threshold);
   if (cons.leave_threshold) EmitNumber(out, "leave_threshold", *cons.leave_threshold);
   EmitNumber(out, "min_dwell_s", cons.min_dwell_s);

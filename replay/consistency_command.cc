@@ -92,7 +92,14 @@ e.g. a gap longer than the window). Written to --out (complete, then renamed int
 or to stdout. Exit codes: 0 ok, 2 bad input.)";
 
 ConsistencyMetric ParseConsistencyMetric(std::string_view name) {
-  if (const auto metric = estimator::MetricFromName(name)) return *metric;
+  const auto metric = estimator::MetricFromName(name);
+  if (metric == estimator::ConsistencyMetric::kNis) {
+    throw InputError({"--metric"}, "",
+                     fmt::format("metric 'nis' needs each sample's stated covariance, which "
+                                 "these velocity CSVs do not carry (a scenario's consensus "
+                                 "can use it); expected one of: {}", MetricList()));
+  }
+  if (metric) return *metric;
   throw InputError({"--metric"}, "",
                    fmt::format("unknown metric '{}', expected one of: {}", name, MetricList()));
 }

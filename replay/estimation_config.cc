@@ -39,6 +39,7 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
     spec.absolute_position = config.absolute_positions;
   }
   setup.consensus.selection = SelectionOptions(config.consensus);
+  setup.consensus.consistency.metric = config.consensus.metric;
   setup.consensus.consistency.consistency.window_ns =
       core::SecondsToTime(config.consensus.window_s);
   setup.consensus.consistency.history_ns =

@@ -20,7 +20,10 @@ struct RecordedLog;
 
 /// `estimation.consensus` in a scenario (and the options of `consensus` methods).
 struct ConsensusConfig {
-  double threshold = 0.1;                 ///< CM distance (m/s), paper: 0.1
+  /// The pairs' consistency metric: cm (the paper's Cramér-von Mises distance, m/s) or
+  /// nis (normalised by the sensors' stated covariances, unitless; consistency.h).
+  estimator::ConsistencyMetric metric = estimator::ConsistencyMetric::kCm;
+  double threshold = 0.1;                 ///< below it a pair is consistent; CM paper: 0.1 m/s
   std::optional<double> leave_threshold;  ///< hysteresis; unset = paper
   double min_dwell_s = 0.0;               ///< 0 = paper
   /// `fuse`: pair_member (one sensor of the most consistent pair, the paper) or

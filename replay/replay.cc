@@ -133,7 +133,7 @@ std::string ConsistencyMatrixCsv(const ReplayResult& result) {
   std::string csv = "#timestamp [ns],pair,metric,value\n";
   for (const estimator::ConsensusRecord& r : result.consensus) {
     for (const auto& [pair, value] : r.values) {
-      csv += fmt::format("{},{},cm,{}\n", r.window_end_ns, pair,
+      csv += fmt::format("{},{},{},{}\n", r.window_end_ns, pair, estimator::MetricName(r.metric),
                          value ? fmt::format("{:.6g}", *value) : std::string());
     }
   }

@@ -256,10 +256,12 @@ def main():
         no_data(fused_ax, "no decisions.csv")
 
     # (e) consistency per pair, threshold dashed.
+    metrics_seen = set()
     for index, method in enumerate(method_order(consistency)):
         series = collections.defaultdict(list)
         for t, pair, metric, value in consistency[method]:
             series[(pair, metric)].append((t, value))
+            metrics_seen.add(metric)
         for k, ((pair, metric), points) in enumerate(sorted(series.items())):
             data = np.array(sorted(points))
             label = f"{pair} ({metric})"
@@ -275,7 +277,8 @@ def main():
                         label=f"threshold {method} ({threshold:g})")
     if consistency:
         cons_ax.set_yscale("log")  # the threshold region and a divergence's values together
-    cons_ax.set_ylabel("CM distance (eq. 5)")
+    ylabels = {"cm": "CM distance (eq. 5) [m/s]", "nis": "normalised squared difference per dof"}
+    cons_ax.set_ylabel(" / ".join(ylabels.get(m, m) for m in sorted(metrics_seen)) or "CM distance (eq. 5)")
     cons_ax.set_title("consistency between sensors (and against the local estimate)")
     if consistency:
         cons_ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)

@@ -293,6 +293,27 @@ TEST(EstimationScenario, PriorityMustNameSensorsAndThresholdsMustBeOrdered) {
   EXPECT_NE(error.find("pair_member or consistent_set"), std::string::npos) << error;
 }
 
+// The consensus compares by cm (the paper) or nis; the other metrics of the consistency
+// block are not decision rules, and nis needs the stated covariances only consensus has.
+TEST(EstimationScenario, ConsensusMetricIsCmOrNisAndRoundTripsOnlyWhenNotThePapers) {
+  EXPECT_EQ(ErrorOf(With("threshold: 0.3,", "metric: nis, threshold: 3,")), "");
+  const std::string error = ErrorOf(With("threshold: 0.3,", "metric: kl, threshold: 0.3,"));
+  EXPECT_NE(error.find("bad.yaml:19:"), std::string::npos) << error;
+  EXPECT_NE(error.find("cm or nis"), std::string::npos) << error;
+  const harness::Scenario nis =
+      harness::ParseScenario(With("threshold: 0.3,", "metric: nis, threshold: 3,"), "nis.yaml");
+  ASSERT_TRUE(nis.estimation.has_value());
+  EXPECT_EQ(nis.estimation->consensus.metric, estimator::ConsistencyMetric::kNis);
+  const std::string echoed = harness::ResolvedScenarioYaml(nis);
+  EXPECT_NE(echoed.find("metric: nis"), std::string::npos) << echoed;
+  const harness::Scenario again = harness::ParseScenario(echoed, "echoed.yaml");
+  EXPECT_EQ(again.estimation->consensus.metric, estimator::ConsistencyMetric::kNis);
+  // The paper's metric is not written: the run directories of cm scenarios keep their bytes.
+  const std::string cm = harness::ResolvedScenarioYaml(harness::ParseScenario(kScenario, "cm.yaml"));
+  EXPECT_EQ(cm.find("metric: cm"), std::string::npos) << cm;
+  EXPECT_EQ(cm.find("metric: nis"), std::string::npos) << cm;
+}
+
 TEST(EstimationScenario, ExpectationsMustNameListedMethodsAndKnownRelativeMetrics) {
   std::string error = ErrorOf(With("methods.naive.ate_m, max: 0.5", "methods.naive.ate_m, max: 0.5}\n  - {metric: methods.single:lio.ate_m, max: 1"));
   EXPECT_NE(error.find("bad.yaml:23:"), std::string::npos) << error;

@@ -643,6 +643,16 @@ TEST(ConsistencyOptions, EachBrokenLimitIsNamedAlsoThroughTheMatrixOptions) {
   o = {};
   o.min_samples = 0;
   broken.emplace_back("min_samples", o);
+  for (const double bad : {0.0, -1.0, kNaN, std::numeric_limits<double>::infinity()}) {
+    o = {};
+    o.unobserved_std_mps = bad;
+    broken.emplace_back("unobserved_std_mps", o);
+  }
+  for (const double bad : {-0.001, kNaN, 1.0}) {  // 1.0: not below unobserved_std_mps
+    o = {};
+    o.std_floor_mps = bad;
+    broken.emplace_back("std_floor_mps", o);
+  }
   for (const auto& [field, options] : broken) {
     EXPECT_FALSE(options.IsValid(&why)) << field;
     EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
@@ -662,6 +672,145 @@ TEST(ConsistencyOptions, EachBrokenLimitIsNamedAlsoThroughTheMatrixOptions) {
   few.max_samples_per_stream = 1;
   EXPECT_FALSE(few.IsValid(&why));
   EXPECT_NE(why.find("max_samples_per_stream"), std::string::npos) << why;
+}
+
+// ---- kNis: velocity differences normalised by what each stream states ----
+
+// A 50 Hz stream of a sinusoidal velocity plus Gaussian noise of the stated per-axis
+// standard deviations (and a constant bias), each sample stating that covariance.
+VelocitySeries NoisyStream(double duration_s, const Eigen::Vector3d& sd_mps,
+                           const Eigen::Vector3d& bias_mps, const char* name) {
+  core::RandomStream random(3, name);
+  VelocitySeries series;
+  const core::Time period_ns = 20'000'000;
+  for (core::Time t = period_ns; t <= core::SecondsToTime(duration_s); t += period_ns) {
+    const double t_s = core::TimeToSeconds(t);
+    const Eigen::Vector3d truth(std::sin(t_s), 0.5 * std::cos(0.7 * t_s), 0.2);
+    Eigen::Vector3d noise;
+    for (int axis = 0; axis < 3; ++axis) noise[axis] = sd_mps[axis] * random.Normal();
+    series.t_ns.push_back(t);
+    series.v_mps.push_back(truth + bias_mps + noise);
+    series.cov_m2ps2.push_back(sd_mps.cwiseAbs2().asDiagonal());
+  }
+  return series;
+}
+
+ConsistencyOptions NisOptions(double window_s) {
+  ConsistencyOptions o;
+  o.window_ns = core::SecondsToTime(window_s);
+  o.std_floor_mps = 0.0;  // the streams state their whole noise
+  return o;
+}
+
+// Mean of χ²(k)/k over k = 3 × 1000 degrees of freedom: sd √(2/k) = 0.026 (the samples of
+// a pair are independent here), so 4 sd = 0.10.
+TEST(NisConsistency, ConsistentStreamsAverageOnePerDegreeOfFreedomWhateverTheirNoise) {
+  const double kTolerance = 4.0 * std::sqrt(2.0 / 3000.0);
+  const ConsistencyOptions options = NisOptions(20.0);
+  const Eigen::Vector3d zero = Eigen::Vector3d::Zero();
+  const VelocitySeries total_station = NoisyStream(20.0, Eigen::Vector3d::Constant(0.01), zero, "ts");
+  const VelocitySeries vio = NoisyStream(20.0, Eigen::Vector3d::Constant(0.02), zero, "vio");
+  const VelocitySeries gnss = NoisyStream(20.0, Eigen::Vector3d(0.5, 0.5, 0.9), zero, "gnss");
+  const core::Time t_end = core::SecondsToTime(20.0);
+  for (const auto& [a, b] : {std::pair(&total_station, &vio), std::pair(&total_station, &gnss),
+                             std::pair(&vio, &gnss)}) {
+    const std::optional<double> value =
+        WindowConsistency(*a, *b, t_end, ConsistencyMetric::kNis, options);
+    ASSERT_TRUE(value.has_value());
+    EXPECT_NEAR(*value, 1.0, kTolerance);
+  }
+}
+
+// A bias β along one axis adds β²/σ² to that axis's term: (3 + 9) / 3 = 4 per dof for a
+// 3σ bias on x. The noncentral χ²'s sd per term is √(2 + 4λ) on that axis: over 1000
+// samples the ratio's sd is < 0.05; 0.25 is 5 of them.
+TEST(NisConsistency, ABiasShowsAsItsSquareOverThePairsVariance) {
+  const ConsistencyOptions options = NisOptions(20.0);
+  const Eigen::Vector3d sd(0.03, 0.03, 0.03);
+  const Eigen::Vector3d combined_sd = std::sqrt(2.0) * sd;
+  const VelocitySeries a = NoisyStream(20.0, sd, Eigen::Vector3d::Zero(), "a");
+  const VelocitySeries b =
+      NoisyStream(20.0, sd, Eigen::Vector3d(3.0 * combined_sd.x(), 0.0, 0.0), "b");
+  const std::optional<double> value =
+      WindowConsistency(a, b, core::SecondsToTime(20.0), ConsistencyMetric::kNis, options);
+  ASSERT_TRUE(value.has_value());
+  EXPECT_NEAR(*value, 4.0, 0.25);
+  // The same bias judged by the paper's CM distance is a fixed number of m/s, whatever
+  // the noise: what a threshold in m/s cannot tell apart.
+}
+
+// A LiDAR odometry degenerate along x states a huge variance there: a bias along x (its
+// drift) neither votes nor is voted down, and the other two axes still compare.
+TEST(NisConsistency, AnUnobservedDirectionNeitherVotesNorIsVotedDown) {
+  ConsistencyOptions options = NisOptions(20.0);
+  options.unobserved_std_mps = 1.0;
+  const VelocitySeries reference =
+      NoisyStream(20.0, Eigen::Vector3d::Constant(0.02), Eigen::Vector3d::Zero(), "ref");
+  const VelocitySeries degenerate =
+      NoisyStream(20.0, Eigen::Vector3d(3.0, 0.02, 0.02), Eigen::Vector3d(2.0, 0.0, 0.0), "lio");
+  const core::Time t_end = core::SecondsToTime(20.0);
+  const std::optional<double> value =
+      WindowConsistency(reference, degenerate, t_end, ConsistencyMetric::kNis, options);
+  ASSERT_TRUE(value.has_value());
+  // Two observed axes of 1000 samples: sd √(2/2000) = 0.032.
+  EXPECT_NEAR(*value, 1.0, 4.0 * std::sqrt(2.0 / 2000.0));
+  // Observed (the cap above its 3 m/s), the degenerate axis does vote: its bias of 2 m/s
+  // over 3 m/s adds 0.44 / 3 and its noise its own 1.
+  options.unobserved_std_mps = 10.0;
+  const std::optional<double> voting =
+      WindowConsistency(reference, degenerate, t_end, ConsistencyMetric::kNis, options);
+  ASSERT_TRUE(voting.has_value());
+  EXPECT_NEAR(*voting, 1.0 + (4.0 / 9.0) / 3.0, 0.1);
+  // Fully unobserved: unavailable, not consistent.
+  options.unobserved_std_mps = 0.01;
+  EXPECT_FALSE(WindowConsistency(reference, degenerate, t_end, ConsistencyMetric::kNis, options));
+}
+
+TEST(NisConsistency, StreamsThatStateNothingAreUnavailableAndOneSidedStatementsNormalise) {
+  const ConsistencyOptions options = NisOptions(20.0);
+  VelocitySeries a = NoisyStream(20.0, Eigen::Vector3d::Constant(0.05), Eigen::Vector3d::Zero(), "a");
+  VelocitySeries exact = NoisyStream(20.0, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), "exact");
+  const core::Time t_end = core::SecondsToTime(20.0);
+  exact.cov_m2ps2.clear();  // states nothing (the local estimate): taken as exact
+  const std::optional<double> one_sided =
+      WindowConsistency(a, exact, t_end, ConsistencyMetric::kNis, options);
+  ASSERT_TRUE(one_sided.has_value());
+  EXPECT_NEAR(*one_sided, 1.0, 4.0 * std::sqrt(2.0 / 3000.0));
+  a.cov_m2ps2.clear();
+  EXPECT_FALSE(WindowConsistency(a, exact, t_end, ConsistencyMetric::kNis, options));
+}
+
+// The matrix keeps each stream's covariances beside its samples through drops and the cap,
+// and gives the same value as WindowConsistency; a sample added without one in a stream
+// that states them is skipped, not taken as exact.
+TEST(NisConsistency, TheMatrixKeepsCovariancesInStepWithTheSamples) {
+  ConsistencyMatrixOptions options;
+  options.metric = ConsistencyMetric::kNis;
+  options.consistency = NisOptions(1.0);
+  options.history_ns = 2'000'000'000;
+  ConsistencyMatrix matrix({"a", "b"}, options);
+  const VelocitySeries a = NoisyStream(20.0, Eigen::Vector3d::Constant(0.05), Eigen::Vector3d::Zero(), "a");
+  const VelocitySeries b = NoisyStream(20.0, Eigen::Vector3d::Constant(0.05), Eigen::Vector3d::Zero(), "b");
+  for (std::size_t k = 0; k < a.t_ns.size(); ++k) {
+    matrix.Add(0, a.t_ns[k], a.v_mps[k], &a.cov_m2ps2[k]);
+    matrix.Add(1, b.t_ns[k], b.v_mps[k], &b.cov_m2ps2[k]);
+  }
+  for (int stream = 0; stream < 2; ++stream) {
+    EXPECT_LT(matrix.StoredSamples(stream), a.t_ns.size());  // old ones were dropped
+    EXPECT_EQ(matrix.Samples(stream).cov_m2ps2.size(), matrix.StoredSamples(stream));
+  }
+  const core::Time t_end = a.t_ns.back();
+  matrix.Evaluate(t_end);
+  const std::optional<double> direct = WindowConsistency(
+      matrix.Samples(0), matrix.Samples(1), t_end, ConsistencyMetric::kNis, options.consistency);
+  ASSERT_TRUE(matrix.Value(0, 1).has_value());
+  EXPECT_EQ(*matrix.Value(0, 1), *direct);
+  // A huge difference in a sample that states no covariance does not count.
+  matrix.Add(0, t_end + 20'000'000, Eigen::Vector3d::Constant(100.0));
+  matrix.Add(1, t_end + 20'000'000, b.v_mps.back(), &b.cov_m2ps2.back());
+  matrix.Evaluate(t_end + 20'000'000);
+  ASSERT_TRUE(matrix.Value(0, 1).has_value());
+  EXPECT_LT(*matrix.Value(0, 1), 3.0);
 }
 
 }  // namespace
