@@ -21,6 +21,7 @@
 #include "sim/gnss.h"
 #include "sim/imu.h"
 #include "sim/lidar_odometry.h"
+#include "sim/min_snap.h"
 #include "sim/total_station.h"
 #include "sim/vio.h"
 #include "sim/wind.h"
@@ -84,7 +85,8 @@ using OptionTypes =
     ::testing::Types<core::LidarBeamPattern, sim::ImuOptions, sim::VioOptions,
                      sim::LidarOdometryOptions,
                      sim::TotalStationOptions, sim::GnssOptions, sim::GnssFixErrorOptions,
-                     sim::WindOptions, sim::ControllerOptions>;
+                     sim::WindOptions, sim::ControllerOptions,
+                     sim::min_snap::MinimumDerivativeOptions>;
 TYPED_TEST_SUITE(OptionFieldsTest, OptionTypes);
 
 TYPED_TEST(OptionFieldsTest, DefaultsAreValid) {
@@ -195,6 +197,26 @@ TEST(OptionFields, CrossFieldRulesNameTheirKey) {
   sim::GnssOptions nested;
   nested.rtk_float.std_horizontal_m = -1.0;
   EXPECT_EQ(Why(nested).rfind("rtk_float.std_horizontal_m: ", 0), 0u) << Why(nested);
+}
+
+// sim::WorldOptions has no valid default (a world must be named): its table is checked here.
+TEST(OptionFields, WorldOptionsNameTheBrokenField) {
+  sim::WorldOptions world{.world = "indoor_arena"};
+  std::string why;
+  EXPECT_TRUE(world.IsValid(&why)) << why;
+  EXPECT_EQ(Why(sim::WorldOptions{}).rfind("world: expected a name", 0), 0u)
+      << Why(sim::WorldOptions{});
+
+  sim::WorldOptions rate = world;
+  rate.physics_rate_hz = 50.0;
+  EXPECT_EQ(Why(rate), "rate_hz: expected a number in [100, 10000] (Hz), got 50");
+  sim::WorldOptions robot = world;
+  robot.robot = "OMAV";
+  EXPECT_EQ(Why(robot).rfind("robot: expected a name", 0), 0u) << Why(robot);
+  sim::WorldOptions horizon = world;
+  horizon.distance_horizon_m = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(Why(horizon).rfind("distance_horizon_m: expected a finite number", 0), 0u)
+      << Why(horizon);
 }
 
 // ---- constructors validate ----
