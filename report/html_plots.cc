@@ -174,90 +174,111 @@ std::vector<PlotBand> FaultBands(const renders::RunData& data) {
   return bands;
 }
 
+namespace {
+
+// What every plot of a run page shares: the method colours and the fault bands.
+struct PlotContext {
+  std::map<std::string, std::string> colors;
+  std::vector<PlotBand> bands;
+  std::string shaded;  ///< the caption's note on the bands ("" without faults)
+};
+
+// Every method's position error against ground truth (errors.csv).
+std::string PositionErrorPlot(const RunInputs& in, const PlotContext& plot) {
+  if (in.data.errors.empty()) return {};
+  PlotSpec spec;
+  spec.id = "position-error";
+  spec.title = "Position error of each method";
+  spec.caption =
+      E("Every method's position error against ground truth after its SE(3) "
+        "alignment (errors.csv, invalid estimates left out)." +
+        plot.shaded);
+  spec.y_label = "position error [m]";
+  spec.unit = "m";
+  spec.bands = plot.bands;
+  std::map<std::string, PlotSeries> by_method;
+  for (const renders::ErrorRow& r : in.data.errors) {
+    PlotSeries& s = by_method[r.method];
+    s.t_s.push_back(static_cast<double>(r.t_ns) * 1e-9);
+    s.value.push_back(r.position_error_m);
+  }
+  for (auto& [name, s] : by_method) {
+    s.name = name;
+    s.color = plot.colors.at(name);
+    s.dashed = name.ends_with("@clean");
+    // errors.csv interleaves methods by time; each series must be time-ordered.
+    std::vector<size_t> order(s.t_s.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::stable_sort(order.begin(), order.end(),
+                     [&](size_t a, size_t b) { return s.t_s[a] < s.t_s[b]; });
+    PlotSeries sorted = s;
+    for (size_t i = 0; i < order.size(); ++i) {
+      sorted.t_s[i] = s.t_s[order[i]];
+      sorted.value[i] = s.value[order[i]];
+    }
+    spec.series.push_back(std::move(sorted));
+  }
+  return PlotHtml(std::move(spec));
+}
+
+// The ground-truth flight's and each closed-loop flight's tracking error.
+std::string TrackingErrorPlot(const RunInputs& in, const PlotContext& plot) {
+  PlotSpec spec;
+  spec.id = "tracking-error";
+  spec.title = "Tracking error of the flight";
+  spec.caption =
+      E("True position against the reference: the ground-truth flight (tracking.csv)" +
+        std::string(in.closed_loop.empty() ? "."
+                                           : " and each closed-loop flight, flown on a method's "
+                                             "estimate (closed_loop/<method>/control.csv).") +
+        plot.shaded);
+  spec.y_label = "position off the reference [m]";
+  spec.unit = "m";
+  spec.bands = plot.bands;
+  if (!in.tracking.t_s.empty()) {
+    spec.series.push_back(
+        {"ground-truth flight", "#57606a", false, in.tracking.t_s, in.tracking.value});
+  }
+  for (const auto& [method, flight] : in.closed_loop) {
+    spec.series.push_back(
+        {"flown on " + method, plot.colors.at(method), false, flight.first.t_s, flight.first.value});
+  }
+  return spec.series.empty() ? std::string() : PlotHtml(std::move(spec));
+}
+
+// Each closed-loop flight's distance to the nearest structure.
+std::string StructureDistancePlot(const RunInputs& in, const PlotContext& plot) {
+  if (in.closed_loop.empty()) return {};
+  PlotSpec spec;
+  spec.id = "structure-distance";
+  spec.title = "Distance to the nearest structure";
+  spec.caption =
+      E("Each closed-loop flight's distance from the robot to the nearest structure "
+        "within the distance horizon (closed_loop/<method>/control.csv); at or below "
+        "zero the robot touches it." +
+        plot.shaded);
+  spec.y_label = "distance to structure [m]";
+  spec.unit = "m";
+  spec.y_from_zero = false;
+  spec.bands = plot.bands;
+  for (const auto& [method, flight] : in.closed_loop) {
+    // Empty where the structure is beyond the distance horizon.
+    if (!HasValues(flight.second.value)) continue;
+    spec.series.push_back(
+        {"flown on " + method, plot.colors.at(method), false, flight.second.t_s, flight.second.value});
+  }
+  return spec.series.empty() ? std::string() : PlotHtml(std::move(spec));
+}
+
+}  // namespace
+
 std::string PlotsSection(const RunInputs& in) {
-  const std::vector<PlotBand> bands = FaultBands(in.data);
-  const std::map<std::string, std::string> colors = MethodColors(in);
-  const std::string shaded = bands.empty() ? "" : " Shaded: scheduled faults (labels.csv).";
-  std::string out;
-  if (!in.data.errors.empty()) {
-    PlotSpec spec;
-    spec.id = "position-error";
-    spec.title = "Position error of each method";
-    spec.caption =
-        E("Every method's position error against ground truth after its SE(3) "
-          "alignment (errors.csv, invalid estimates left out)." +
-          shaded);
-    spec.y_label = "position error [m]";
-    spec.unit = "m";
-    spec.bands = bands;
-    std::map<std::string, PlotSeries> by_method;
-    for (const renders::ErrorRow& r : in.data.errors) {
-      PlotSeries& s = by_method[r.method];
-      s.t_s.push_back(static_cast<double>(r.t_ns) * 1e-9);
-      s.value.push_back(r.position_error_m);
-    }
-    for (auto& [name, s] : by_method) {
-      s.name = name;
-      s.color = colors.at(name);
-      s.dashed = name.ends_with("@clean");
-      // errors.csv interleaves methods by time; each series must be time-ordered.
-      std::vector<size_t> order(s.t_s.size());
-      for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-      std::stable_sort(order.begin(), order.end(),
-                       [&](size_t a, size_t b) { return s.t_s[a] < s.t_s[b]; });
-      PlotSeries sorted = s;
-      for (size_t i = 0; i < order.size(); ++i) {
-        sorted.t_s[i] = s.t_s[order[i]];
-        sorted.value[i] = s.value[order[i]];
-      }
-      spec.series.push_back(std::move(sorted));
-    }
-    out += PlotHtml(std::move(spec));
-  }
-  {
-    PlotSpec spec;
-    spec.id = "tracking-error";
-    spec.title = "Tracking error of the flight";
-    spec.caption =
-        E("True position against the reference: the ground-truth flight (tracking.csv)" +
-          std::string(in.closed_loop.empty() ? "."
-                                             : " and each closed-loop flight, flown on a method's "
-                                               "estimate (closed_loop/<method>/control.csv).") +
-          shaded);
-    spec.y_label = "position off the reference [m]";
-    spec.unit = "m";
-    spec.bands = bands;
-    if (!in.tracking.t_s.empty()) {
-      spec.series.push_back(
-          {"ground-truth flight", "#57606a", false, in.tracking.t_s, in.tracking.value});
-    }
-    for (const auto& [method, flight] : in.closed_loop) {
-      spec.series.push_back(
-          {"flown on " + method, colors.at(method), false, flight.first.t_s, flight.first.value});
-    }
-    if (!spec.series.empty()) out += PlotHtml(std::move(spec));
-  }
-  if (!in.closed_loop.empty()) {
-    PlotSpec spec;
-    spec.id = "structure-distance";
-    spec.title = "Distance to the nearest structure";
-    spec.caption =
-        E("Each closed-loop flight's distance from the robot to the nearest structure "
-          "within the distance horizon (closed_loop/<method>/control.csv); at or below "
-          "zero the robot touches it." +
-          shaded);
-    spec.y_label = "distance to structure [m]";
-    spec.unit = "m";
-    spec.y_from_zero = false;
-    spec.bands = bands;
-    for (const auto& [method, flight] : in.closed_loop) {
-      // Empty where the structure is beyond the distance horizon.
-      if (!HasValues(flight.second.value)) continue;
-      spec.series.push_back(
-          {"flown on " + method, colors.at(method), false, flight.second.t_s, flight.second.value});
-    }
-    if (!spec.series.empty()) out += PlotHtml(std::move(spec));
-  }
+  PlotContext plot;
+  plot.bands = FaultBands(in.data);
+  plot.colors = MethodColors(in);
+  plot.shaded = plot.bands.empty() ? "" : " Shaded: scheduled faults (labels.csv).";
+  const std::string out =
+      PositionErrorPlot(in, plot) + TrackingErrorPlot(in, plot) + StructureDistancePlot(in, plot);
   if (out.empty()) return {};
   return Section("plots", "Errors over time", out);
 }
