@@ -210,6 +210,8 @@ class Chooser {
     return out;
   }
 
+  // Long by design: the consistent-set rule (dwell, eligibility, agreement, the set and its
+  // tie-breaks) as the seed paper states it, one decision.
   Selection ConsistentSet() const {
     // Within the dwell: keep what is still eligible and still agrees.
     if (hold_) {

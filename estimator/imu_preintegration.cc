@@ -20,6 +20,8 @@ void ImuPreintegration::Reset(const ImuBias& bias_linearisation) {
   *this = ImuPreintegration(bias_linearisation, noise_);
 }
 
+// Long by design: one discrete step of Forster et al.'s preintegration (Jacobians, covariance,
+// bias Jacobians, deltas) sharing the step's terms, in the paper's order.
 void ImuPreintegration::Integrate(const Eigen::Vector3d& accel_I_mps2,
                                   const Eigen::Vector3d& gyro_I_radps, double dt_s) {
   if (!std::isfinite(dt_s) || dt_s < 0.0) {

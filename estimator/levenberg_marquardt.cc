@@ -39,6 +39,8 @@ bool LmOptions::IsValid(std::string* why) const {
   return true;
 }
 
+// Long by design: the Levenberg-Marquardt loop with its termination tests, as Madsen et al.
+// write it; the tests share the step's model decrease and trust region.
 LmSummary MinimizeLm(LmProblem& problem, const LmOptions& options) {
   using Clock = std::chrono::steady_clock;
   const Clock::time_point start = Clock::now();

@@ -62,6 +62,8 @@ Eigen::MatrixXd AmbientFromTangent(const MarginalBlock& block, const double* x,
 
 }  // namespace
 
+// Long by design: one linear-algebra sequence (column layout, H and b, Schur complement,
+// factor into a prior) whose steps share the column layout; kept in the order of the math.
 bool Marginalize(const std::vector<MarginalFactor>& factors,
                  const std::vector<double*>& marginalised, LinearPrior* prior,
                  double relative_eigenvalue_floor) {

@@ -93,6 +93,8 @@ void MissionFrame::Forget(const std::string& sensor) { pairs_.erase(sensor); }
 // positions against the local estimate (below), if the window is fresh, precise (stated
 // std) and explained by the fit (χ² per degree of freedom), with the variance of the
 // robot's position in M and of the heading.
+// Long by design: the gates (fresh, precise, explained) and the 4-DoF fit share the
+// window's weighted sums; one sequence that reads against the derivation.
 std::optional<MissionFrame::Target> MissionFrame::Fit(core::Time t_ns, const std::string& sensor,
                                                       const Eigen::Vector3d& p_LI,
                                                       double current_yaw_ML_rad) const {

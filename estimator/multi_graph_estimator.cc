@@ -250,6 +250,8 @@ struct MultiGraphEstimator::Impl {
   }
 
   // ---- initialisation at the first fused measurement ----
+  // Long by design: the first state at the first fused sample, attitude from gravity (at
+  // rest or in motion) then the gauge (yaw, origin) from the sensor, built on one state.
   void Initialize(SensorState& sensor, const core::StampedMeasurement& m) {
     const core::Time t = m.t_ns;
     NavState state;

@@ -95,6 +95,8 @@ struct LinearSolution {
 // Weighted least squares over x = [v_0 … v_N, g (3, or 2 tangent coordinates w with
 // g = G ĝ + B w), b_a]. Rows per interval k: position (3) and velocity (3) equations of
 // the header; plus the accelerometer-bias prior.
+// Long by design: the rows of one least-squares system written as the equations above,
+// then its solve; splitting would scatter the row layout across functions.
 std::optional<LinearSolution> SolveVelocitiesGravity(
     const std::vector<ImuPoseInA>& poses, const std::vector<Interval>& intervals,
     const std::optional<Eigen::Vector3d>& g_direction, double position_std_m,

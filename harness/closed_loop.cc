@@ -74,6 +74,8 @@ sim::RobotState ClosedLoopPilot::StateOf(core::Time t_ns,
   return state;
 }
 
+// Long by design: the pilot's decision at one step (stale or invalid estimate, failsafe,
+// landing) in priority order, on the same command.
 ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
                                               const estimator::EstimatorOutput& newest,
                                               const sim::Reference& mission) {

@@ -6,6 +6,7 @@
 
 #include <initializer_list>
 #include <span>
+#include <stdexcept>
 #include <string>
 #include <string_view>
 #include <variant>
@@ -57,16 +58,32 @@ std::vector<std::string_view> OptionKeys(std::span<const core::OptionField<Optio
   return keys;
 }
 
+/// The format of the field written under `key` (a key of the table: a file whose keys
+/// stand in different maps, such as a scenario's world, reads each where it stands).
+template <typename Options>
+const core::FieldFormat& FieldFormatOf(std::span<const core::OptionField<Options>> fields,
+                                       std::string_view key) {
+  for (const core::OptionField<Options>& field : fields) {
+    if (field.format.key == key) return field.format;
+  }
+  throw std::logic_error("no option field '" + std::string(key) + "'");
+}
+
+/// One field read from `value` into *options.
+template <typename Options>
+void ReadOptionField(const YamlValue& value, const core::OptionField<Options>& field,
+                     Options* options) {
+  std::visit([&](auto member) { ReadFieldValue(value, field.format, &(options->*member)); },
+             field.member);
+}
+
 /// Reads every field whose key `map` has into *options; absent keys keep the values
 /// *options already holds (the struct's defaults), so defaults are written once.
 template <typename Options>
 void ReadOptionFields(YamlMap& map, std::span<const core::OptionField<Options>> fields,
                       Options* options) {
   for (const core::OptionField<Options>& field : fields) {
-    if (const auto value = map.Optional(field.format.key)) {
-      std::visit([&](auto member) { ReadFieldValue(*value, field.format, &(options->*member)); },
-                 field.member);
-    }
+    if (const auto value = map.Optional(field.format.key)) ReadOptionField(*value, field, options);
   }
 }
 

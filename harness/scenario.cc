@@ -38,11 +38,14 @@ using replay::EstimationConfig;
 
 namespace {
 
+using internal::EmitFieldValue;
 using internal::EmitOptionFields;
+using internal::FieldFormatOf;
 using internal::FinishOptionsMap;
 using core::FormatDouble;
 using core::NumberRule;
 using internal::OptionKeys;
+using internal::ReadFieldValue;
 using internal::ReadOptionFields;
 using namespace internal::config;
 
@@ -269,6 +272,79 @@ void EmitMission(YAML::Emitter& out, const MissionConfig& mission) {
   out << YAML::EndMap;
 }
 
+// control.methods: methods of the scenario's estimation: block, flown with an estimate.
+std::vector<std::string> ReadControlMethods(const YamlValue& methods, bool estimate,
+                                            const Scenario& scenario) {
+  std::vector<std::string> flown;
+  if (!estimate) {
+    methods.Fail("methods are flown only with state_source: estimate (the ground-truth "
+                  "flight runs every method of estimation: open loop)");
+  }
+  if (!scenario.estimation) {
+    methods.Fail("a closed-loop method must be a method of the scenario's estimation: "
+                  "block, and the scenario has none");
+  }
+  const std::vector<std::string>& known = scenario.estimation->methods;
+  for (const YamlValue& item : methods.List(/*non_empty=*/true)) {
+    const std::string name = item.String();
+    if (std::find(known.begin(), known.end(), name) == known.end()) {
+      item.Fail(fmt::format("method '{}' is not one of estimation.methods ({}): a closed-loop "
+                            "flight flies on a method the scenario estimates",
+                            name, fmt::join(known, ", ")));
+    }
+    if (name.starts_with("imu_only")) {
+      item.Fail("imu_only has no position source and cannot fly the mission; expected a "
+                "method that fuses a sensor");
+    }
+    if (std::find(flown.begin(), flown.end(), name) != flown.end()) {
+      item.Fail(fmt::format("method '{}' is listed twice", name));
+    }
+    flown.push_back(name);
+  }
+  return flown;
+}
+
+// state_source: estimate needs methods to fly on and an IMU to propagate on; blamed on
+// state_source when it is given, else on the control block.
+void CheckEstimateSource(const YamlValue& value, const std::optional<YamlValue>& source,
+                         const ControlConfig& config, const Scenario& scenario) {
+  const auto fail = [&](const std::string& message) {
+    if (source) source->Fail(message);
+    value.Fail(message);
+  };
+  if (!scenario.estimation) {
+    fail("state_source: estimate needs an estimation: block (the methods the controller can "
+         "fly on)");
+  }
+  if (config.methods.empty()) {
+    fail("state_source: estimate needs control.methods: the estimation methods to fly on, "
+         "e.g. [consensus, naive]");
+  }
+  const bool has_imu = std::any_of(scenario.sensors.begin(), scenario.sensors.end(),
+                                   [](const SensorConfig& s) {
+                                     return std::holds_alternative<sim::ImuOptions>(s.options);
+                                   });
+  if (!has_imu) {
+    fail("state_source: estimate needs an IMU among sensors: (the estimator propagates on "
+         "it)");
+  }
+}
+
+// control.failsafe.
+FailsafeConfig ReadFailsafe(const YamlValue& failsafe) {
+  FailsafeConfig f;
+  YamlMap fmap = failsafe.Map({"hold_s", "descent_rate_mps", "land_z_m", "max_position_std_m"});
+  ReadNumber(fmap, "hold_s", NumberRule::Between(0.0, 600.0, "s"), &f.hold_s);
+  ReadNumber(fmap, "descent_rate_mps", NumberRule::Between(0.05, 5.0, "m/s"),
+             &f.descent_rate_mps);
+  ReadNumber(fmap, "land_z_m", NumberRule::Between(-100.0, 1000.0, "m"), &f.land_z_m);
+  if (const auto bound = fmap.Optional("max_position_std_m")) {
+    f.max_position_std_m = bound->Number(NumberRule::Between(1e-4, 100.0, "m"));
+  }
+  fmap.Finish();
+  return f;
+}
+
 ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
   ControlConfig config;
   YamlMap map = value.Map({"state_source", "methods", "corridor_m", "failsafe", "controller"});
@@ -296,67 +372,11 @@ ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
   }
   const bool estimate = config.state_source == ControlConfig::StateSource::kEstimate;
   if (const auto methods = map.Optional("methods")) {
-    if (!estimate) {
-      methods->Fail("methods are flown only with state_source: estimate (the ground-truth "
-                    "flight runs every method of estimation: open loop)");
-    }
-    if (!scenario.estimation) {
-      methods->Fail("a closed-loop method must be a method of the scenario's estimation: "
-                    "block, and the scenario has none");
-    }
-    const std::vector<std::string>& known = scenario.estimation->methods;
-    for (const YamlValue& item : methods->List(/*non_empty=*/true)) {
-      const std::string name = item.String();
-      if (std::find(known.begin(), known.end(), name) == known.end()) {
-        item.Fail(fmt::format("method '{}' is not one of estimation.methods ({}): a closed-loop "
-                              "flight flies on a method the scenario estimates",
-                              name, fmt::join(known, ", ")));
-      }
-      if (name.starts_with("imu_only")) {
-        item.Fail("imu_only has no position source and cannot fly the mission; expected a "
-                  "method that fuses a sensor");
-      }
-      if (std::find(config.methods.begin(), config.methods.end(), name) != config.methods.end()) {
-        item.Fail(fmt::format("method '{}' is listed twice", name));
-      }
-      config.methods.push_back(name);
-    }
+    config.methods = ReadControlMethods(*methods, estimate, scenario);
   }
-  if (estimate) {
-    const auto fail = [&](const std::string& message) {
-      if (source) source->Fail(message);
-      value.Fail(message);
-    };
-    if (!scenario.estimation) {
-      fail("state_source: estimate needs an estimation: block (the methods the controller can "
-           "fly on)");
-    }
-    if (config.methods.empty()) {
-      fail("state_source: estimate needs control.methods: the estimation methods to fly on, "
-           "e.g. [consensus, naive]");
-    }
-    const bool has_imu = std::any_of(scenario.sensors.begin(), scenario.sensors.end(),
-                                     [](const SensorConfig& s) {
-                                       return std::holds_alternative<sim::ImuOptions>(s.options);
-                                     });
-    if (!has_imu) {
-      fail("state_source: estimate needs an IMU among sensors: (the estimator propagates on "
-           "it)");
-    }
-  }
+  if (estimate) CheckEstimateSource(value, source, config, scenario);
   ReadNumber(map, "corridor_m", NumberRule::Between(0.01, 100.0, "m"), &config.corridor_m);
-  if (const auto failsafe = map.Optional("failsafe")) {
-    FailsafeConfig& f = config.failsafe;
-    YamlMap fmap = failsafe->Map({"hold_s", "descent_rate_mps", "land_z_m", "max_position_std_m"});
-    ReadNumber(fmap, "hold_s", NumberRule::Between(0.0, 600.0, "s"), &f.hold_s);
-    ReadNumber(fmap, "descent_rate_mps", NumberRule::Between(0.05, 5.0, "m/s"),
-               &f.descent_rate_mps);
-    ReadNumber(fmap, "land_z_m", NumberRule::Between(-100.0, 1000.0, "m"), &f.land_z_m);
-    if (const auto bound = fmap.Optional("max_position_std_m")) {
-      f.max_position_std_m = bound->Number(NumberRule::Between(1e-4, 100.0, "m"));
-    }
-    fmap.Finish();
-  }
+  if (const auto failsafe = map.Optional("failsafe")) config.failsafe = ReadFailsafe(*failsafe);
   map.Finish();
   return config;
 }
@@ -387,14 +407,14 @@ RenderRequest ReadRender(const YamlValue& value) {
 
 // ---- sections ----
 
-// Also hands out the rate_hz value, which later checks of other rates may blame.
+// The physics rate, a field of sim::WorldOptions (its table's key and limits). Also hands
+// out the rate_hz value, which later checks of other rates may blame.
 PhysicsOptions ReadPhysics(const YamlValue& value, std::optional<YamlValue>* rate_value) {
+  const core::FieldFormat& rate = FieldFormatOf(sim::WorldOptions::Fields(), "rate_hz");
   PhysicsOptions physics;
-  YamlMap map = value.Map({"rate_hz"});
-  *rate_value = map.Optional("rate_hz");
-  if (*rate_value) {
-    physics.rate_hz = (*rate_value)->Number(NumberRule::Between(100.0, 10000.0, "Hz"));
-  }
+  YamlMap map = value.Map({rate.key});
+  *rate_value = map.Optional(rate.key);
+  if (*rate_value) ReadFieldValue(**rate_value, rate, &physics.rate_hz);
   map.Finish();
   return physics;
 }
@@ -925,6 +945,47 @@ bool SurveyedInMission(const Scenario& scenario, const SensorConfig& sensor) {
   return IsAbsoluteSensor(sensor);
 }
 
+namespace {
+
+// The physics rate first: the controller and output rates are bounded by it.
+void ReadRates(YamlMap& map, Scenario* scenario) {
+  std::optional<YamlValue> physics_rate;
+  if (const auto physics = map.Optional("physics")) {
+    scenario->physics = ReadPhysics(*physics, &physics_rate);
+  }
+  const auto controller = map.Optional("controller");
+  if (controller) scenario->controller = ReadController(*controller, scenario->physics.rate_hz);
+  if (const auto wind = map.Optional("wind")) scenario->wind = ReadWind(*wind);
+  const auto output = map.Optional("output");
+  if (output) scenario->output = ReadOutput(*output, scenario->physics.rate_hz);
+  // A default rate above a (given) physics rate: blame the physics rate, the only key written.
+  for (const auto& [what, rate_hz] :
+       {std::pair<const char*, double>{"controller.rate_hz", scenario->controller.rate_hz},
+        std::pair<const char*, double>{"output.groundtruth_rate_hz",
+                                       scenario->output.groundtruth_rate_hz}}) {
+    if (rate_hz > scenario->physics.rate_hz) {
+      assert(physics_rate.has_value());  // the default physics rate carries every default
+      physics_rate->Fail(fmt::format(
+          "expected at least the default {} of {} Hz, got {} (or set {} <= physics.rate_hz)", what,
+          FormatDouble(rate_hz), physics_rate->Describe(), what));
+    }
+  }
+}
+
+// `expect:`, each metric's method checked against the scenario's methods.
+void ReadExpectations(const YamlValue& expect, Scenario* scenario) {
+  for (const YamlValue& item : expect.List(/*non_empty=*/false)) {
+    scenario->expect.push_back(ReadExpectation(item, scenario->sensors));
+    const Expectation& e = scenario->expect.back();
+    CheckMethodOfMetric(*scenario, e, e.metric, item.path() + ".metric");
+    if (e.relative_to) {
+      CheckMethodOfMetric(*scenario, e, *e.relative_to, item.path() + ".relative_to");
+    }
+  }
+}
+
+}  // namespace
+
 Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label) {
   const YamlValue root = ParseDocument(yaml_text, file_label);
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
@@ -937,38 +998,19 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   if (const auto description = map.Optional("description")) {
     scenario.description = description->String();
   }
+  // The world and the robot: fields of sim::WorldOptions, read with its table's forms.
+  const auto world_fields = sim::WorldOptions::Fields();
   const YamlValue world = map.Required("world");
-  scenario.world = world.Identifier();
+  ReadFieldValue(world, FieldFormatOf(world_fields, "world"), &scenario.world);
   scenario.key_locations["world"] = world.location();
   if (const auto robot = map.Optional("robot")) {
-    scenario.robot = robot->Identifier();
+    ReadFieldValue(*robot, FieldFormatOf(world_fields, "robot"), &scenario.robot);
     scenario.key_locations["robot"] = robot->location();
   }
   scenario.duration_s = map.Required("duration_s").Number(NumberRule::PositiveAtMost(86400.0, "s"));
   if (const auto seed = map.Optional("seed")) scenario.seed = seed->UnsignedInteger();
 
-  // Physics first: the controller and output rates are bounded by it.
-  std::optional<YamlValue> physics_rate;
-  if (const auto physics = map.Optional("physics")) {
-    scenario.physics = ReadPhysics(*physics, &physics_rate);
-  }
-  const auto controller = map.Optional("controller");
-  if (controller) scenario.controller = ReadController(*controller, scenario.physics.rate_hz);
-  if (const auto wind = map.Optional("wind")) scenario.wind = ReadWind(*wind);
-  const auto output = map.Optional("output");
-  if (output) scenario.output = ReadOutput(*output, scenario.physics.rate_hz);
-  // A default rate above a (given) physics rate: blame the physics rate, the only key written.
-  for (const auto& [what, rate_hz] :
-       {std::pair<const char*, double>{"controller.rate_hz", scenario.controller.rate_hz},
-        std::pair<const char*, double>{"output.groundtruth_rate_hz",
-                                       scenario.output.groundtruth_rate_hz}}) {
-    if (rate_hz > scenario.physics.rate_hz) {
-      assert(physics_rate.has_value());  // the default physics rate carries every default
-      physics_rate->Fail(fmt::format(
-          "expected at least the default {} of {} Hz, got {} (or set {} <= physics.rate_hz)", what,
-          FormatDouble(rate_hz), physics_rate->Describe(), what));
-    }
-  }
+  ReadRates(map, &scenario);
 
   const YamlValue trajectory = map.Required("trajectory");
   scenario.trajectory = ReadTrajectory(trajectory);
@@ -1015,14 +1057,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
       scenario.key_locations["render.camera"] = camera->location();
     }
   }
-  if (const auto expect = map.Optional("expect")) {
-    for (const YamlValue& item : expect->List(/*non_empty=*/false)) {
-      scenario.expect.push_back(ReadExpectation(item, scenario.sensors));
-      const Expectation& e = scenario.expect.back();
-      CheckMethodOfMetric(scenario, e, e.metric, item.path() + ".metric");
-      if (e.relative_to) CheckMethodOfMetric(scenario, e, *e.relative_to, item.path() + ".relative_to");
-    }
-  }
+  if (const auto expect = map.Optional("expect")) ReadExpectations(*expect, &scenario);
   map.Finish();
   return scenario;
 }
@@ -1115,13 +1150,14 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   out << YAML::BeginMap;
   out << YAML::Key << "name" << YAML::Value << scenario.name;
   out << YAML::Key << "description" << YAML::Value << scenario.description;
-  out << YAML::Key << "world" << YAML::Value << scenario.world;
-  out << YAML::Key << "robot" << YAML::Value << scenario.robot;
+  const auto world_fields = sim::WorldOptions::Fields();
+  EmitFieldValue(out, FieldFormatOf(world_fields, "world"), scenario.world);
+  EmitFieldValue(out, FieldFormatOf(world_fields, "robot"), scenario.robot);
   EmitNumber(out, "duration_s", scenario.duration_s);
   out << YAML::Key << "seed" << YAML::Value << scenario.seed;
 
   out << YAML::Key << "physics" << YAML::Value << YAML::BeginMap;
-  EmitNumber(out, "rate_hz", scenario.physics.rate_hz);
+  EmitFieldValue(out, FieldFormatOf(world_fields, "rate_hz"), scenario.physics.rate_hz);
   out << YAML::EndMap;
 
   out << YAML::Key << "controller" << YAML::Value << YAML::BeginMap;

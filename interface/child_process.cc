@@ -119,6 +119,8 @@ long WriteWithoutSigpipe(int fd, const void* data, std::size_t size) {
   return written;
 }
 
+// Long by design: pipes, fork, exec and the error path of each, one sequence whose cleanup
+// order matters (no descriptor leaked, no child left behind).
 ChildProcess::ChildProcess(const std::vector<std::string>& argv,
                            const std::filesystem::path& working_dir) {
   if (argv.empty() || argv[0].empty()) throw std::runtime_error("the command is empty");

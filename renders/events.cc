@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include "core/error.h"
+#include "renders/render_options.h"
 
 namespace tofu::renders {
 namespace {
@@ -47,16 +48,21 @@ std::string RenderEvent::Slug() const {
                      t_ns / 1'000'000);
 }
 
-void EventOptions::Validate() const {
-  const auto fail = [](const std::string& key, const std::string& message) {
-    throw core::InputError({"render options"}, key, message);
+bool EventOptions::IsValid(std::string* why) const {
+  const auto fail = [why](const std::string& key, const std::string& message) {
+    if (why != nullptr) *why = key + ": " + message;
+    return false;
   };
   if (!(error_bound_m > 0.0) || !std::isfinite(error_bound_m)) {
-    fail("--error-bound", fmt::format("expected a positive bound in metres, got {}", error_bound_m));
+    return fail("--error-bound",
+                fmt::format("expected a positive bound in metres, got {}", error_bound_m));
   }
-  if (!(rearm_fraction > 0.0 && rearm_fraction <= 1.0)) fail("rearm_fraction", "expected (0, 1]");
-  if (!(settle_s >= 0.0) || !std::isfinite(settle_s)) fail("settle_s", "expected >= 0 s");
-  if (!(merge_s >= 0.0) || !std::isfinite(merge_s)) fail("merge_s", "expected >= 0 s");
+  if (!(rearm_fraction > 0.0 && rearm_fraction <= 1.0)) {
+    return fail("rearm_fraction", "expected (0, 1]");
+  }
+  if (!(settle_s >= 0.0) || !std::isfinite(settle_s)) return fail("settle_s", "expected >= 0 s");
+  if (!(merge_s >= 0.0) || !std::isfinite(merge_s)) return fail("merge_s", "expected >= 0 s");
+  return true;
 }
 
 namespace {
@@ -188,7 +194,7 @@ std::vector<RenderEvent> MostTelling(const RunData& run, std::vector<RenderEvent
 }  // namespace
 
 std::vector<RenderEvent> FindEvents(const RunData& run, const EventOptions& options) {
-  options.Validate();
+  RequireValidRenderOptions(options);
   const core::Time settle_ns = core::SecondsToTime(options.settle_s);
   std::vector<RenderEvent> events;
   AddFaultOnsets(run, events);

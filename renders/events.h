@@ -43,8 +43,8 @@ struct EventOptions {
   size_t max_per_kind = 4;
   size_t max_events = 12;
 
-  /// Throws core::InputError naming the broken constraint.
-  void Validate() const;
+  /// The options within their limits; otherwise false and *why = "<option>: <problem>".
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// The events of a run, in time order (ties: kind, then subject).

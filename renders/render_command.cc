@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
+#include "renders/render_options.h"
 #include "renders/run_data.h"
 
 namespace tofu::renders {
@@ -83,21 +84,25 @@ std::pair<int, int> ParseSize(const std::string& text) {
 
 }  // namespace
 
-void RenderEventsOptions::Validate() const {
-  render.Validate();
-  events.Validate();
+bool RenderEventsOptions::IsValid(std::string* why) const {
+  if (!render.IsValid(why) || !events.IsValid(why)) return false;
+  const auto fail = [why](const std::string& key, const std::string& message) {
+    if (why != nullptr) *why = key + ": " + message;
+    return false;
+  };
   if (fps < 1 || fps > 240) {
-    throw core::InputError({"render options"}, "--fps",
-                           fmt::format("expected 1..240 frames per second, got {}", fps));
+    return fail("--fps", fmt::format("expected 1..240 frames per second, got {}", fps));
   }
   if (!(clip_half_s >= 0.0 && clip_half_s <= 60.0)) {
-    throw core::InputError({"render options"}, "--clip-half",
-                           fmt::format("expected 0..60 s, got {}", clip_half_s));
+    return fail("--clip-half", fmt::format("expected 0..60 s, got {}", clip_half_s));
   }
+  return true;
 }
 
+// Long by design: render into a staging directory, write its files and swap it in as one
+// all-or-nothing sequence with one cleanup path.
 RenderEventsResult RenderRunEvents(const fs::path& run_dir, const RenderEventsOptions& options) {
-  options.Validate();
+  RequireValidRenderOptions(options);
   const RunData run = ReadRunData(run_dir);
   const std::vector<RenderEvent> events = FindEvents(run, options.events);
   // The renderer (EGL) before any file is touched: without it nothing is written.
@@ -224,7 +229,7 @@ int RunRenderCommand(const RenderCommandOptions& o) {
   options.clip_half_s = o.clip_half_s;
   options.clips = !o.no_clips;
   options.progress = o.progress;
-  options.Validate();
+  RequireValidRenderOptions(options);
 
   const fs::path run_dir = o.run_dir;
   if (o.at_s) {

@@ -33,8 +33,9 @@ struct RenderEventsOptions {
   /// Called with the fraction of frames done (optional; e.g. a progress bar).
   std::function<void(double)> progress;
 
-  /// Throws core::InputError naming the broken constraint.
-  void Validate() const;
+  /// render's, events' and these options within their limits; otherwise false and
+  /// *why = "<option>: <problem>".
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 struct RenderedEvent {

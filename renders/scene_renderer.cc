@@ -13,6 +13,7 @@
 #include "core/error.h"
 #include "core/units.h"
 #include "renders/overlay.h"
+#include "renders/render_options.h"
 #include "replay/run_format.h"
 #include "sim/world.h"
 
@@ -51,20 +52,26 @@ Eigen::Isometry3d ToIsometry(const TimedPose& pose) {
 
 }  // namespace
 
-void RenderOptions::Validate() const {
-  const auto fail = [](const std::string& key, const std::string& message) {
-    throw core::InputError({"render options"}, key, message);
+bool RenderOptions::IsValid(std::string* why) const {
+  const auto fail = [why](const std::string& key, const std::string& message) {
+    if (why != nullptr) *why = key + ": " + message;
+    return false;
   };
   if (width_px < 16 || height_px < 16 || width_px > 8192 || height_px > 8192) {
-    fail("--size", fmt::format("expected WxH with each side in [16, 8192], got {}x{}", width_px,
-                               height_px));
+    return fail("--size", fmt::format("expected WxH with each side in [16, 8192], got {}x{}",
+                                      width_px, height_px));
   }
-  if (multisamples < -1 || multisamples > 16) fail("--msaa", "expected 0..16, or -1 (auto)");
-  if (shadow_map_px < 256 || shadow_map_px > 8192) fail("shadow_map_px", "expected 256..8192");
-  if (geom_slices < 4 || geom_slices > 64) fail("geom_slices", "expected 4..64");
-  if (!(plane_grid_m >= 0.0 && plane_grid_m <= 100.0)) fail("plane_grid_m", "expected 0..100 m");
-  if (!(trail_s >= 0.0 && trail_s <= 60.0)) fail("trail_s", "expected 0..60 s");
-  if (!(ghost_alpha > 0.0 && ghost_alpha <= 1.0)) fail("ghost_alpha", "expected (0, 1]");
+  if (multisamples < -1 || multisamples > 16) return fail("--msaa", "expected 0..16, or -1 (auto)");
+  if (shadow_map_px < 256 || shadow_map_px > 8192) {
+    return fail("shadow_map_px", "expected 256..8192");
+  }
+  if (geom_slices < 4 || geom_slices > 64) return fail("geom_slices", "expected 4..64");
+  if (!(plane_grid_m >= 0.0 && plane_grid_m <= 100.0)) {
+    return fail("plane_grid_m", "expected 0..100 m");
+  }
+  if (!(trail_s >= 0.0 && trail_s <= 60.0)) return fail("trail_s", "expected 0..60 s");
+  if (!(ghost_alpha > 0.0 && ghost_alpha <= 1.0)) return fail("ghost_alpha", "expected (0, 1]");
+  return true;
 }
 
 std::array<float, 3> GhostColor(size_t method_index) {
@@ -118,7 +125,7 @@ struct SceneRenderer::Impl {
   }
 
   void Build() {
-    options.Validate();
+    RequireValidRenderOptions(options);
     if (options.lidar_hits) lidars = LidarGeometries(run);
     if (options.gnss_sky) skies = SkyGeometries(run);
     // EGL first: without it nothing else is worth doing, and the error names the fix.

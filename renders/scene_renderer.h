@@ -45,8 +45,9 @@ struct RenderOptions {
   std::string consistency_metric;
   EglOptions egl;
 
-  /// Throws core::InputError naming the broken constraint (option names as on the CLI).
-  void Validate() const;
+  /// The options within their limits; otherwise false and *why = "<option>: <problem>",
+  /// options named as on the command line (RequireValidRenderOptions throws it).
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// The camera a frame was rendered from, as OpenGL used it: enough to project a point in

@@ -7,7 +7,7 @@
 #include <fmt/format.h>
 
 #include "replay/api_convert.h"
-#include "replay/replay.h"
+#include "replay/replay_method.h"
 
 namespace tofu::replay {
 namespace {

@@ -1,5 +1,5 @@
 #pragma once
-// tofu's own methods (replay.h ReplayMethod: consensus, naive, single, fuse, oracle,
+// tofu's own methods (replay_method.h ReplayMethod: consensus, naive, single, fuse, oracle,
 // imu_only) as an api::Estimator: the multi-graph estimator of the seed paper behind the
 // interface every user's estimator implements, so the run loop, `tofu estimate`, the
 // plug-in path and the process protocol all drive one kind of object.

@@ -3,7 +3,7 @@
 #include "core/error.h"
 #include "core/time.h"
 #include "replay/recorded_log.h"
-#include "replay/replay.h"
+#include "replay/replay_method.h"
 
 namespace tofu::replay {
 

@@ -1,8 +1,9 @@
 #pragma once
 // How the estimation methods of a run are configured: a scenario's `estimation:` block as
 // plain values (the YAML is read by harness/scenario.h), and what it makes of a recorded
-// log's streams. Shared by the run loop (harness/) and `tofu estimate` (replay.h), so an
-// in-loop estimate and a replay of the recorded streams are configured alike.
+// log's streams. Shared by the run loop (harness/) and `tofu estimate`
+// (estimate_command.h), so an in-loop estimate and a replay of the recorded streams are
+// configured alike.
 
 #include <optional>
 #include <string>
@@ -61,7 +62,7 @@ struct ClientTexts {
 
 /// `estimation:` in a scenario.
 struct EstimationConfig {
-  /// Method names (replay/replay.h ParseReplayMethod): consensus,
+  /// Method names (replay/replay_method.h ParseReplayMethod): consensus,
   /// consensus:pair_member, consensus:consistent_set, oracle, naive, single:<sensor>,
   /// fuse:<a>+<b>, imu_only, each optionally with @clean.
   std::vector<std::string> methods;

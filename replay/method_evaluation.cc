@@ -8,8 +8,9 @@
 #include <Eigen/Cholesky>
 
 #include "core/units.h"
+#include "replay/method_runner.h"
 #include "replay/recorded_log.h"
-#include "replay/replay.h"
+#include "replay/stream_comparison.h"
 
 namespace tofu::replay {
 namespace {

@@ -364,6 +364,8 @@ void WriteTumTrajectory(const fs::path& file, const std::vector<PoseSample>& pos
   out.Commit();
 }
 
+// Long by design: match, align, then ATE and RPE over the same matched samples, in the
+// order docs/RESULTS.md defines them (one pass each, no copy of an hour of outputs).
 TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
                                     const std::vector<PoseSample>& ground_truth,
                                     const TrajectoryErrorOptions& options) {

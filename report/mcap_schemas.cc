@@ -88,6 +88,7 @@ Json Primitive(const std::string& title, bool cylinder) {
 
 Json EmptyList() { return {{"type", "array"}, {"maxItems", 0}}; }
 
+// Long by design: one table of every topic's JSON schema, read top to bottom like docs/MCAP.md.
 std::map<std::string, std::string> MakeSchemas() {
   std::map<std::string, Json> s;
   const Json timestamp = Time("time of validity since the run's start");

@@ -353,6 +353,8 @@ void McapWriter::AddMetadata(const std::string& name,
   ++statistics_.metadata_count;
 }
 
+// Long by design: the summary section and the footer in the order the MCAP spec lays them
+// out, with one CRC running across them.
 void McapWriter::Close() {
   Impl& d = *impl_;
   if (d.closed) return;

@@ -171,6 +171,8 @@ void GnssModel::AdvanceErrors(double dt_s) {
   for (int k = 0; k < 3; ++k) multipath_unit_(k) = phi * multipath_unit_(k) + s * stream_.Normal();
 }
 
+// Long by design: one GNSS epoch (sky, blockage, fix type, errors, sample) as the model
+// documents it in gnss.h, the steps sharing the epoch's geometry.
 void GnssModel::Step(const SensorInput& input, std::vector<SensorSample>* out) {
   const TruthState& x = input.truth;
   const core::Time t_ns = x.t_ns;

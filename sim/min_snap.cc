@@ -158,34 +158,48 @@ PiecewisePolynomial PiecewisePolynomial::TimeScaled(double factor) const {
 
 // ---- minimum-derivative QP ----
 
-PiecewisePolynomial SolveMinimumDerivative(const std::vector<Eigen::Vector3d>& points,
-                                           const std::vector<double>& durations_s,
-                                           const MinimumDerivativeOptions& options,
-                                           std::vector<double>* cost_gradient) {
-  assert(points.size() == durations_s.size() + 1 && !durations_s.empty());
-  assert(options.continuity_derivative >= 1 && options.continuity_derivative <= 6);
+std::span<const core::OptionField<MinimumDerivativeOptions>> MinimumDerivativeOptions::Fields() {
+  using F = core::OptionField<MinimumDerivativeOptions>;
+  using O = MinimumDerivativeOptions;
+  static const F kFields[] = {
+      // Degree-7 segments: snap (4) is the highest derivative the rest conditions leave free.
+      F::Integer("cost_derivative", &O::cost_derivative, 1, 4),
+      F::Integer("continuity_derivative", &O::continuity_derivative, 1, 6),
+  };
+  return kFields;
+}
+
+bool MinimumDerivativeOptions::IsValid(std::string* why) const {
+  return core::CheckOptionFields<MinimumDerivativeOptions>(*this, Fields(), why);
+}
+
+namespace {
+
+// The KKT system [σH ρAᵀ; ρA 0][c; μ] = [0; b] of the QP, before equilibration: the matrix
+// as triplets (duplicates summed), one right-hand side per axis.
+struct KktSystem {
+  std::vector<Eigen::Triplet<double>> entries;
+  Eigen::MatrixXd rhs;
+  int size = 0;
+  int first_continuity_row = 0;  ///< the first row of the continuity constraints
+};
+
+KktSystem BuildKktSystem(const std::vector<Eigen::Vector3d>& points,
+                         const std::vector<double>& durations_s,
+                         const Eigen::Matrix<double, kN, kN>& q, int r_cost, int r_cont) {
   const int num_segments = static_cast<int>(durations_s.size());
-  const int r_cost = options.cost_derivative;
-  const int r_cont = options.continuity_derivative;
   const int num_variables = kN * num_segments;
   // Positions at both ends of each segment, v = a = j = 0 at both ends of the path,
   // derivatives 1..r_cont continuous at each interior point.
   const int num_constraints = 2 * num_segments + 6 + r_cont * (num_segments - 1);
-  const int size = num_variables + num_constraints;
-
-  // Time is normalised per segment. Conditioning: the cost is multiplied by
-  // σ = t_min^(2r−1) (t_min the shortest segment), each continuity row by ρ = T^r (T the
-  // shorter of its two segments), and the whole KKT matrix is equilibrated below, so
-  // segments of very different durations still give an accurate solution.
-  const double t_min = *std::min_element(durations_s.begin(), durations_s.end());
-  const double sigma = std::pow(t_min, 2 * r_cost - 1);
-
-  // The KKT matrix is sparse (block tridiagonal in segment order); built from triplets.
-  std::vector<Eigen::Triplet<double>> entries;
-  Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(size, 3);
+  KktSystem kkt;
+  kkt.size = num_variables + num_constraints;
+  kkt.rhs = Eigen::MatrixXd::Zero(kkt.size, 3);
+  std::vector<Eigen::Triplet<double>>& entries = kkt.entries;
+  Eigen::MatrixXd& rhs = kkt.rhs;
 
   // Hessian: block k is σ T_k^(1−2r) Q_r (see IntegratedSquaredDerivative).
-  const Eigen::Matrix<double, kN, kN> q = CostMatrix(r_cost);
+  const double t_min = *std::min_element(durations_s.begin(), durations_s.end());
   for (int k = 0; k < num_segments; ++k) {
     const double weight = std::pow(t_min / durations_s[k], 2 * r_cost - 1);
     for (int i = 0; i < kN; ++i) {
@@ -218,7 +232,7 @@ PiecewisePolynomial SolveMinimumDerivative(const std::vector<Eigen::Vector3d>& p
   }
   // ρ (d^r p_k/dt^r at its end − d^r p_k+1/dt^r at its start) = 0, in normalised time:
   // (T/T_k)^r p_k^(r)(τ=1) − (T/T_k+1)^r p_k+1^(r)(τ=0) = 0.
-  const int first_continuity_row = row;
+  kkt.first_continuity_row = row;
   for (int k = 0; k + 1 < num_segments; ++k) {
     const double t_short = std::min(durations_s[k], durations_s[k + 1]);
     for (int r = 1; r <= r_cont; ++r) {
@@ -227,13 +241,16 @@ PiecewisePolynomial SolveMinimumDerivative(const std::vector<Eigen::Vector3d>& p
       ++row;
     }
   }
-  assert(row == size);
+  assert(row == kkt.size);
+  return kkt;
+}
 
+// [c; μ] of the KKT system, solved after a symmetric (Ruiz) equilibration: K' = D K D with
+// every row and column of K' of max-norm about 1; then K' y = D rhs and [c; μ] = D y.
+Eigen::MatrixXd SolveKktSystem(const KktSystem& system) {
+  const int size = system.size;
   Eigen::SparseMatrix<double> kkt(size, size);
-  kkt.setFromTriplets(entries.begin(), entries.end());  // sums duplicates
-
-  // Symmetric (Ruiz) equilibration: K' = D K D with every row and column of K' of max-norm
-  // about 1; then K' y = D rhs and [c; μ] = D y.
+  kkt.setFromTriplets(system.entries.begin(), system.entries.end());  // sums duplicates
   Eigen::VectorXd d = Eigen::VectorXd::Ones(size);
   for (int iteration = 0; iteration < 8; ++iteration) {
     Eigen::VectorXd row_max = Eigen::VectorXd::Zero(size);
@@ -254,10 +271,68 @@ PiecewisePolynomial SolveMinimumDerivative(const std::vector<Eigen::Vector3d>& p
   if (lu.info() != Eigen::Success) {
     throw std::runtime_error("minimum-snap KKT system is singular: " + lu.lastErrorMessage());
   }
-  const Eigen::MatrixXd solution = d.asDiagonal() * lu.solve(d.asDiagonal() * rhs);
+  const Eigen::MatrixXd solution = d.asDiagonal() * lu.solve(d.asDiagonal() * system.rhs);
   if (!solution.allFinite()) {
     throw std::runtime_error("minimum-snap KKT system is singular");
   }
+  return solution;
+}
+
+// ∂J/∂T_k of the optimal cost, by the envelope theorem on J(T) = min cᵀH(T)c s.t.
+// A(T)c = b: with Hc = Aᵀλ, ∂J/∂T_k = cᵀ ∂H/∂T_k c − 2 λᵀ ∂A/∂T_k c. Only the cost blocks
+// (∂/∂T_k of T_k^(1−2r) gives (1 − 2r)/T_k) and the continuity rows (∂/∂T of T^(−r)
+// d^r p/dτ^r gives −r/T times the time derivative) depend on T. The solved multipliers μ
+// belong to the scaled rows: λ = −ρ μ / σ.
+std::vector<double> CostGradient(const PiecewisePolynomial& polynomial,
+                                 const Eigen::MatrixXd& solution,
+                                 const std::vector<double>& durations_s,
+                                 const Eigen::Matrix<double, kN, kN>& q, int r_cost, int r_cont,
+                                 double sigma, int first_continuity_row) {
+  const int num_segments = static_cast<int>(durations_s.size());
+  std::vector<double> gradient(num_segments, 0.0);
+  for (int k = 0; k < num_segments; ++k) {
+    const PiecewisePolynomial::Coefficients& c = polynomial.coefficients()[k];
+    const double segment_cost =
+        (c.transpose() * q * c).trace() * std::pow(durations_s[k], 1 - 2 * r_cost);
+    gradient[k] += (1 - 2 * r_cost) * segment_cost / durations_s[k];
+  }
+  int row = first_continuity_row;
+  for (int k = 0; k + 1 < num_segments; ++k) {
+    const double t_short = std::min(durations_s[k], durations_s[k + 1]);
+    for (int r = 1; r <= r_cont; ++r) {
+      const Eigen::Vector3d lambda =
+          -std::pow(t_short, r) / sigma * solution.row(row++).transpose();
+      // Row: d^r p_k/dt^r(end) − d^r p_k+1/dt^r(start).
+      const Eigen::Vector3d end_k = polynomial.EvaluateSegment(k, 1.0, r);
+      const Eigen::Vector3d start_next = polynomial.EvaluateSegment(k + 1, 0.0, r);
+      gradient[k] -= 2.0 * lambda.dot(-r / durations_s[k] * end_k);
+      gradient[k + 1] -= 2.0 * lambda.dot(r / durations_s[k + 1] * start_next);
+    }
+  }
+  return gradient;
+}
+
+}  // namespace
+
+PiecewisePolynomial SolveMinimumDerivative(const std::vector<Eigen::Vector3d>& points,
+                                           const std::vector<double>& durations_s,
+                                           const MinimumDerivativeOptions& options,
+                                           std::vector<double>* cost_gradient) {
+  assert(points.size() == durations_s.size() + 1 && !durations_s.empty());
+  core::ValidOptions(options, "SolveMinimumDerivative");
+  const int num_segments = static_cast<int>(durations_s.size());
+  const int r_cost = options.cost_derivative;
+  const int r_cont = options.continuity_derivative;
+
+  // Time is normalised per segment. Conditioning: the cost is multiplied by
+  // σ = t_min^(2r−1) (t_min the shortest segment), each continuity row by ρ = T^r (T the
+  // shorter of its two segments), and the whole KKT matrix is equilibrated, so segments
+  // of very different durations still give an accurate solution.
+  const double t_min = *std::min_element(durations_s.begin(), durations_s.end());
+  const double sigma = std::pow(t_min, 2 * r_cost - 1);
+  const Eigen::Matrix<double, kN, kN> q = CostMatrix(r_cost);
+  const KktSystem kkt = BuildKktSystem(points, durations_s, q, r_cost, r_cont);
+  const Eigen::MatrixXd solution = SolveKktSystem(kkt);
 
   std::vector<PiecewisePolynomial::Coefficients> coefficients(num_segments);
   for (int k = 0; k < num_segments; ++k) {
@@ -265,33 +340,9 @@ PiecewisePolynomial SolveMinimumDerivative(const std::vector<Eigen::Vector3d>& p
     coefficients[k].row(0) += points[0].transpose();
   }
   PiecewisePolynomial polynomial(durations_s, std::move(coefficients));
-
   if (cost_gradient != nullptr) {
-    // Envelope theorem on J(T) = min cᵀH(T)c s.t. A(T)c = b: with Hc = Aᵀλ,
-    // ∂J/∂T_k = cᵀ ∂H/∂T_k c − 2 λᵀ ∂A/∂T_k c. Only the cost blocks (∂/∂T_k of T_k^(1−2r)
-    // gives (1 − 2r)/T_k) and the continuity rows (∂/∂T of T^(−r) d^r p/dτ^r gives
-    // −r/T times the time derivative) depend on T. The solved multipliers μ belong to
-    // the scaled rows: λ = −ρ μ / σ.
-    cost_gradient->assign(num_segments, 0.0);
-    for (int k = 0; k < num_segments; ++k) {
-      const PiecewisePolynomial::Coefficients& c = polynomial.coefficients()[k];
-      const double segment_cost =
-          (c.transpose() * q * c).trace() * std::pow(durations_s[k], 1 - 2 * r_cost);
-      (*cost_gradient)[k] += (1 - 2 * r_cost) * segment_cost / durations_s[k];
-    }
-    row = first_continuity_row;
-    for (int k = 0; k + 1 < num_segments; ++k) {
-      const double t_short = std::min(durations_s[k], durations_s[k + 1]);
-      for (int r = 1; r <= r_cont; ++r) {
-        const Eigen::Vector3d lambda =
-            -std::pow(t_short, r) / sigma * solution.row(row++).transpose();
-        // Row: d^r p_k/dt^r(end) − d^r p_k+1/dt^r(start).
-        const Eigen::Vector3d end_k = polynomial.EvaluateSegment(k, 1.0, r);
-        const Eigen::Vector3d start_next = polynomial.EvaluateSegment(k + 1, 0.0, r);
-        (*cost_gradient)[k] -= 2.0 * lambda.dot(-r / durations_s[k] * end_k);
-        (*cost_gradient)[k + 1] -= 2.0 * lambda.dot(r / durations_s[k + 1] * start_next);
-      }
-    }
+    *cost_gradient = CostGradient(polynomial, solution, durations_s, q, r_cost, r_cont, sigma,
+                                  kkt.first_continuity_row);
   }
   return polynomial;
 }

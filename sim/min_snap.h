@@ -6,11 +6,14 @@
 // the ramp-cruise-ramp phase profile built on it; and the waypoint path that combines a
 // minimum-snap position with SO(3) attitude interpolation.
 
+#include <span>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "core/option_fields.h"
 #include "sim/trajectory.h"
 
 namespace tofu::sim::min_snap {
@@ -121,6 +124,11 @@ struct MinimumDerivativeOptions {
   /// minimum-snap optimum is C⁶ anyway (its natural conditions); imposing 4 leaves
   /// 2(N − 1) free coefficients per axis for the QP to optimise.
   int continuity_derivative = 4;
+
+  /// Each option's key and range (cost_derivative 1..4, continuity_derivative 1..6).
+  static std::span<const core::OptionField<MinimumDerivativeOptions>> Fields();
+  /// The fields within their ranges; otherwise false, *why = "<key>: <problem>".
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// Minimises the cost of degree-7 segments through `points` (segment k from points[k] to
@@ -129,7 +137,8 @@ struct MinimumDerivativeOptions {
 /// constrained QP min cᵀHc s.t. Ac = b (Richter, Bry & Roy 2013, eq. 3), one right-hand
 /// side per axis. If cost_gradient is given, it receives ∂J/∂T_k of the optimal cost
 /// J = Σ ∫ |d^r p/dt^r|² dt [m²/s^(2r) per s], by the envelope theorem. Requires
-/// points.size() == durations_s.size() + 1 >= 2 and positive durations.
+/// points.size() == durations_s.size() + 1 >= 2 and positive durations; throws
+/// std::invalid_argument when !options.IsValid().
 PiecewisePolynomial SolveMinimumDerivative(const std::vector<Eigen::Vector3d>& points,
                                            const std::vector<double>& durations_s,
                                            const MinimumDerivativeOptions& options = {},

@@ -8,12 +8,14 @@
 #include <array>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "core/option_fields.h"
 #include "core/time.h"
 #include "sim/allocation.h"
 #include "sim/rigid_body.h"
@@ -34,6 +36,13 @@ struct WorldOptions {
   /// Robot-to-structure distances are tracked up to this range [m] (measured with
   /// MuJoCo's narrow phase on demand, never a constraint).
   double distance_horizon_m = 1.0;
+
+  /// Each option's key, unit and limits (models_dir, a path, is not among them): a
+  /// scenario's `world`, `robot` and `physics.rate_hz` are read, written and checked
+  /// through it; `distance_horizon_m` is not a scenario option.
+  static std::span<const core::OptionField<WorldOptions>> Fields();
+  /// The fields within their limits; otherwise false, *why = "<key>: <problem>".
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// A mount site on the robot: pose of the site frame s in B.

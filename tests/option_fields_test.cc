@@ -21,6 +21,7 @@
 #include "sim/gnss.h"
 #include "sim/imu.h"
 #include "sim/lidar_odometry.h"
+#include "sim/min_snap.h"
 #include "sim/total_station.h"
 #include "sim/vio.h"
 #include "sim/wind.h"
@@ -195,6 +196,45 @@ TEST(OptionFields, CrossFieldRulesNameTheirKey) {
   sim::GnssOptions nested;
   nested.rtk_float.std_horizontal_m = -1.0;
   EXPECT_EQ(Why(nested).rfind("rtk_float.std_horizontal_m: ", 0), 0u) << Why(nested);
+}
+
+// MinimumDerivativeOptions (integers only; the generic tests' number paths would be dead
+// code GCC warns about): valid defaults, each integer limit refused with its key.
+TEST(OptionFields, MinimumDerivativeOptionsRefuseIntegersOutsideTheirTable) {
+  using Options = sim::min_snap::MinimumDerivativeOptions;
+  std::string why;
+  EXPECT_TRUE(Options{}.IsValid(&why)) << why;
+  for (const auto& field : Options::Fields()) {
+    const auto* member = std::get_if<int Options::*>(&field.member);
+    ASSERT_NE(member, nullptr) << field.format.key;
+    const std::string prefix = std::string(field.format.key) + ": ";
+    Options below;
+    below.*(*member) = field.format.min_integer - 1;
+    EXPECT_EQ(Why(below).rfind(prefix, 0), 0u) << Why(below);
+    Options above;
+    above.*(*member) = field.format.max_integer + 1;
+    EXPECT_EQ(Why(above).rfind(prefix, 0), 0u) << Why(above);
+  }
+}
+
+// sim::WorldOptions has no valid default (a world must be named): its table is checked here.
+TEST(OptionFields, WorldOptionsNameTheBrokenField) {
+  sim::WorldOptions world{.world = "indoor_arena"};
+  std::string why;
+  EXPECT_TRUE(world.IsValid(&why)) << why;
+  EXPECT_EQ(Why(sim::WorldOptions{}).rfind("world: expected a name", 0), 0u)
+      << Why(sim::WorldOptions{});
+
+  sim::WorldOptions rate = world;
+  rate.physics_rate_hz = 50.0;
+  EXPECT_EQ(Why(rate), "rate_hz: expected a number in [100, 10000] (Hz), got 50");
+  sim::WorldOptions robot = world;
+  robot.robot = "OMAV";
+  EXPECT_EQ(Why(robot).rfind("robot: expected a name", 0), 0u) << Why(robot);
+  sim::WorldOptions horizon = world;
+  horizon.distance_horizon_m = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(Why(horizon).rfind("distance_horizon_m: expected a finite number", 0), 0u)
+      << Why(horizon);
 }
 
 // ---- constructors validate ----

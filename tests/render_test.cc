@@ -302,6 +302,34 @@ std::vector<std::string> Describe(const std::vector<RenderEvent>& events) {
   return out;
 }
 
+// The options say what is wrong through IsValid ("<option>: <problem>", named as on the
+// CLI); a render refuses them as the user's error at that option.
+TEST(RenderOptionsCheck, IsValidNamesTheOptionAndARenderRefusesIt) {
+  EXPECT_TRUE(RenderEventsOptions{}.IsValid());
+  RenderEventsOptions options;
+  options.render.width_px = 8;
+  std::string why;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_EQ(why, "--size: expected WxH with each side in [16, 8192], got 8x480");
+  options = RenderEventsOptions{};
+  options.fps = 0;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_EQ(why, "--fps: expected 1..240 frames per second, got 0");
+
+  const RunDirectory dir("events");
+  const RunData run = ReadRunData(dir);
+  EventOptions events;
+  events.error_bound_m = -1.0;
+  try {
+    FindEvents(run, events);
+    FAIL() << "a negative error bound was accepted";
+  } catch (const core::InputError& e) {
+    EXPECT_EQ(e.location().file, "render options");
+    EXPECT_EQ(e.key_path(), "--error-bound");
+    EXPECT_EQ(e.message(), "expected a positive bound in metres, got -1");
+  }
+}
+
 TEST(RenderEvents, ChosenFromFaultsDecisionsErrorsAndCollisions) {
   const RunDirectory dir("events");
   const RunData run = ReadRunData(dir);

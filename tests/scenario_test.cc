@@ -97,6 +97,32 @@ trajectory:
   EXPECT_CONTAINS(e.message(), "allowed keys here: name, description, world");
 }
 
+// world, robot and physics.rate_hz are fields of sim::WorldOptions, read through its table:
+// an unknown key or a value outside the table's form names the file, the line, the key
+// and what was expected.
+TEST(ScenarioLoad, WorldFieldsAreReadThroughTheWorldOptionsTable) {
+  std::string bad_world = kMinimal;
+  bad_world.replace(bad_world.find("indoor_arena"), 12, "Indoor-Arena");
+  const core::InputError world = ParseError(bad_world);
+  ExpectLocated(world, 2, "world");
+  EXPECT_CONTAINS(world.message(), "a name of lowercase letters, digits and '_' ([a-z0-9_]+)");
+
+  const core::InputError robot = ParseError(std::string(kMinimal) + "robot: 'omav 2'\n");
+  ExpectLocated(robot, 8, "robot");
+  EXPECT_CONTAINS(robot.message(), "a name of lowercase letters, digits and '_' ([a-z0-9_]+)");
+
+  const core::InputError unknown = ParseError(std::string(kMinimal) + "physics:\n  rate: 500\n");
+  ExpectLocated(unknown, 9, "physics.rate");
+  EXPECT_CONTAINS(unknown.message(), "unknown key 'rate'");
+  EXPECT_CONTAINS(unknown.message(), "did you mean 'rate_hz'?");
+
+  // The distance horizon is a field of the table but no scenario option.
+  const core::InputError horizon =
+      ParseError(std::string(kMinimal) + "physics:\n  distance_horizon_m: 2\n");
+  ExpectLocated(horizon, 9, "physics.distance_horizon_m");
+  EXPECT_CONTAINS(horizon.message(), "unknown key 'distance_horizon_m'");
+}
+
 TEST(ScenarioLoad, RejectsUnknownNestedKeyWithDidYouMean) {
   const core::InputError e = ParseError(R"yaml(name: circle_test
 world: indoor_arena

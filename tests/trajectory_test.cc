@@ -205,6 +205,22 @@ TEST(TrajectoryMinSnap, IsTheConstrainedOptimumAndBeatsNaiveAlternatives) {
   EXPECT_GT(jerk_jump, 1e-2);
 }
 
+TEST(TrajectoryMinSnap, RefusesOptionsOutsideTheirFieldTable) {
+  const std::vector<Eigen::Vector3d> points = {Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones()};
+  min_snap::MinimumDerivativeOptions options;
+  options.continuity_derivative = 7;
+  std::string why;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_EQ(why, "continuity_derivative: expected an integer in [1, 6], got 7");
+  try {
+    min_snap::SolveMinimumDerivative(points, {1.0}, options);
+    FAIL() << "continuity_derivative 7 was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "SolveMinimumDerivative: continuity_derivative: expected an integer in [1, 6], got 7");
+  }
+}
+
 TEST(TrajectoryMinSnap, CostGradientMatchesFiniteDifferences) {
   const std::vector<Eigen::Vector3d> points = {
       Eigen::Vector3d(0.0, 0.0, 0.0), Eigen::Vector3d(1.0, 2.0, 0.5),

@@ -199,6 +199,40 @@ void ExportMcap(const std::string& run_dir, const std::string& mcap_file, bool c
   }
 }
 
+// `render:` the failure events of the run written to `out` (renders/ is written and
+// renamed on its own, so a render problem never touches the run's files). Returns the
+// run's `status`, or kExitBadInput when the machine cannot render.
+int RenderScenarioEvents(const tofu::harness::RenderRequest& request, const std::string& out,
+                         bool quiet, int status) {
+  tofu::renders::RenderEventsOptions render;
+  render.render.width_px = request.width_px;
+  render.render.height_px = request.height_px;
+  render.fps = request.fps;
+  render.camera = request.camera;
+  render.clip_half_s = request.clip_half_s;
+  render.events.error_bound_m = request.error_bound_m;
+  std::optional<ProgressBar> render_bar;
+  if (!quiet && ::isatty(STDERR_FILENO)) render_bar.emplace("  render");
+  // A check point of interruption too: renders/ removes its staging when it unwinds.
+  render.progress = [&render_bar](double f) {
+    tofu::replay::ThrowIfInterrupted();
+    if (render_bar) (*render_bar)(f);
+  };
+  tofu::replay::ThrowIfInterrupted();
+  try {
+    const tofu::renders::RenderEventsResult rendered = tofu::renders::RenderRunEvents(out, render);
+    if (!quiet) {
+      fmt::print("rendered {} events into {} ({})\n", rendered.events.size(),
+                 rendered.out_dir.string(), rendered.gl_description);
+    }
+  } catch (const tofu::renders::RenderUnavailableError& e) {
+    // The run is written and scored; the machine cannot render: say how to fix it.
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return tofu::core::kExitBadInput;
+  }
+  return status;
+}
+
 int RunCommand(const std::string& scenario_path, std::optional<std::string> out_dir,
                std::optional<uint64_t> seed, bool quiet, bool force,
                const std::optional<std::string>& mcap_file) {
@@ -262,36 +296,9 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
                          ? tofu::core::kExitSimulationError
                      : evaluation.passed ? tofu::core::kExitOk
                                          : tofu::core::kExitExpectationFailed;
-  // `render:` the failure events, after the run directory is complete (renders/ is
-  // written and renamed on its own, so a render problem never touches the run's files).
+  // `render:` the failure events, after the run directory is complete.
   if (scenario.render && (scenario.render->always || status != tofu::core::kExitOk)) {
-    const tofu::harness::RenderRequest& request = *scenario.render;
-    tofu::renders::RenderEventsOptions render;
-    render.render.width_px = request.width_px;
-    render.render.height_px = request.height_px;
-    render.fps = request.fps;
-    render.camera = request.camera;
-    render.clip_half_s = request.clip_half_s;
-    render.events.error_bound_m = request.error_bound_m;
-    std::optional<ProgressBar> render_bar;
-    if (!quiet && ::isatty(STDERR_FILENO)) render_bar.emplace("  render");
-    // A check point of interruption too: renders/ removes its staging when it unwinds.
-    render.progress = [&render_bar](double f) {
-      tofu::replay::ThrowIfInterrupted();
-      if (render_bar) (*render_bar)(f);
-    };
-    tofu::replay::ThrowIfInterrupted();
-    try {
-      const tofu::renders::RenderEventsResult rendered = tofu::renders::RenderRunEvents(out, render);
-      if (!quiet) {
-        fmt::print("rendered {} events into {} ({})\n", rendered.events.size(),
-                   rendered.out_dir.string(), rendered.gl_description);
-      }
-    } catch (const tofu::renders::RenderUnavailableError& e) {
-      // The run is written and scored; the machine cannot render: say how to fix it.
-      fmt::print(stderr, "tofu: error: {}\n", e.what());
-      return tofu::core::kExitBadInput;
-    }
+    return RenderScenarioEvents(*scenario.render, out, quiet, status);
   }
   return status;
 }

@@ -1,0 +1,376 @@
+#include "report/html_check_page.h"
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "renders/run_data.h"
+#include "report/html_page.h"
+#include "report/html_run_page.h"
+
+namespace tofu::report::html {
+
+namespace fs = std::filesystem;
+using core::InputError;
+using nlohmann::json;
+
+namespace {
+
+// "file:line" of summary.json's `where` as a location.
+core::SourceLocation ParseWhere(const std::string& where) {
+  core::SourceLocation location;
+  const size_t colon = where.rfind(':');
+  if (colon == std::string::npos) {
+    location.file = where;
+    return location;
+  }
+  location.file = where.substr(0, colon);
+  try {
+    location.line = std::stoi(where.substr(colon + 1));
+  } catch (const std::exception&) {
+    location.file = where;
+  }
+  return location;
+}
+
+// The scenario's expectations as `tofu check` aggregated them: bounds and places from a
+// run's summary.json, pass_fraction from its resolved scenario.yaml.
+harness::Scenario ScenarioOfRuns(const std::string& name, const std::vector<CheckRun>& runs) {
+  harness::Scenario scenario;
+  scenario.name = name;
+  for (const CheckRun& r : runs) {
+    if (!r.scenario || !r.run.summary.is_object()) continue;
+    const json& list = r.run.summary.value("expectations", json::array());
+    const YAML::Node expect = r.scenario->root["expect"];
+    for (size_t i = 0; i < list.size(); ++i) {
+      const json& e = list[i];
+      harness::Expectation x;
+      x.metric = StringField(e, "metric");
+      x.min = OptionalNumber(e, "min");
+      x.max = OptionalNumber(e, "max");
+      if (const std::string rel = StringField(e, "relative_to"); !rel.empty()) x.relative_to = rel;
+      if (const auto w = e.find("window_s"); e.is_object() && w != e.end() && w->is_array() &&
+                                             w->size() == 2 && (*w)[0].is_number() &&
+                                             (*w)[1].is_number()) {
+        x.window_s = std::make_pair((*w)[0].get<double>(), (*w)[1].get<double>());
+      }
+      x.location = ParseWhere(StringField(e, "where"));
+      if (expect && expect.IsSequence() && i < expect.size() && expect[i].IsMap() &&
+          expect[i]["pass_fraction"]) {
+        try {
+          x.pass_fraction = expect[i]["pass_fraction"].as<double>();
+        } catch (const YAML::Exception&) {
+          // A resolved scenario always has a number here; keep the default (every seed).
+        }
+      }
+      scenario.expect.push_back(std::move(x));
+    }
+    if (!scenario.expect.empty()) scenario.source_file = scenario.expect.front().location.file;
+    break;
+  }
+  return scenario;
+}
+
+}  // namespace
+
+// The runs of one scenario folder, their summaries read (a check may hold thousands of
+// runs: their pages are written one at a time, WriteCheckPages).
+CheckScenario ReadCheckScenario(const fs::path& check_dir, const std::string& name) {
+  CheckScenario sc;
+  sc.name = name;
+  const fs::path dir = check_dir / name;
+  for (const uint64_t seed : SeedsIn(dir)) {
+    CheckRun r;
+    r.run.seed = seed;
+    r.run.run_dir = (dir / fmt::format("seed_{}", seed)).string();
+    r.run.log_path = (dir / fmt::format("seed_{}.log", seed)).string();
+    r.log_tail = LogTailText(r.run.log_path, 12);
+    if (!IsRunDirectory(r.run.run_dir)) {
+      r.run.exit_code = core::kExitBadInput;
+      r.run.error = "no run directory: the run was refused or did not start (see its log)";
+      sc.runs.push_back(std::move(r));
+      continue;
+    }
+    try {
+      r.run.summary = renders::ReadRunJson(fs::path(r.run.run_dir) / "summary.json");
+      if (!r.run.summary.is_object()) {
+        throw InputError({(fs::path(r.run.run_dir) / "summary.json").string(), 1, 1}, "",
+                         "expected a JSON object");
+      }
+      r.scenario = ReadScenarioFile(fs::path(r.run.run_dir) / "scenario.yaml");
+      const std::string failure = StringField(r.run.summary, "failure");
+      // As `tofu run` exits: 3 when the simulation failed, else 1 when an expectation (or
+      // a closed-loop flight) failed.
+      if (!failure.empty()) {
+        r.run.exit_code = core::kExitSimulationError;
+        r.run.error = "simulation failed: " + failure;
+      } else {
+        r.run.exit_code =
+            r.run.summary.value("passed", false) ? core::kExitOk : core::kExitExpectationFailed;
+      }
+    } catch (const InputError& e) {
+      r.read_error = e.what();
+      r.run.exit_code = core::kExitSimulationError;
+      r.run.error = std::string("unreadable run directory: ") + e.what();
+    }
+    sc.runs.push_back(std::move(r));
+  }
+  return sc;
+}
+
+// Writes each run's page (and log) under <staging>/<scenario>/seed_<s>/, reading one run
+// at a time; a run whose files are malformed gets no page but a red row saying why. Then
+// aggregates the scenario as `tofu check` does.
+void WriteCheckPages(CheckScenario& sc, const fs::path& staging) {
+  for (CheckRun& r : sc.runs) {
+    const fs::path seed_dir = staging / sc.name / fmt::format("seed_{}", r.run.seed);
+    std::string log_href;
+    if (fs::is_regular_file(r.run.log_path)) {
+      fs::create_directories(seed_dir);
+      fs::copy_file(r.run.log_path, seed_dir / "run.log", fs::copy_options::overwrite_existing);
+      log_href = "run.log";
+    }
+    if (!r.read_error.empty() || !IsRunDirectory(r.run.run_dir)) continue;
+    try {
+      const RunInputs inputs = ReadRunInputs(r.run.run_dir);
+      WriteRunPage(inputs, PageContext{seed_dir, "../../index.html", log_href});
+      r.has_page = true;
+    } catch (const InputError& e) {
+      r.read_error = e.what();
+      r.run.exit_code = core::kExitSimulationError;
+      r.run.error = std::string("unreadable run directory: ") + e.what();
+    }
+  }
+  std::vector<harness::SeedRun> runs;
+  for (const CheckRun& r : sc.runs) runs.push_back(r.run);
+  sc.check = harness::EvaluateScenarioCheck(ScenarioOfRuns(sc.name, sc.runs), std::move(runs));
+}
+
+namespace {
+
+fs::path RunPagePath(const std::string& scenario, uint64_t seed) {
+  return fs::path(scenario) / fmt::format("seed_{}", seed) / "index.html";
+}
+
+std::string RunVerdict(const CheckRun& r) {
+  if (!r.read_error.empty()) return "unreadable";
+  switch (r.run.exit_code) {
+    case core::kExitOk:
+      return "passed";
+    case core::kExitExpectationFailed:
+      return "expectation failed";
+    case core::kExitBadInput:
+      return "no run";
+    default:
+      return "simulation failed";
+  }
+}
+
+std::string SeedLink(const CheckScenario& sc, const CheckRun& r) {
+  if (r.has_page) {
+    return fmt::format("<a href=\"{}\">seed {}</a>", Href(RunPagePath(sc.name, r.run.seed)),
+                       r.run.seed);
+  }
+  return fmt::format("seed {}", r.run.seed);
+}
+
+std::string ScenarioResult(const harness::ScenarioCheck& c) {
+  if (!c.runs_ok) return "<span class=\"badge fail\">ERROR</span>";
+  return Badge(c.passed, "pass", "FAIL");
+}
+
+std::string CheckSummaryTable(const std::vector<CheckScenario>& scenarios) {
+  std::string rows;
+  for (const CheckScenario& sc : scenarios) {
+    const harness::ScenarioCheck& c = sc.check;
+    int held = 0;
+    for (const auto& a : c.expectations) held += a.passed ? 1 : 0;
+    std::string methods;
+    for (const harness::MethodStats& m : c.methods) {
+      methods += fmt::format(
+          "<div><code>{}</code> {}{}</div>", E(m.method),
+          m.ate_mean_m ? Number(*m.ate_mean_m) + " m" : "–",
+          m.has_detections ? fmt::format(", {}/{} faults detected", m.faults_detected, m.faults)
+                           : "");
+    }
+    for (const harness::ClosedLoopStats& f : c.closed_loop) {
+      methods += fmt::format("<div>flown on <code>{}</code>: trk {}, {} hits</div>", E(f.method),
+                             f.tracking_rmse_mean_m ? Number(*f.tracking_rmse_mean_m) + " m" : "–",
+                             f.collisions);
+    }
+    std::string seeds;
+    for (const CheckRun& r : sc.runs) {
+      const bool ok = r.run.error.empty() && r.run.exit_code == core::kExitOk;
+      seeds +=
+          fmt::format("<span class=\"chip {}\">{}</span> ", ok ? "pass" : "fail", SeedLink(sc, r));
+    }
+    const bool ok = c.passed;
+    rows += fmt::format(
+        "<tr class=\"{}\"><td><a href=\"#scenario-{}\"><code>{}</code></a></td><td "
+        "class=\"result\">{}</td>"
+        "<td class=\"num\">{}/{}</td><td class=\"num\">{}/{}</td><td>{}</td><td>{}</td></tr>\n",
+        ok ? "pass" : "fail", E(sc.name), E(sc.name), ScenarioResult(c), c.seeds_passed,
+        c.runs.size(), held, c.expectations.size(), methods.empty() ? "–" : methods, seeds);
+  }
+  return fmt::format(
+      "<table class=\"overview\">\n<thead><tr><th>scenario</th><th>result</th><th>seeds passed</th>"
+      "<th>expectations held</th><th>methods: mean ATE over the "
+      "seeds</th><th>runs</th></tr></thead>\n"
+      "<tbody>\n{}</tbody>\n</table>\n",
+      rows);
+}
+
+// The matrix's first row: how each seed's run went.
+std::string RunRow(const CheckScenario& sc) {
+  const harness::ScenarioCheck& c = sc.check;
+  std::string cells;
+  for (const CheckRun& r : sc.runs) {
+    // A run that worked but failed an expectation is no error of the run: neutral here,
+    // red in the expectation's row.
+    const char* style = !r.run.error.empty() || r.run.exit_code == core::kExitBadInput ? "fail"
+                        : r.run.exit_code == core::kExitOk                             ? "pass"
+                                                           : "neutral";
+    cells += fmt::format("<td class=\"cell {}\">{}</td>", style, E(RunVerdict(r)));
+  }
+  return fmt::format(
+      "<tr class=\"{}\"><td>run</td><td class=\"num\">–</td>{}<td "
+      "class=\"result\">{}</td></tr>\n",
+      c.runs_ok ? "pass" : "fail", cells, c.runs_ok ? "ok" : "ERROR");
+}
+
+// A row of the matrix: the expectation's value in each seed, and its verdict over them.
+std::string ExpectationRow(const harness::AggregatedExpectation& a) {
+  std::string cells;
+  for (const harness::SeedOutcome& o : a.seeds) {
+    cells += fmt::format("<td class=\"cell num {}\">{} {}</td>", o.held ? "pass" : "fail",
+                         o.value ? Number(*o.value) : "n/a", o.held ? "✔" : "✘");
+  }
+  return fmt::format(
+      "<tr class=\"{}\"><td><code>{}</code><div class=\"where\">{}</div></td><td "
+      "class=\"num\">{}/{}</td>{}"
+      "<td class=\"result\">{}</td></tr>\n",
+      a.passed ? "pass" : "fail", E(harness::ExpectationLabel(a.expectation)),
+      E(fmt::format("{}:{}", a.expectation.location.file, a.expectation.location.line)),
+      a.required, a.seeds.size(), cells,
+      a.passed ? fmt::format("held {}/{}", a.held, a.seeds.size())
+               : fmt::format("FAIL {}/{}", a.held, a.seeds.size()));
+}
+
+// The matrix: expectations by seeds.
+std::string ExpectationMatrix(const CheckScenario& sc) {
+  std::string head;
+  for (const CheckRun& r : sc.runs) head += fmt::format("<th>{}</th>", SeedLink(sc, r));
+  std::string rows = RunRow(sc);
+  for (const harness::AggregatedExpectation& a : sc.check.expectations) rows += ExpectationRow(a);
+  return fmt::format(
+      "<table "
+      "class=\"matrix\">\n<thead><tr><th>expectation</th><th>needs</th>{}<th>result</th></tr></"
+      "thead>\n"
+      "<tbody>\n{}</tbody>\n</table>\n",
+      head, rows);
+}
+
+// Methods per seed (ATE) and closed-loop flights per seed (tracking RMSE); none without
+// either.
+std::string MethodsPerSeedTable(const CheckScenario& sc) {
+  const harness::ScenarioCheck& c = sc.check;
+  if (c.methods.empty() && c.closed_loop.empty()) return "";
+  std::string mrows;
+  for (const harness::MethodStats& m : c.methods) {
+    std::string cells;
+    for (const CheckRun& r : sc.runs) {
+      const json methods = r.run.summary.is_object()
+                               ? r.run.summary.value("methods", json::object())
+                               : json::object();
+      cells += fmt::format("<td class=\"num\">{}</td>",
+                           Field(methods.value(m.method, json::object()), "ate_m"));
+    }
+    mrows += fmt::format(
+        "<tr><td><code>{}</code></td>{}<td class=\"num\">{}</td><td class=\"num\">{}</td></tr>\n",
+        E(m.method), cells, m.ate_mean_m ? Number(*m.ate_mean_m) : "–",
+        m.has_detections ? fmt::format("{}/{}", m.faults_detected, m.faults) : "–");
+  }
+  for (const harness::ClosedLoopStats& f : c.closed_loop) {
+    std::string cells;
+    for (const CheckRun& r : sc.runs) {
+      const json flights = r.run.summary.is_object()
+                               ? r.run.summary.value("closed_loop", json::object())
+                               : json::object();
+      cells += fmt::format("<td class=\"num\">{}</td>",
+                           Field(flights.value(f.method, json::object()), "tracking_rmse_m"));
+    }
+    mrows += fmt::format(
+        "<tr class=\"{}\"><td>flown on <code>{}</code> (tracking RMSE)</td>{}<td "
+        "class=\"num\">{}</td>"
+        "<td class=\"num\">{} hits, {} failsafe</td></tr>\n",
+        f.collisions > 0 ? "fail" : "", E(f.method), cells,
+        f.tracking_rmse_mean_m ? Number(*f.tracking_rmse_mean_m) : "–", f.collisions,
+        f.failsafe_events);
+  }
+  std::string mhead;
+  for (const CheckRun& r : sc.runs) mhead += fmt::format("<th>seed {}</th>", r.run.seed);
+  return fmt::format(
+      "<h3>Methods [m]</h3>\n<table>\n<thead><tr><th>method "
+      "(ATE)</th>{}<th>mean</th><th>detected / "
+      "collisions</th></tr></thead>\n<tbody>\n{}</tbody>\n</table>\n",
+      mhead, mrows);
+}
+
+// Why runs failed.
+std::string RunFailureNotes(const CheckScenario& sc) {
+  std::string out;
+  for (const CheckRun& r : sc.runs) {
+    if (r.run.error.empty()) continue;
+    out += fmt::format("<div class=\"failure\"><strong>seed {}:</strong> {}", r.run.seed,
+                       E(r.run.error));
+    if (fs::is_regular_file(r.run.log_path)) {
+      out += fmt::format(" (<a href=\"{}\">log</a>)",
+                         Href(fs::path(sc.name) / fmt::format("seed_{}", r.run.seed) / "run.log"));
+    }
+    if (!r.log_tail.empty()) out += fmt::format("<pre>{}</pre>", E(r.log_tail));
+    out += "</div>\n";
+  }
+  return out;
+}
+
+std::string ScenarioDetail(const CheckScenario& sc) {
+  const harness::ScenarioCheck& c = sc.check;
+  std::string out =
+      fmt::format("<section class=\"scenario\" id=\"scenario-{}\">\n<h2><code>{}</code> {}</h2>\n",
+                  E(sc.name), E(sc.name), ScenarioResult(c));
+  if (!c.source_file.empty()) out += fmt::format("<p class=\"muted\">{}</p>\n", E(c.source_file));
+  out += ExpectationMatrix(sc);
+  out += MethodsPerSeedTable(sc);
+  out += RunFailureNotes(sc);
+  return out + "</section>\n";
+}
+
+}  // namespace
+
+std::string CheckPageHtml(const fs::path& check_dir, const std::vector<CheckScenario>& scenarios) {
+  size_t runs = 0, runs_passed = 0, scenarios_passed = 0;
+  for (const CheckScenario& sc : scenarios) {
+    runs += sc.runs.size();
+    runs_passed += static_cast<size_t>(sc.check.seeds_passed);
+    scenarios_passed += sc.check.passed ? 1 : 0;
+  }
+  const bool passed = scenarios_passed == scenarios.size();
+  std::string page = PageHead("tofu check report");
+  page += fmt::format(
+      "<header class=\"top {}\"><h1>tofu check {}</h1>\n<div class=\"sub\">{} of {} scenarios "
+      "passed · "
+      "{} of {} runs passed every expectation · {}</div>\n</header>\n<main>\n",
+      passed ? "pass" : "fail", Badge(passed), scenarios_passed, scenarios.size(), runs_passed,
+      runs, E(fs::absolute(check_dir).lexically_normal().string()));
+  page +=
+      Section("overview", "Scenarios",
+              "<p>One row per scenario over its seeds (an expectation passes when it held in at "
+              "least <code>ceil(pass_fraction &times; seeds)</code> of them). Each seed links to "
+              "its run's page.</p>\n" +
+                  CheckSummaryTable(scenarios));
+  for (const CheckScenario& sc : scenarios) page += ScenarioDetail(sc);
+  page += "</main>\n" + PageFoot(false);
+  return page;
+}
+
+}  // namespace tofu::report::html
