@@ -764,6 +764,63 @@ def extract_suite(r):
     return v
 
 
+NIS_SEEDS = list(range(1, 11))
+NIS_THRESHOLD = 3.0  # chosen before the runs: healthy pairs sit at 0.5-2 (one seed looked at)
+
+
+def _nis_variants(r):
+    """The suite's scenarios with methods [consensus, oracle] and no expectations, once as
+    written (cm, the paper's metric) and once with `metric: nis` at NIS_THRESHOLD (a
+    leave_threshold doubled as the cm one is)."""
+    dirs = {}
+    for variant in ("cm", "nis"):
+        d = r.out("consensus_nis", "scenarios", variant)
+        d.mkdir(parents=True, exist_ok=True)
+        dirs[variant] = d
+    for scenario in _suite_scenarios(r.root):
+        text = (r.root / "scenarios/suite" / f"{scenario}.yaml").read_text()
+        text = re.sub(r"  methods: \[[^\]]*\]", "  methods: [consensus, oracle]", text, flags=re.S)
+        text = text.split("\nexpect:")[0] + "\n"
+        (dirs["cm"] / f"{scenario}.yaml").write_text(text)
+        nis, count = re.subn(r"consensus: \{threshold: [0-9.]+",
+                             f"consensus: {{metric: nis, threshold: {NIS_THRESHOLD:g}", text)
+        if count != 1:
+            raise ResultsError(f"scenarios/suite/{scenario}.yaml: no single `consensus: {{threshold: ...`")
+        nis = re.sub(r"leave_threshold: [0-9.]+", f"leave_threshold: {2 * NIS_THRESHOLD:g}", nis)
+        (dirs["nis"] / f"{scenario}.yaml").write_text(nis)
+    return dirs
+
+
+def run_consensus_nis(r):
+    dirs = _nis_variants(r)
+    for variant, d in dirs.items():
+        r.tofu_cmd(f"consensus_nis_{variant}", "check", str(d), "--seeds", len(NIS_SEEDS),
+                   "--jobs", r.jobs, "--quiet", "--out", r.out("consensus_nis", variant), ok=(0, 1, 3))
+
+
+def extract_consensus_nis(r):
+    v = {}
+    for scenario in _suite_scenarios(r.root):
+        for variant in ("cm", "nis"):
+            s = seed_summaries(r.out("consensus_nis", variant), scenario, NIS_SEEDS)
+            c = {i: s[i]["methods"]["consensus"] for i in NIS_SEEDS}
+            o = {i: s[i]["methods"]["oracle"] for i in NIS_SEEDS}
+            key = f"consensus_nis.{scenario}.{variant}."
+            for half, seeds in (("1_5", NIS_SEEDS[:5]), ("6_10", NIS_SEEDS[5:])):
+                ratio = [c[i]["ate_m"] / o[i]["ate_m"] for i in seeds]
+                v[f"{key}ratio_{half}"] = f"{fixed(statistics.median(ratio), 2)} / {fixed(max(ratio), 2)}"
+            missed = any(c[i].get("faults_detected", 0) < c[i].get("faults", 0) for i in NIS_SEEDS)
+            det = [c[i].get("max_detection_delay_s") for i in NIS_SEEDS]
+            det = [x for x in det if x is not None]
+            v[key + "detection_worst_s"] = "inf" if missed else (f"{max(det):.1f}" if det else "-")
+            read = [c[i].get("max_readmission_delay_s") for i in NIS_SEEDS]
+            read = [x for x in read if x is not None]
+            v[key + "readmission_worst_s"] = f"{max(read):.1f}" if read else "-"
+            v[key + "false_exclusion_worst"] = percent(max(c[i]["false_exclusion_fraction"] for i in NIS_SEEDS))
+            v[key + "switches_median"] = f"{statistics.median(c[i]['switches'] for i in NIS_SEEDS):g}"
+    return v
+
+
 SOURCES = {
     "paper_metric": {"describe": "`tofu run` of scenarios/paper_metric_evaluation.yaml and "
                                  "paper_metric_divergence.yaml (seed 1), then scripts/plot_consistency.py "
@@ -800,6 +857,10 @@ SOURCES = {
                 "extract": extract_clients},
     "suite": {"describe": "`tofu check scenarios/suite --seeds 10`", "seeds": SUITE_SEEDS,
               "run": _check_source("suite", "scenarios/suite", 10), "extract": extract_suite},
+    "consensus_nis": {"describe": "`tofu check` of the suite's scenarios with methods [consensus, "
+                                  "oracle], as written (cm) and with `consensus: {metric: nis, "
+                                  f"threshold: {NIS_THRESHOLD:g}}}`, --seeds 10",
+                      "seeds": NIS_SEEDS, "run": run_consensus_nis, "extract": extract_consensus_nis},
 }
 
 
@@ -951,6 +1012,18 @@ def table_suite(V):
                      "rotation × oracle med (cs)"], rows)
 
 
+def table_consensus_nis(V):
+    rows = []
+    for scenario in _suite_scenarios(SCRIPT_ROOT):
+        k = f"consensus_nis.{scenario}."
+        rows.append([scenario] + [f"{V(k + 'cm.' + f)} → {V(k + 'nis.' + f)}" for f in (
+            "ratio_1_5", "ratio_6_10", "detection_worst_s", "readmission_worst_s",
+            "false_exclusion_worst", "switches_median")])
+    return md_table(["scenario (cm → nis)", "consensus × oracle ATE, seeds 1-5 (med / worst)",
+                     "seeds 6-10 (med / worst)", "detection worst [s]", "re-admission worst [s]",
+                     "false excl. worst", "switches (med)"], rows)
+
+
 def table_suite_failures(V):
     rows = []
     for scenario in _suite_scenarios(SCRIPT_ROOT):
@@ -1037,6 +1110,7 @@ TABLES = {
     "mission_frame_window_6_10": lambda V: _mission_frame(V, "closed_loop_window", CLOSED_LOOP_SEEDS[5:]),
     "suite": table_suite,
     "suite_failures": table_suite_failures,
+    "consensus_nis": table_consensus_nis,
 }
 
 
