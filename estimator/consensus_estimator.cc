@@ -42,12 +42,13 @@ class GridResampler {
     if (last_ && t_ns <= last_->t_ns) return;
     const Eigen::Matrix3d cov_now = cov != nullptr ? *cov : Eigen::Matrix3d::Zero();
     if (!last_ || t_ns - last_->t_ns > max_gap_ns_) {
-      if (t_ns % period_ns_ == 0) emit(t_ns, v, cov != nullptr ? &cov_now : nullptr);
+      if (t_ns % period_ns_ == 0) emit(t_ns, v, cov);
     } else {
       const core::Time t0 = last_->t_ns;
+      Eigen::Matrix3d cov_g;
       for (core::Time g = t0 - t0 % period_ns_ + period_ns_; g <= t_ns; g += period_ns_) {
         const double u = static_cast<double>(g - t0) / static_cast<double>(t_ns - t0);
-        const Eigen::Matrix3d cov_g = (1.0 - u) * last_->cov + u * cov_now;
+        if (cov != nullptr) cov_g = (1.0 - u) * last_->cov + u * cov_now;
         emit(g, (1.0 - u) * last_->v + u * v, cov != nullptr ? &cov_g : nullptr);
       }
     }
@@ -269,7 +270,8 @@ struct ConsensusEstimator::Impl {
         const std::optional<Eigen::Vector3d> omega_I = GyroAt(r.t_ns);
         if (!omega_I || !r.v_s_mps) continue;
         // v_I = R_Is v_s − ω_I × p_Is: the mount point's velocity moved to the IMU point.
-        const Eigen::Matrix3d cov_I = R_Is * r.cov_v_s * R_Is.transpose();
+        Eigen::Matrix3d cov_I;
+        if (stated) cov_I = R_Is * r.cov_v_s * R_Is.transpose();
         s.grid->Add(r.t_ns, R_Is * *r.v_s_mps - omega_I->cross(p_Is), stated ? &cov_I : nullptr,
                     emit);
       }

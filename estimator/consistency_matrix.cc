@@ -129,7 +129,7 @@ AddResult ConsistencyMatrix::Add(int stream_index, core::Time t_ns, const Eigen:
   // A stream states covariances from its first sample on, or never; a later sample
   // without one is marked unknown (kNis skips it).
   auto& cov = stream.samples.cov_m2ps2;
-  if (stream.samples.t_ns.empty() && stream.counters.accepted == 0) {
+  if (stream.counters.accepted == 0) {
     stream.states_covariance = cov_m2ps2 != nullptr;
   }
   if (stream.states_covariance) {
