@@ -21,6 +21,7 @@ using replay::WriteFileAtomically;
 const std::vector<std::string> kMethodTableMetrics = {
     "ate_m",
     "rotation_rmse_deg",
+    "position_step_max_m",
     "nees_position_mean",
     "nees_position_median",
     "position_containment_95",
@@ -251,22 +252,24 @@ std::string MethodsMarkdown(const std::vector<ScenarioMethodTable>& tables) {
       "# Estimation methods over the seeds\n\n"
       "Median and worst seed of each metric (summary.json `methods`); \"-\": no seed has a "
       "value; \"(k of N seeds)\": only k seeds have one. ATE/oracle: ATE over the oracle's "
-      "ATE in the same seed. Worst detection delay \"missed\": a fault was not detected; "
+      "ATE in the same seed. Largest step: the largest change of the position error between "
+      "consecutive outputs (a jump of the estimate). Worst detection delay \"missed\": a fault was not detected; "
       "worst re-admission \"never\": a sensor was not trusted again after its fault.\n";
   for (const ScenarioMethodTable& t : tables) {
     out += fmt::format("\n## {} ({} seed{})\n\n", MdText(t.scenario), t.seeds,
                        t.seeds == 1 ? "" : "s");
     out +=
         "| method | ATE median / worst [m] | ATE/oracle median / worst | rotation RMSE median "
-        "[deg] | NEES median | 95 % containment median | max detection delay worst [s] | "
-        "re-admission worst [s] | false exclusion worst |\n"
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+        "[deg] | largest step worst [m] | NEES median | 95 % containment median | max detection "
+        "delay worst [s] | re-admission worst [s] | false exclusion worst |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
     for (const MethodTableRow& row : t.methods) {
       out += fmt::format(
-          "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n", MdText(row.method),
+          "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n", MdText(row.method),
           MdCell(row.Find("ate_m"), t.seeds, true, true),
           MdCell(row.Find(kAteOverOracle), t.seeds, true, true),
           MdCell(row.Find("rotation_rmse_deg"), t.seeds, true, false),
+          MdCell(row.Find("position_step_max_m"), t.seeds, false, true),
           MdCell(row.Find("nees_position_median"), t.seeds, true, false),
           MdCell(row.Find("position_containment_95"), t.seeds, true, false),
           MdCell(row.Find("max_detection_delay_s"), t.seeds, false, true, "missed"),

@@ -147,6 +147,7 @@ std::optional<double> MethodMetricValue(const RunRecord& record, const std::stri
   if (pattern == "methods.<method>.ate_max_m") return m->ate_max_m;
   if (pattern == "methods.<method>.rotation_rmse_deg") return m->rotation_rmse_deg;
   if (pattern == "methods.<method>.rpe_m") return m->rpe_m;
+  if (pattern == "methods.<method>.position_step_max_m") return m->position_step_max_m;
   if (pattern == "methods.<method>.nees_position_mean") return m->nees_position_mean;
   if (pattern == "methods.<method>.nees_position_median") return m->nees_position_median;
   if (pattern == "methods.<method>.position_containment_95") return m->position_containment_95;
@@ -172,6 +173,8 @@ nlohmann::json MethodsJson(const RunRecord& record) {
                         {"rotation_rmse_deg", OptionalNumber(m.rotation_rmse_deg)},
                         {"rpe_m", OptionalNumber(m.rpe_m)},
                         {"rpe_deg", OptionalNumber(m.rpe_deg)},
+                        {"position_step_max_m", OptionalNumber(m.position_step_max_m)},
+                        {"position_step_max_t_s", OptionalNumber(m.position_step_max_t_s)},
                         {"nees_position_mean", OptionalNumber(m.nees_position_mean)},
                         {"nees_position_median", OptionalNumber(m.nees_position_median)},
                         {"position_containment_95", OptionalNumber(m.position_containment_95)},

@@ -38,6 +38,10 @@ const std::vector<MetricInfo>& MetricCatalog() {
       {"methods.<method>.rotation_rmse_deg", "deg", "RMS rotation error under the same alignment",
        false},
       {"methods.<method>.rpe_m", "m", "RMS relative position error over 1 s", false},
+      {"methods.<method>.position_step_max_m", "m",
+       "continuity: the largest change of the aligned position error between consecutive "
+       "outputs (a step of the estimate the true motion does not explain)",
+       false},
       {"methods.<method>.nees_position_mean", "",
        "mean NEES of the reported position covariance (3 when consistent)", false},
       {"methods.<method>.nees_position_median", "",

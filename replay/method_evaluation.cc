@@ -162,6 +162,10 @@ void SetTrajectoryScores(const TrajectoryErrors& t, const std::vector<double>& n
     e.rpe_m = t.rpe_translation_rmse_m;
     e.rpe_deg = t.rpe_rotation_rmse_deg;
   }
+  if (t.step_pairs > 0) {
+    e.position_step_max_m = t.position_step_max_m;
+    e.position_step_max_t_s = core::TimeToSeconds(t.position_step_max_t_ns);
+  }
   double nees_sum = 0.0;
   std::vector<double> values;
   for (const double v : nees) {

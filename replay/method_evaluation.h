@@ -8,6 +8,7 @@
 //  - NEES of the reported position covariance: e_Lᵀ P_pp⁻¹ e_L with e_L the aligned
 //    position error rotated into L (3 on average for a consistent 3-D estimate), and the
 //    95 % containment;
+//  - continuity: the largest step of the position error between consecutive outputs;
 //  - tilt and IMU-bias errors, and the input check (the fused estimate against the pose
 //    stream it fused, on the same span);
 //  - fault detection (consensus methods, and clients that say what they fuse): per fault
@@ -122,6 +123,10 @@ struct MethodEvaluation {
   std::optional<double> rotation_rmse_deg;
   std::optional<double> rpe_m;
   std::optional<double> rpe_deg;
+  /// Continuity (TrajectoryErrors::position_step_max_m): the largest step of the position
+  /// error between consecutive outputs, and when (run time, s).
+  std::optional<double> position_step_max_m;
+  std::optional<double> position_step_max_t_s;
   /// NEES of the reported position covariance against the true error, e_Lᵀ P⁻¹ e_L, over
   /// the outputs with a covariance and ground truth: its mean and median (3 and 2.37 for
   /// a consistent 3-DoF covariance), and the fraction of samples inside the covariance's

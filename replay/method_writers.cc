@@ -165,7 +165,9 @@ nlohmann::ordered_json AteJson(const TrajectoryErrors& errors) {
           {"rotation_rmse_deg", errors.rotation_rmse_deg},
           {"rpe_delta_s", errors.rpe_delta_s},
           {"rpe_translation_rmse_m", errors.rpe_translation_rmse_m},
-          {"rpe_rotation_rmse_deg", errors.rpe_rotation_rmse_deg}};
+          {"rpe_rotation_rmse_deg", errors.rpe_rotation_rmse_deg},
+          {"position_step_max_m", errors.position_step_max_m},
+          {"position_step_max_t_s", core::TimeToSeconds(errors.position_step_max_t_ns)}};
 }
 
 nlohmann::ordered_json PoseJson(const Eigen::Isometry3d& T, const char* p_key, const char* q_key) {

@@ -405,13 +405,25 @@ TrajectoryErrors EvaluateTrajectory(const std::vector<PoseSample>& estimate,
   r.t_ns.reserve(pairs.size());
   r.position_error_m.reserve(pairs.size());
   r.rotation_error_deg.reserve(pairs.size());
+  r.position_step_max_m = kNaN;
+  Eigen::Vector3d e_previous_W = Eigen::Vector3d::Zero();
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     const PoseSample T_LI = pairs.estimate(k);
     const PoseSample T_WI = pairs.truth(k);
     const Eigen::Vector3d p_W = r.T_WL * T_LI.p;
     const Eigen::Matrix3d R_WI = R_WL * T_LI.q.toRotationMatrix();
+    const Eigen::Vector3d e_W = p_W - T_WI.p;
+    if (k > 0 && pairs.t_ns(k) - pairs.t_ns(k - 1) <= options.max_step_gap_ns) {
+      const double step = (e_W - e_previous_W).norm();
+      if (r.step_pairs == 0 || step > r.position_step_max_m) {
+        r.position_step_max_m = step;
+        r.position_step_max_t_ns = pairs.t_ns(k);
+      }
+      ++r.step_pairs;
+    }
+    e_previous_W = e_W;
     r.t_ns.push_back(pairs.t_ns(k));
-    r.position_error_m.push_back((p_W - T_WI.p).norm());
+    r.position_error_m.push_back(e_W.norm());
     r.rotation_error_deg.push_back(
         core::RotationAngleBetween(T_WI.q.toRotationMatrix(), R_WI) * kDegPerRad);
   }

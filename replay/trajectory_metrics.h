@@ -62,6 +62,9 @@ struct TrajectoryErrorOptions {
   /// t_i + rpe_delta_ns and no later than rpe_delta_ns + rpe_tolerance_ns.
   core::Time rpe_delta_ns = 1'000'000'000;
   core::Time rpe_tolerance_ns = 100'000'000;
+  /// Continuity: the position error's change is taken between consecutive matched
+  /// samples at most this far apart (an output gap longer than this is not a step).
+  core::Time max_step_gap_ns = 50'000'000;
 };
 
 /// The median of `values` (the mean of the two middle ones for an even count); NaN when
@@ -93,6 +96,16 @@ struct TrajectoryErrors {
   double rpe_translation_rmse_m = 0.0;
   double rpe_rotation_rmse_deg = 0.0;
   double rpe_delta_s = 0.0;
+
+  /// Continuity: the largest change of the aligned position error between consecutive
+  /// matched samples at most max_step_gap_ns apart, |e_k+1 - e_k| with e = T_WL p_LI -
+  /// p_WI: a step of the estimate that the true motion does not explain, as a controller
+  /// flying on it feels it (a switch of the fused set, a re-linearisation, an absolute
+  /// sensor pulling the state back). Independent of the alignment's translation. NaN when
+  /// there is no such pair.
+  std::size_t step_pairs = 0;
+  double position_step_max_m = 0.0;
+  core::Time position_step_max_t_ns = 0;  ///< the later sample of the largest step
 
   /// Per matched sample, in time order (for errors.csv and plots).
   std::vector<core::Time> t_ns;

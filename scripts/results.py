@@ -821,6 +821,83 @@ def extract_consensus_nis(r):
     return v
 
 
+FACTOR_SEEDS = list(range(1, 11))
+FACTOR_VARIANTS = ("between", "absolute")
+
+
+def _factor_methods(text, where):
+    """The scenario's methods without naive and consensus:consistent_set (the comparison
+    is of consensus's default fusion, the oracle and each sensor alone)."""
+    found = re.search(r"  methods: \[([^\]]*)\]", text, flags=re.S)
+    if not found:
+        raise ResultsError(f"{where}: no `methods: [...]` in its estimation block")
+    methods = [m.strip().strip('"') for m in found.group(1).replace("\n", " ").split(",")]
+    kept = [m for m in methods if m and m not in ("naive", "consensus:consistent_set")]
+    return text[:found.start()] + "  methods: [" + ", ".join(f'"{m}"' for m in kept) + "]" + \
+        text[found.end():]
+
+
+def _factor_variants(r):
+    """The suite's scenarios without expectations, once with the paper's between factors
+    (each absolute sensor fused as displacements between keyframes, the default) and once
+    with `position_factors: absolute` (unary factors through each sensor's T_AL)."""
+    dirs = {}
+    for variant in FACTOR_VARIANTS:
+        d = r.out("position_factors", "scenarios", variant)
+        d.mkdir(parents=True, exist_ok=True)
+        dirs[variant] = d
+    for scenario in _suite_scenarios(r.root):
+        where = f"scenarios/suite/{scenario}.yaml"
+        text = _factor_methods((r.root / where).read_text(), where)
+        text = text.split("\nexpect:")[0] + "\n"
+        if "position_factors:" in text:
+            raise ResultsError(f"{where}: states position_factors already")
+        for variant, d in dirs.items():
+            out, count = re.subn(r"^  consensus: \{", f"  position_factors: {variant}\n  consensus: {{",
+                                 text, flags=re.M)
+            if count != 1:
+                raise ResultsError(f"{where}: no single `  consensus: {{` line in its estimation block")
+            (d / f"{scenario}.yaml").write_text(out)
+    return dirs
+
+
+def run_position_factors(r):
+    for variant, d in _factor_variants(r).items():
+        r.tofu_cmd(f"position_factors_{variant}", "check", str(d), "--seeds", len(FACTOR_SEEDS),
+                   "--jobs", r.jobs, "--quiet", "--out", r.out("position_factors", variant), ok=(0, 1, 3))
+
+
+def extract_position_factors(r):
+    v = {}
+    for scenario in _suite_scenarios(r.root):
+        for variant in FACTOR_VARIANTS:
+            s = seed_summaries(r.out("position_factors", variant), scenario, FACTOR_SEEDS)
+            m = {i: s[i]["methods"] for i in FACTOR_SEEDS}
+            key = f"position_factors.{scenario}.{variant}."
+
+            def values(method, metric):
+                return [m[i][method].get(metric) for i in FACTOR_SEEDS]
+
+            oracle = values("oracle", "ate_m")
+            consensus = values("consensus", "ate_m")
+            singles = sorted(meth for meth in m[1] if meth.startswith("single:") and meth.endswith("@clean"))
+            best = min(singles, key=lambda meth: statistics.median(values(meth, "ate_m")))
+            best_ate = values(best, "ate_m")
+            over_oracle = [c / o for c, o in zip(consensus, oracle)]
+            v[key + "oracle_ate"] = sig(statistics.median(oracle), 3)
+            v[key + "best_single"] = f"{best[len('single:'):-len('@clean')]} {sig(statistics.median(best_ate), 3)}"
+            v[key + "oracle_over_best"] = fixed(statistics.median([o / b for o, b in zip(oracle, best_ate)]), 2)
+            v[key + "consensus_over_oracle"] = f"{fixed(statistics.median(over_oracle), 2)} / {fixed(max(over_oracle), 2)}"
+            for method, name in (("consensus", "consensus"), ("oracle", "oracle")):
+                steps = [x * 1000.0 for x in values(method, "position_step_max_m")]
+                v[f"{key}{name}_step_mm"] = f"{sig(statistics.median(steps), 2)} / {sig(max(steps), 2)}"
+            nees = [x for x in values("consensus", "nees_position_mean") if x is not None]
+            inside = [x for x in values("consensus", "position_containment_95") if x is not None]
+            v[key + "consensus_nees"] = sci(statistics.median(nees), 2) if nees else "-"
+            v[key + "consensus_containment"] = percent(statistics.median(inside), 0) if inside else "-"
+    return v
+
+
 SOURCES = {
     "paper_metric": {"describe": "`tofu run` of scenarios/paper_metric_evaluation.yaml and "
                                  "paper_metric_divergence.yaml (seed 1), then scripts/plot_consistency.py "
@@ -861,6 +938,11 @@ SOURCES = {
                                   "oracle], as written (cm) and with `consensus: {metric: nis, "
                                   f"threshold: {NIS_THRESHOLD:g}}}`, --seeds 10",
                       "seeds": NIS_SEEDS, "run": run_consensus_nis, "extract": extract_consensus_nis},
+    "position_factors": {"describe": "`tofu check` of the suite's scenarios without naive and "
+                                     "consensus:consistent_set, with `position_factors: between` "
+                                     "(the default) and `absolute`, --seeds 10",
+                         "seeds": FACTOR_SEEDS, "run": run_position_factors,
+                         "extract": extract_position_factors},
 }
 
 

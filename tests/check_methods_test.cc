@@ -219,6 +219,7 @@ TEST(CheckMethods, MissedFaultsAndSensorsNeverReadmittedAreInfinite) {
 std::vector<ScenarioMethodTable> TwoScenarios() {
   std::vector<SeedRun> a = {
       FakeRun(1, {{"consensus", {{"ate_m", 0.02}, {"rotation_rmse_deg", 0.3},
+                             {"position_step_max_m", 0.002},
                              {"nees_position_mean", 0.9}, {"nees_position_median", 0.7},
                              {"position_containment_95", 0.99}, {"max_detection_delay_s", 0.4},
                              {"max_readmission_delay_s", 5.6}, {"false_exclusion_fraction", 0.01},
@@ -226,6 +227,7 @@ std::vector<ScenarioMethodTable> TwoScenarios() {
                              {"faults_detected", 2}}},
               {"oracle", {{"ate_m", 0.01}, {"valid_fraction", 1.0}}}}),
       FakeRun(2, {{"consensus", {{"ate_m", 0.04}, {"rotation_rmse_deg", 0.5},
+                             {"position_step_max_m", 0.006},
                              {"nees_position_mean", 1.1}, {"nees_position_median", 0.9},
                              {"position_containment_95", 0.97}, {"max_detection_delay_s", 0.2},
                              {"max_readmission_delay_s", 1.1}, {"false_exclusion_fraction", 0.03},
@@ -246,6 +248,7 @@ TEST(CheckMethods, CsvIsLongFormatWithAHeader) {
   EXPECT_EQ(rows,
             "zz_first,oracle,ate_m,2,0.01,0.01\n"
             "zz_first,oracle,rotation_rmse_deg,0,,\n"
+            "zz_first,oracle,position_step_max_m,0,,\n"
             "zz_first,oracle,nees_position_mean,0,,\n"
             "zz_first,oracle,nees_position_median,0,,\n"
             "zz_first,oracle,position_containment_95,0,,\n"
@@ -257,6 +260,7 @@ TEST(CheckMethods, CsvIsLongFormatWithAHeader) {
             "zz_first,oracle,ate_over_oracle,2,1,1\n"
             "zz_first,consensus,ate_m,2,0.03,0.04\n"
             "zz_first,consensus,rotation_rmse_deg,2,0.4,0.5\n"
+            "zz_first,consensus,position_step_max_m,2,0.004,0.006\n"
             "zz_first,consensus,nees_position_mean,2,1,1.1\n"
             "zz_first,consensus,nees_position_median,2,0.8,0.9\n"
             "zz_first,consensus,position_containment_95,2,0.98,0.97\n"
@@ -268,6 +272,7 @@ TEST(CheckMethods, CsvIsLongFormatWithAHeader) {
             "zz_first,consensus,ate_over_oracle,2,3,4\n"
             "aa_second,naive,ate_m,1,1.5,1.5\n"
             "aa_second,naive,rotation_rmse_deg,0,,\n"
+            "aa_second,naive,position_step_max_m,0,,\n"
             "aa_second,naive,nees_position_mean,0,,\n"
             "aa_second,naive,nees_position_median,0,,\n"
             "aa_second,naive,position_containment_95,0,,\n"
@@ -287,12 +292,13 @@ TEST(CheckMethods, MarkdownHasATablePerScenarioInInputOrder) {
   EXPECT_LT(first, second);
   EXPECT_CONTAINS(md,
                   "| method | ATE median / worst [m] | ATE/oracle median / worst | rotation RMSE "
-                  "median [deg] | NEES median | 95 % containment median | max detection delay "
-                  "worst [s] | re-admission worst [s] | false exclusion worst |\n"
-                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
-                  "| oracle | 0.01 / 0.01 | 1 / 1 | - | - | - | - | - | - |\n"
-                  "| consensus | 0.03 / 0.04 | 3 / 4 | 0.4 | 0.8 | 0.98 | 0.4 | 5.6 | 0.03 |\n");
-  EXPECT_CONTAINS(md, "| naive | 1.5 / 1.5 | - | - | - | - | - | - | - |\n");
+                  "median [deg] | largest step worst [m] | NEES median | 95 % containment median "
+                  "| max detection delay worst [s] | re-admission worst [s] | false exclusion "
+                  "worst |\n"
+                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+                  "| oracle | 0.01 / 0.01 | 1 / 1 | - | - | - | - | - | - | - |\n"
+                  "| consensus | 0.03 / 0.04 | 3 / 4 | 0.4 | 0.006 | 0.8 | 0.98 | 0.4 | 5.6 | 0.03 |\n");
+  EXPECT_CONTAINS(md, "| naive | 1.5 / 1.5 | - | - | - | - | - | - | - | - |\n");
 }
 
 TEST(CheckMethods, ScenariosWithoutMethodsAreLeftOut) {

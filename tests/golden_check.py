@@ -28,7 +28,10 @@ the golden one with that section appended, checked before re-recording, nothing 
 differed), and when each method's summary gained the median NEES and the 95 % containment
 of its position covariance (issue 34 item 4: the summary.json of bridge_inspection,
 indoor_outdoor_window, paper_consensus_indoor and wall_contact_inspection, two keys per
-method added, nothing else differed).
+method added, nothing else differed), and when each method's summary and estimate JSON
+gained the largest step of its position error (issue 34 item 2, continuity: the
+summary.json and estimate_*.json of the same four, two keys per method added, checked
+against the previous binary's run with those keys removed, nothing else differed).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)

@@ -272,6 +272,40 @@ TEST(TrajectoryMetrics, RpeOfAConstantDriftIsDriftTimesDelta) {
   EXPECT_NEAR(r.rpe_rotation_rmse_deg, 0.5, 1e-6);
 }
 
+// Continuity: a rigidly transformed estimate has no step however it moves; a 4 cm jump
+// of the estimate at 12 s is found at 12 s with its size, and a gap in the outputs longer
+// than max_step_gap_ns is not a step.
+TEST(TrajectoryMetrics, TheLargestStepIsAJumpOfTheEstimateNotItsMotion) {
+  const std::vector<PoseSample> gt = GroundTruth();
+  const Eigen::Isometry3d T_LW = Pose(0.1, -0.2, 1.3, Eigen::Vector3d(4.0, -2.0, 0.5));
+  std::vector<PoseSample> est = Transformed(gt, T_LW);
+  TrajectoryErrors r = EvaluateTrajectory(est, gt);
+  EXPECT_EQ(r.step_pairs, gt.size() - 1);
+  EXPECT_LT(r.position_step_max_m, 1e-9);
+
+  const Eigen::Vector3d jump_L(0.0, 0.04, 0.0);  // from 12 s on
+  const core::Time jump_ns = core::SecondsToTime(12.0);
+  for (PoseSample& e : est) {
+    if (e.t_ns >= jump_ns) e.p += jump_L;
+  }
+  r = EvaluateTrajectory(est, gt);
+  EXPECT_NEAR(r.position_step_max_m, 0.04, 1e-3);  // the alignment spreads nothing of a step
+  EXPECT_EQ(r.position_step_max_t_ns, jump_ns);
+
+  // The same jump across 100 ms without outputs: no consecutive pair spans it.
+  std::vector<PoseSample> gapped;
+  for (const PoseSample& e : est) {
+    if (e.t_ns < jump_ns - 100 * kMs || e.t_ns >= jump_ns) gapped.push_back(e);
+  }
+  r = EvaluateTrajectory(gapped, gt);
+  EXPECT_EQ(r.step_pairs, gapped.size() - 2);
+  EXPECT_LT(r.position_step_max_m, 1e-3);
+  TrajectoryErrorOptions options;
+  options.max_step_gap_ns = 200 * kMs;
+  r = EvaluateTrajectory(gapped, gt, options);
+  EXPECT_NEAR(r.position_step_max_m, 0.04, 1e-3);
+}
+
 TEST(TrajectoryMetrics, NonFiniteSamplesAreSkippedAndCounted) {
   const std::vector<PoseSample> gt = GroundTruth(5 * kMs, 5.0);
   std::vector<PoseSample> est = gt;
