@@ -18,12 +18,8 @@
 
 namespace tofu::harness {
 
-using replay::ConsistencyMatrixCsv;
-using replay::DecisionRows;
-using replay::kDecisionsCsvHeader;
 using replay::LabelEvent;
 using replay::PoseSample;
-using replay::MethodFileStem;
 using replay::ReadRecordedLog;
 using replay::RecordedLog;
 using replay::RecordedLogOptions;
@@ -31,7 +27,6 @@ using replay::ReplayMethod;
 using replay::ReplayResult;
 using replay::SensorSpecsOf;
 using replay::TrajectoryErrors;
-using replay::WriteFileAtomically;
 using replay::WriteMethodResult;
 
 namespace {
@@ -79,8 +74,7 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
   // a covariance: an hour of two methods would be 90 MB of text held).
   replay::AtomicFileWriter errors_csv(run_dir / "errors.csv");
   errors_csv.Append("#timestamp [ns],method,position_error [m],rotation_error [deg],valid,nees\n");
-  std::string decisions_csv = kDecisionsCsvHeader;
-  bool any_consensus = false;
+  replay::ConsensusFiles consensus_files(run_dir);
   std::vector<MethodEvaluation> evaluations;
   for (ReplayResult& result : results) {
     const ReplayMethod& method = result.method;
@@ -89,19 +83,14 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
     if (const std::optional<TrajectoryErrors>& t = scores.errors) {
       AppendErrorRows(method.name, *t, scores.nees, errors_csv);
     }
-    if (method.kind == ReplayMethod::Kind::kConsensus) {
-      any_consensus = true;
-      decisions_csv += DecisionRows(result);
-      WriteFileAtomically(run_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
-                          ConsistencyMatrixCsv(result));
-    }
+    consensus_files.Add(result);
     // Done with the outputs: an in-memory method's are freed, a spilled one's file closes.
     std::vector<estimator::EstimatorOutput>().swap(result.outputs);
     result.spilled.reset();
     evaluations.push_back(std::move(scores.evaluation));
   }
   errors_csv.Commit();
-  if (any_consensus) WriteFileAtomically(run_dir / "decisions.csv", decisions_csv);
+  consensus_files.Commit();
   return evaluations;
 }
 

@@ -155,7 +155,6 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10}\n", "method", "ATE [m]",
                "rot [deg]", "RPE1s [m]", "valid", "x RT", "solve [ms]", "p99 [ms]");
   }
-  std::string decisions_csv = kDecisionsCsvHeader;
   estimator::ConsensusEstimatorOptions consensus_options = setup.consensus;
   if (options.consensus_threshold) consensus_options.selection.threshold = *options.consensus_threshold;
   RequireValidOptions(estimator_options, consensus_options,
@@ -164,6 +163,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
                       "");
   const std::filesystem::path out_dir = options.out_dir.value_or(options.log_dir);
   std::filesystem::create_directories(out_dir);
+  ConsensusFiles consensus_files(out_dir);
   core::Time first_output_ns = std::numeric_limits<core::Time>::max();
   core::Time last_output_ns = std::numeric_limits<core::Time>::min();
   bool failed = false;
@@ -190,11 +190,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
       PrintClientFailure(result);
       failed_client = true;
     }
-    if (method.kind == ReplayMethod::Kind::kConsensus) {
-      decisions_csv += DecisionRows(result);
-      WriteFileAtomically(out_dir / ("consistency_" + MethodFileStem(method.name) + ".csv"),
-                          ConsistencyMatrixCsv(result));
-    }
+    consensus_files.Add(result);
     if (!scores.trajectory.empty()) {
       first_output_ns = std::min(first_output_ns, scores.trajectory.front().t_ns);
       last_output_ns = std::max(last_output_ns, scores.trajectory.back().t_ns);
@@ -206,7 +202,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     }
     if (!options.quiet) PrintMethodRow(method, result, scores, files);
   }
-  if (decisions_csv != kDecisionsCsvHeader) WriteFileAtomically(out_dir / "decisions.csv", decisions_csv);
+  consensus_files.Commit();
   WriteRawStreamBaselines(log, first_output_ns, last_output_ns, out_dir, options.quiet);
   if (failed_client) return core::kExitSimulationError;
   return failed ? 1 : 0;

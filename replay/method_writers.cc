@@ -111,6 +111,20 @@ std::string ConsistencyMatrixCsv(const ReplayResult& result) {
   return csv;
 }
 
+ConsensusFiles::ConsensusFiles(std::filesystem::path out_dir) : out_dir_(std::move(out_dir)) {}
+
+void ConsensusFiles::Add(const ReplayResult& result) {
+  if (result.method.kind != ReplayMethod::Kind::kConsensus) return;
+  any_consensus_ = true;
+  decisions_csv_ += DecisionRows(result);
+  WriteFileAtomically(out_dir_ / ("consistency_" + MethodFileStem(result.method.name) + ".csv"),
+                      ConsistencyMatrixCsv(result));
+}
+
+void ConsensusFiles::Commit() const {
+  if (any_consensus_) WriteFileAtomically(out_dir_ / "decisions.csv", decisions_csv_);
+}
+
 namespace {
 
 // How and when the local graph started, and, with ground truth, how wrong its gravity

@@ -33,6 +33,22 @@ std::string DecisionRows(const ReplayResult& result);
 /// consistency_<method>.csv of a consensus method: t_ns (end of the window), pair ("a-b",
 /// "a-local"), metric, value (empty when unavailable).
 std::string ConsistencyMatrixCsv(const ReplayResult& result);
+
+/// The consensus files of a directory, as the run loop and `tofu estimate` both leave
+/// them: Add each method's result in method order (consistency_<method>.csv is written
+/// for a consensus method at once), then Commit() writes decisions.csv with every
+/// consensus method's rows, when one was added.
+class ConsensusFiles {
+ public:
+  explicit ConsensusFiles(std::filesystem::path out_dir);
+  void Add(const ReplayResult& result);
+  void Commit() const;
+
+ private:
+  std::filesystem::path out_dir_;
+  std::string decisions_csv_ = kDecisionsCsvHeader;
+  bool any_consensus_ = false;
+};
 /// A pose stream on its own (ScoreRawStreams): estimate_raw_<stream>_errors.csv and
 /// estimate_raw_<stream>.json (its ATE) into out_dir.
 void WriteRawStreamResult(const RecordedLog& log, const RawStreamScore& raw,
