@@ -28,6 +28,12 @@ struct SensorState {
   /// right one again once the fault is over.
   std::vector<Eigen::Isometry3d> previous_T_AL;
   bool fused = false;
+  /// Absolute position factors (MultiGraphEstimatorOptions::absolute_readmission_rate_mps):
+  /// fused again, its first position sets the offset to slew out; the offset in L at
+  /// slew_start_ns while slewing.
+  bool readmitted = false;
+  std::optional<Eigen::Vector3d> slew_offset_L;
+  core::Time slew_start_ns = 0;
   bool has_last = false;
   core::Time last_t_ns = 0;
   // between_noise_from_data: the window the stream's noise is measured over.
@@ -575,7 +581,10 @@ struct MultiGraphEstimator::Impl {
         return;
       }
       std::optional<Eigen::Vector3d> p_LA;
-      if (sensor.spec.absolute_position) p_LA = T_AL->inverse().translation();
+      if (sensor.spec.absolute_position) {
+        p_LA = T_AL->inverse().translation() -
+               ReadmissionOffset(sensor, m.t_ns, T_AL->inverse() * position->p_Ss);
+      }
       use = smoother.AddPosition(sensor.id, m.t_ns, position->p_Ss, position->covariance,
                                  sensor.spec.T_Is.translation(), T_AL->linear().transpose(),
                                  sensor.spec.min_position_std_m, p_LA);
@@ -584,6 +593,35 @@ struct MultiGraphEstimator::Impl {
         use == MeasurementUse::kPending || use == MeasurementUse::kSkipped) {
       last_fused_ns = std::max(last_fused_ns.value_or(m.t_ns), m.t_ns);
     }
+  }
+
+  // The part of the offset between an absolute sensor fused again and the state that is
+  // still to be slewed out at t_ns (zero when it is not slewing): linear in time at
+  // absolute_readmission_rate_mps from its first position p_L_measured (its mount point
+  // in L through T_AL) minus the state's mount point there.
+  Eigen::Vector3d ReadmissionOffset(SensorState& sensor, core::Time t_ns,
+                                    const Eigen::Vector3d& p_L_measured) {
+    if (sensor.readmitted) {
+      sensor.readmitted = false;
+      sensor.slew_offset_L.reset();
+      const std::optional<KeyframeState> now = smoother.Propagated();
+      if (options.absolute_readmission_rate_mps > 0.0 && now) {
+        const Eigen::Vector3d p_L_state =
+            now->state.p_LI + now->state.q_LI * sensor.spec.T_Is.translation() +
+            now->state.v_L_mps * core::TimeToSeconds(t_ns - now->t_ns);
+        sensor.slew_offset_L = p_L_measured - p_L_state;
+        sensor.slew_start_ns = t_ns;
+      }
+    }
+    if (!sensor.slew_offset_L) return Eigen::Vector3d::Zero();
+    const double offset_m = sensor.slew_offset_L->norm();
+    const double remaining_m = offset_m - options.absolute_readmission_rate_mps *
+                                              core::TimeToSeconds(t_ns - sensor.slew_start_ns);
+    if (remaining_m <= 0.0 || offset_m == 0.0) {
+      sensor.slew_offset_L.reset();
+      return Eigen::Vector3d::Zero();
+    }
+    return *sensor.slew_offset_L * (remaining_m / offset_m);
   }
 
   // An alignment good enough to put a sensor's positions into the local graph: all three
@@ -811,6 +849,9 @@ bool MultiGraphEstimatorOptions::IsValid(std::string* why) const {
   if (output_period_ns <= 0) return fail("output_period_ns must be positive");
   // 0 would restart the local window at every fused measurement.
   if (max_unfused_ns <= 0) return fail("max_unfused_ns must be positive");
+  if (!(absolute_readmission_rate_mps >= 0.0) || !std::isfinite(absolute_readmission_rate_mps)) {
+    return fail("absolute_readmission_rate_mps must be finite and >= 0 (0: no slew)");
+  }
   if (covariance_period_ns < 0) return fail("covariance_period_ns must not be negative");
   if (static_window_ns <= 0) return fail("static_window_ns must be positive");
   if (!(static_max_gyro_std_radps > 0.0) || !std::isfinite(static_max_gyro_std_radps)) {
@@ -934,6 +975,7 @@ bool MultiGraphEstimator::SetFusedSensors(const std::vector<std::string>& names)
   for (auto& s : impl.sensors) {
     const bool want = std::find(fused.begin(), fused.end(), s->spec.name) != fused.end();
     if (want && !s->fused) {
+      s->readmitted = impl.smoother.initialized();
       // Co-dependence rule: T_AL is held at its current estimate while the sensor's
       // positions constrain the local graph. A position sensor without a usable T_AL yet
       // constrains nothing: its graph keeps estimating until it has one (see Fuse).

@@ -121,6 +121,14 @@ struct MultiGraphEstimatorOptions {
   /// Uncertainty of the local estimate's positions over an alignment window, added to each
   /// pair's sensor covariance.
   double alignment_local_position_std_m = 0.02;
+  /// Position sensors fused as absolute (SensorSpec::absolute_position), fused again
+  /// while the local graph runs: L drifted with the other sensors meanwhile, and unary
+  /// factors would pull it back in one solve (a step of the state the controller flies
+  /// on: 0.12 m when the total station came back in total_station_jump). Instead the
+  /// offset between the sensor's first position and the state is taken off its positions
+  /// and removed at this rate (m/s), so the state slews to the sensor's frame. 0: no
+  /// slew (the pull in one solve).
+  double absolute_readmission_rate_mps = 0.1;
   /// Consecutive bad solves after which the local graph is re-initialised from the
   /// propagated state.
   int max_consecutive_bad_solves = 3;

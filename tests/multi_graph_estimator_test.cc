@@ -145,6 +145,83 @@ TEST_F(MultiGraphEstimatorTest, SwitchingTheFusedSensorKeepsTheEstimateContinuou
   EXPECT_EQ(estimator.counters().reinitialisations, 0);
 }
 
+// The total station fused as absolute (unary factors through its T_AL), then VIO alone for
+// 20 s with a drift of 1 cm/s added to its positions (L drifts with it), then the total
+// station again in its old frame: with the slew, the state moves back to it at the stated
+// rate (no step); without it, in one solve.
+struct Readmission {
+  double largest_step_m = 0.0;  ///< of the position error, 40-60 s
+  double late_error_m = 0.0;    ///< RMS after the slew had time to finish (48-60 s)
+};
+Readmission ReadmitAbsoluteTotalStation(const replay::RecordedLog& log, double rate_mps) {
+  std::vector<estimator::SensorSpec> specs = replay::SensorSpecsOf(log);
+  for (auto& s : specs) s.absolute_position = s.name == "leica";
+  estimator::MultiGraphEstimatorOptions options = replay::DefaultEstimatorOptions(log);
+  options.absolute_readmission_rate_mps = rate_mps;
+  estimator::MultiGraphEstimator estimator(log.imu_stream, specs, options);
+  estimator.SetFusedSensors({"leica"});
+  constexpr core::Time kVioNs = 20'000'000'000;
+  constexpr core::Time kBackNs = 40'000'000'000;
+  int phase = 0;
+  std::optional<Eigen::Isometry3d> T_AL;
+  std::vector<replay::PoseSample> after;
+  for (core::StampedMeasurement m : log.measurements) {
+    if (m.t_ns >= kVioNs && phase == 0) {
+      T_AL = estimator.AlignmentOf("leica");
+      estimator.SetFusedSensors({"vio"});
+      phase = 1;
+    }
+    if (m.t_ns >= kBackNs && phase == 1) {
+      // Its old frame (as consensus takes it back once the pairs fit it).
+      estimator.SetKnownAlignment("leica", *T_AL);
+      estimator.SetFusedSensors({"leica"});
+      phase = 2;
+    }
+    if (auto* pose = std::get_if<core::PoseMeasurement>(&m.value); pose && m.sensor == "vio" &&
+                                                                     m.t_ns >= kVioNs) {
+      pose->p_Ss.x() += 0.01 * core::TimeToSeconds(std::min(m.t_ns, kBackNs) - kVioNs);
+    }
+    estimator.Add(m);
+    for (const auto& o : estimator.TakeOutputs()) {
+      if (o.t_ns >= kBackNs && o.t_ns < 60'000'000'000 && o.valid) {
+        after.push_back({o.t_ns, o.state.p_LI, o.state.q_LI});
+      }
+    }
+  }
+  EXPECT_EQ(phase, 2);
+  Readmission r;
+  // The frame of 40-60 s is the total station's again: align on the last 12 s only.
+  replay::TrajectoryErrorOptions evaluation;
+  evaluation.align_from_ns = 48'000'000'000;
+  const replay::TrajectoryErrors errors = replay::EvaluateTrajectory(after, log.ground_truth, evaluation);
+  r.largest_step_m = errors.position_step_max_m;
+  double sum = 0.0;
+  std::size_t n = 0;
+  for (std::size_t k = 0; k < errors.t_ns.size(); ++k) {
+    if (errors.t_ns[k] < evaluation.align_from_ns) continue;
+    sum += errors.position_error_m[k] * errors.position_error_m[k];
+    ++n;
+  }
+  r.late_error_m = std::sqrt(sum / static_cast<double>(n));
+  return r;
+}
+
+TEST_F(MultiGraphEstimatorTest, AnAbsoluteSensorFusedAgainSlewsTheStateBackAtTheStatedRate) {
+  const Readmission jump = ReadmitAbsoluteTotalStation(*log_, 0.0);
+  const Readmission slew = ReadmitAbsoluteTotalStation(*log_, 0.1);
+  RecordProperty("jump_largest_step_mm", std::to_string(1e3 * jump.largest_step_m));
+  RecordProperty("slew_largest_step_mm", std::to_string(1e3 * slew.largest_step_m));
+  RecordProperty("jump_late_error_mm", std::to_string(1e3 * jump.late_error_m));
+  RecordProperty("slew_late_error_mm", std::to_string(1e3 * slew.late_error_m));
+  // 20 s at 1 cm/s: L is ~0.2 m off when the total station comes back.
+  EXPECT_GT(jump.largest_step_m, 0.05) << "without the slew the state is pulled in one solve";
+  // 0.1 m/s over a 5 ms output is 0.5 mm; the rest is the estimate's own noise.
+  EXPECT_LT(slew.largest_step_m, 0.01);
+  // ~0.2 m at 0.1 m/s is done in ~2 s: from 48 s both agree with the total station.
+  EXPECT_LT(slew.late_error_m, 0.01);
+  EXPECT_LT(jump.late_error_m, 0.01);
+}
+
 TEST_F(MultiGraphEstimatorTest, AlignmentGraphOfAnUnfusedSensorExplainsItsPositions) {
   // VIO fused; the total station's graph estimates T_AL from its positions against the
   // local estimate. Horizontal figure-eights: all three rotations observable.
@@ -347,6 +424,10 @@ TEST(MultiGraphEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) 
   }
   add("output_period_ns", [](Options& o) { o.output_period_ns = 0; });
   add("max_unfused_ns", [](Options& o) { o.max_unfused_ns = 0; });
+  for (const double bad : {-1e-3, nan, inf}) {
+    add("absolute_readmission_rate_mps",
+        [bad](Options& o) { o.absolute_readmission_rate_mps = bad; });
+  }
   add("covariance_period_ns", [](Options& o) { o.covariance_period_ns = -1; });
   add("static_window_ns", [](Options& o) { o.static_window_ns = 0; });
   add("max_rest_age_ns", [](Options& o) { o.max_rest_age_ns = -1; });
