@@ -885,6 +885,7 @@ def extract_position_factors(r):
             best_ate = values(best, "ate_m")
             over_oracle = [c / o for c, o in zip(consensus, oracle)]
             v[key + "oracle_ate"] = sig(statistics.median(oracle), 3)
+            v[key + "consensus_ate"] = sig(statistics.median(consensus), 3)
             v[key + "best_single"] = f"{best[len('single:'):-len('@clean')]} {sig(statistics.median(best_ate), 3)}"
             v[key + "oracle_over_best"] = fixed(statistics.median([o / b for o, b in zip(oracle, best_ate)]), 2)
             v[key + "consensus_over_oracle"] = f"{fixed(statistics.median(over_oracle), 2)} / {fixed(max(over_oracle), 2)}"
@@ -1106,6 +1107,19 @@ def table_consensus_nis(V):
                      "false excl. worst", "switches (med)"], rows)
 
 
+def table_position_factors(V):
+    rows = []
+    for scenario in _suite_scenarios(SCRIPT_ROOT):
+        k = f"position_factors.{scenario}."
+        rows.append([scenario] + [f"{V(k + 'between.' + f)} → {V(k + 'absolute.' + f)}" for f in (
+            "consensus_ate", "oracle_ate", "best_single", "oracle_over_best", "consensus_over_oracle",
+            "consensus_step_mm", "oracle_step_mm", "consensus_nees", "consensus_containment")])
+    return md_table(["scenario (between → absolute)", "consensus ATE med [m]", "oracle ATE med [m]", "best single @clean (med)",
+                     "oracle × best single (med)", "consensus × oracle (med / worst)",
+                     "largest step consensus [mm] (med / worst)", "largest step oracle [mm]",
+                     "NEES consensus (med)", "95 % containment consensus (med)"], rows)
+
+
 def table_suite_failures(V):
     rows = []
     for scenario in _suite_scenarios(SCRIPT_ROOT):
@@ -1193,6 +1207,7 @@ TABLES = {
     "suite": table_suite,
     "suite_failures": table_suite_failures,
     "consensus_nis": table_consensus_nis,
+    "position_factors": table_position_factors,
 }
 
 
