@@ -617,7 +617,7 @@ struct MultiGraphEstimator::Impl {
     const double offset_m = sensor.slew_offset_L->norm();
     const double remaining_m = offset_m - options.absolute_readmission_rate_mps *
                                               core::TimeToSeconds(t_ns - sensor.slew_start_ns);
-    if (remaining_m <= 0.0 || offset_m == 0.0) {
+    if (remaining_m <= 0.0) {  // also a zero offset
       sensor.slew_offset_L.reset();
       return Eigen::Vector3d::Zero();
     }
