@@ -768,27 +768,40 @@ NIS_SEEDS = list(range(1, 11))
 NIS_THRESHOLD = 3.0  # chosen before the runs: healthy pairs sit at 0.5-2 (one seed looked at)
 
 
+def _write_suite_variants(r, source, variants, methods, edit):
+    """Each suite scenario without its expectations, its methods list rewritten by
+    `methods(text, where)`, once per variant as `edit(text, variant, where)` makes it, into
+    <runs>/<source>/scenarios/<variant>/. Returns {variant: directory}."""
+    dirs = {}
+    for variant in variants:
+        d = r.out(source, "scenarios", variant)
+        d.mkdir(parents=True, exist_ok=True)
+        dirs[variant] = d
+    for scenario in _suite_scenarios(r.root):
+        where = f"scenarios/suite/{scenario}.yaml"
+        text = methods((r.root / where).read_text(), where).split("\nexpect:")[0] + "\n"
+        for variant, d in dirs.items():
+            (d / f"{scenario}.yaml").write_text(edit(text, variant, where))
+    return dirs
+
+
 def _nis_variants(r):
     """The suite's scenarios with methods [consensus, oracle] and no expectations, once as
     written (cm, the paper's metric) and once with `metric: nis` at NIS_THRESHOLD (a
     leave_threshold doubled as the cm one is)."""
-    dirs = {}
-    for variant in ("cm", "nis"):
-        d = r.out("consensus_nis", "scenarios", variant)
-        d.mkdir(parents=True, exist_ok=True)
-        dirs[variant] = d
-    for scenario in _suite_scenarios(r.root):
-        text = (r.root / "scenarios/suite" / f"{scenario}.yaml").read_text()
-        text = re.sub(r"  methods: \[[^\]]*\]", "  methods: [consensus, oracle]", text, flags=re.S)
-        text = text.split("\nexpect:")[0] + "\n"
-        (dirs["cm"] / f"{scenario}.yaml").write_text(text)
+    def methods(text, where):
+        return re.sub(r"  methods: \[[^\]]*\]", "  methods: [consensus, oracle]", text, flags=re.S)
+
+    def edit(text, variant, where):
+        if variant == "cm":
+            return text
         nis, count = re.subn(r"consensus: \{threshold: [0-9.]+",
                              f"consensus: {{metric: nis, threshold: {NIS_THRESHOLD:g}", text)
         if count != 1:
-            raise ResultsError(f"scenarios/suite/{scenario}.yaml: no single `consensus: {{threshold: ...`")
-        nis = re.sub(r"leave_threshold: [0-9.]+", f"leave_threshold: {2 * NIS_THRESHOLD:g}", nis)
-        (dirs["nis"] / f"{scenario}.yaml").write_text(nis)
-    return dirs
+            raise ResultsError(f"{where}: no single `consensus: {{threshold: ...`")
+        return re.sub(r"leave_threshold: [0-9.]+", f"leave_threshold: {2 * NIS_THRESHOLD:g}", nis)
+
+    return _write_suite_variants(r, "consensus_nis", ("cm", "nis"), methods, edit)
 
 
 def run_consensus_nis(r):
@@ -841,24 +854,16 @@ def _factor_variants(r):
     """The suite's scenarios without expectations, once with the paper's between factors
     (each absolute sensor fused as displacements between keyframes, the default) and once
     with `position_factors: absolute` (unary factors through each sensor's T_AL)."""
-    dirs = {}
-    for variant in FACTOR_VARIANTS:
-        d = r.out("position_factors", "scenarios", variant)
-        d.mkdir(parents=True, exist_ok=True)
-        dirs[variant] = d
-    for scenario in _suite_scenarios(r.root):
-        where = f"scenarios/suite/{scenario}.yaml"
-        text = _factor_methods((r.root / where).read_text(), where)
-        text = text.split("\nexpect:")[0] + "\n"
+    def edit(text, variant, where):
         if "position_factors:" in text:
             raise ResultsError(f"{where}: states position_factors already")
-        for variant, d in dirs.items():
-            out, count = re.subn(r"^  consensus: \{", f"  position_factors: {variant}\n  consensus: {{",
-                                 text, flags=re.M)
-            if count != 1:
-                raise ResultsError(f"{where}: no single `  consensus: {{` line in its estimation block")
-            (d / f"{scenario}.yaml").write_text(out)
-    return dirs
+        out, count = re.subn(r"^  consensus: \{", f"  position_factors: {variant}\n  consensus: {{",
+                             text, flags=re.M)
+        if count != 1:
+            raise ResultsError(f"{where}: no single `  consensus: {{` line in its estimation block")
+        return out
+
+    return _write_suite_variants(r, "position_factors", FACTOR_VARIANTS, _factor_methods, edit)
 
 
 def run_position_factors(r):
