@@ -107,6 +107,52 @@ const char* BadPriorStd(const InitialStatePrior& prior) {
   return nullptr;
 }
 
+// The projector onto the directions a block of a sensor's stated information observes:
+// its eigen-directions with information below 1/unobserved_std² are left out (none when
+// unobserved_std is 0 or the block does not decompose).
+Eigen::Matrix3d ObservedProjector(const Eigen::Matrix3d& information, double unobserved_std) {
+  Eigen::Matrix3d projector = Eigen::Matrix3d::Identity();
+  if (!(unobserved_std > 0.0)) return projector;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(information);
+  if (eigen.info() != Eigen::Success) return projector;
+  const double min_information = 1.0 / (unobserved_std * unobserved_std);
+  for (int k = 0; k < 3; ++k) {
+    if (eigen.eigenvalues()(k) < min_information) {
+      projector -= eigen.eigenvectors().col(k) * eigen.eigenvectors().col(k).transpose();
+    }
+  }
+  return projector;
+}
+
+// The between factor's square-root information without the directions the pose sensor
+// states it does not observe (SensorSpec::unobserved_position_std_m). The stated
+// covariance is of [δθ_s; δp_S]; its information blocks are conditional (the other block
+// held fixed), as a registration's degeneracy test reads them. The factor's rows: the
+// position residual in I_i (PoseBetweenFactor) or in L (R_LA given: PositionBetweenFactor
+// in A), the rotation residual in I. Both ends of one factor are a keyframe interval
+// apart: the current sample's directions stand for the interval's.
+void LeaveOutUnobserved(const SensorSpec& spec, const core::PoseMeasurement& pose,
+                        const std::optional<Eigen::Matrix3d>& R_LA,
+                        Eigen::Matrix<double, 6, 6>* sqrt_information) {
+  if (!(spec.unobserved_position_std_m > 0.0) && !(spec.unobserved_rotation_std_rad > 0.0)) return;
+  const Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(pose.covariance);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return;
+  const Eigen::Matrix<double, 6, 6> information =
+      ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
+  if (!information.allFinite()) return;
+  const Eigen::Matrix3d R_Is = spec.T_Is.linear();
+  const Eigen::Matrix3d P_A =
+      ObservedProjector(information.bottomRightCorner<3, 3>(), spec.unobserved_position_std_m);
+  const Eigen::Matrix3d R_sA = pose.q_Ss.normalized().toRotationMatrix().transpose();
+  const Eigen::Matrix3d R_XA = R_LA ? *R_LA : Eigen::Matrix3d(R_Is * R_sA);
+  const Eigen::Matrix3d P_s =
+      ObservedProjector(information.topLeftCorner<3, 3>(), spec.unobserved_rotation_std_rad);
+  sqrt_information->topLeftCorner<3, 3>() =
+      sqrt_information->topLeftCorner<3, 3>() * R_XA * P_A * R_XA.transpose();
+  sqrt_information->bottomRightCorner<3, 3>() =
+      sqrt_information->bottomRightCorner<3, 3>() * R_Is * P_s * R_Is.transpose();
+}
+
 // A stream whose noise is measured against the IMU needs the IMU of its window kept.
 LocalSmootherOptions LocalOptionsFor(const MultiGraphEstimatorOptions& options,
                                      const std::vector<SensorSpec>& specs) {
@@ -561,12 +607,13 @@ struct MultiGraphEstimator::Impl {
       Eigen::Matrix<double, 6, 1> std_dev;
       std_dev << Eigen::Vector3d::Constant(sensor.spec.between_position_std_m),
           Eigen::Vector3d::Constant(sensor.spec.between_rotation_std_rad);
-      const Eigen::Matrix<double, 6, 6> sqrt_information = std_dev.cwiseInverse().asDiagonal();
+      Eigen::Matrix<double, 6, 6> sqrt_information = std_dev.cwiseInverse().asDiagonal();
       std::optional<Eigen::Matrix3d> R_LA;
       if (sensor.spec.between_position_in_reference) {
         const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
         if (T_AL) R_LA = T_AL->linear().transpose();
       }
+      LeaveOutUnobserved(sensor.spec, *pose, R_LA, &sqrt_information);
       use = smoother.AddPose(sensor.id, m.t_ns, T_As, sensor.spec.T_Is, sqrt_information, R_LA);
     } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
       const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);

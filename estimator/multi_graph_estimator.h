@@ -58,6 +58,14 @@ struct SensorSpec {
   bool between_noise_from_data = false;
   double min_between_position_std_m = 5e-4;
   double min_between_rotation_std_rad = 1e-3;
+  /// Pose sensors whose stated covariance is the inverse of their registration's
+  /// information (a LiDAR odometry): a direction along which that information, with the
+  /// other block held fixed, is below 1/std² is one the sensor says it does not observe
+  /// (degenerate; Zhang, Kaess & Singh, ICRA 2016, where λ σ_r² < threshold). Its between
+  /// factor leaves such directions out, so the drift there is not fused. 0: every
+  /// direction is fused with the weights above (the paper).
+  double unobserved_position_std_m = 0.0;
+  double unobserved_rotation_std_rad = 0.0;
   /// Position sensors: floor on the std of one between factor (m), added to the stated
   /// covariances of its two ends.
   double min_position_std_m = 0.002;

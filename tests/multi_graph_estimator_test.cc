@@ -222,6 +222,48 @@ TEST_F(MultiGraphEstimatorTest, AnAbsoluteSensorFusedAgainSlewsTheStateBackAtThe
   EXPECT_LT(jump.late_error_m, 0.01);
 }
 
+// A pose sensor that drifts along a direction its stated information calls unobserved (a
+// LiDAR odometry along a corridor), fused with the total station: with every direction of
+// its between factors fused, the estimate follows part of the drift; with the unobserved
+// direction left out (SensorSpec::unobserved_position_std_m), it does not.
+double AteWithVioDriftingAlongX(const replay::RecordedLog& log, double drift_mps,
+                                double unobserved_position_std_m) {
+  std::vector<estimator::SensorSpec> specs = replay::SensorSpecsOf(log);
+  for (auto& s : specs) {
+    if (s.name == "vio") s.unobserved_position_std_m = unobserved_position_std_m;
+  }
+  estimator::MultiGraphEstimator estimator(log.imu_stream, specs, replay::DefaultEstimatorOptions(log));
+  estimator.SetFusedSensors({"leica", "vio"});
+  std::vector<replay::PoseSample> estimate;
+  for (core::StampedMeasurement m : log.measurements) {
+    if (auto* pose = std::get_if<core::PoseMeasurement>(&m.value); pose && m.sensor == "vio") {
+      pose->p_Ss.x() += drift_mps * core::TimeToSeconds(m.t_ns);
+      // [δθ; δp_S]: millimetres and milliradians, one metre along S's x.
+      Eigen::Matrix<double, 6, 1> variance;
+      variance << 1e-6, 1e-6, 1e-6, 1.0, 1e-6, 1e-6;
+      pose->covariance = variance.asDiagonal();
+    }
+    estimator.Add(m);
+    for (const auto& o : estimator.TakeOutputs()) {
+      if (o.valid) estimate.push_back({o.t_ns, o.state.p_LI, o.state.q_LI});
+    }
+  }
+  return replay::EvaluateTrajectory(estimate, log.ground_truth).ate_position_rmse_m;
+}
+
+TEST_F(MultiGraphEstimatorTest, ADirectionThePoseSensorSaysItDoesNotObserveIsNotFused) {
+  const double clean = AteWithVioDriftingAlongX(*log_, 0.0, 0.0);
+  const double fused = AteWithVioDriftingAlongX(*log_, 0.05, 0.0);
+  const double left_out = AteWithVioDriftingAlongX(*log_, 0.05, 0.05);
+  RecordProperty("clean_ate_mm", std::to_string(1e3 * clean));
+  RecordProperty("drift_fused_ate_mm", std::to_string(1e3 * fused));
+  RecordProperty("drift_left_out_ate_mm", std::to_string(1e3 * left_out));
+  // 0.05 m/s over 60 s is 3 m of drift along x; fused, a share of it stays in the estimate.
+  EXPECT_GT(fused, 3.0 * clean + 0.01);
+  // Left out, x rests on the total station alone: as good as without the drift.
+  EXPECT_LT(left_out, 1.5 * clean + 0.003);
+}
+
 TEST_F(MultiGraphEstimatorTest, AlignmentGraphOfAnUnfusedSensorExplainsItsPositions) {
   // VIO fused; the total station's graph estimates T_AL from its positions against the
   // local estimate. Horizontal figure-eights: all three rotations observable.
