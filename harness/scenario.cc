@@ -135,12 +135,18 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
                                 bool check_methods = true) {
   EstimationConfig config;
   config.clients = clients;
-  YamlMap map = value.Map({"methods", "consensus", "huber_delta", "position_factors"});
+  YamlMap map = value.Map(
+      {"methods", "consensus", "huber_delta", "position_factors", "degenerate_directions"});
   ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
   if (const auto factors = map.Optional("position_factors")) {
     const std::string kind = factors->String();
     if (kind != "between" && kind != "absolute") factors->FailExpected("between or absolute");
     config.absolute_positions = kind == "absolute";
+  }
+  if (const auto degenerate = map.Optional("degenerate_directions")) {
+    const std::string kind = degenerate->String();
+    if (kind != "fused" && kind != "left_out") degenerate->FailExpected("fused or left_out");
+    config.leave_out_degenerate_directions = kind == "left_out";
   }
   std::vector<std::string> sensor_names;
   bool has_imu = false;
@@ -830,6 +836,11 @@ void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
   EmitNumber(out, "huber_delta", ec.huber_delta);
   out << YAML::Key << "position_factors" << YAML::Value
       << (ec.absolute_positions ? "absolute" : "between");
+  // Only when not the paper's, so the run directories that fuse every direction keep
+  // their bytes.
+  if (ec.leave_out_degenerate_directions) {
+    out << YAML::Key << "degenerate_directions" << YAML::Value << "left_out";
+  }
   out << YAML::EndMap;
 }
 

@@ -1,5 +1,7 @@
 #include "replay/estimation_config.h"
 
+#include <algorithm>
+
 #include "core/error.h"
 #include "core/time.h"
 #include "replay/recorded_log.h"
@@ -37,6 +39,12 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
   setup.sensors = SensorSpecsOf(log);
   for (estimator::SensorSpec& spec : setup.sensors) {
     spec.absolute_position = config.absolute_positions;
+    if (!config.leave_out_degenerate_directions) continue;
+    const auto stream = std::find_if(log.streams.begin(), log.streams.end(),
+                                     [&](const RecordedStream& s) { return s.name == spec.name; });
+    if (stream == log.streams.end() || spec.kind != estimator::SensorKind::kPose) continue;
+    spec.unobserved_position_std_m = stream->unobserved_position_std_m.value_or(0.0);
+    spec.unobserved_rotation_std_rad = stream->unobserved_rotation_std_rad.value_or(0.0);
   }
   setup.consensus.selection = SelectionOptions(config.consensus);
   setup.consensus.consistency.metric = config.consensus.metric;

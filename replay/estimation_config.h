@@ -75,6 +75,10 @@ struct EstimationConfig {
   /// (displacements, the paper's eq. 3) or "absolute" (each position in L through the
   /// frozen T_AL; estimator::SensorSpec::absolute_position).
   bool absolute_positions = false;
+  /// Whether a LiDAR odometry's between factors leave out the directions its own
+  /// information calls degenerate (`degenerate_directions: left_out`; RecordedStream's
+  /// unobserved stds) or fuse every direction (`fused`, the paper).
+  bool leave_out_degenerate_directions = false;
   /// The scenario's users' estimators (`external:` and `plugins:`), which methods
   /// "external:<key>" and "plugin:<key>" name.
   std::vector<ClientSpec> clients;

@@ -341,6 +341,17 @@ Eigen::Isometry3d ApplyCalibration(const RunCalibration& cal, RecordedLog& log) 
       if (const auto v = cal.OptionNumber(s.name, "position_random_walk_m_per_sqrtm")) {
         s.position_random_walk_m_per_sqrtm = *v;
       }
+      // The degeneracy test λ σ_r² < threshold as a std: σ_r / √threshold.
+      const auto range_noise_m = cal.OptionNumber(s.name, "range_noise_m");
+      const auto std_at = [&](const char* threshold_key) -> std::optional<double> {
+        const auto threshold = cal.OptionNumber(s.name, threshold_key);
+        if (!range_noise_m || !threshold || !(*range_noise_m > 0.0) || !(*threshold > 0.0)) {
+          return std::nullopt;
+        }
+        return *range_noise_m / std::sqrt(*threshold);
+      };
+      s.unobserved_position_std_m = std_at("degenerate_translation_threshold");
+      s.unobserved_rotation_std_rad = std_at("degenerate_rotation_threshold_m2");
     }
     log.notes.push_back("mounts: T_I_s = T_B_I^-1 T_B_s from calibration.yaml");
     // The nominal mount: the launch pad is what the operator states, through what the

@@ -65,6 +65,13 @@ struct RecordedStream {
   std::optional<double> position_noise_m;
   std::optional<double> rotation_noise_rad;
   std::optional<double> position_random_walk_m_per_sqrtm;
+  /// A LiDAR odometry's degeneracy test from calibration.yaml (range_noise_m σ_r,
+  /// degenerate_translation_threshold, degenerate_rotation_threshold_m2): a direction is
+  /// degenerate when its information λ has λ σ_r² below the threshold, i.e. a conditional
+  /// std above σ_r / √threshold (m, rad). What estimator::SensorSpec's
+  /// unobserved_position_std_m and unobserved_rotation_std_rad take.
+  std::optional<double> unobserved_position_std_m;
+  std::optional<double> unobserved_rotation_std_rad;
   /// The true pose of the stream's reference frame S in W (calibration.yaml true_T_WS):
   /// scoring only, and the privileged information of the `naive` baseline.
   std::optional<Eigen::Isometry3d> true_T_WS;

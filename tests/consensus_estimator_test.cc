@@ -9,6 +9,8 @@
 
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -127,6 +129,29 @@ class ConsensusEstimatorTest : public ::testing::Test {
 
 fs::path* ConsensusEstimatorTest::dir_ = nullptr;
 replay::RecordedLog* ConsensusEstimatorTest::log_ = nullptr;
+
+// The LiDAR odometry's degeneracy test, read from its calibration (σ_r / √threshold), is
+// what its spec leaves out when the scenario says so; the VIO states no such test.
+TEST_F(ConsensusEstimatorTest, TheLidarOdometrysDegeneracyTestReachesItsSpecOnlyWhenLeftOut) {
+  const auto stream = [&](const std::string& name) {
+    return *std::find_if(log_->streams.begin(), log_->streams.end(),
+                         [&](const replay::RecordedStream& s) { return s.name == name; });
+  };
+  // Mid-360 defaults (sim/lidar_odometry.h): σ_r 0.02 m, thresholds 10 and 10 m².
+  ASSERT_TRUE(stream("lio").unobserved_position_std_m.has_value());
+  EXPECT_NEAR(*stream("lio").unobserved_position_std_m, 0.02 / std::sqrt(10.0), 1e-12);
+  EXPECT_NEAR(stream("lio").unobserved_rotation_std_rad.value_or(0.0), 0.02 / std::sqrt(10.0), 1e-12);
+  EXPECT_FALSE(stream("vio").unobserved_position_std_m.has_value());
+  for (const bool left_out : {false, true}) {
+    replay::EstimationConfig config;
+    config.leave_out_degenerate_directions = left_out;
+    for (const estimator::SensorSpec& spec : replay::MakeEstimationSetup(*log_, config).sensors) {
+      const bool lio = spec.name == "lio";
+      EXPECT_EQ(spec.unobserved_position_std_m > 0.0, left_out && lio) << spec.name;
+      EXPECT_EQ(spec.unobserved_rotation_std_rad > 0.0, left_out && lio) << spec.name;
+    }
+  }
+}
 
 TEST_F(ConsensusEstimatorTest, ExcludesTheDivergingFusedSensorWithinOneSecondAndDropsItsFactors) {
   const Run run = RunConsensus(*log_);
@@ -312,6 +337,24 @@ TEST(EstimationScenario, ConsensusMetricIsCmOrNisAndRoundTripsOnlyWhenNotThePape
   const std::string cm = harness::ResolvedScenarioYaml(harness::ParseScenario(kScenario, "cm.yaml"));
   EXPECT_EQ(cm.find("metric: cm"), std::string::npos) << cm;
   EXPECT_EQ(cm.find("metric: nis"), std::string::npos) << cm;
+}
+
+// A LiDAR odometry's degenerate directions are fused (the paper) or left out; only the
+// latter is written back, so the run directories that fuse them keep their bytes.
+TEST(EstimationScenario, DegenerateDirectionsAreFusedOrLeftOutAndRoundTrip) {
+  const std::string error =
+      ErrorOf(With("  huber_delta: 3", "  huber_delta: 3\n  degenerate_directions: ignored"));
+  EXPECT_NE(error.find("fused or left_out"), std::string::npos) << error;
+  const harness::Scenario left_out = harness::ParseScenario(
+      With("  huber_delta: 3", "  huber_delta: 3\n  degenerate_directions: left_out"), "d.yaml");
+  ASSERT_TRUE(left_out.estimation.has_value());
+  EXPECT_TRUE(left_out.estimation->leave_out_degenerate_directions);
+  const std::string echoed = harness::ResolvedScenarioYaml(left_out);
+  EXPECT_NE(echoed.find("degenerate_directions: left_out"), std::string::npos) << echoed;
+  EXPECT_TRUE(harness::ParseScenario(echoed, "echoed.yaml").estimation->leave_out_degenerate_directions);
+  const harness::Scenario fused = harness::ParseScenario(kScenario, "fused.yaml");
+  EXPECT_FALSE(fused.estimation->leave_out_degenerate_directions);
+  EXPECT_EQ(harness::ResolvedScenarioYaml(fused).find("degenerate_directions"), std::string::npos);
 }
 
 TEST(EstimationScenario, ExpectationsMustNameListedMethodsAndKnownRelativeMetrics) {
