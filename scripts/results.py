@@ -768,16 +768,16 @@ NIS_SEEDS = list(range(1, 11))
 NIS_THRESHOLD = 3.0  # chosen before the runs: healthy pairs sit at 0.5-2 (one seed looked at)
 
 
-def _write_suite_variants(r, source, variants, methods, edit):
-    """Each suite scenario without its expectations, its methods list rewritten by
-    `methods(text, where)`, once per variant as `edit(text, variant, where)` makes it, into
-    <runs>/<source>/scenarios/<variant>/. Returns {variant: directory}."""
+def _write_suite_variants(r, source, variants, methods, edit, scenarios=None):
+    """Each suite scenario (or those of `scenarios`) without its expectations, its methods
+    list rewritten by `methods(text, where)`, once per variant as `edit(text, variant,
+    where)` makes it, into <runs>/<source>/scenarios/<variant>/. Returns {variant: directory}."""
     dirs = {}
     for variant in variants:
         d = r.out(source, "scenarios", variant)
         d.mkdir(parents=True, exist_ok=True)
         dirs[variant] = d
-    for scenario in _suite_scenarios(r.root):
+    for scenario in scenarios if scenarios is not None else _suite_scenarios(r.root):
         where = f"scenarios/suite/{scenario}.yaml"
         text = methods((r.root / where).read_text(), where).split("\nexpect:")[0] + "\n"
         for variant, d in dirs.items():
@@ -904,6 +904,64 @@ def extract_position_factors(r):
     return v
 
 
+DEGENERATE_SEEDS = list(range(1, 11))
+DEGENERATE_VARIANTS = ("fused", "left_out")
+DEGENERATE_METHODS = ("consensus", "consensus:consistent_set", "oracle", "single:lio@clean")
+
+
+def _degenerate_variants(r):
+    """The suite's scenarios with a LiDAR odometry, methods DEGENERATE_METHODS and no
+    expectations, once fusing every direction of its between factors (the paper, the
+    default) and once with `degenerate_directions: left_out`."""
+    def methods(text, where):
+        listed = ", ".join(f'"{m}"' for m in DEGENERATE_METHODS)
+        return re.sub(r"  methods: \[[^\]]*\]", f"  methods: [{listed}]", text, flags=re.S)
+
+    def edit(text, variant, where):
+        if "degenerate_directions:" in text:
+            raise ResultsError(f"{where}: states degenerate_directions already")
+        out, count = re.subn(r"^  consensus: \{", f"  degenerate_directions: {variant}\n  consensus: {{",
+                             text, flags=re.M)
+        if count != 1:
+            raise ResultsError(f"{where}: no single `  consensus: {{` line in its estimation block")
+        return out
+
+    return _write_suite_variants(r, "degenerate_directions", DEGENERATE_VARIANTS, methods, edit,
+                                 scenarios=_lio_scenarios(r.root))
+
+
+def _lio_scenarios(root):
+    """The suite's scenarios that fly a LiDAR odometry."""
+    return [s for s in _suite_scenarios(root)
+            if "type: lidar_odometry" in (root / "scenarios" / "suite" / f"{s}.yaml").read_text()]
+
+
+def run_degenerate_directions(r):
+    for variant, d in _degenerate_variants(r).items():
+        r.tofu_cmd(f"degenerate_directions_{variant}", "check", str(d), "--seeds", len(DEGENERATE_SEEDS),
+                   "--jobs", r.jobs, "--quiet", "--out", r.out("degenerate_directions", variant), ok=(0, 1, 3))
+
+
+def extract_degenerate_directions(r):
+    v = {}
+    for scenario in _lio_scenarios(r.root):
+        for variant in DEGENERATE_VARIANTS:
+            s = seed_summaries(r.out("degenerate_directions", variant), scenario, DEGENERATE_SEEDS)
+            key = f"degenerate_directions.{scenario}.{variant}."
+
+            def ate(method):
+                return [s[i]["methods"][method]["ate_m"] for i in DEGENERATE_SEEDS]
+
+            oracle = ate("oracle")
+            for method, name in (("consensus", "consensus"), ("consensus:consistent_set", "consistent_set")):
+                ratio = [a / o for a, o in zip(ate(method), oracle)]
+                v[f"{key}{name}_ate"] = sig(statistics.median(ate(method)), 3)
+                v[f"{key}{name}_over_oracle"] = f"{fixed(statistics.median(ratio), 2)} / {fixed(max(ratio), 2)}"
+            v[key + "oracle_ate"] = sig(statistics.median(oracle), 3)
+            v[key + "lio_ate"] = sig(statistics.median(ate("single:lio@clean")), 3)
+    return v
+
+
 SOURCES = {
     "paper_metric": {"describe": "`tofu run` of scenarios/paper_metric_evaluation.yaml and "
                                  "paper_metric_divergence.yaml (seed 1), then scripts/plot_consistency.py "
@@ -949,6 +1007,12 @@ SOURCES = {
                                      "(the default) and `absolute`, --seeds 10",
                          "seeds": FACTOR_SEEDS, "run": run_position_factors,
                          "extract": extract_position_factors},
+    "degenerate_directions": {"describe": "`tofu check` of the suite's scenarios with a LiDAR odometry, "
+                                          "methods [consensus, consensus:consistent_set, oracle, "
+                                          "single:lio@clean], with `degenerate_directions: fused` (the "
+                                          "default) and `left_out`, --seeds 10",
+                              "seeds": DEGENERATE_SEEDS, "run": run_degenerate_directions,
+                              "extract": extract_degenerate_directions},
 }
 
 
@@ -1125,6 +1189,18 @@ def table_position_factors(V):
                      "NEES consensus (med)", "95 % containment consensus (med)"], rows)
 
 
+def table_degenerate_directions(V):
+    rows = []
+    for scenario in _lio_scenarios(SCRIPT_ROOT):
+        k = f"degenerate_directions.{scenario}."
+        rows.append([scenario] + [f"{V(k + 'fused.' + f)} → {V(k + 'left_out.' + f)}" for f in (
+            "consensus_ate", "consensus_over_oracle", "consistent_set_ate", "consistent_set_over_oracle",
+            "oracle_ate", "lio_ate")])
+    return md_table(["scenario (fused → left out)", "consensus ATE med [m]", "consensus × oracle (med / worst)",
+                     "consistent_set ATE med [m]", "consistent_set × oracle (med / worst)",
+                     "oracle ATE med [m]", "LIO alone @clean ATE med [m]"], rows)
+
+
 def table_suite_failures(V):
     rows = []
     for scenario in _suite_scenarios(SCRIPT_ROOT):
@@ -1213,6 +1289,7 @@ TABLES = {
     "suite_failures": table_suite_failures,
     "consensus_nis": table_consensus_nis,
     "position_factors": table_position_factors,
+    "degenerate_directions": table_degenerate_directions,
 }
 
 
