@@ -4,7 +4,9 @@
 // Frames (DESIGN.md): each sensor has its reference frame S (its odometry, station or ENU
 // frame) and its mount frame s on the robot; I is the IMU frame.
 
+#include <cstdint>
 #include <string>
+#include <string_view>
 #include <variant>
 
 #include <Eigen/Core>
@@ -42,6 +44,18 @@ struct PositionMeasurement {
 };
 
 using Measurement = std::variant<ImuMeasurement, PoseMeasurement, PositionMeasurement>;
+
+/// What a measurement is: the alternative of Measurement it holds (the enum value is the
+/// variant index). A sensor's stream, its faults' applicability and its run-directory
+/// columns all go by it.
+enum class MeasurementKind : uint8_t { kImu = 0, kPose = 1, kPosition = 2 };
+
+/// The kind's name in messages, notes and the replay's stream list: "imu", "pose",
+/// "position".
+std::string_view MeasurementKindName(MeasurementKind kind);
+
+/// The kind a measurement holds.
+MeasurementKind MeasurementKindOf(const Measurement& measurement);
 
 /// A timestamped measurement of a named sensor.
 struct StampedMeasurement {

@@ -95,7 +95,7 @@ std::vector<std::string> MethodsOf(const std::vector<ManifestRow>& rows) {
 nlohmann::json ScoreMethods(const harness::RunRecord& record) {
   Eigen::Isometry3d T_BI = Eigen::Isometry3d::Identity();
   for (const harness::SensorStream& s : record.sensors) {
-    if (s.kind != replay::StreamKind::kImu) continue;
+    if (s.kind != core::MeasurementKind::kImu) continue;
     if (const sim::MountSite* site = record.robot.FindSite(s.site)) {
       T_BI.linear() = site->q_Bs.toRotationMatrix();
       T_BI.translation() = site->p_Bs;

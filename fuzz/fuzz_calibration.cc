@@ -13,12 +13,12 @@
 #include "replay/run_calibration.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  using tofu::replay::StreamKind;
+  using tofu::core::MeasurementKind;
   const std::string text = tofu::fuzz::InputText(data, size);
-  std::vector<std::pair<std::string, StreamKind>> streams = {{"imu", StreamKind::kImu},
-                                                             {"vio", StreamKind::kPose},
-                                                             {"lio", StreamKind::kPose},
-                                                             {"leica", StreamKind::kPosition}};
+  std::vector<std::pair<std::string, MeasurementKind>> streams = {{"imu", MeasurementKind::kImu},
+                                                                  {"vio", MeasurementKind::kPose},
+                                                                  {"lio", MeasurementKind::kPose},
+                                                                  {"leica", MeasurementKind::kPosition}};
   tofu::fuzz::ParsesOrInputError(
       [&] { (void)tofu::replay::DescribeRunStreams(streams, text, "fuzz_run"); });
   tofu::fuzz::ParsesOrInputError([&] {

@@ -156,7 +156,7 @@ ConsistencyEvaluation EvaluateConsistency(const RunRecord& record,
 
   std::vector<estimator::VelocitySeries> series;
   for (const SensorStream& stream : record.sensors) {
-    if (stream.kind == replay::StreamKind::kImu || stream.delivered.empty()) continue;
+    if (stream.kind == core::MeasurementKind::kImu || stream.delivered.empty()) continue;
     const sim::MountSite* site = record.robot.FindSite(stream.site);
     if (site == nullptr) continue;
     const Eigen::Matrix3d R_Bs = site->q_Bs.toRotationMatrix();

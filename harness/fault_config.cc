@@ -157,7 +157,7 @@ sim::FaultSpec ReadFaultSpec(const YamlValue& value, double run_duration_s) {
 }
 
 std::vector<sim::FaultSpec> ReadFaults(const YamlValue& list, double run_duration_s,
-                                       const std::map<std::string, sim::SensorType>& sensors) {
+                                       const std::map<std::string, core::MeasurementKind>& sensors) {
   std::vector<sim::FaultSpec> specs;
   for (const YamlValue& item : list.List(/*non_empty=*/false)) {
     sim::FaultSpec spec = ReadFaultSpec(item, run_duration_s);
@@ -174,7 +174,7 @@ std::vector<sim::FaultSpec> ReadFaults(const YamlValue& list, double run_duratio
     }
     if (const auto reason = sim::CheckFaultApplies(spec, sensor->second)) {
       item.Peek("kind")->Fail(fmt::format("fault on sensor '{}' ({} measurements): {}",
-                                          spec.sensor, sim::SensorTypeName(sensor->second),
+                                          spec.sensor, core::MeasurementKindName(sensor->second),
                                           *reason));
     }
     specs.push_back(std::move(spec));

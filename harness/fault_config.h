@@ -40,7 +40,7 @@ sim::FaultSpec ReadFaultSpec(const YamlValue& value, double run_duration_s);
 /// sensor must exist (error at `sensor`, listing them) and the kind must apply to its
 /// measurement type (sim::CheckFaultApplies; error at `kind`).
 std::vector<sim::FaultSpec> ReadFaults(const YamlValue& list, double run_duration_s,
-                                       const std::map<std::string, sim::SensorType>& sensors);
+                                       const std::map<std::string, core::MeasurementKind>& sensors);
 
 /// Emits one fault as a full map (BeginMap ... EndMap) with every key of its kind; an open
 /// end_s and an infinite brown_time_constant_s are written by leaving the key out.

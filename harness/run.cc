@@ -38,7 +38,6 @@ using replay::ParseReplayMethod;
 using replay::RecordedLog;
 using replay::ReplayMethod;
 using replay::ReplayResult;
-using replay::StreamKind;
 
 namespace {
 
@@ -113,7 +112,7 @@ class InLoopMethods {
   /// `spill_dir`: where the methods' outputs go as they are produced (a run directory),
   /// else they are kept in memory.
   void Start(const RunRecord& record, const std::optional<std::filesystem::path>& spill_dir) {
-    std::vector<std::pair<std::string, StreamKind>> kinds;
+    std::vector<std::pair<std::string, core::MeasurementKind>> kinds;
     for (const SensorStream& s : record.sensors) kinds.emplace_back(s.name, s.kind);
     const std::string calibration_yaml = CalibrationYamlText(record);
     const RecordedLog log = DescribeRunStreams(kinds, calibration_yaml, "");
@@ -381,7 +380,7 @@ class Flight {
       SensorStream stream;
       stream.name = config.name;
       stream.type = std::string(SensorTypeName(config.options));
-      stream.kind = SensorStreamKind(config.options);
+      stream.kind = SensorMeasurementKind(config.options);
       stream.site = SensorSite(config.options);
       stream.sky_directions_S = models_.back()->sky_directions_S();
       record_.sensors.push_back(std::move(stream));
@@ -413,7 +412,7 @@ class Flight {
         stream.clean.reserve(expected_samples);
         stream.delivered.reserve(expected_samples);
         stream.delivered_faults.reserve(expected_samples);
-        if (stream.kind == StreamKind::kImu) stream.imu_biases.reserve(expected_samples);
+        if (stream.kind == core::MeasurementKind::kImu) stream.imu_biases.reserve(expected_samples);
       }
     }
 

@@ -100,7 +100,7 @@ RunRecorder::RunRecorder(const fs::path& dir, RecorderLayout layout) : layout_(s
     delivered_.back()->Append(header);
     clean_.back()->Append(header);
     // The EuRoC folder layout of the first IMU, so existing VIO tools read a run.
-    if (stream.kind != replay::StreamKind::kImu || euroc_imu_) continue;
+    if (stream.kind != core::MeasurementKind::kImu || euroc_imu_) continue;
     euroc_imu_ = i;
     if (const sim::MountSite* site = layout_.robot.FindSite(stream.site)) {
       p_BI_ = site->p_Bs;

@@ -38,7 +38,7 @@ struct TrackingSample;    // run.h
 struct RecorderLayout {
   struct Stream {
     std::string name;
-    replay::StreamKind kind = replay::StreamKind::kImu;  ///< the columns of its CSV
+    core::MeasurementKind kind = core::MeasurementKind::kImu;  ///< the columns of its CSV
     std::string site;  ///< mount site
   };
   std::vector<Stream> streams;  ///< in the order of the run's sensor list

@@ -87,16 +87,6 @@ std::vector<SensorConfig> ReadSensors(const YamlValue& value) {
   return sensors;
 }
 
-// The measurement type a sensor type produces, for the fault compatibility check.
-sim::SensorType MeasurementTypeOf(const SensorOptions& options) {
-  switch (options.index()) {
-    case 0: return sim::SensorType::kImu;
-    case 1:
-    case 2: return sim::SensorType::kPose;
-    default: return sim::SensorType::kPosition;
-  }
-}
-
 ConsistencyConfig ReadConsistency(const YamlValue& value) {
   ConsistencyConfig config;
   YamlMap map = value.Map({"rate_hz", "window_s", "metrics", "standardize", "kl_bandwidth_scale",
@@ -1036,11 +1026,11 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
     }
   }
   if (const auto faults = map.Optional("faults")) {
-    std::map<std::string, sim::SensorType> sensor_types;
+    std::map<std::string, core::MeasurementKind> sensor_kinds;
     for (const SensorConfig& sensor : scenario.sensors) {
-      sensor_types[sensor.name] = MeasurementTypeOf(sensor.options);
+      sensor_kinds[sensor.name] = SensorMeasurementKind(sensor.options);
     }
-    scenario.faults = internal::ReadFaults(*faults, scenario.duration_s, sensor_types);
+    scenario.faults = internal::ReadFaults(*faults, scenario.duration_s, sensor_kinds);
   }
   if (const auto consistency = map.Optional("consistency")) {
     scenario.consistency = ReadConsistency(*consistency);

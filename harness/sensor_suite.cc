@@ -12,8 +12,8 @@ replay::SensorModel SensorModelOf(const SensorOptions& options) {
   return kSensorOptionModels[options.index()];
 }
 
-replay::StreamKind SensorStreamKind(const SensorOptions& options) {
-  return replay::StreamKindOf(SensorModelOf(options));
+core::MeasurementKind SensorMeasurementKind(const SensorOptions& options) {
+  return replay::MeasurementKindOf(SensorModelOf(options));
 }
 
 const std::string& SensorSite(const SensorOptions& options) {

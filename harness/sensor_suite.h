@@ -60,7 +60,7 @@ std::string_view SensorTypeName(const SensorOptions& options);
 replay::SensorModel SensorModelOf(const SensorOptions& options);
 
 /// The kind of stream the sensor records (its rows' columns, replay/run_format.h).
-replay::StreamKind SensorStreamKind(const SensorOptions& options);
+core::MeasurementKind SensorMeasurementKind(const SensorOptions& options);
 
 /// The mount site a sensor's options name.
 const std::string& SensorSite(const SensorOptions& options);
@@ -78,7 +78,7 @@ std::unique_ptr<sim::SensorModel> MakeSensorModel(const SensorConfig& config,
 struct SensorStream {
   std::string name;
   std::string type;  ///< kSensorTypeNames
-  replay::StreamKind kind = replay::StreamKind::kImu;
+  core::MeasurementKind kind = core::MeasurementKind::kImu;
   std::string site;
   Eigen::Isometry3d T_WS = Eigen::Isometry3d::Identity();  ///< true reference frame in W
   std::vector<Eigen::Vector3d> sky_directions_S;  ///< GNSS satellites in S (fixed for the run)

@@ -112,7 +112,7 @@ void ReadCalibration(RunData& run) {
   // The estimates are of the IMU frame I: its nominal mount (what the estimator is given).
   bool imu_found = false;
   for (const auto& [name, c] : run.calibration.sensors) {
-    if (replay::StreamKindOfSensorType(c.type) != replay::StreamKind::kImu || !c.T_Bs) continue;
+    if (replay::MeasurementKindOfSensorType(c.type) != core::MeasurementKind::kImu || !c.T_Bs) continue;
     run.T_BI = *c.T_Bs;
     imu_found = true;
     break;
@@ -130,7 +130,7 @@ void ReadSensors(RunData& run) {
       continue;
     }
     // An IMU has nothing to place in W (and an hour of it is not worth reading).
-    if (replay::StreamKindOfSensorType(cal->second.type) == replay::StreamKind::kImu) continue;
+    if (replay::MeasurementKindOfSensorType(cal->second.type) == core::MeasurementKind::kImu) continue;
     const CsvTable csv(file, std::string(replay::kSensorCsvForm));
     SensorTrack track;
     track.name = name;

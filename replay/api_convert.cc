@@ -145,15 +145,31 @@ estimator::EstimatorOutput FromApiEstimate(api::Estimate&& e) {
   return o;
 }
 
+api::SensorKind ToApi(core::MeasurementKind kind) {
+  switch (kind) {
+    case core::MeasurementKind::kImu: return api::SensorKind::kImu;
+    case core::MeasurementKind::kPose: return api::SensorKind::kPose;
+    case core::MeasurementKind::kPosition: return api::SensorKind::kPosition;
+  }
+  return api::SensorKind::kPosition;
+}
+
+core::MeasurementKind FromApi(api::SensorKind kind) {
+  switch (kind) {
+    case api::SensorKind::kImu: return core::MeasurementKind::kImu;
+    case api::SensorKind::kPose: return core::MeasurementKind::kPose;
+    case api::SensorKind::kPosition: return core::MeasurementKind::kPosition;
+  }
+  return core::MeasurementKind::kPosition;
+}
+
 api::EstimatorSetup ApiSetupOf(const RecordedLog& log, double gravity_mps2) {
   api::EstimatorSetup setup;
   setup.gravity_mps2 = gravity_mps2;
   for (const RecordedStream& s : log.streams) {
     api::SensorInfo info;
     info.name = s.name;
-    info.kind = s.kind == StreamKind::kImu    ? api::SensorKind::kImu
-                : s.kind == StreamKind::kPose ? api::SensorKind::kPose
-                                              : api::SensorKind::kPosition;
+    info.kind = ToApi(s.kind);
     info.T_Is = ToApiPose(s.T_Is);
     info.covariance_stated = s.covariance_stated;
     if (s.T_MS) info.T_MS = ToApiPose(*s.T_MS);

@@ -24,6 +24,9 @@ Eigen::Vector3d FromApi(const api::Vec3& v);
 api::Quat ToApi(const Eigen::Quaterniond& q);
 Eigen::Quaterniond FromApi(const api::Quat& q);
 
+api::SensorKind ToApi(core::MeasurementKind kind);
+core::MeasurementKind FromApi(api::SensorKind kind);
+
 api::Measurement ToApiMeasurement(const core::StampedMeasurement& measurement,
                                   core::Time arrival_ns, std::size_t sensor_index);
 /// `sensor`: the name of the stream measurement.sensor indexes.

@@ -21,7 +21,7 @@ void GiveTrueAlignments(const std::vector<RecordedStream>& streams,
   const RecordedStream* anchor = nullptr;
   Eigen::Isometry3d T_A0L = Eigen::Isometry3d::Identity();
   for (const RecordedStream& s : streams) {
-    if (s.kind == StreamKind::kImu || !s.true_T_WS) continue;
+    if (s.kind == core::MeasurementKind::kImu || !s.true_T_WS) continue;
     if (const auto T_AL = estimator.AlignmentOf(s.name)) {
       anchor = &s;
       T_A0L = *T_AL;
@@ -30,7 +30,7 @@ void GiveTrueAlignments(const std::vector<RecordedStream>& streams,
   }
   if (anchor == nullptr) return;
   for (const RecordedStream& s : streams) {
-    if (s.kind == StreamKind::kImu || !s.true_T_WS || &s == anchor) continue;
+    if (s.kind == core::MeasurementKind::kImu || !s.true_T_WS || &s == anchor) continue;
     estimator.SetKnownAlignment(s.name, s.true_T_WS->inverse() * *anchor->true_T_WS * T_A0L);
   }
 }
@@ -164,11 +164,9 @@ std::vector<estimator::ConsensusRecord> BuiltinEstimator::TakeConsensusRecords()
 std::unique_ptr<BuiltinEstimator> MakeHostedBuiltinEstimator(const api::EstimatorSetup& setup,
                                                              const std::string& method_name,
                                                              const EstimationConfig& config) {
-  std::vector<std::pair<std::string, StreamKind>> kinds;
+  std::vector<std::pair<std::string, core::MeasurementKind>> kinds;
   for (const api::SensorInfo& s : setup.sensors) {
-    kinds.emplace_back(s.name, s.kind == api::SensorKind::kImu    ? StreamKind::kImu
-                               : s.kind == api::SensorKind::kPose ? StreamKind::kPose
-                                                                  : StreamKind::kPosition);
+    kinds.emplace_back(s.name, FromApi(s.kind));
   }
   const RecordedLog log = DescribeRunStreams(kinds, setup.calibration_yaml, "");
   const ReplayMethod method = ParseReplayMethod(method_name, log);

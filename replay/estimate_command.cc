@@ -23,7 +23,7 @@ std::vector<ReplayMethod> MethodsToReplay(const EstimateCommandOptions& options,
   std::vector<ReplayMethod> methods;
   if (options.methods.empty()) {
     for (const RecordedStream& s : log.streams) {
-      if (s.kind != StreamKind::kImu) methods.push_back(ParseReplayMethod("single:" + s.name, log));
+      if (s.kind != core::MeasurementKind::kImu) methods.push_back(ParseReplayMethod("single:" + s.name, log));
     }
   } else {
     for (const std::string& m : options.methods) methods.push_back(ParseReplayMethod(m, log, clients));

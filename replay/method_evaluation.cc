@@ -107,7 +107,7 @@ std::optional<InputCheck> CheckAgainstInputs(const RecordedLog& log, const Repla
   if (log.ground_truth.empty() || trajectory.empty()) return std::nullopt;
   std::optional<InputCheck> best;
   for (const RecordedStream& stream : log.streams) {
-    if (stream.kind != StreamKind::kPose) continue;
+    if (stream.kind != core::MeasurementKind::kPose) continue;
     const bool fused_by_method =
         result.method.kind == ReplayMethod::Kind::kConsensus ||
         std::find(result.method.fused.begin(), result.method.fused.end(), stream.name) !=
@@ -377,7 +377,7 @@ std::vector<RawStreamScore> ScoreRawStreams(const RecordedLog& log, core::Time f
   std::vector<RawStreamScore> scores;
   if (log.ground_truth.empty() || from_ns > to_ns) return scores;
   for (const RecordedStream& stream : log.streams) {
-    if (stream.kind != StreamKind::kPose) continue;
+    if (stream.kind != core::MeasurementKind::kPose) continue;
     std::vector<PoseSample> raw = RawPoseTrajectory(log, stream, from_ns, to_ns);
     if (raw.size() <= 10) continue;
     TrajectoryErrors errors = EvaluateTrajectory(raw, log.ground_truth);

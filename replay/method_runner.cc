@@ -154,7 +154,7 @@ MethodRunner::MethodRunner(const RecordedLog& log, const ReplayMethod& method,
   m.method = method;
   for (const RecordedStream& s : log.streams) {
     m.stream_names.push_back(s.name);
-    if (s.kind != StreamKind::kImu) m.sensor_names.push_back(s.name);
+    if (s.kind != core::MeasurementKind::kImu) m.sensor_names.push_back(s.name);
   }
   m.specs = sensors;
   m.result.method = method;

@@ -54,7 +54,7 @@ struct Sink {
 
 // What ReadSensorCsv found.
 struct SensorCsvContents {
-  StreamKind kind = StreamKind::kImu;
+  core::MeasurementKind kind = core::MeasurementKind::kImu;
   size_t rows = 0;
   bool covariance_stated = true;  ///< false: no covariance columns, the default used
 };
@@ -114,10 +114,10 @@ SensorCsvContents ReadSensorCsv(const fs::path& path, const std::string& name,
     ++rows;
   }
 
-  const StreamKind kind = columns.kind();
+  const core::MeasurementKind kind = columns.kind();
   const SensorField covariance =
-      kind == StreamKind::kPose ? SensorField::kPoseCovariance : SensorField::kPositionCovariance;
-  const bool defaulted_covariance = kind != StreamKind::kImu && rows > 0 && !columns.Has(covariance);
+      kind == core::MeasurementKind::kPose ? SensorField::kPoseCovariance : SensorField::kPositionCovariance;
+  const bool defaulted_covariance = kind != core::MeasurementKind::kImu && rows > 0 && !columns.Has(covariance);
   const bool defaulted_twist_covariance = twist_read && !columns.Has(SensorField::kTwistCovariance);
   NoteSensorCsv(csv, columns, name, defaulted_covariance, defaulted_twist_covariance, notes);
   return {kind, rows, !defaulted_covariance};
@@ -374,7 +374,7 @@ Eigen::Isometry3d ApplyCalibration(const RunCalibration& cal, RecordedLog& log) 
 bool ChooseImuStream(RecordedLog& log) {
   std::vector<const RecordedStream*> imus;
   for (const RecordedStream& s : log.streams) {
-    if (s.kind == StreamKind::kImu) imus.push_back(&s);
+    if (s.kind == core::MeasurementKind::kImu) imus.push_back(&s);
   }
   if (imus.empty()) {
     log.notes.push_back("no IMU stream");
@@ -536,7 +536,7 @@ std::vector<size_t> ReadStreams(const fs::path& directory, const std::vector<Sou
         log.measurements.push_back({source.name, s.t_ns, std::move(m)});
         log.arrival_ns.push_back(s.t_ns);
       }
-      stream.kind = StreamKind::kPose;
+      stream.kind = core::MeasurementKind::kPose;
       stream.rows = poses.size();
       stream.covariance_stated = false;
       log.notes.push_back(fmt::format("{}: TUM pose stream, arrival = t, default covariance",
@@ -549,7 +549,7 @@ std::vector<size_t> ReadStreams(const fs::path& directory, const std::vector<Sou
       stream.covariance_stated = contents.covariance_stated;
     }
     log.notes.push_back(fmt::format("{}: {} stream, {} rows from {}", stream.name,
-                                    StreamKindName(stream.kind), stream.rows,
+                                    core::MeasurementKindName(stream.kind), stream.rows,
                                     fs::relative(stream.file, directory).string()));
     log.streams.push_back(std::move(stream));
     stream_end.push_back(log.measurements.size());
@@ -647,7 +647,7 @@ RecordedLog ReadRecordedLog(const fs::path& directory, const RecordedLogOptions&
   return log;
 }
 
-RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> streams,
+RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, core::MeasurementKind>> streams,
                                const std::string& calibration_yaml,
                                const fs::path& directory) {
   RecordedLog log;

@@ -49,7 +49,7 @@ namespace tofu::replay {
 struct RecordedStream {
   std::string name;
   /// Told from the header (replay/run_format.h) or from the layout (EuRoC imu0, TUM).
-  StreamKind kind = StreamKind::kImu;
+  core::MeasurementKind kind = core::MeasurementKind::kImu;
   std::filesystem::path file;
   /// Mount frame s of the sensor in the IMU frame I: T_Is = T_BI^-1 T_Bs with the
   /// nominal mounts T_Bs of calibration.yaml (what an estimator is given, not the true
@@ -164,7 +164,7 @@ RecordedLog ReadRecordedLog(const std::filesystem::path& directory,
 /// calibration.yaml the run will write, without samples. The run loop configures its
 /// in-loop estimators from this, so that `tofu estimate` on the written directory
 /// configures them identically (same parser, same rounding of the file's numbers).
-RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, StreamKind>> streams,
+RecordedLog DescribeRunStreams(std::vector<std::pair<std::string, core::MeasurementKind>> streams,
                                const std::string& calibration_yaml,
                                const std::filesystem::path& directory);
 

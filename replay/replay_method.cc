@@ -119,7 +119,7 @@ std::variant<ReplayMethod, std::string> ParseMethod(const std::string& name,
 std::vector<std::string> SensorNamesOf(const RecordedLog& log) {
   std::vector<std::string> names;
   for (const RecordedStream& s : log.streams) {
-    if (s.kind != StreamKind::kImu) names.push_back(s.name);
+    if (s.kind != core::MeasurementKind::kImu) names.push_back(s.name);
   }
   return names;
 }
@@ -165,10 +165,10 @@ estimator::MultiGraphEstimatorOptions DefaultEstimatorOptions(const RecordedLog&
 std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
   std::vector<estimator::SensorSpec> specs;
   for (const RecordedStream& s : log.streams) {
-    if (s.kind == StreamKind::kImu) continue;
+    if (s.kind == core::MeasurementKind::kImu) continue;
     estimator::SensorSpec spec;
     spec.name = s.name;
-    spec.kind = s.kind == StreamKind::kPose ? estimator::SensorKind::kPose
+    spec.kind = s.kind == core::MeasurementKind::kPose ? estimator::SensorKind::kPose
                                              : estimator::SensorKind::kPosition;
     spec.T_Is = s.T_Is;
     // Between-factor weights from the stated odometry noise: the white noise of both ends
@@ -185,7 +185,7 @@ std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
     // TUM file, a CSV without covariance columns), is weighted with its own scatter
     // against the IMU, measured from the data (multi_graph_estimator.h). A tofu run's
     // streams all carry covariances: they keep the stated or default weights.
-    spec.between_noise_from_data = s.kind == StreamKind::kPose && !s.covariance_stated &&
+    spec.between_noise_from_data = s.kind == core::MeasurementKind::kPose && !s.covariance_stated &&
                                    !s.position_noise_m && !s.rotation_noise_rad;
     specs.push_back(spec);
   }

@@ -67,7 +67,7 @@ using FieldValues = std::array<double, kMaxFieldValues>;
 static_assert(static_cast<std::size_t>(F::kFaults) + 1 == kSensorFieldCount);
 
 // The group of `field` in the table of `kind`, which must have it.
-const SensorColumnGroup& GroupOf(StreamKind kind, SensorField field) {
+const SensorColumnGroup& GroupOf(core::MeasurementKind kind, SensorField field) {
   const std::span<const SensorColumnGroup> groups = SensorColumnGroups(kind);
   return *std::find_if(groups.begin(), groups.end(),
                        [&](const SensorColumnGroup& g) { return g.field == field; });
@@ -203,15 +203,15 @@ Eigen::Vector3d Vector(const FieldValues& v) { return {v[0], v[1], v[2]}; }
 // fills a field's numbers and returns false when the field is absent or empty. One
 // assembly for the reader and AsRecorded, so that both normalise alike.
 template <typename Get>
-core::Measurement Assemble(StreamKind kind, const SensorCsvDefaults& defaults, Get&& get) {
+core::Measurement Assemble(core::MeasurementKind kind, const SensorCsvDefaults& defaults, Get&& get) {
   FieldValues v{};
-  if (kind == StreamKind::kImu) {
+  if (kind == core::MeasurementKind::kImu) {
     core::ImuMeasurement m;
     if (get(F::kGyro, v)) m.gyro_I_radps = Vector(v);
     if (get(F::kAccel, v)) m.acc_I_mps2 = Vector(v);
     return m;
   }
-  if (kind == StreamKind::kPose) {
+  if (kind == core::MeasurementKind::kPose) {
     core::PoseMeasurement m;
     if (get(F::kPosition, v)) m.p_Ss = Vector(v);
     if (get(F::kQuaternion, v)) m.q_Ss = QuaternionAsRead(v[0], v[1], v[2], v[3]);
@@ -272,13 +272,13 @@ core::InputError PartialField(const SensorColumnGroup& group, const std::vector<
                                       group.meaning));
 }
 
-StreamKind KindOfHeader(const std::vector<std::string>& keys, const std::string& file) {
+core::MeasurementKind KindOfHeader(const std::vector<std::string>& keys, const std::string& file) {
   const auto has = [&](std::string_view key) {
     return std::find(keys.begin(), keys.end(), key) != keys.end();
   };
-  if (has("w_RS_S_x")) return StreamKind::kImu;
-  if (has("p_Ss_x") && has("q_Ss_w")) return StreamKind::kPose;
-  if (has("p_Ss_x")) return StreamKind::kPosition;
+  if (has("w_RS_S_x")) return core::MeasurementKind::kImu;
+  if (has("p_Ss_x") && has("q_Ss_w")) return core::MeasurementKind::kPose;
+  if (has("p_Ss_x")) return core::MeasurementKind::kPosition;
   throw core::InputError({file, 1, 0}, "",
                          "header: cannot tell the stream kind: expected the columns "
                          "w_RS_S_x/y/z + a_RS_S_x/y/z (IMU), p_Ss_x/y/z + q_Ss_w/x/y/z (pose) "
@@ -312,21 +312,6 @@ bool TwistIsEmpty(const CsvReader& csv, const SensorCsvColumns& columns) {
 
 }  // namespace
 
-const char* StreamKindName(StreamKind kind) {
-  switch (kind) {
-    case StreamKind::kImu: return "imu";
-    case StreamKind::kPose: return "pose";
-    case StreamKind::kPosition: return "position";
-  }
-  return "?";
-}
-
-StreamKind StreamKindOf(const core::Measurement& value) {
-  if (std::holds_alternative<core::ImuMeasurement>(value)) return StreamKind::kImu;
-  if (std::holds_alternative<core::PoseMeasurement>(value)) return StreamKind::kPose;
-  return StreamKind::kPosition;
-}
-
 std::optional<SensorModel> SensorModelOfName(std::string_view type) {
   for (const SensorModel model : kSensorModels) {
     if (SensorModelName(model) == type) return model;
@@ -334,21 +319,21 @@ std::optional<SensorModel> SensorModelOfName(std::string_view type) {
   return std::nullopt;
 }
 
-StreamKind StreamKindOf(SensorModel model) {
+core::MeasurementKind MeasurementKindOf(SensorModel model) {
   switch (model) {
-    case SensorModel::kImu: return StreamKind::kImu;
+    case SensorModel::kImu: return core::MeasurementKind::kImu;
     case SensorModel::kVio:
-    case SensorModel::kLidarOdometry: return StreamKind::kPose;
+    case SensorModel::kLidarOdometry: return core::MeasurementKind::kPose;
     case SensorModel::kTotalStation:
-    case SensorModel::kGnss: return StreamKind::kPosition;
+    case SensorModel::kGnss: return core::MeasurementKind::kPosition;
   }
-  return StreamKind::kPosition;
+  return core::MeasurementKind::kPosition;
 }
 
-std::optional<StreamKind> StreamKindOfSensorType(std::string_view type) {
+std::optional<core::MeasurementKind> MeasurementKindOfSensorType(std::string_view type) {
   const std::optional<SensorModel> model = SensorModelOfName(type);
   if (!model) return std::nullopt;
-  return StreamKindOf(*model);
+  return MeasurementKindOf(*model);
 }
 
 int SensorColumnGroup::Count() const {
@@ -366,16 +351,16 @@ std::string SensorColumnGroup::Key(int i) const {
   return fmt::format("{}{}", prefix, axes[static_cast<std::size_t>(i)]);
 }
 
-std::span<const SensorColumnGroup> SensorColumnGroups(StreamKind kind) {
+std::span<const SensorColumnGroup> SensorColumnGroups(core::MeasurementKind kind) {
   switch (kind) {
-    case StreamKind::kImu: return kImuColumns;
-    case StreamKind::kPose: return kPoseColumns;
-    case StreamKind::kPosition: return kPositionColumns;
+    case core::MeasurementKind::kImu: return kImuColumns;
+    case core::MeasurementKind::kPose: return kPoseColumns;
+    case core::MeasurementKind::kPosition: return kPositionColumns;
   }
   return {};
 }
 
-std::string SensorCsvHeader(StreamKind kind) {
+std::string SensorCsvHeader(core::MeasurementKind kind) {
   std::string header = "#";
   for (const SensorColumnGroup& group : SensorColumnGroups(kind)) {
     for (int i = 0; i < group.Count(); ++i) {
@@ -389,7 +374,7 @@ std::string SensorCsvHeader(StreamKind kind) {
 }
 
 void AppendSensorCsvRow(const SensorCsvRow& row, std::string& out) {
-  for (const SensorColumnGroup& group : SensorColumnGroups(StreamKindOf(*row.measured))) {
+  for (const SensorColumnGroup& group : SensorColumnGroups(core::MeasurementKindOf(*row.measured))) {
     AppendGroup(group, row, out);
   }
   out += '\n';
@@ -397,7 +382,7 @@ void AppendSensorCsvRow(const SensorCsvRow& row, std::string& out) {
 
 void AppendSensorCsvFields(const SensorCsvRow& row, std::span<const SensorField> fields,
                            std::string& out) {
-  const StreamKind kind = StreamKindOf(*row.measured);
+  const core::MeasurementKind kind = core::MeasurementKindOf(*row.measured);
   for (const SensorField field : fields) AppendGroup(GroupOf(kind, field), row, out);
   out += '\n';
 }
@@ -410,7 +395,7 @@ Eigen::Quaterniond QuaternionAsRead(double w, double x, double y, double z) {
 }
 
 core::Measurement AsRecorded(const core::Measurement& value) {
-  const StreamKind kind = StreamKindOf(value);
+  const core::MeasurementKind kind = core::MeasurementKindOf(value);
   return Assemble(kind, {}, [&](SensorField field, FieldValues& out) {
     FieldValues exact;
     if (!ValuesOf(field, value, nullptr, exact)) return false;
@@ -462,7 +447,7 @@ SensorCsvColumns LocateSensorCsvColumns(const std::vector<std::string>& keys,
     located.columns_[static_cast<std::size_t>(group.field)] = std::move(columns);
   }
   // The twist is whole or absent: velocity and angular rate together.
-  if (located.kind_ == StreamKind::kPose &&
+  if (located.kind_ == core::MeasurementKind::kPose &&
       located.Has(F::kVelocity) != located.Has(F::kAngularRate)) {
     const SensorField missing = located.Has(F::kVelocity) ? F::kAngularRate : F::kVelocity;
     throw PartialField(GroupOf(located.kind_, missing),

@@ -27,15 +27,6 @@ namespace tofu::replay {
 
 class CsvReader;
 
-/// What a stream measures: the alternative of core::Measurement its rows hold.
-enum class StreamKind { kImu, kPose, kPosition };
-
-/// Name of a kind for notes and messages: "imu", "pose", "position".
-const char* StreamKindName(StreamKind kind);
-
-/// The kind of stream a measurement belongs to.
-StreamKind StreamKindOf(const core::Measurement& value);
-
 /// The sensor models a run records, by the `type:` the scenario and calibration.yaml give
 /// each sensor.
 enum class SensorModel : uint8_t { kImu, kVio, kLidarOdometry, kTotalStation, kGnss };
@@ -62,10 +53,10 @@ std::optional<SensorModel> SensorModelOfName(std::string_view type);
 
 /// The kind of stream a model records: the IMU's; poses (VIO, LiDAR odometry); positions
 /// (total station, GNSS).
-StreamKind StreamKindOf(SensorModel model);
+core::MeasurementKind MeasurementKindOf(SensorModel model);
 
 /// The kind of stream a sensor of `type:` records; nullopt for an unknown type.
-std::optional<StreamKind> StreamKindOfSensorType(std::string_view type);
+std::optional<core::MeasurementKind> MeasurementKindOfSensorType(std::string_view type);
 
 /// What a group of columns holds.
 enum class SensorField : uint8_t {
@@ -111,7 +102,7 @@ struct SensorColumnGroup {
 };
 
 /// The columns of a stream of `kind`, in the order they are written.
-std::span<const SensorColumnGroup> SensorColumnGroups(StreamKind kind);
+std::span<const SensorColumnGroup> SensorColumnGroups(core::MeasurementKind kind);
 
 /// The form of a sensor CSV's header, as messages quote it.
 inline constexpr std::string_view kSensorCsvForm =
@@ -119,7 +110,7 @@ inline constexpr std::string_view kSensorCsvForm =
     "p_Ss_x [m],... (pose, position)";
 
 /// The header line of a stream of `kind`, newline included: "#timestamp [ns],...\n".
-std::string SensorCsvHeader(StreamKind kind);
+std::string SensorCsvHeader(core::MeasurementKind kind);
 
 /// What one row of a sensor CSV is made of. `measured` and `truth` hold the same
 /// alternative; the label columns (err_*) are measured - truth.
@@ -154,7 +145,7 @@ core::Measurement AsRecorded(const core::Measurement& value);
 /// Where a sensor CSV's columns are, found by key in its header.
 class SensorCsvColumns {
  public:
-  StreamKind kind() const { return kind_; }
+  core::MeasurementKind kind() const { return kind_; }
   /// Column index of the field's i-th column; -1 when the header does not have it.
   int Column(SensorField field, int i = 0) const {
     const std::vector<int>& c = columns_[static_cast<std::size_t>(field)];
@@ -175,7 +166,7 @@ class SensorCsvColumns {
  private:
   friend SensorCsvColumns LocateSensorCsvColumns(const std::vector<std::string>&,
                                                  const std::string&);
-  StreamKind kind_ = StreamKind::kImu;
+  core::MeasurementKind kind_ = core::MeasurementKind::kImu;
   std::array<std::vector<int>, kSensorFieldCount> columns_;  // by SensorField
 };
 

@@ -122,7 +122,7 @@ std::vector<LocalConsistencySeries> LocalConsistency(
   if (result.spilled != nullptr) throw std::logic_error("LocalConsistency: outputs were spilled");
   if (result.outputs.empty()) return out;
   for (const RecordedStream& stream : log.streams) {
-    if (stream.kind == StreamKind::kImu) continue;
+    if (stream.kind == core::MeasurementKind::kImu) continue;
     const StreamSamples samples = SortedSamplesOf(log, stream);
     const estimator::VelocitySeries v_A = estimator::DifferentiatePositions(
         samples.t_ns, samples.p_A, DifferentiationFor(samples.t_ns));

@@ -211,7 +211,7 @@ void ExportMeasurements(const RunData& run, const std::string& name, const CsvTa
   const renders::SensorTrack* track = run.FindSensor(name);
   const Eigen::Isometry3d T_WS = track ? track->true_T_WS : Eigen::Isometry3d::Identity();
   const std::vector<int> p = FieldColumns(c, SensorField::kPosition, 3);
-  const bool is_pose = c.kind() == replay::StreamKind::kPose;
+  const bool is_pose = c.kind() == core::MeasurementKind::kPose;
   const std::vector<int> q = FieldColumns(c, SensorField::kQuaternion, 4);
   const std::string frame = name + "_reference";
   const std::vector<int> cov_pose = FieldColumns(c, SensorField::kPoseCovariance, 21);
@@ -257,7 +257,7 @@ void ExportSensors(const RunData& run, Channels& out) {
     const std::string topic = "/sensors/" + name;
     const CsvTable csv(file, std::string(replay::kSensorCsvForm));
     const SensorCsvColumns columns = replay::LocateSensorCsvColumns(csv.keys(), csv.file());
-    if (columns.kind() == replay::StreamKind::kImu) {
+    if (columns.kind() == core::MeasurementKind::kImu) {
       ExportImuSamples(csv, columns, topic, out);
     } else {
       ExportMeasurements(run, name, csv, columns, topic, out);

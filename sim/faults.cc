@@ -11,17 +11,6 @@
 
 namespace tofu::sim {
 
-static_assert(std::is_same_v<std::variant_alternative_t<static_cast<size_t>(SensorType::kImu),
-                                                        core::Measurement>,
-                             core::ImuMeasurement>);
-static_assert(std::is_same_v<std::variant_alternative_t<static_cast<size_t>(SensorType::kPose),
-                                                        core::Measurement>,
-                             core::PoseMeasurement>);
-static_assert(
-    std::is_same_v<std::variant_alternative_t<static_cast<size_t>(SensorType::kPosition),
-                                              core::Measurement>,
-                   core::PositionMeasurement>);
-
 // ---- names ----
 
 const std::array<FaultKind, kFaultKindCount>& AllFaultKinds() {
@@ -53,19 +42,6 @@ std::optional<FaultKind> FaultKindFromName(std::string_view name) {
   return std::nullopt;
 }
 
-std::string_view SensorTypeName(SensorType type) {
-  switch (type) {
-    case SensorType::kImu: return "imu";
-    case SensorType::kPose: return "pose";
-    case SensorType::kPosition: return "position";
-  }
-  return "unknown";
-}
-
-SensorType SensorTypeOf(const core::Measurement& measurement) {
-  return static_cast<SensorType>(measurement.index());
-}
-
 // ---- schedule ----
 
 FaultWindow WindowOf(const FaultSpec& spec) {
@@ -75,8 +51,8 @@ FaultWindow WindowOf(const FaultSpec& spec) {
   return window;
 }
 
-std::optional<std::string> CheckFaultApplies(const FaultSpec& spec, SensorType type) {
-  if (type == SensorType::kImu) {
+std::optional<std::string> CheckFaultApplies(const FaultSpec& spec, core::MeasurementKind measured) {
+  if (measured == core::MeasurementKind::kImu) {
     switch (spec.kind) {
       case FaultKind::kDropout:
       case FaultKind::kFreeze:
@@ -95,11 +71,11 @@ std::optional<std::string> CheckFaultApplies(const FaultSpec& spec, SensorType t
   }
   if (spec.kind == FaultKind::kOutliers) {
     const bool has_effect = spec.outliers.scale_m > 0.0 ||
-                            (type == SensorType::kPose && spec.outliers.rotation_scale_rad > 0.0);
+                            (measured == core::MeasurementKind::kPose && spec.outliers.rotation_scale_rad > 0.0);
     if (!has_effect) {
-      return "outliers on " + std::string(SensorTypeName(type)) +
+      return "outliers on " + std::string(core::MeasurementKindName(measured)) +
              " measurements need scale_m > 0" +
-             (type == SensorType::kPose ? " or rotation_scale_deg > 0" : "");
+             (measured == core::MeasurementKind::kPose ? " or rotation_scale_deg > 0" : "");
     }
   }
   return std::nullopt;
@@ -207,7 +183,7 @@ bool FaultInjector::Stage::Process(SensorSample* sample) {
   core::Measurement& m = sample->measured;
   const std::optional<core::Time> previous = previous_t_ns;
   previous_t_ns = t;
-  if (const auto reason = CheckFaultApplies(spec, SensorTypeOf(m))) {
+  if (const auto reason = CheckFaultApplies(spec, core::MeasurementKindOf(m))) {
     assert(false && "fault kind does not apply to this sensor's measurements");
     return true;
   }

@@ -62,14 +62,6 @@ const std::array<FaultKind, kFaultKindCount>& AllFaultKinds();
 /// The bit of `kind` in an active-faults mask.
 constexpr uint32_t FaultBit(FaultKind kind) { return 1u << static_cast<uint32_t>(kind); }
 
-/// What a sensor measures: the alternative of core::Measurement it emits (the enum value
-/// is the variant index).
-enum class SensorType : uint8_t { kImu = 0, kPose = 1, kPosition = 2 };
-/// "imu", "pose", "position".
-std::string_view SensorTypeName(SensorType type);
-/// The type of a measurement (its variant index).
-SensorType SensorTypeOf(const core::Measurement& measurement);
-
 /// Misalignment: the sensor reports in a wrong reference frame F, rotated and translated
 /// from S:  p_Fs = R_FS p_Ss + p_FS,  q_Fs = q_FS q_Ss  (the twist, in s, is unchanged; the
 /// position block of the covariance is rotated, Sigma_p' = R_FS Sigma_p R_FS^T).
@@ -167,10 +159,10 @@ struct FaultWindow {
 };
 FaultWindow WindowOf(const FaultSpec& spec);
 
-/// Why `spec` cannot act on a sensor of `type` (nullopt if it can). IMU accepts dropout,
-/// freeze, delay and outliers (with a non-zero IMU scale); pose and position accept every
-/// kind; outliers need a non-zero scale for the type.
-std::optional<std::string> CheckFaultApplies(const FaultSpec& spec, SensorType type);
+/// Why `spec` cannot act on a sensor whose measurements are `measured` (nullopt if it can).
+/// IMU accepts dropout, freeze, delay and outliers (with a non-zero IMU scale); pose and
+/// position accept every kind; outliers need a non-zero scale for the measurement's kind.
+std::optional<std::string> CheckFaultApplies(const FaultSpec& spec, core::MeasurementKind measured);
 
 /// One transition of the ground-truth labels (a row of labels.csv).
 struct FaultLabel {

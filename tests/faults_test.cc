@@ -605,20 +605,20 @@ TEST(Faults, CheckFaultAppliesByMeasurementType) {
     const FaultSpec spec = Spec(kind, 0.0, 1.0);
     const bool imu_ok = kind == FaultKind::kDropout || kind == FaultKind::kFreeze ||
                         kind == FaultKind::kDelay || kind == FaultKind::kOutliers;
-    EXPECT_EQ(!CheckFaultApplies(spec, SensorType::kImu).has_value(), imu_ok)
+    EXPECT_EQ(!CheckFaultApplies(spec, core::MeasurementKind::kImu).has_value(), imu_ok)
         << FaultKindName(kind);
-    EXPECT_FALSE(CheckFaultApplies(spec, SensorType::kPose).has_value());
-    EXPECT_FALSE(CheckFaultApplies(spec, SensorType::kPosition).has_value());
+    EXPECT_FALSE(CheckFaultApplies(spec, core::MeasurementKind::kPose).has_value());
+    EXPECT_FALSE(CheckFaultApplies(spec, core::MeasurementKind::kPosition).has_value());
     EXPECT_EQ(FaultKindFromName(FaultKindName(kind)), kind);
   }
   FaultSpec imu_outliers = Spec(FaultKind::kOutliers, 0.0, 1.0);
   imu_outliers.outliers.acc_scale_mps2 = 0.0;
   imu_outliers.outliers.gyro_scale_radps = 0.0;
-  EXPECT_TRUE(CheckFaultApplies(imu_outliers, SensorType::kImu).has_value());
-  EXPECT_FALSE(CheckFaultApplies(imu_outliers, SensorType::kPosition).has_value());
-  EXPECT_EQ(SensorTypeOf(ImuAt(0.0)), SensorType::kImu);
-  EXPECT_EQ(SensorTypeOf(PoseAt(0.0)), SensorType::kPose);
-  EXPECT_EQ(SensorTypeOf(PositionAt(0.0)), SensorType::kPosition);
+  EXPECT_TRUE(CheckFaultApplies(imu_outliers, core::MeasurementKind::kImu).has_value());
+  EXPECT_FALSE(CheckFaultApplies(imu_outliers, core::MeasurementKind::kPosition).has_value());
+  EXPECT_EQ(core::MeasurementKindOf(ImuAt(0.0)), core::MeasurementKind::kImu);
+  EXPECT_EQ(core::MeasurementKindOf(PoseAt(0.0)), core::MeasurementKind::kPose);
+  EXPECT_EQ(core::MeasurementKindOf(PositionAt(0.0)), core::MeasurementKind::kPosition);
 }
 
 }  // namespace
@@ -797,9 +797,9 @@ TEST(FaultConfig, StartAtOrAfterEndIsAnError) {
 }
 
 TEST(FaultConfig, FaultsMustNameASensorOfACompatibleType) {
-  const std::map<std::string, sim::SensorType> sensors = {
-      {"imu", sim::SensorType::kImu}, {"vio", sim::SensorType::kPose},
-      {"total_station", sim::SensorType::kPosition}};
+  const std::map<std::string, core::MeasurementKind> sensors = {
+      {"imu", core::MeasurementKind::kImu}, {"vio", core::MeasurementKind::kPose},
+      {"total_station", core::MeasurementKind::kPosition}};
   const auto read = [&](const std::string& yaml) {
     return ReadFaults(*ParseDocument(yaml, kLabel).Peek("faults"), 200.0, sensors);
   };

@@ -139,11 +139,10 @@ void ReadScenario(const std::string& bytes, const fs::path&) {
 }
 
 void ReadCalibration(const std::string& bytes, const fs::path&) {
-  using replay::StreamKind;
-  (void)replay::DescribeRunStreams({{"imu", StreamKind::kImu},
-                                     {"vio", StreamKind::kPose},
-                                     {"lio", StreamKind::kPose},
-                                     {"leica", StreamKind::kPosition}},
+  (void)replay::DescribeRunStreams({{"imu", core::MeasurementKind::kImu},
+                                     {"vio", core::MeasurementKind::kPose},
+                                     {"lio", core::MeasurementKind::kPose},
+                                     {"leica", core::MeasurementKind::kPosition}},
                                     bytes, "fuzz_run");
 }
 

@@ -144,9 +144,9 @@ TEST_F(RecordedLogTest, RunDirectoryStreamsHaveTheirKindsAndEveryCsvRow) {
   EXPECT_EQ(log.streams[0].name, "imu");
   EXPECT_EQ(log.streams[1].name, "lidar");
   EXPECT_EQ(log.streams[2].name, "vio");
-  EXPECT_EQ(log.streams[0].kind, StreamKind::kImu);
-  EXPECT_EQ(log.streams[1].kind, StreamKind::kPose);
-  EXPECT_EQ(log.streams[2].kind, StreamKind::kPose);
+  EXPECT_EQ(log.streams[0].kind, core::MeasurementKind::kImu);
+  EXPECT_EQ(log.streams[1].kind, core::MeasurementKind::kPose);
+  EXPECT_EQ(log.streams[2].kind, core::MeasurementKind::kPose);
   EXPECT_EQ(log.imu_stream, "imu");
   size_t total = 0;
   for (const RecordedStream& s : log.streams) {
@@ -343,8 +343,8 @@ TEST_F(RecordedLogTest, TotalStationRunWithoutImuNeedsRequireImuOff) {
   EXPECT_FALSE(log.imu_noise.has_value());
   ASSERT_EQ(log.streams.size(), 2u);
   EXPECT_EQ(log.streams[0].name, "leica");
-  EXPECT_EQ(log.streams[0].kind, StreamKind::kPosition);
-  EXPECT_EQ(log.streams[1].kind, StreamKind::kPose);
+  EXPECT_EQ(log.streams[0].kind, core::MeasurementKind::kPosition);
+  EXPECT_EQ(log.streams[1].kind, core::MeasurementKind::kPose);
   // Without an IMU, T_Is is the mount in the body frame itself.
   const YAML::Node cal = YAML::LoadFile((Dir("pme") / "calibration.yaml").string());
   EXPECT_TRUE(log.streams[0].T_Is.isApprox(PoseFromYaml(cal["sensors"]["leica"]["T_B_s"]), 1e-12));
@@ -371,10 +371,10 @@ TEST(RecordedLogEuroc, ReadsImuTumPosesAndGroundTruthWithExactStamps) {
   ASSERT_EQ(log.streams.size(), 2u);
   EXPECT_EQ(log.imu_stream, "imu");
   EXPECT_EQ(log.streams[0].name, "imu");
-  EXPECT_EQ(log.streams[0].kind, StreamKind::kImu);
+  EXPECT_EQ(log.streams[0].kind, core::MeasurementKind::kImu);
   EXPECT_EQ(log.streams[0].rows, 7999u);  // 8000 lines with the header
   EXPECT_EQ(log.streams[1].name, "pose_estimate");
-  EXPECT_EQ(log.streams[1].kind, StreamKind::kPose);
+  EXPECT_EQ(log.streams[1].kind, core::MeasurementKind::kPose);
   EXPECT_EQ(log.streams[1].rows, 807u);
   EXPECT_EQ(log.ground_truth.size(), 16702u);
   EXPECT_EQ(log.measurements.size(), 7999u + 807u);

@@ -68,7 +68,7 @@ core::PositionMeasurement Position(Values& v) {
 
 // Rows of `values` as the recorder writes them (truth = the value itself: err_* zero).
 std::string CsvOf(const std::vector<core::Measurement>& values) {
-  std::string text = SensorCsvHeader(StreamKindOf(values.front()));
+  std::string text = SensorCsvHeader(core::MeasurementKindOf(values.front()));
   core::Time t_ns = 1'000'000;
   for (const core::Measurement& value : values) {
     AppendSensorCsvRow({t_ns, t_ns + 7, &value, &value, "occluded", ""}, text);
@@ -120,16 +120,16 @@ void ExpectRoundTrip(const std::vector<core::Measurement>& values) {
 }
 
 TEST(RunFormat, HeadersAreTheOnesEveryRunDirectoryHas) {
-  EXPECT_EQ(SensorCsvHeader(StreamKind::kImu),
+  EXPECT_EQ(SensorCsvHeader(core::MeasurementKind::kImu),
             "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
             "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2],arrival [ns],"
             "err_w_x [rad s^-1],err_w_y [rad s^-1],err_w_z [rad s^-1],"
             "err_a_x [m s^-2],err_a_y [m s^-2],err_a_z [m s^-2],conditions,faults\n");
-  EXPECT_EQ(SensorCsvHeader(StreamKind::kPosition),
+  EXPECT_EQ(SensorCsvHeader(core::MeasurementKind::kPosition),
             "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m],cov_p_00 [m^2],"
             "cov_p_01 [m^2],cov_p_02 [m^2],cov_p_11 [m^2],cov_p_12 [m^2],cov_p_22 [m^2],"
             "err_p_x [m],err_p_y [m],err_p_z [m],conditions,faults\n");
-  const std::string pose = SensorCsvHeader(StreamKind::kPose);
+  const std::string pose = SensorCsvHeader(core::MeasurementKind::kPose);
   EXPECT_TRUE(pose.starts_with(
       "#timestamp [ns],arrival [ns],p_Ss_x [m],p_Ss_y [m],p_Ss_z [m],q_Ss_w [],q_Ss_x [],"
       "q_Ss_y [],q_Ss_z [],v_s_x [m s^-1],v_s_y [m s^-1],v_s_z [m s^-1],omega_s_x [rad s^-1],"
@@ -165,7 +165,7 @@ TEST(RunFormat, APoseWithoutTwistLeavesTheTwistAndItsCovarianceEmpty) {
   // 15 columns before the covariances: the twist is 6 empty fields after the quaternion.
   EXPECT_NE(row.find(",,,,,,,"), std::string::npos) << row;
   EXPECT_EQ(std::count(row.begin(), row.end(), ','), 15 + 21 + 21 + 8 - 1);
-  const std::vector<core::Measurement> read = ReadBack(SensorCsvHeader(StreamKind::kPose) + row);
+  const std::vector<core::Measurement> read = ReadBack(SensorCsvHeader(core::MeasurementKind::kPose) + row);
   ASSERT_EQ(read.size(), 1u);
   EXPECT_FALSE(std::get<core::PoseMeasurement>(read[0]).has_twist);
 }
@@ -227,14 +227,14 @@ TEST(RunFormat, OptionalColumnsMayBeAbsentAndLabelsAreNotRead) {
   const SensorCsvColumns euroc = LocateSensorCsvColumns(
       {"timestamp", "w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z"},
       "mav0/imu0/data.csv");
-  EXPECT_EQ(euroc.kind(), StreamKind::kImu);
+  EXPECT_EQ(euroc.kind(), core::MeasurementKind::kImu);
   EXPECT_FALSE(euroc.Has(SensorField::kArrival));
   EXPECT_EQ(euroc.Column(SensorField::kAccel, 2), 6);
   const SensorCsvColumns pose = LocateSensorCsvColumns(
       {"timestamp", "p_Ss_x", "p_Ss_y", "p_Ss_z", "q_Ss_w", "q_Ss_x", "q_Ss_y", "q_Ss_z",
        "err_p_x", "conditions"},
       "tum_like.csv");
-  EXPECT_EQ(pose.kind(), StreamKind::kPose);
+  EXPECT_EQ(pose.kind(), core::MeasurementKind::kPose);
   EXPECT_FALSE(pose.Has(SensorField::kVelocity));
   EXPECT_FALSE(pose.Has(SensorField::kPoseCovariance));
   EXPECT_TRUE(pose.IsReadKey("q_Ss_z"));
@@ -244,12 +244,12 @@ TEST(RunFormat, OptionalColumnsMayBeAbsentAndLabelsAreNotRead) {
 }
 
 TEST(RunFormat, SensorTypesMapToTheKindOfStreamTheyRecord) {
-  EXPECT_EQ(StreamKindOfSensorType("imu"), StreamKind::kImu);
-  EXPECT_EQ(StreamKindOfSensorType("vio"), StreamKind::kPose);
-  EXPECT_EQ(StreamKindOfSensorType("lidar_odometry"), StreamKind::kPose);
-  EXPECT_EQ(StreamKindOfSensorType("total_station"), StreamKind::kPosition);
-  EXPECT_EQ(StreamKindOfSensorType("gnss"), StreamKind::kPosition);
-  EXPECT_EQ(StreamKindOfSensorType("sonar"), std::nullopt);
+  EXPECT_EQ(MeasurementKindOfSensorType("imu"), core::MeasurementKind::kImu);
+  EXPECT_EQ(MeasurementKindOfSensorType("vio"), core::MeasurementKind::kPose);
+  EXPECT_EQ(MeasurementKindOfSensorType("lidar_odometry"), core::MeasurementKind::kPose);
+  EXPECT_EQ(MeasurementKindOfSensorType("total_station"), core::MeasurementKind::kPosition);
+  EXPECT_EQ(MeasurementKindOfSensorType("gnss"), core::MeasurementKind::kPosition);
+  EXPECT_EQ(MeasurementKindOfSensorType("sonar"), std::nullopt);
 }
 
 }  // namespace
