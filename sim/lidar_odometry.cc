@@ -278,13 +278,33 @@ core::PoseMeasurement LidarOdometryModel::MeasuredScan(const MountMotion& at,
   measured.covariance = ReportedCovariance(at, R_WS);
   AddTwistWhiteNoise(options_.velocity_noise_mps, options_.angular_rate_noise_radps, stream_,
                      &measured);
-  Eigen::Matrix<double, 6, 1> twist_variance;
-  twist_variance << Eigen::Vector3d::Constant(options_.velocity_noise_mps *
-                                              options_.velocity_noise_mps),
-      Eigen::Vector3d::Constant(options_.angular_rate_noise_radps *
-                                options_.angular_rate_noise_radps);
-  measured.twist_covariance = twist_variance.asDiagonal();
+  measured.twist_covariance = ReportedTwistCovariance(at);
   return measured;
+}
+
+Eigen::Matrix<double, 6, 6> LidarOdometryModel::ReportedTwistCovariance(
+    const MountMotion& at) const {
+  // The velocity is the registration's (FAST-LIO's state), so along a degenerate
+  // translation direction it is as unconstrained as the pose: the difference of two poses
+  // one scan apart, each with the regularised std s_pos of ReportedCovariance, has the std
+  // sqrt(2) s_pos rate_hz. The angular rate is the gyro's, which no geometry degrades.
+  const double sigma_v = options_.velocity_noise_mps;
+  const double sigma_degenerate_v =
+      std::sqrt(2.0) * options_.max_reported_position_std_m * options_.rate_hz;
+  // In s: sigma_v^2 I + sum over degenerate u_k of sigma_degenerate_v^2 (R_Ws^T u_k)(..)^T;
+  // the isotropic part is not rotated, so a non-degenerate scan states it exactly.
+  Eigen::Matrix3d velocity_covariance_s = sigma_v * sigma_v * Eigen::Matrix3d::Identity();
+  for (int k = 0; k < 3; ++k) {
+    if (!geometry_.translation_degenerate[k]) continue;
+    const Eigen::Vector3d u_s = at.R_Ws.transpose() * geometry_.translation_directions_W.col(k);
+    velocity_covariance_s += sigma_degenerate_v * sigma_degenerate_v * u_s * u_s.transpose();
+  }
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+  covariance.topLeftCorner<3, 3>() = velocity_covariance_s;
+  covariance.bottomRightCorner<3, 3>() = options_.angular_rate_noise_radps *
+                                         options_.angular_rate_noise_radps *
+                                         Eigen::Matrix3d::Identity();
+  return covariance;
 }
 
 Eigen::Matrix<double, 6, 6> LidarOdometryModel::ReportedCovariance(

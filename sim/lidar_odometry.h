@@ -147,6 +147,11 @@ struct LidarScanGeometry {
 /// Reported covariance of [dtheta_s; dp_S]: A (H + P0^-1)^-1 A^T, A = diag(R_Ws^T, R_WS^T),
 /// P0 = diag(s_rot^2 I, s_pos^2 I) (regularised inverse information: it is large exactly
 /// along the degenerate directions, as FAST-LIO's would be).
+/// Reported twist covariance of [v_s; omega_s]: R_Ws^T (sigma_v^2 I + sum_k u_k u_k^T
+/// 2 s_pos^2 rate^2 [u_k degenerate]) R_Ws and sigma_w^2 I: the velocity is the
+/// registration's, unconstrained along a degenerate direction like the pose (two poses one
+/// scan apart); the angular rate is the gyro's. (The reported velocity along a degenerate
+/// direction is still the true one plus sigma_v n: the stated covariance disowns it.)
 class LidarOdometryModel final : public SensorModel {
  public:
   /// Throws std::invalid_argument if the site is missing or an option is out of range.
@@ -181,6 +186,8 @@ class LidarOdometryModel final : public SensorModel {
   /// Its pose covariance: the regularised inverse of the scan's information.
   Eigen::Matrix<double, 6, 6> ReportedCovariance(const MountMotion& at,
                                                  const Eigen::Matrix3d& R_WS) const;
+  /// Its twist covariance: large along the scan's degenerate translation directions.
+  Eigen::Matrix<double, 6, 6> ReportedTwistCovariance(const MountMotion& at) const;
 
   std::string name_;
   LidarOdometryOptions options_;

@@ -31,7 +31,11 @@ indoor_outdoor_window, paper_consensus_indoor and wall_contact_inspection, two k
 method added, nothing else differed), and when each method's summary and estimate JSON
 gained the largest step of its position error (issue 34 item 2, continuity: the
 summary.json and estimate_*.json of the same four, two keys per method added, checked
-against the previous binary's run with those keys removed, nothing else differed).
+against the previous binary's run with those keys removed, nothing else differed), and
+when the LiDAR odometry's twist covariance started to state its scan's degeneracy (issue 34
+item 3: the lio/lidar CSVs of wall_contact_inspection and wall_sensors, whose LiDAR
+odometry is degenerate, differ only in the velocity block of cov_twist; every estimate is
+unchanged, the paper's metric reading no covariance).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)

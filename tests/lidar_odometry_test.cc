@@ -2,8 +2,8 @@
 // finds the direction along a single wall degenerate (ground + wall constrain x and z, not
 // y) and nothing degenerate in the enclosed arena; drift follows the motion along the
 // degenerate direction and not along the constrained one; too few returns make the output
-// diverge; the reported covariance reflects the degeneracy; with noise off the output is
-// the LiDAR's kinematics; the YAML reader is strict. Models are driven directly:
+// diverge; the reported pose and twist covariances reflect the degeneracy; with noise off
+// the output is the LiDAR's kinematics; the YAML reader is strict. Models are driven directly:
 // World::Reset to the start pose, then Step with a kinematic truth.
 
 #include "sim/lidar_odometry.h"
@@ -101,6 +101,29 @@ TEST(LidarOdometryModel, WallAndGroundLeaveOnlyTheAlongWallDirectionDegenerate) 
               options.max_reported_position_std_m, 0.01);
   EXPECT_LT(std::sqrt(variance_along(Eigen::Vector3d::UnitX())), 0.005);
   EXPECT_LT(std::sqrt(variance_along(Eigen::Vector3d::UnitZ())), 0.01);
+
+  // The twist states the same degeneracy: its velocity (in s) is unconstrained along y,
+  // with the std of two poses one scan apart, and as noisy as the registration across;
+  // the angular rate, the gyro's, is not degraded.
+  const Eigen::Matrix<double, 6, 6> twist_covariance = Measured(samples[0]).twist_covariance;
+  const Eigen::Matrix3d R_Ws = SitePose(world, body, "lidar").linear();
+  const auto velocity_std_along = [&](const Eigen::Vector3d& u_W) {
+    const Eigen::Vector3d u_s = R_Ws.transpose() * u_W;
+    return std::sqrt(u_s.dot(twist_covariance.topLeftCorner<3, 3>() * u_s));
+  };
+  const double degenerate_std =
+      std::sqrt(2.0 * options.max_reported_position_std_m * options.max_reported_position_std_m *
+                    options.rate_hz * options.rate_hz +
+                options.velocity_noise_mps * options.velocity_noise_mps);
+  EXPECT_NEAR(velocity_std_along(Eigen::Vector3d::UnitY()), degenerate_std, 1e-3 * degenerate_std);
+  EXPECT_NEAR(velocity_std_along(Eigen::Vector3d::UnitX()), options.velocity_noise_mps, 1e-3);
+  EXPECT_NEAR(velocity_std_along(Eigen::Vector3d::UnitZ()), options.velocity_noise_mps, 1e-3);
+  const Eigen::Matrix3d cross_covariance = twist_covariance.topRightCorner<3, 3>();
+  const Eigen::Matrix3d angular_rate_covariance = twist_covariance.bottomRightCorner<3, 3>();
+  EXPECT_TRUE(cross_covariance.isZero());
+  EXPECT_TRUE(angular_rate_covariance.isApprox(options.angular_rate_noise_radps *
+                                               options.angular_rate_noise_radps *
+                                               Eigen::Matrix3d::Identity()));
 }
 
 TEST(LidarOdometryModel, EnclosedArenaHasNoDegenerateDirection) {
@@ -122,6 +145,13 @@ TEST(LidarOdometryModel, EnclosedArenaHasNoDegenerateDirection) {
       0.05);
   ASSERT_EQ(samples.size(), 1u);
   EXPECT_EQ(samples[0].conditions, kConditionNone);
+  // Nothing degenerate: the twist states the registration's velocity noise in every
+  // direction.
+  const Eigen::Matrix3d velocity_covariance =
+      Measured(samples[0]).twist_covariance.topLeftCorner<3, 3>();
+  EXPECT_TRUE(velocity_covariance.isApprox(
+      options.velocity_noise_mps * options.velocity_noise_mps * Eigen::Matrix3d::Identity(),
+      1e-9));
 }
 
 // ---- drift follows the motion along the degenerate direction ----
