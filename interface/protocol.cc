@@ -908,15 +908,15 @@ api::EstimatorSetup DecodeSetup(const Message& message) {
     info.name = r.String(r.Member(sensor, path, "name", "a string"), path.Member("name"));
     const Value kind = r.Member(sensor, path, "kind", "\"imu\", \"pose\" or \"position\"");
     const std::string_view kind_name = r.String(kind, path.Member("kind"));
-    if (kind_name == "imu") {
-      info.kind = api::SensorKind::kImu;
-    } else if (kind_name == "pose") {
-      info.kind = api::SensorKind::kPose;
-    } else if (kind_name == "position") {
-      info.kind = api::SensorKind::kPosition;
-    } else {
-      r.Fail(path.Member("kind"), "\"imu\", \"pose\" or \"position\"", kind);
+    // The wire names are the api's (api::SensorKindName), the ones SetupMessage writes.
+    bool known_kind = false;
+    for (const api::SensorKind k :
+         {api::SensorKind::kImu, api::SensorKind::kPose, api::SensorKind::kPosition}) {
+      if (kind_name != api::SensorKindName(k)) continue;
+      info.kind = k;
+      known_kind = true;
     }
+    if (!known_kind) r.Fail(path.Member("kind"), "\"imu\", \"pose\" or \"position\"", kind);
     info.T_Is = ReadPoseObject(r, r.Member(sensor, path, "T_Is", "a pose"), path.Member("T_Is"));
     info.covariance_stated = r.Bool(r.Member(sensor, path, "covariance_stated", "a boolean"),
                                     path.Member("covariance_stated"));
