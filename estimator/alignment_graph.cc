@@ -101,7 +101,22 @@ bool AlignmentGraphOptions::IsValid(std::string* why) const {
   }
   if (max_iterations < 1) return fail("max_iterations must be at least 1");
   if (!(reinit_rms_residual_m > 0.0)) return fail("reinit_rms_residual_m must be positive");
+  if (!(level_prior_std_rad >= 0.0) || !std::isfinite(level_prior_std_rad)) {
+    return fail("level_prior_std_rad must be >= 0 and finite (0: no level prior)");
+  }
   return true;
+}
+
+Eigen::Vector2d LevelPriorResidual(const Eigen::Isometry3d& T_AL, double std_rad) {
+  return (T_AL.linear() * Eigen::Vector3d::UnitZ()).head<2>() / std_rad;
+}
+
+Eigen::Matrix<double, 2, 6> LevelPriorTangentJacobian(const Eigen::Isometry3d& T_AL,
+                                                      double std_rad) {
+  Eigen::Matrix<double, 2, 6> J = Eigen::Matrix<double, 2, 6>::Zero();
+  J.rightCols<3>() =
+      -(T_AL.linear() * core::Hat(Eigen::Vector3d::UnitZ())).topRows<2>() / std_rad;
+  return J;
 }
 
 // ---- cost function: paper eq. (9), whitened ----
@@ -153,8 +168,11 @@ Eigen::Vector3d PositionAlignmentCost::Residual(const Eigen::Isometry3d& T_AL) c
 // weight ρ'(s) on JᵀJ and Jᵀr.
 class AlignmentGraph::Problem final : public LmProblem {
  public:
-  Problem(const std::deque<StoredPair>& pairs, double huber_delta, double* x)
-      : pairs_(pairs), huber_delta_(huber_delta), x_(x) {}
+  /// level_prior_std_rad > 0 adds the level prior (no robust loss: it is not data).
+  Problem(const std::deque<StoredPair>& pairs, double huber_delta, double level_prior_std_rad,
+          double* x)
+      : pairs_(pairs), huber_delta_(huber_delta), level_prior_std_rad_(level_prior_std_rad),
+        x_(x) {}
 
   bool Linearize(double* cost) override {
     const Eigen::Isometry3d T_AL = IsometryFromParameters(x_);
@@ -171,6 +189,13 @@ class AlignmentGraph::Problem final : public LmProblem {
       sum += HuberRho(s, huber_delta_);
       H_.noalias() += weight * J.transpose() * J;
       g_.noalias() += weight * J.transpose() * r;
+    }
+    if (level_prior_std_rad_ > 0.0) {
+      const Eigen::Vector2d r = LevelPriorResidual(T_AL, level_prior_std_rad_);
+      const Eigen::Matrix<double, 2, 6> J = LevelPriorTangentJacobian(T_AL, level_prior_std_rad_);
+      sum += r.squaredNorm();
+      H_.noalias() += J.transpose() * J;
+      g_.noalias() += J.transpose() * r;
     }
     *cost = 0.5 * sum;
     return std::isfinite(*cost) && H_.allFinite() && g_.allFinite();
@@ -199,6 +224,9 @@ class AlignmentGraph::Problem final : public LmProblem {
               .squaredNorm(),
           huber_delta_);
     }
+    if (level_prior_std_rad_ > 0.0) {
+      sum += LevelPriorResidual(T_AL, level_prior_std_rad_).squaredNorm();
+    }
     *cost = 0.5 * sum;
     return std::isfinite(*cost);
   }
@@ -211,6 +239,7 @@ class AlignmentGraph::Problem final : public LmProblem {
 
   const std::deque<StoredPair>& pairs_;
   double huber_delta_;
+  double level_prior_std_rad_;
   double* x_;
   double saved_[kPoseSize] = {};
   Matrix6d H_ = Matrix6d::Zero();
@@ -314,6 +343,9 @@ double AlignmentGraph::RobustCost(const Eigen::Isometry3d& T_AL, double* rms_res
     sum_squares_m2 += error_A.squaredNorm();
     cost += HuberRho((pair.sqrt_information_A * error_A).squaredNorm(), options_.huber_delta);
   }
+  if (options_.level_prior_std_rad > 0.0) {
+    cost += LevelPriorResidual(T_AL, options_.level_prior_std_rad).squaredNorm();
+  }
   if (rms_residual_m != nullptr) {
     *rms_residual_m = std::sqrt(sum_squares_m2 / static_cast<double>(pairs_.size()));
   }
@@ -342,9 +374,16 @@ bool AlignmentGraph::Solve(core::Time now_ns) {
       p_L.push_back(pair.p_Ls);
       p_A.push_back(pair.p_A_measured);
     }
-    // Any non-zero spread is enough for a guess: with motion along a line the rotation
-    // about it is arbitrary, and the refinement leaves it there (no gradient).
-    if (const auto closed_form = AlignPositions(p_L, p_A, /*min_spread_m2=*/0.0)) {
+    if (options_.level_prior_std_rad > 0.0) {
+      // Levelled frames: the yaw-only closed form. Umeyama's would be no better a guess
+      // and, along a line, could turn the frame upside down about it (R_AL e_z = −e_z),
+      // where the level prior is zero too.
+      if (const auto level = AlignPositionsLevel(p_L, p_A)) {
+        if (RobustCost(*level, nullptr) < guess_cost) T_AL_guess = *level;
+      }
+    } else if (const auto closed_form = AlignPositions(p_L, p_A, /*min_spread_m2=*/0.0)) {
+      // Any non-zero spread is enough for a guess: with motion along a line the rotation
+      // about it is arbitrary, and the refinement leaves it there (no gradient).
       if (RobustCost(closed_form->T_AL, nullptr) < guess_cost) T_AL_guess = closed_form->T_AL;
     }
   }
@@ -354,7 +393,7 @@ bool AlignmentGraph::Solve(core::Time now_ns) {
 
   double x[kPoseSize];
   ParametersFromIsometry(*T_AL_guess, x);
-  Problem problem(pairs_, options_.huber_delta, x);
+  Problem problem(pairs_, options_.huber_delta, options_.level_prior_std_rad, x);
   LmOptions lm;  // Ceres's defaults, as the ceres::Solve this replaced
   lm.max_iterations = options_.max_iterations;
   lm.max_time_s = std::numeric_limits<double>::infinity();  // deterministic: no time cap
@@ -396,7 +435,15 @@ void AlignmentGraph::AnalyseObservability(const Eigen::Isometry3d& T_AL) {
   // estimated jointly. H_pp = Σ w SᵀS is positive definite for any pair.
   const Eigen::Matrix3d H_pp = H.topLeftCorner<3, 3>();
   const Eigen::Matrix3d H_pt = H.topRightCorner<3, 3>();
-  const Eigen::Matrix3d H_tt = H.bottomRightCorner<3, 3>();
+  Eigen::Matrix3d H_tt = H.bottomRightCorner<3, 3>();
+  // The level prior's information on the tilt, counted with the pairs': 1/(n σ²) per
+  // pair bounds the tilt's std by σ as min_rotation_information bounds a direction's by
+  // 1/√(min_rotation_information · n).
+  if (options_.level_prior_std_rad > 0.0) {
+    const Eigen::Matrix<double, 2, 3> J_theta =
+        LevelPriorTangentJacobian(T_AL, options_.level_prior_std_rad).rightCols<3>();
+    H_tt.noalias() += J_theta.transpose() * J_theta;
+  }
   const Eigen::LLT<Eigen::Matrix3d> llt_pp(H_pp);
   const Eigen::Matrix3d K = llt_pp.solve(H_pt);  // H_pp⁻¹ H_pθ
   Eigen::Matrix3d H_rot = H_tt - H_pt.transpose() * K;

@@ -53,6 +53,12 @@ struct AlignmentGraphOptions {
   /// was unobservable and became observable far from its guess. The refinement then
   /// starts from whichever of the two has the lower (robust) cost.
   double reinit_rms_residual_m = 0.25;
+  /// > 0: both frames are levelled (z against gravity: L by the IMU's initialisation, A a
+  /// GNSS's ENU or a levelled total station), so R_AL is a yaw up to L's tilt error, and a
+  /// prior of this std (rad) holds the tilt (LevelPriorResidual); only yaw is then left
+  /// to the pairs, which a straight level leg observes. 0 (default, the paper): every
+  /// rotation from the pairs alone, so a straight leg leaves the roll about it free.
+  double level_prior_std_rad = 0.0;
 
   /// True when the options are usable; otherwise false with the broken constraint in
   /// *why (if why is not null).
@@ -124,6 +130,15 @@ class PositionAlignmentCost final : public ceres::SizedCostFunction<3, 7> {
   Eigen::Matrix3d sqrt_information_A_;
 };
 
+/// The level prior: r = (e_x, e_y)ᵀ R_AL e_z / σ, the horizontal part in A of L's z axis,
+/// zero when R_AL is a pure yaw (the flipped solution R_AL e_z = −e_z is excluded by the
+/// closed-form guesses, which are level). Tangent Jacobian [δp, δθ] (right perturbation,
+/// R_AL Exp(δθ) e_z ≈ R_AL (e_z + δθ × e_z)): ∂r/∂δp = 0, ∂r/∂δθ = −P_xy R_AL [e_z]× / σ;
+/// yaw (δθ ∥ e_z) has no information from it.
+Eigen::Vector2d LevelPriorResidual(const Eigen::Isometry3d& T_AL, double std_rad);
+Eigen::Matrix<double, 2, 6> LevelPriorTangentJacobian(const Eigen::Isometry3d& T_AL,
+                                                      double std_rad);
+
 class AlignmentGraph {
  public:
   /// Variance (rad², and through the lever arm m²) reported for unobservable directions:
@@ -182,7 +197,8 @@ class AlignmentGraph {
 
   void DropOlderThan(core::Time t_oldest_ns);
   bool Solve(core::Time now_ns);
-  /// Sum of ρ(|r_i|²) at T_AL (ρ = Huber or identity) and the unweighted rms (m).
+  /// Sum of ρ(|r_i|²) at T_AL (ρ = Huber or identity), plus the level prior's |r|² when it
+  /// is on, and the unweighted rms of the pairs (m).
   double RobustCost(const Eigen::Isometry3d& T_AL, double* rms_residual_m) const;
   /// Information, covariance and observability at the solution T_AL into estimate_.
   void AnalyseObservability(const Eigen::Isometry3d& T_AL);

@@ -36,4 +36,31 @@ std::optional<AlignmentResult> AlignPositions(const std::vector<Eigen::Vector3d>
   return result;
 }
 
+std::optional<Eigen::Isometry3d> AlignPositionsLevel(const std::vector<Eigen::Vector3d>& p_L,
+                                                     const std::vector<Eigen::Vector3d>& p_A) {
+  const size_t n = std::min(p_L.size(), p_A.size());
+  if (n < 3) return std::nullopt;
+  Eigen::Vector3d c_L = Eigen::Vector3d::Zero();
+  Eigen::Vector3d c_A = Eigen::Vector3d::Zero();
+  for (size_t i = 0; i < n; ++i) {
+    c_L += p_L[i];
+    c_A += p_A[i];
+  }
+  c_L /= static_cast<double>(n);
+  c_A /= static_cast<double>(n);
+  double sin_sum = 0.0;
+  double cos_sum = 0.0;
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector2d a = (p_L[i] - c_L).head<2>();
+    const Eigen::Vector2d b = (p_A[i] - c_A).head<2>();
+    sin_sum += a.x() * b.y() - a.y() * b.x();
+    cos_sum += a.dot(b);
+  }
+  Eigen::Isometry3d T_AL = Eigen::Isometry3d::Identity();
+  T_AL.linear() = Eigen::AngleAxisd(std::atan2(sin_sum, cos_sum), Eigen::Vector3d::UnitZ())
+                      .toRotationMatrix();
+  T_AL.translation() = c_A - T_AL.linear() * c_L;
+  return T_AL;
+}
+
 }  // namespace tofu::estimator

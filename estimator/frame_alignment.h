@@ -35,4 +35,12 @@ std::optional<AlignmentResult> AlignPositions(const std::vector<Eigen::Vector3d>
                                               const std::vector<Eigen::Vector3d>& p_A,
                                               double min_spread_m2 = 0.01);
 
+/// Best T_AL that is a yaw about z and a translation (both frames levelled): the 2-D
+/// closed form on the horizontal components, ψ = atan2(Σ a_i × b_i, Σ a_i · b_i) of the
+/// centred horizontal positions a_i (L) and b_i (A), t = c_A − R_z(ψ) c_L. Defined for any
+/// motion a line or more apart (a vertical line or a point gives ψ = 0, unobservable);
+/// nullopt with fewer than 3 pairs.
+std::optional<Eigen::Isometry3d> AlignPositionsLevel(const std::vector<Eigen::Vector3d>& p_L,
+                                                     const std::vector<Eigen::Vector3d>& p_A);
+
 }  // namespace tofu::estimator

@@ -176,7 +176,13 @@ struct MultiGraphEstimator::Impl {
       auto s = std::make_unique<SensorState>();
       s->spec = std::move(spec);
       s->id = id++;
-      s->graph = std::make_unique<AlignmentGraph>(options.alignment);
+      // The level prior holds where A is levelled: a position sensor's stated frame (the
+      // odometries' frames are where their sensor booted, tilted with its mount).
+      AlignmentGraphOptions graph_options = options.alignment;
+      if (s->spec.kind != SensorKind::kPosition || !s->spec.reference_is_gravity_aligned) {
+        graph_options.level_prior_std_rad = 0.0;
+      }
+      s->graph = std::make_unique<AlignmentGraph>(graph_options);
       counters.streams[s->spec.name];
       sensors.push_back(std::move(s));
     }

@@ -126,8 +126,11 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   EstimationConfig config;
   config.clients = clients;
   YamlMap map = value.Map(
-      {"methods", "consensus", "huber_delta", "position_factors", "degenerate_directions"});
+      {"methods", "consensus", "huber_delta", "position_factors", "degenerate_directions",
+       "alignment_level_prior_deg"});
   ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
+  ReadNumber(map, "alignment_level_prior_deg", NumberRule::Between(0.0, 10.0, "deg"),
+             &config.alignment_level_prior_deg);
   if (const auto factors = map.Optional("position_factors")) {
     const std::string kind = factors->String();
     if (kind != "between" && kind != "absolute") factors->FailExpected("between or absolute");
@@ -830,6 +833,9 @@ void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
   // their bytes.
   if (ec.leave_out_degenerate_directions) {
     out << YAML::Key << "degenerate_directions" << YAML::Value << "left_out";
+  }
+  if (ec.alignment_level_prior_deg > 0.0) {
+    EmitNumber(out, "alignment_level_prior_deg", ec.alignment_level_prior_deg);
   }
   out << YAML::EndMap;
 }

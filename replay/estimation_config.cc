@@ -4,6 +4,7 @@
 
 #include "core/error.h"
 #include "core/time.h"
+#include "core/units.h"
 #include "replay/recorded_log.h"
 #include "replay/replay_method.h"
 
@@ -36,6 +37,8 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
   EstimationSetup setup;
   setup.estimator = DefaultEstimatorOptions(log);
   setup.estimator.local.huber_delta = config.huber_delta;
+  setup.estimator.alignment.level_prior_std_rad =
+      core::RadFromDeg(config.alignment_level_prior_deg);
   setup.sensors = SensorSpecsOf(log);
   for (estimator::SensorSpec& spec : setup.sensors) {
     spec.absolute_position = config.absolute_positions;

@@ -79,6 +79,11 @@ struct EstimationConfig {
   /// information calls degenerate (`degenerate_directions: left_out`; RecordedStream's
   /// unobserved stds) or fuse every direction (`fused`, the paper).
   bool leave_out_degenerate_directions = false;
+  /// > 0: a position sensor's frame and L are both levelled, and its alignment holds
+  /// R_AL's tilt to this std (deg, as the scenario's `alignment_level_prior_deg` states
+  /// it; AlignmentGraphOptions::level_prior_std_rad); 0: every rotation of T_AL from the
+  /// pairs (the paper).
+  double alignment_level_prior_deg = 0.0;
   /// The scenario's users' estimators (`external:` and `plugins:`), which methods
   /// "external:<key>" and "plugin:<key>" name.
   std::vector<ClientSpec> clients;

@@ -1,6 +1,6 @@
 // Per-sensor frame-alignment graph (seed paper Sec. 2.2, eq. 9): Jacobians, the paper's
 // metric evaluation (30/60/120° offset, vertical then figure-eight flight), freezing,
-// the sliding window, and robustness.
+// the sliding window, robustness, and the level prior of levelled frames.
 
 #include "estimator/alignment_graph.h"
 #include "estimator/frame_alignment.h"
@@ -12,6 +12,7 @@
 #include <limits>
 #include <random>
 
+#include <Eigen/Eigenvalues>
 #include <ceres/loss_function.h>
 #include <ceres/problem.h>
 #include <ceres/solver.h>
@@ -164,6 +165,80 @@ TEST(PositionAlignmentCost, TangentJacobianMatchesCentralDifferencesAtLargeRotat
     // The closed form used for the information matrix agrees too.
     EXPECT_LT((cost.TangentJacobian(T) - J_numeric).cwiseAbs().maxCoeff(), 1e-7 * scale);
   }
+}
+
+TEST(LevelPrior, TangentJacobianMatchesCentralDifferences) {
+  const PoseManifold manifold;
+  const double std_rad = 0.2 * kDegToRad;
+  for (const Eigen::Isometry3d& T : LargeRotationPoses()) {
+    const Eigen::Matrix<double, 7, 1> x = Parameters(T);
+    const Eigen::Matrix<double, 2, 6> J_analytic = LevelPriorTangentJacobian(T, std_rad);
+    Eigen::Matrix<double, 2, 6> J_numeric;
+    const double h = 1e-6;
+    for (int k = 0; k < 6; ++k) {
+      Eigen::Matrix<double, 6, 1> delta = Eigen::Matrix<double, 6, 1>::Zero();
+      Eigen::Matrix<double, 7, 1> x_plus, x_minus;
+      delta(k) = h;
+      manifold.Plus(x.data(), delta.data(), x_plus.data());
+      delta(k) = -h;
+      manifold.Plus(x.data(), delta.data(), x_minus.data());
+      const auto pose = [](const Eigen::Matrix<double, 7, 1>& v) {
+        Eigen::Isometry3d P = Eigen::Isometry3d::Identity();
+        P.translation() = v.head<3>();
+        P.linear() = Eigen::Quaterniond(v.tail<4>()).normalized().toRotationMatrix();
+        return P;
+      };
+      J_numeric.col(k) = (LevelPriorResidual(pose(x_plus), std_rad) -
+                          LevelPriorResidual(pose(x_minus), std_rad)) /
+                         (2.0 * h);
+    }
+    const double scale = J_numeric.cwiseAbs().maxCoeff();
+    EXPECT_LT((J_analytic - J_numeric).cwiseAbs().maxCoeff(), 1e-7 * scale)
+        << "analytic\n" << J_analytic << "\nnumeric\n" << J_numeric;
+  }
+  // A pure yaw: no residual, and no information on yaw.
+  Eigen::Isometry3d yaw = Eigen::Isometry3d::Identity();
+  yaw.linear() = Eigen::AngleAxisd(1.1, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  EXPECT_LT(LevelPriorResidual(yaw, std_rad).norm(), 1e-12);
+  EXPECT_LT(LevelPriorTangentJacobian(yaw, std_rad).col(5).norm(), 1e-12);
+}
+
+TEST(AlignmentGraph, AStraightLevelLegObservesYawOnlyWithTheLevelPrior) {
+  // A levelled sensor frame (a GNSS's ENU: yaw 35° and an offset from L) and a straight,
+  // level leg at 1 m/s for 15 s, 2 cm noise: the roll about the leg is not observed from
+  // the pairs (2 rotations), and the prior's tilt makes all three known, yaw from the leg.
+  Eigen::Isometry3d T_AL = Eigen::Isometry3d::Identity();
+  T_AL.linear() = Eigen::AngleAxisd(35.0 * kDegToRad, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T_AL.translation() = Eigen::Vector3d(-11.7, -2.4, 0.3);
+  const Eigen::Vector3d direction_L = Eigen::Vector3d(0.99, 0.1, 0.0).normalized();
+  const auto solve = [&](double level_prior_std_rad) {
+    AlignmentGraphOptions options;
+    options.level_prior_std_rad = level_prior_std_rad;
+    AlignmentGraph graph(options);
+    PortableNormal noise(7);
+    core::Time t_ns = 0;
+    for (int i = 0; i <= 150; ++i, t_ns += 100'000'000) {
+      const Eigen::Vector3d p_L = Eigen::Vector3d(-12.0, -2.5, 2.5) + 0.1 * i * direction_L;
+      graph.AddPair(MakePair(t_ns, T_AL, p_L, 0.02, noise));
+    }
+    EXPECT_TRUE(graph.Update(t_ns));
+    return graph.estimate();
+  };
+  const AlignmentEstimate free = solve(0.0);
+  ASSERT_TRUE(free.valid);
+  EXPECT_EQ(free.observable_rotation_dofs, 2);
+
+  const double level_std_rad = 0.2 * kDegToRad;
+  const AlignmentEstimate level = solve(level_std_rad);
+  ASSERT_TRUE(level.valid);
+  EXPECT_EQ(level.observable_rotation_dofs, 3);
+  EXPECT_TRUE(level.yaw_observable);
+  EXPECT_LT(RotationErrorDeg(level.T_AL, T_AL), 0.1);
+  EXPECT_LT((level.T_AL.translation() - T_AL.translation()).norm(), 0.02);
+  // The tilt's std is the prior's at most; the estimator's 0.5° usability bound holds.
+  const double rotation_variance =
+      level.covariance.bottomRightCorner<3, 3>().eigenvalues().real().maxCoeff();
+  EXPECT_LE(std::sqrt(rotation_variance), level_std_rad * (1.0 + 1e-9));
 }
 
 TEST(AlignmentGraph, PaperEvaluationYawUnobservableInVerticalFlightThenRecovered) {
@@ -533,6 +608,10 @@ TEST(AlignmentGraphOptions, IsValidNamesTheBrokenConstraint) {
   EXPECT_FALSE(options.IsValid(&why));
   EXPECT_NE(why.find("min_rotation_information"), std::string::npos);
   EXPECT_THROW(AlignmentGraph{options}, std::invalid_argument);
+  options = AlignmentGraphOptions{};
+  options.level_prior_std_rad = -0.01;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_NE(why.find("level_prior_std_rad"), std::string::npos);
 }
 
 }  // namespace

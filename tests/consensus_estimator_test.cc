@@ -357,6 +357,28 @@ TEST(EstimationScenario, DegenerateDirectionsAreFusedOrLeftOutAndRoundTrip) {
   EXPECT_EQ(harness::ResolvedScenarioYaml(fused).find("degenerate_directions"), std::string::npos);
 }
 
+// The level prior of the position sensors' alignments: off unless stated, bounded, and
+// written back only when on; it reaches the estimator's alignment options.
+TEST(EstimationScenario, AlignmentLevelPriorIsReadBoundedAndRoundTrips) {
+  const std::string error = ErrorOf(
+      With("  huber_delta: 3", "  huber_delta: 3\n  alignment_level_prior_deg: 20"));
+  EXPECT_NE(error.find("alignment_level_prior_deg"), std::string::npos) << error;
+  const harness::Scenario level = harness::ParseScenario(
+      With("  huber_delta: 3", "  huber_delta: 3\n  alignment_level_prior_deg: 0.2"), "l.yaml");
+  ASSERT_TRUE(level.estimation.has_value());
+  EXPECT_EQ(level.estimation->alignment_level_prior_deg, 0.2);
+  const std::string echoed = harness::ResolvedScenarioYaml(level);
+  EXPECT_NE(echoed.find("alignment_level_prior_deg: 0.2"), std::string::npos) << echoed;
+  EXPECT_EQ(harness::ParseScenario(echoed, "echoed.yaml").estimation->alignment_level_prior_deg,
+            0.2);
+  EXPECT_NEAR(replay::MakeEstimationSetup(replay::RecordedLog{}, *level.estimation)
+                  .estimator.alignment.level_prior_std_rad,
+              0.2 * M_PI / 180.0, 1e-15);
+  const harness::Scenario paper = harness::ParseScenario(kScenario, "paper.yaml");
+  EXPECT_EQ(paper.estimation->alignment_level_prior_deg, 0.0);
+  EXPECT_EQ(harness::ResolvedScenarioYaml(paper).find("alignment_level_prior"), std::string::npos);
+}
+
 TEST(EstimationScenario, ExpectationsMustNameListedMethodsAndKnownRelativeMetrics) {
   std::string error = ErrorOf(With("methods.naive.ate_m, max: 0.5", "methods.naive.ate_m, max: 0.5}\n  - {metric: methods.single:lio.ate_m, max: 1"));
   EXPECT_NE(error.find("bad.yaml:23:"), std::string::npos) << error;

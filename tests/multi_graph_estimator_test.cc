@@ -514,5 +514,25 @@ TEST(MultiGraphEstimatorOptions, EachBrokenLimitIsNamedAndTheConstructorThrows) 
   EXPECT_NO_THROW(estimator::MultiGraphEstimator("imu", {vio}, options));
 }
 
+// The level prior reaches only the alignments of position sensors stating a levelled
+// frame: an odometry's frame is where it booted, tilted with its mount.
+TEST(MultiGraphEstimatorOptions, TheLevelPriorHoldsOnlyForLevelledPositionSensors) {
+  estimator::SensorSpec vio;
+  vio.name = "vio";
+  vio.kind = estimator::SensorKind::kPose;
+  estimator::SensorSpec gnss;
+  gnss.name = "gnss";
+  gnss.kind = estimator::SensorKind::kPosition;
+  estimator::SensorSpec tilted_station = gnss;
+  tilted_station.name = "station";
+  tilted_station.reference_is_gravity_aligned = false;
+  estimator::MultiGraphEstimatorOptions options;
+  options.alignment.level_prior_std_rad = 0.004;
+  const estimator::MultiGraphEstimator estimator("imu", {vio, gnss, tilted_station}, options);
+  EXPECT_EQ(estimator.AlignmentGraphOf("gnss")->options().level_prior_std_rad, 0.004);
+  EXPECT_EQ(estimator.AlignmentGraphOf("vio")->options().level_prior_std_rad, 0.0);
+  EXPECT_EQ(estimator.AlignmentGraphOf("station")->options().level_prior_std_rad, 0.0);
+}
+
 }  // namespace
 }  // namespace tofu
