@@ -436,9 +436,7 @@ void AlignmentGraph::AnalyseObservability(const Eigen::Isometry3d& T_AL) {
   const Eigen::Matrix3d H_pp = H.topLeftCorner<3, 3>();
   const Eigen::Matrix3d H_pt = H.topRightCorner<3, 3>();
   Eigen::Matrix3d H_tt = H.bottomRightCorner<3, 3>();
-  // The level prior's information on the tilt, counted with the pairs': 1/(n σ²) per
-  // pair bounds the tilt's std by σ as min_rotation_information bounds a direction's by
-  // 1/√(min_rotation_information · n).
+  // The level prior's information on the tilt.
   if (options_.level_prior_std_rad > 0.0) {
     const Eigen::Matrix<double, 2, 3> J_theta =
         LevelPriorTangentJacobian(T_AL, options_.level_prior_std_rad).rightCols<3>();
@@ -456,9 +454,16 @@ void AlignmentGraph::AnalyseObservability(const Eigen::Isometry3d& T_AL) {
   const Eigen::Matrix3d V = eigen.eigenvectors();
   estimate_.rotation_information_eigenvalues = lambda / n;
   estimate_.rotation_information_directions = V;
+  // With the level prior a direction also counts when the prior holds it: information at
+  // least the prior's 1/σ², i.e. a std of σ or less whatever the pairs say.
+  const double held_information =
+      options_.level_prior_std_rad > 0.0
+          ? (1.0 - 1e-9) / (options_.level_prior_std_rad * options_.level_prior_std_rad)
+          : std::numeric_limits<double>::infinity();
   estimate_.observable_rotation_dofs =
-      static_cast<int>((estimate_.rotation_information_eigenvalues.array() >
-                        options_.min_rotation_information)
+      static_cast<int>(((estimate_.rotation_information_eigenvalues.array() >
+                         options_.min_rotation_information) ||
+                        (lambda.array() >= held_information))
                            .count());
 
   // Covariance of δθ by directions, 1/λ capped: an information-free direction gets a

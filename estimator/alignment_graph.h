@@ -89,6 +89,8 @@ struct AlignmentEstimate {
   Eigen::Vector3d rotation_information_eigenvalues = Eigen::Vector3d::Zero();
   /// Eigenvectors (columns, in L) matching rotation_information_eigenvalues.
   Eigen::Matrix3d rotation_information_directions = Eigen::Matrix3d::Identity();
+  /// Directions with information per pair above min_rotation_information, or (with the
+  /// level prior) held by the prior to its std or better.
   int observable_rotation_dofs = 0;
   /// Rotation about L's z axis (gravity) is observable: the marginal yaw information
   /// (yaw_information_per_pair) exceeds min_rotation_information.
