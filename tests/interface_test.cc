@@ -17,6 +17,7 @@
 #include <fstream>
 #include <functional>
 #include <limits>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -531,6 +532,22 @@ TEST(Protocol, BadEstimatesNameMessageFieldAndExpectedForm) {
   });
   EXPECT_LT(long_error.size(), 250u) << long_error;
   EXPECT_CONTAINS(long_error, "...");
+}
+
+TEST(Protocol, ASetupsSensorKindIsOneOfTheApisNames) {
+  json setup = interface::SetupMessage(TestSetup());
+  // Every kind reads back as the name it was written with.
+  const api::EstimatorSetup decoded = interface::DecodeSetup(Transfer(setup, Encoding::kJson));
+  std::set<std::string> kinds;
+  for (std::size_t i = 0; i < decoded.sensors.size(); ++i) {
+    const std::string written = setup["sensors"][i]["kind"].get<std::string>();
+    EXPECT_EQ(written, api::SensorKindName(decoded.sensors[i].kind));
+    kinds.insert(written);
+  }
+  EXPECT_EQ(kinds, (std::set<std::string>{"imu", "pose", "position"}));
+  setup["sensors"][0]["kind"] = "sonar";
+  EXPECT_CONTAINS(ProtocolErrorOf([&] { interface::DecodeSetup(Transfer(setup, Encoding::kJson)); }),
+                  "sensors[0].kind: expected \"imu\", \"pose\" or \"position\", got \"sonar\"");
 }
 
 TEST(Protocol, BadCommandsAndHellosAreRefusedWithBothSidesNamed) {
