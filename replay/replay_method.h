@@ -25,8 +25,10 @@ namespace tofu::replay {
 ///    "consensus:consistent_set" choose that explicitly (both can run in one flight);
 ///  - "oracle": at every sample, exactly the sensors the ground-truth labels call healthy
 ///    (no fault, no condition active: replay/labels.h), with the estimated alignments as
-///    consensus has them: the upper bound of any selection. A log without labels.csv (a
-///    real log) has no label, so the oracle fuses everything there.
+///    consensus has them: what a perfect fault detector would fuse, not a bound on
+///    selection (a sensor labelled faulty can still help, a healthy one can hurt: consensus
+///    beats it in some suite scenarios, docs/RESULTS.md). A log without labels.csv (a real
+///    log) has no label, so the oracle fuses everything there.
 /// A suffix "@clean" runs the method on the un-faulted streams (sensors/clean/): the
 /// paper's reference is "single:vio@clean".
 ///  - "external:<name>", "plugin:<name>": a user's estimator, a process speaking the
