@@ -62,5 +62,35 @@ TEST(AlignPositions, TooFewOrCollapsedPointsGiveNothing) {
   EXPECT_FALSE(AlignPositions(same, same).has_value());
 }
 
+TEST(AlignPositionsLevel, RecoversYawAndTranslationFromOneStraightLeg) {
+  // A straight level leg, which leaves Umeyama the roll about it: the level closed form
+  // takes yaw from the horizontal components and the translation from the centroids.
+  Eigen::Isometry3d T_AL = Eigen::Isometry3d::Identity();
+  T_AL.linear() = Eigen::AngleAxisd(-2.4, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T_AL.translation() = Eigen::Vector3d(-11.7, 3.2, 0.4);
+  std::vector<Eigen::Vector3d> p_L, p_A;
+  for (int i = 0; i < 50; ++i) {
+    const Eigen::Vector3d p = Eigen::Vector3d(1.0, -2.0, 2.5) + 0.2 * i * Eigen::Vector3d(0.8, 0.6, 0.0);
+    p_L.push_back(p);
+    p_A.push_back(T_AL * p);
+  }
+  const auto level = AlignPositionsLevel(p_L, p_A);
+  ASSERT_TRUE(level.has_value());
+  EXPECT_LT(core::RotationAngleBetween(level->linear(), T_AL.linear()), 1e-12);
+  EXPECT_LT((level->translation() - T_AL.translation()).norm(), 1e-9);
+  // Vertical motion only: no heading information, a level guess all the same.
+  std::vector<Eigen::Vector3d> up_L, up_A;
+  for (int i = 0; i < 10; ++i) {
+    up_L.emplace_back(0.0, 0.0, 0.3 * i);
+    up_A.push_back(T_AL * up_L.back());
+  }
+  const auto vertical = AlignPositionsLevel(up_L, up_A);
+  ASSERT_TRUE(vertical.has_value());
+  EXPECT_LT((vertical->linear() * Eigen::Vector3d::UnitZ() - Eigen::Vector3d::UnitZ()).norm(), 1e-12);
+  EXPECT_FALSE(AlignPositionsLevel({Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones()},
+                                   {Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones()})
+                   .has_value());
+}
+
 }  // namespace
 }  // namespace tofu::estimator
