@@ -804,14 +804,23 @@ def _with_degenerate_directions(text, variant, where):
     return _with_estimation_key(text, "degenerate_directions", variant, where)
 
 
+def _consensus_and_oracle(text, where):
+    """The scenario's methods list replaced by [consensus, oracle]."""
+    return re.sub(r"  methods: \[[^\]]*\]", "  methods: [consensus, oracle]", text, flags=re.S)
+
+
+def _run_variants(r, source, dirs, seeds):
+    """`tofu check` of each variant's scenario directory into <runs>/<source>/<variant>."""
+    for variant, d in dirs.items():
+        r.tofu_cmd(f"{source}_{variant}", "check", str(d), "--seeds", len(seeds),
+                   "--jobs", r.jobs, "--quiet", "--out", r.out(source, variant), ok=(0, 1, 3))
+
+
 def _nis_variants(r):
     """The suite's scenarios with methods [consensus, oracle] and no expectations, once as
     written (cm, the paper's metric), once with `metric: nis` at NIS_THRESHOLD (a
     leave_threshold doubled as the cm one is) and once more with `degenerate_directions:
     left_out` as well."""
-    def methods(text, where):
-        return re.sub(r"  methods: \[[^\]]*\]", "  methods: [consensus, oracle]", text, flags=re.S)
-
     def edit(text, variant, where):
         if variant == "cm":
             return text
@@ -822,14 +831,11 @@ def _nis_variants(r):
         nis = re.sub(r"leave_threshold: [0-9.]+", f"leave_threshold: {2 * NIS_THRESHOLD:g}", nis)
         return nis if variant == "nis" else _with_degenerate_directions(nis, "left_out", where)
 
-    return _write_suite_variants(r, "consensus_nis", NIS_VARIANTS, methods, edit)
+    return _write_suite_variants(r, "consensus_nis", NIS_VARIANTS, _consensus_and_oracle, edit)
 
 
 def run_consensus_nis(r):
-    dirs = _nis_variants(r)
-    for variant, d in dirs.items():
-        r.tofu_cmd(f"consensus_nis_{variant}", "check", str(d), "--seeds", len(NIS_SEEDS),
-                   "--jobs", r.jobs, "--quiet", "--out", r.out("consensus_nis", variant), ok=(0, 1, 3))
+    _run_variants(r, "consensus_nis", _nis_variants(r), NIS_SEEDS)
 
 
 def _selection_scores(r, source, variants, seeds):
@@ -875,21 +881,16 @@ LEVEL_VARIANTS = ("paper", "level")
 def _level_variants(r):
     """The suite's scenarios with methods [consensus, oracle] and no expectations, as
     written (the paper's 6-DoF alignments) and with `alignment_level_prior_deg`."""
-    def methods(text, where):
-        return re.sub(r"  methods: \[[^\]]*\]", "  methods: [consensus, oracle]", text, flags=re.S)
-
     def edit(text, variant, where):
         if variant == "paper":
             return text
         return _with_estimation_key(text, "alignment_level_prior_deg", f"{LEVEL_PRIOR_DEG:g}", where)
 
-    return _write_suite_variants(r, "level_alignment", LEVEL_VARIANTS, methods, edit)
+    return _write_suite_variants(r, "level_alignment", LEVEL_VARIANTS, _consensus_and_oracle, edit)
 
 
 def run_level_alignment(r):
-    for variant, d in _level_variants(r).items():
-        r.tofu_cmd(f"level_alignment_{variant}", "check", str(d), "--seeds", len(LEVEL_SEEDS),
-                   "--jobs", r.jobs, "--quiet", "--out", r.out("level_alignment", variant), ok=(0, 1, 3))
+    _run_variants(r, "level_alignment", _level_variants(r), LEVEL_SEEDS)
 
 
 def extract_level_alignment(r):
@@ -917,21 +918,13 @@ def _factor_variants(r):
     (each absolute sensor fused as displacements between keyframes, the default) and once
     with `position_factors: absolute` (unary factors through each sensor's T_AL)."""
     def edit(text, variant, where):
-        if "position_factors:" in text:
-            raise ResultsError(f"{where}: states position_factors already")
-        out, count = re.subn(r"^  consensus: \{", f"  position_factors: {variant}\n  consensus: {{",
-                             text, flags=re.M)
-        if count != 1:
-            raise ResultsError(f"{where}: no single `  consensus: {{` line in its estimation block")
-        return out
+        return _with_estimation_key(text, "position_factors", variant, where)
 
     return _write_suite_variants(r, "position_factors", FACTOR_VARIANTS, _factor_methods, edit)
 
 
 def run_position_factors(r):
-    for variant, d in _factor_variants(r).items():
-        r.tofu_cmd(f"position_factors_{variant}", "check", str(d), "--seeds", len(FACTOR_SEEDS),
-                   "--jobs", r.jobs, "--quiet", "--out", r.out("position_factors", variant), ok=(0, 1, 3))
+    _run_variants(r, "position_factors", _factor_variants(r), FACTOR_SEEDS)
 
 
 def extract_position_factors(r):
@@ -991,9 +984,7 @@ def _lio_scenarios(root):
 
 
 def run_degenerate_directions(r):
-    for variant, d in _degenerate_variants(r).items():
-        r.tofu_cmd(f"degenerate_directions_{variant}", "check", str(d), "--seeds", len(DEGENERATE_SEEDS),
-                   "--jobs", r.jobs, "--quiet", "--out", r.out("degenerate_directions", variant), ok=(0, 1, 3))
+    _run_variants(r, "degenerate_directions", _degenerate_variants(r), DEGENERATE_SEEDS)
 
 
 def extract_degenerate_directions(r):

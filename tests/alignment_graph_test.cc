@@ -118,6 +118,26 @@ Eigen::Matrix<double, 7, 1> Parameters(const Eigen::Isometry3d& T) {
   return x;
 }
 
+/// Central differences of residual(Plus(x, ±h e_k)) in PoseManifold's tangent space
+/// [δp, δθ]; `residual` takes the 7 ambient parameters.
+template <int Rows, typename Residual>
+Eigen::Matrix<double, Rows, 6> NumericTangentJacobian(const Eigen::Matrix<double, 7, 1>& x,
+                                                      Residual&& residual) {
+  const PoseManifold manifold;
+  Eigen::Matrix<double, Rows, 6> J;
+  const double h = 1e-6;
+  for (int k = 0; k < 6; ++k) {
+    Eigen::Matrix<double, 6, 1> delta = Eigen::Matrix<double, 6, 1>::Zero();
+    Eigen::Matrix<double, 7, 1> x_plus, x_minus;
+    delta(k) = h;
+    manifold.Plus(x.data(), delta.data(), x_plus.data());
+    delta(k) = -h;
+    manifold.Plus(x.data(), delta.data(), x_minus.data());
+    J.col(k) = (residual(x_plus) - residual(x_minus)) / (2.0 * h);
+  }
+  return J;
+}
+
 TEST(PositionAlignmentCost, TangentJacobianMatchesCentralDifferencesAtLargeRotations) {
   // Whitening of a correlated covariance, S = L⁻¹ with Σ = L Lᵀ.
   Eigen::Matrix3d covariance;
@@ -143,22 +163,13 @@ TEST(PositionAlignmentCost, TangentJacobianMatchesCentralDifferencesAtLargeRotat
     EXPECT_LT((r - cost.Residual(T)).norm(), 1e-9);
 
     // Numeric: central differences of r(Plus(x, ±h e_k)) in the tangent space.
-    Eigen::Matrix<double, 3, 6> J_numeric;
-    const double h = 1e-6;
-    for (int k = 0; k < 6; ++k) {
-      Eigen::Matrix<double, 6, 1> delta = Eigen::Matrix<double, 6, 1>::Zero();
-      Eigen::Matrix<double, 7, 1> x_plus, x_minus;
-      delta(k) = h;
-      manifold.Plus(x.data(), delta.data(), x_plus.data());
-      delta(k) = -h;
-      manifold.Plus(x.data(), delta.data(), x_minus.data());
-      Eigen::Vector3d r_plus, r_minus;
-      const double* p_plus[] = {x_plus.data()};
-      const double* p_minus[] = {x_minus.data()};
-      cost.Evaluate(p_plus, r_plus.data(), nullptr);
-      cost.Evaluate(p_minus, r_minus.data(), nullptr);
-      J_numeric.col(k) = (r_plus - r_minus) / (2.0 * h);
-    }
+    const Eigen::Matrix<double, 3, 6> J_numeric =
+        NumericTangentJacobian<3>(x, [&](const Eigen::Matrix<double, 7, 1>& v) {
+          Eigen::Vector3d residual;
+          const double* parameters_v[] = {v.data()};
+          cost.Evaluate(parameters_v, residual.data(), nullptr);
+          return residual;
+        });
     const double scale = J_numeric.cwiseAbs().maxCoeff();
     EXPECT_LT((J_analytic - J_numeric).cwiseAbs().maxCoeff(), 1e-7 * scale)
         << "analytic\n" << J_analytic << "\nnumeric\n" << J_numeric;
@@ -168,30 +179,17 @@ TEST(PositionAlignmentCost, TangentJacobianMatchesCentralDifferencesAtLargeRotat
 }
 
 TEST(LevelPrior, TangentJacobianMatchesCentralDifferences) {
-  const PoseManifold manifold;
   const double std_rad = 0.2 * kDegToRad;
   for (const Eigen::Isometry3d& T : LargeRotationPoses()) {
     const Eigen::Matrix<double, 7, 1> x = Parameters(T);
     const Eigen::Matrix<double, 2, 6> J_analytic = LevelPriorTangentJacobian(T, std_rad);
-    Eigen::Matrix<double, 2, 6> J_numeric;
-    const double h = 1e-6;
-    for (int k = 0; k < 6; ++k) {
-      Eigen::Matrix<double, 6, 1> delta = Eigen::Matrix<double, 6, 1>::Zero();
-      Eigen::Matrix<double, 7, 1> x_plus, x_minus;
-      delta(k) = h;
-      manifold.Plus(x.data(), delta.data(), x_plus.data());
-      delta(k) = -h;
-      manifold.Plus(x.data(), delta.data(), x_minus.data());
-      const auto pose = [](const Eigen::Matrix<double, 7, 1>& v) {
-        Eigen::Isometry3d P = Eigen::Isometry3d::Identity();
-        P.translation() = v.head<3>();
-        P.linear() = Eigen::Quaterniond(v.tail<4>()).normalized().toRotationMatrix();
-        return P;
-      };
-      J_numeric.col(k) = (LevelPriorResidual(pose(x_plus), std_rad) -
-                          LevelPriorResidual(pose(x_minus), std_rad)) /
-                         (2.0 * h);
-    }
+    const Eigen::Matrix<double, 2, 6> J_numeric =
+        NumericTangentJacobian<2>(x, [&](const Eigen::Matrix<double, 7, 1>& v) {
+          Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+          pose.translation() = v.head<3>();
+          pose.linear() = Eigen::Quaterniond(v.tail<4>()).normalized().toRotationMatrix();
+          return LevelPriorResidual(pose, std_rad);
+        });
     const double scale = J_numeric.cwiseAbs().maxCoeff();
     EXPECT_LT((J_analytic - J_numeric).cwiseAbs().maxCoeff(), 1e-7 * scale)
         << "analytic\n" << J_analytic << "\nnumeric\n" << J_numeric;
