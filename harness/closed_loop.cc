@@ -139,12 +139,14 @@ ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
     }
   }
 
+  if (mode_ != FlightMode::kEstimate) join_offset_m_.reset();
   command.mode = mode_;
   command.disarmed = mode_ == FlightMode::kLanded;
   switch (mode_) {
     case FlightMode::kTruth:
     case FlightMode::kEstimate:
       command.reference = mission;
+      JoinMission(t_ns, command.state.p_WB, &command.reference);
       break;
     case FlightMode::kFailsafeHold:
       command.reference = hold_;
@@ -165,6 +167,26 @@ ClosedLoopPilot::Command ClosedLoopPilot::Fly(core::Time t_ns,
     }
   }
   return command;
+}
+
+void ClosedLoopPilot::JoinMission(core::Time t_ns, const Eigen::Vector3d& p_WB_believed,
+                                  sim::Reference* reference) {
+  if (!join_offset_m_) {
+    // Joining starts here: at the handover or when a failsafe has ended.
+    join_offset_m_ = p_WB_believed - reference->p_WB;
+    last_join_ns_ = t_ns;
+  }
+  const double dt_s = std::max(0.0, core::TimeToSeconds(t_ns - last_join_ns_));
+  last_join_ns_ = t_ns;
+  Eigen::Vector3d& offset_m = *join_offset_m_;
+  const double left_m = offset_m.norm() - kJoinSpeedMps * dt_s;
+  if (left_m <= 0.0) {
+    offset_m.setZero();
+    return;
+  }
+  offset_m *= left_m / offset_m.norm();
+  reference->p_WB += offset_m;
+  reference->v_WB_W -= kJoinSpeedMps * offset_m.normalized();
 }
 
 }  // namespace tofu::harness

@@ -105,6 +105,12 @@ class ClosedLoopPilot {
   static constexpr core::Time kStaleAfterNs = 100'000'000;
   /// How long the estimate must rest at land_z_m before the pilot disarms.
   static constexpr core::Time kLandedAfterNs = 1'000'000'000;
+  /// Joining the mission at the handover or after a failsafe: the reference starts where
+  /// the robot believes it is and closes on the mission's at this speed, over the
+  /// mission's own motion. A step onto a reference that has moved on saturates the
+  /// actuators and the tilt servos, and the overshoot it leaves is not flown out (a
+  /// figure-eight from t = 0 handed over 1.1 m behind its reference: 33 contacts).
+  static constexpr double kJoinSpeedMps = 0.5;
   Command Fly(core::Time t_ns, const estimator::EstimatorOutput& newest,
               const sim::Reference& mission);
 
@@ -117,6 +123,8 @@ class ClosedLoopPilot {
 
  private:
   sim::RobotState StateOf(core::Time t_ns, const estimator::EstimatorOutput& o) const;
+  /// Moves `reference` (the mission's, at t_ns) by what is left of the join offset.
+  void JoinMission(core::Time t_ns, const Eigen::Vector3d& p_WB_believed, sim::Reference* reference);
 
   FailsafeConfig failsafe_;
   Eigen::Isometry3d T_BI_;
@@ -129,6 +137,9 @@ class ClosedLoopPilot {
   core::Time failsafe_start_ns_ = 0;
   std::optional<core::Time> at_land_z_since_ns_;
   sim::Reference hold_;
+  /// Reference minus mission while joining it (see kJoinSpeedMps); unset once joined.
+  std::optional<Eigen::Vector3d> join_offset_m_;
+  core::Time last_join_ns_ = 0;
   std::optional<sim::RobotState> last_state_;
   std::vector<FlightEvent> events_;
 };

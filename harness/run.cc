@@ -474,6 +474,16 @@ class Flight {
         state = command.state;
         reference = command.reference;
         disarmed_ = command.disarmed;
+      } else {
+        // Until the estimator can fly, the robot holds where it was put down, as one on its
+        // pad would: a mission that left before the handover registers M to the estimate
+        // at a pose the robot has already left (the pad's), an error the flight never
+        // recovers from (a figure-eight from t = 0: 0.47 m at the handover, then 33
+        // contacts).
+        const sim::Reference start = trajectory_->Sample(0);
+        reference = sim::Reference{};
+        reference.p_WB = start.p_WB;
+        reference.q_WB = start.q_WB;
       }
     }
     sim::AllocationResult allocation =
