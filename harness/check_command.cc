@@ -65,11 +65,13 @@ std::string SelfExecutable() {
 
 // Starts `tofu run` for a job with stdin from /dev/null and stdout+stderr into its log.
 // Returns the child's pid, or -1 with the reason in job.run.error.
-pid_t SpawnRun(const std::string& binary, Job& job) {
+pid_t SpawnRun(const std::string& binary, Job& job, int threads) {
   const std::string seed = std::to_string(job.run.seed);
   // --force: the seed's directory is the check's own, an earlier check's run is replaced.
-  std::vector<std::string> args = {binary, "run",   job.scenario_path, "--seed", seed,
-                                   "--out", job.run.run_dir, "--quiet", "--force"};
+  std::vector<std::string> args = {binary,  "run",         job.scenario_path,
+                                   "--seed", seed,         "--out",
+                                   job.run.run_dir, "--quiet", "--force",
+                                   "--threads", std::to_string(threads)};
   std::vector<char*> argv;
   for (std::string& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);
@@ -141,7 +143,9 @@ const char* Verdict(const SeedRun& run) {
 // Interrupted (interrupt.h): starts nothing more, forwards the signal to every running
 // run (each removes its staging directory and exits 128 + signal), waits for them all,
 // then throws Interrupted: no run is left writing when the check exits.
+// Each run gets the cores the pool leaves it (`tofu run --threads`).
 void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool quiet) {
+  const int threads = std::max(1, static_cast<int>(std::thread::hardware_concurrency()) / jobs);
   using Clock = std::chrono::steady_clock;
   std::map<pid_t, std::pair<size_t, Clock::time_point>> running;
   size_t next = 0;
@@ -168,7 +172,7 @@ void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool 
     }
     while (next < queue.size() && running.size() < static_cast<size_t>(jobs)) {
       Job& job = queue[next];
-      const pid_t pid = SpawnRun(binary, job);
+      const pid_t pid = SpawnRun(binary, job, threads);
       if (pid < 0) {
         job.run.exit_code = core::kExitSimulationError;
         report(job);

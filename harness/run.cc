@@ -17,6 +17,7 @@
 #include "core/random.h"
 #include "harness/client_config.h"
 #include "harness/controllers.h"
+#include "harness/in_loop_methods.h"
 #include "harness/run_directory.h"
 #include "harness/run_recorder.h"
 #include "harness/sample_stream.h"
@@ -28,16 +29,9 @@
 
 namespace tofu::harness {
 
-using replay::DescribeRunStreams;
 using replay::EstimationConfig;
-using replay::EstimationSetup;
 using replay::LabelEvent;
-using replay::MakeEstimationSetup;
 using replay::MethodRunner;
-using replay::ParseReplayMethod;
-using replay::RecordedLog;
-using replay::ReplayMethod;
-using replay::ReplayResult;
 
 namespace {
 
@@ -91,84 +85,6 @@ class CollisionTracker {
     size_t event;
   };
   std::vector<Latest> latest_;
-};
-
-// The estimation methods that run inside the flight: each fed, in arrival order, the
-// samples as the run directory will record them (replay::AsRecorded), configured from
-// the calibration the run will write (DescribeRunStreams), so that `tofu estimate` on
-// the written run reproduces them. Set up at the first release, once the models have
-// latched their reference frames.
-class InLoopMethods {
- public:
-  InLoopMethods(std::vector<std::string> names, const EstimationConfig& config)
-      : names_(std::move(names)), config_(config) {
-    for (const std::string& name : names_) any_clean_ |= name.ends_with("@clean");
-  }
-
-  bool empty() const { return names_.empty(); }
-  bool any_clean() const { return any_clean_; }
-  bool started() const { return !runners_.empty() || names_.empty(); }
-
-  /// `spill_dir`: where the methods' outputs go as they are produced (a run directory),
-  /// else they are kept in memory.
-  void Start(const RunRecord& record, const std::optional<std::filesystem::path>& spill_dir) {
-    std::vector<std::pair<std::string, core::MeasurementKind>> kinds;
-    for (const SensorStream& s : record.sensors) kinds.emplace_back(s.name, s.kind);
-    const std::string calibration_yaml = CalibrationYamlText(record);
-    const RecordedLog log = DescribeRunStreams(kinds, calibration_yaml, "");
-    const EstimationSetup setup = MakeEstimationSetup(log, config_);
-    const replay::ClientTexts texts{calibration_yaml, config_.resolved_yaml};
-    for (const std::string& name : names_) {
-      const ReplayMethod method = ParseReplayMethod(name, log, config_.clients);
-      clean_.push_back(method.clean_streams);
-      runners_.emplace_back(log, method, setup.estimator, setup.sensors, setup.consensus, texts);
-      if (spill_dir) runners_.back().SpillOutputsTo(*spill_dir);
-    }
-    // The labels known so far: the fault schedule, and the conditions of the first step.
-    for (const LabelEvent& label : schedule_) AddLabel(label);
-    for (const LabelEvent& label : record.labels) AddLabel(label);
-  }
-
-  /// The scheduled faults as labels, known before the flight (the oracle's); given to
-  /// the methods when they start.
-  void SetFaultSchedule(std::vector<LabelEvent> schedule) { schedule_ = std::move(schedule); }
-  /// A condition transition the run just recorded.
-  void AddLabel(const LabelEvent& label) {
-    for (MethodRunner& runner : runners_) runner.AddLabel(label);
-  }
-
-  void Feed(bool clean_stream, const std::vector<SensorStream>& streams, const ArrivedSample& a) {
-    const SensorStream& stream = streams[a.stream];
-    const core::StampedMeasurement m{stream.name, a.sample->t_ns,
-                                     replay::AsRecorded(a.sample->measured)};
-    for (std::size_t i = 0; i < runners_.size(); ++i) {
-      if (clean_[i] == clean_stream) runners_[i].Add(m, a.sample->arrival_ns);
-    }
-  }
-
-  /// The flying method (closed loop): every answer of what was released so far, before
-  /// the controller reads its newest output. Throws SimulationError when it failed: a
-  /// flight on a failed estimator has nothing to fly on.
-  const MethodRunner& SyncFlying() {
-    MethodRunner& flying = runners_[0];
-    flying.Sync();
-    if (flying.failed()) throw core::SimulationError(flying.failure_text());
-    return flying;
-  }
-
-  std::vector<ReplayResult> Finish() {
-    std::vector<ReplayResult> results;
-    for (MethodRunner& r : runners_) results.push_back(std::move(r).Finish());
-    return results;
-  }
-
- private:
-  std::vector<std::string> names_;
-  EstimationConfig config_;
-  bool any_clean_ = false;
-  std::vector<bool> clean_;
-  std::vector<MethodRunner> runners_;
-  std::vector<LabelEvent> schedule_;
 };
 
 Eigen::Isometry3d PoseOf(const Eigen::Vector3d& p, const Eigen::Quaterniond& q) {
@@ -425,7 +341,8 @@ class Flight {
       in_loop_names = scenario_.estimation->methods;
     }
     in_loop_.emplace(in_loop_names,
-                     scenario_.estimation ? *scenario_.estimation : EstimationConfig{});
+                     scenario_.estimation ? *scenario_.estimation : EstimationConfig{},
+                     options_.threads, options_.fly_on.has_value());
     const std::vector<uint32_t> stream_rank = RanksByName(record_.sensors);
     delivered_queue_.emplace(stream_rank);
     clean_queue_.emplace(stream_rank);

@@ -143,6 +143,10 @@ struct SimulateOptions {
   /// keeping none of them in memory (RunRecord::recorded_to); the closed-loop flights go
   /// to closed_loop/<method>/ under it. Unset: everything is kept in the record.
   std::optional<std::filesystem::path> record_dir;
+  /// Threads the run may use: > 1 runs tofu's own in-loop methods on up to this many
+  /// worker threads beside the flight (in_loop_methods.h). The output is the same
+  /// whatever the number; 1 keeps everything on the caller's thread.
+  int threads = 1;
   /// Testing hook: called with every sample before the in-loop consumers see it, to
   /// change it (the causality test alters samples arriving after a given time).
   std::function<void(const std::string& stream, sim::SensorSample&)> tamper;

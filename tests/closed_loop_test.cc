@@ -141,6 +141,36 @@ TEST(ClosedLoop, InLoopEstimatesEqualTheReplayOfTheRecordedStreams) {
   fs::remove_all(dir);
 }
 
+// The in-loop methods on worker threads (SimulateOptions::threads) compute exactly what
+// they compute on the flight's thread: the same samples and labels in the same order. The
+// oracle reads the labels (fault schedule and condition transitions) as they arrive, so
+// their order against the samples is tested too; 8 threads for 4 methods, 2 for 4 (two
+// methods per worker).
+TEST(InLoopMethods, WorkerThreadsChangeNoBitOfAnyMethodsOutput) {
+  harness::Scenario scenario = ShortScenario();
+  scenario.control.reset();
+  scenario.estimation->methods = {"consensus", "naive", "single:vio@clean", "oracle"};
+  const harness::RunRecord one = harness::Simulate(scenario);
+  ASSERT_FALSE(one.failure) << *one.failure;
+  for (const int threads : {2, 8}) {
+    harness::SimulateOptions options;
+    options.threads = threads;
+    const harness::RunRecord threaded = harness::Simulate(scenario, options);
+    ASSERT_FALSE(threaded.failure) << *threaded.failure;
+    ASSERT_EQ(threaded.in_loop.size(), one.in_loop.size());
+    for (std::size_t m = 0; m < one.in_loop.size(); ++m) {
+      const std::string what = one.in_loop[m].method.name + " on " + std::to_string(threads) + " threads";
+      ASSERT_EQ(threaded.in_loop[m].method.name, one.in_loop[m].method.name);
+      ExpectSameOutputs(threaded.in_loop[m].outputs, one.in_loop[m].outputs, what);
+      ASSERT_EQ(threaded.in_loop[m].consensus.size(), one.in_loop[m].consensus.size()) << what;
+      for (std::size_t i = 0; i < one.in_loop[m].consensus.size(); ++i) {
+        ASSERT_EQ(threaded.in_loop[m].consensus[i].decision.fused, one.in_loop[m].consensus[i].decision.fused) << what;
+        ASSERT_EQ(threaded.in_loop[m].consensus[i].decision.reason, one.in_loop[m].consensus[i].decision.reason) << what;
+      }
+    }
+  }
+}
+
 TEST(ClosedLoop, ControllerInputIsUnchangedByASampleArrivingLater) {
   harness::Scenario scenario = ShortScenario();
   scenario.control->methods = {"consensus"};

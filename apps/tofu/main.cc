@@ -14,6 +14,7 @@
 #include <iostream>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -91,6 +92,9 @@ CLI::Validator FiniteIn(double min, double max, const std::string& unit, bool mi
 }
 
 // A count or seed: digits only (CLI11 would turn "-1" into 2^64 - 1 for an unsigned).
+// `tofu run`'s threads for its in-loop methods: the machine's cores.
+int DefaultThreads() { return static_cast<int>(std::max(1u, std::thread::hardware_concurrency())); }
+
 CLI::Validator WholeNumber(std::uint64_t min, std::uint64_t max) {
   const std::string range = fmt::format("a whole number in [{}, {}]", min, max);
   return CLI::Validator(
@@ -235,7 +239,7 @@ int RenderScenarioEvents(const tofu::harness::RenderRequest& request, const std:
 
 int RunCommand(const std::string& scenario_path, std::optional<std::string> out_dir,
                std::optional<uint64_t> seed, bool quiet, bool force,
-               const std::optional<std::string>& mcap_file) {
+               const std::optional<std::string>& mcap_file, int threads) {
   tofu::harness::Scenario scenario = tofu::harness::LoadScenario(scenario_path);
   if (seed) scenario.seed = *seed;
   const std::string out = out_dir.value_or("runs/" + scenario.name);
@@ -249,6 +253,7 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   }
 
   tofu::harness::SimulateOptions options;
+  options.threads = threads;
   std::optional<ProgressBar> bar;
   std::optional<ProgressBar> flight_bar;
   std::string bar_method;
@@ -339,6 +344,7 @@ Command AddRunCommand(CLI::App& parent) {
     bool quiet = false;
     bool force = false;
     std::optional<std::string> mcap;
+    int threads = DefaultThreads();
   };
   auto o = std::make_shared<Options>();
   CLI::App* run = parent.add_subcommand("run", "Fly a scenario and write its run directory");
@@ -350,8 +356,13 @@ Command AddRunCommand(CLI::App& parent) {
   run->add_flag("--force", o->force,
                 "Replace an earlier run directory at --out (never a directory of other files)");
   run->add_option("--mcap", o->mcap, "Also write the run as an MCAP file (Foxglove Studio)");
+  run->add_option("--threads", o->threads,
+                  "Threads for the estimation methods in the loop (default: the machine's cores); "
+                  "the output is the same for any number")
+      ->check(WholeNumber(1, 256));
   return {run, true, [o] {
-            return RunCommand(o->scenario_path, o->out_dir, o->seed, o->quiet, o->force, o->mcap);
+            return RunCommand(o->scenario_path, o->out_dir, o->seed, o->quiet, o->force, o->mcap,
+                              o->threads);
           }};
 }
 
