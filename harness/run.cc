@@ -3,13 +3,16 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <fstream>
 #include <limits>
 #include <memory>
 #include <optional>
 #include <stdexcept>
+#include <thread>
 #include <variant>
 
 #include "core/error.h"
@@ -611,19 +614,46 @@ std::vector<RunRecord> FlyClosedLoopFlights(const Scenario& scenario,
       scenario.control->state_source != ControlConfig::StateSource::kEstimate) {
     return flights;
   }
-  for (const std::string& method : scenario.control->methods) {
-    SimulateOptions flight;
+  const std::vector<std::string>& methods = scenario.control->methods;
+  std::vector<SimulateOptions> flown(methods.size());
+  for (std::size_t i = 0; i < methods.size(); ++i) {
+    SimulateOptions& flight = flown[i];
     flight.models_dir = options.models_dir;
-    flight.fly_on = method;
+    flight.fly_on = methods[i];
     flight.tamper = options.tamper;
     if (options.record_dir) {
-      flight.record_dir = *options.record_dir / "closed_loop" / replay::MethodFileStem(method);
+      flight.record_dir = *options.record_dir / "closed_loop" / replay::MethodFileStem(methods[i]);
       std::filesystem::create_directories(*flight.record_dir);
     }
     if (options.closed_loop_progress) {
-      flight.progress = [&](double f) { options.closed_loop_progress(method, f); };
+      flight.progress = [&options, &method = methods[i]](double f) {
+        options.closed_loop_progress(method, f);
+      };
     }
-    flights.push_back(Simulate(scenario, flight));
+  }
+  // The flights share nothing (each its world, estimator and files) and are the same
+  // whichever thread flies them: up to `threads` at a time, each on one thread (its one
+  // method is flown on). closed_loop_progress is then called from several threads.
+  flights.resize(methods.size());
+  const std::size_t parallel =
+      std::min<std::size_t>(methods.size(), static_cast<std::size_t>(std::max(1, options.threads)));
+  std::atomic<std::size_t> next{0};
+  std::vector<std::exception_ptr> errors(methods.size());
+  const auto fly = [&] {
+    for (std::size_t i = next++; i < methods.size(); i = next++) {
+      try {
+        flights[i] = Simulate(scenario, flown[i]);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    }
+  };
+  std::vector<std::thread> pilots;
+  for (std::size_t t = 1; t < parallel; ++t) pilots.emplace_back(fly);
+  fly();
+  for (std::thread& pilot : pilots) pilot.join();
+  for (const std::exception_ptr& error : errors) {
+    if (error) std::rethrow_exception(error);
   }
   return flights;
 }

@@ -137,15 +137,17 @@ struct SimulateOptions {
   /// scenario.estimation in the loop, then fly the closed-loop flights of
   /// scenario.control.
   std::optional<std::string> fly_on;
-  /// A closed-loop flight's progress: (method, fraction).
+  /// A closed-loop flight's progress: (method, fraction). With threads > 1 the flights
+  /// fly at once and this is called from their threads.
   std::function<void(const std::string&, double)> closed_loop_progress;
   /// Write the run's per-sample files into this directory (which exists) while flying,
   /// keeping none of them in memory (RunRecord::recorded_to); the closed-loop flights go
   /// to closed_loop/<method>/ under it. Unset: everything is kept in the record.
   std::optional<std::filesystem::path> record_dir;
   /// Threads the run may use: > 1 runs tofu's own in-loop methods on up to this many
-  /// worker threads beside the flight (in_loop_methods.h). The output is the same
-  /// whatever the number; 1 keeps everything on the caller's thread.
+  /// worker threads beside the flight (in_loop_methods.h), and then up to this many
+  /// closed-loop flights at once. The output is the same whatever the number; 1 keeps
+  /// everything on the caller's thread.
   int threads = 1;
   /// Testing hook: called with every sample before the in-loop consumers see it, to
   /// change it (the causality test alters samples arriving after a given time).

@@ -11,6 +11,7 @@
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
+#include <future>
 #include <fstream>
 #include <iterator>
 #include <stdexcept>
@@ -377,12 +378,22 @@ double SimulatedSeconds(const RunRecord& record) {
 }
 
 // Draws a figure with one of scripts/; a missing interpreter or library is a warning.
-void Plot(const char* script_name, const fs::path& dir, const fs::path& png) {
-  const fs::path script = fs::path(TOFU_SCRIPTS_DIR) / script_name;
-  if (!fs::exists(script) ||
-      RunQuietly({script.string(), dir.string(), "--out", png.string()}) != 0) {
-    fmt::print(stderr, "tofu: warning: no {} ({} failed; needs python3-matplotlib)\n",
-               png.filename().string(), script.string());
+// The figures (script name, PNG) of the run in `dir`, drawn at once: each script is a
+// process of its own that mostly waits on matplotlib's import and layout.
+void Plot(const std::vector<std::pair<std::string, fs::path>>& figures, const fs::path& dir) {
+  std::vector<std::future<int>> drawn;
+  for (const auto& [script_name, png] : figures) {
+    const fs::path script = fs::path(TOFU_SCRIPTS_DIR) / script_name;
+    drawn.push_back(std::async(std::launch::async, [script, &dir, png = png] {
+      if (!fs::exists(script)) return -1;
+      return RunQuietly({script.string(), dir.string(), "--out", png.string()});
+    }));
+  }
+  for (std::size_t i = 0; i < figures.size(); ++i) {
+    if (drawn[i].get() != 0) {
+      fmt::print(stderr, "tofu: warning: no {} ({} failed; needs python3-matplotlib)\n",
+                 figures[i].second.filename().string(), figures[i].first);
+    }
   }
 }
 
@@ -421,10 +432,12 @@ Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
     }
     evaluation = Evaluate(record);
     WriteFileAtomically(staging / "summary.json", evaluation.summary.dump(2) + "\n");
-    if (options.plot && estimation) Plot("plot_consensus.py", staging, staging / "consensus.png");
+    std::vector<std::pair<std::string, fs::path>> figures;
+    if (options.plot && estimation) figures.emplace_back("plot_consensus.py", staging / "consensus.png");
     if (options.plot && !record.closed_loop_flights.empty()) {
-      Plot("plot_closed_loop.py", staging, staging / "closed_loop.png");
+      figures.emplace_back("plot_closed_loop.py", staging / "closed_loop.png");
     }
+    Plot(figures, staging);
   });
   return evaluation;
 }

@@ -665,12 +665,16 @@ int RunTofu(const std::string& args, const fs::path& cwd) {
 }
 
 
+// Once on one thread, once with the in-loop methods on workers and both closed-loop
+// flights flown at once (--threads 3): the same files.
 TEST(ClosedLoopCli, TheSameClosedLoopRunTwiceIsByteIdenticalButForTiming) {
   const fs::path work = test::PerTestDirectory("closed_loop_cli_");
   fs::create_directories(work);
   test::WriteFile(work / "short.yaml", kScenario);
-  ASSERT_EQ(RunTofu("run short.yaml --out A --quiet", work), 0) << test::ReadFile(work / "stderr.txt");
-  ASSERT_EQ(RunTofu("run short.yaml --out B --quiet", work), 0) << test::ReadFile(work / "stderr.txt");
+  ASSERT_EQ(RunTofu("run short.yaml --out A --quiet --threads 1", work), 0)
+      << test::ReadFile(work / "stderr.txt");
+  ASSERT_EQ(RunTofu("run short.yaml --out B --quiet --threads 3", work), 0)
+      << test::ReadFile(work / "stderr.txt");
   const std::set<std::string> files = FilesIn(work / "A");
   EXPECT_EQ(files, FilesIn(work / "B"));
   EXPECT_TRUE(files.count("closed_loop/consensus/control.csv"));

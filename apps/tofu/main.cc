@@ -7,7 +7,9 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <memory>
+#include <mutex>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
@@ -256,7 +258,6 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   options.threads = threads;
   std::optional<ProgressBar> bar;
   std::optional<ProgressBar> flight_bar;
-  std::string bar_method;
   const bool draw = !quiet && ::isatty(STDERR_FILENO);
   if (draw) bar.emplace(scenario.name);
   // Set even when nothing is drawn: the progress callbacks are the simulation's check
@@ -265,14 +266,26 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
     tofu::replay::ThrowIfInterrupted();
     if (bar) (*bar)(f);
   };
+  // One bar for the closed-loop flights, the mean of their fractions: with --threads they
+  // fly at once and report from their threads.
+  std::mutex flight_bar_mutex;
+  std::map<std::string, double> flight_fraction;
+  if (scenario.control) {
+    for (const std::string& method : scenario.control->methods) flight_fraction[method] = 0.0;
+  }
   options.closed_loop_progress = [&](const std::string& method, double f) {
     tofu::replay::ThrowIfInterrupted();
-    if (!draw) return;
-    if (method != bar_method) {
-      flight_bar.emplace("  closed loop: " + method);
-      bar_method = method;
+    if (!draw || flight_fraction.empty()) return;
+    const std::lock_guard lock(flight_bar_mutex);
+    if (!flight_bar) {
+      std::string methods;
+      for (const auto& [name, fraction] : flight_fraction) methods += (methods.empty() ? "" : ", ") + name;
+      flight_bar.emplace("  closed loop: " + methods);
     }
-    (*flight_bar)(f);
+    flight_fraction[method] = f;
+    double sum = 0.0;
+    for (const auto& [name, fraction] : flight_fraction) sum += fraction;
+    (*flight_bar)(sum / static_cast<double>(flight_fraction.size()));
   };
   // The run's files are written while it flies, into the staging directory that becomes
   // `out` when the run is complete (memory stays flat with flight time, issue 19).
