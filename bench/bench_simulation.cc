@@ -5,6 +5,7 @@
 //   taskset -c 1 build/bench/bench_simulation --benchmark_repetitions=10
 
 #include <algorithm>
+#include <cmath>
 #include <vector>
 
 #include <benchmark/benchmark.h>
@@ -139,12 +140,25 @@ void BM_ClosedLoopFlight200s(benchmark::State& state) {
   options.fly_on = estimation.methods[static_cast<std::size_t>(state.range(0))];
   double simulated_s = 0.0;
   std::vector<double> solve_ms;
+  // How the flight went, beside how fast: a flight in contact with the walls runs MuJoCo's
+  // constraint solver in every step and times something else than a flight.
+  double squared_error_m2 = 0.0;
+  std::size_t tracking_samples = 0;
+  std::size_t contacts = 0;
   for (auto _ : state) {
     const tofu::harness::RunRecord record = tofu::harness::Simulate(scenario, options);
     benchmark::DoNotOptimize(record.groundtruth.data());
     simulated_s += static_cast<double>(record.physics_steps) / scenario.physics.rate_hz;
     for (const double t : record.in_loop.front().solver.solve_time_s) solve_ms.push_back(t * 1e3);
+    for (const tofu::harness::TrackingSample& t : record.tracking) {
+      squared_error_m2 += t.position_error_m * t.position_error_m;
+    }
+    tracking_samples += record.tracking.size();
+    contacts += record.collisions.size();
   }
+  state.counters["tracking_rmse_m"] =
+      tracking_samples > 0 ? std::sqrt(squared_error_m2 / static_cast<double>(tracking_samples)) : 0.0;
+  state.counters["contacts"] = static_cast<double>(contacts);
   state.counters["real_time_factor"] =
       benchmark::Counter(simulated_s, benchmark::Counter::kIsRate);
   std::sort(solve_ms.begin(), solve_ms.end());
