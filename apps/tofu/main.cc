@@ -370,8 +370,8 @@ Command AddRunCommand(CLI::App& parent) {
                 "Replace an earlier run directory at --out (never a directory of other files)");
   run->add_option("--mcap", o->mcap, "Also write the run as an MCAP file (Foxglove Studio)");
   run->add_option("--threads", o->threads,
-                  "Threads for the estimation methods in the loop (default: the machine's cores); "
-                  "the output is the same for any number")
+                  "Threads for the in-loop estimation methods and the closed-loop flights "
+                  "(default: the machine's cores); the output is the same for any number")
       ->check(WholeNumber(1, 256));
   return {run, true, [o] {
             return RunCommand(o->scenario_path, o->out_dir, o->seed, o->quiet, o->force, o->mcap,
