@@ -21,6 +21,7 @@
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
+#include "core/cores.h"
 #include "core/error.h"
 #include "core/file_io.h"
 #include "harness/check_methods.h"
@@ -145,7 +146,7 @@ const char* Verdict(const SeedRun& run) {
 // then throws Interrupted: no run is left writing when the check exits.
 // Each run gets the cores the pool leaves it (`tofu run --threads`).
 void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool quiet) {
-  const int threads = std::max(1, static_cast<int>(std::thread::hardware_concurrency()) / jobs);
+  const int threads = std::max(1, core::UsableCores() / jobs);
   using Clock = std::chrono::steady_clock;
   std::map<pid_t, std::pair<size_t, Clock::time_point>> running;
   size_t next = 0;
@@ -960,7 +961,7 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   PrepareRunFolders(grid, options.shard, out);
   const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
   int jobs = options.jobs;
-  if (jobs == 0) jobs = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  if (jobs == 0) jobs = core::UsableCores();
   if (!options.quiet) {
     const std::string part =
         options.shard.origin.empty()

@@ -27,7 +27,7 @@ struct CheckCommandOptions {
   /// sorted by name). Empty: "scenarios".
   std::vector<std::string> inputs;
   std::optional<std::string> junit_path;  ///< JUnit XML file, written atomically
-  int jobs = 0;                           ///< parallel runs; 0: number of cores
+  int jobs = 0;                           ///< parallel runs; 0: core::UsableCores()
   int seeds = 1;                          ///< seeds per scenario, >= 1
   std::string out_dir = "runs/check";     ///< <out>/<scenario>/seed_<s>/ per run
   bool quiet = false;                     ///< no progress and no table (failures still)

@@ -1,10 +1,13 @@
 // core: SO(3) helpers and seeded random streams.
 
+#include <sched.h>
+
 #include <cmath>
 #include <numbers>
 
 #include <gtest/gtest.h>
 
+#include "core/cores.h"
 #include "core/lie.h"
 #include "core/random.h"
 #include "core/time.h"
@@ -127,6 +130,23 @@ TEST(RandomStream, NormalHasUnitVariance) {
   // Standard errors: mean 1/sqrt(n), variance sqrt(2/n); 5-sigma bounds.
   EXPECT_LT(std::abs(mean), 5.0 / std::sqrt(n));
   EXPECT_LT(std::abs(var - 1.0), 5.0 * std::sqrt(2.0 / n));
+}
+
+// The cores a run may use follow the process's affinity (taskset, a Slurm allocation), not
+// the machine's count: restricted to one processor, one.
+TEST(UsableCores, FollowsTheAffinityNotTheMachine) {
+  cpu_set_t all;
+  CPU_ZERO(&all);
+  ASSERT_EQ(sched_getaffinity(0, sizeof(all), &all), 0);
+  EXPECT_EQ(UsableCores(), CPU_COUNT(&all));
+  int first = 0;
+  while (!CPU_ISSET(first, &all)) ++first;
+  cpu_set_t one;
+  CPU_ZERO(&one);
+  CPU_SET(first, &one);
+  ASSERT_EQ(sched_setaffinity(0, sizeof(one), &one), 0);
+  EXPECT_EQ(UsableCores(), 1);
+  ASSERT_EQ(sched_setaffinity(0, sizeof(all), &all), 0);
 }
 
 }  // namespace

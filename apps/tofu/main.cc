@@ -16,12 +16,12 @@
 #include <iostream>
 #include <optional>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include "core/cores.h"
 #include "core/error.h"
 #include "core/units.h"
 #include "core/version.h"
@@ -94,8 +94,8 @@ CLI::Validator FiniteIn(double min, double max, const std::string& unit, bool mi
 }
 
 // A count or seed: digits only (CLI11 would turn "-1" into 2^64 - 1 for an unsigned).
-// `tofu run`'s threads for its in-loop methods: the machine's cores.
-int DefaultThreads() { return static_cast<int>(std::max(1u, std::thread::hardware_concurrency())); }
+// `tofu run`'s threads for its in-loop methods and closed-loop flights.
+int DefaultThreads() { return tofu::core::UsableCores(); }
 
 CLI::Validator WholeNumber(std::uint64_t min, std::uint64_t max) {
   const std::string range = fmt::format("a whole number in [{}, {}]", min, max);
@@ -371,7 +371,7 @@ Command AddRunCommand(CLI::App& parent) {
   run->add_option("--mcap", o->mcap, "Also write the run as an MCAP file (Foxglove Studio)");
   run->add_option("--threads", o->threads,
                   "Threads for the in-loop estimation methods and the closed-loop flights "
-                  "(default: the machine's cores); the output is the same for any number")
+                  "(default: the cores this process may run on); the output is the same for any number")
       ->check(WholeNumber(1, 256));
   return {run, true, [o] {
             return RunCommand(o->scenario_path, o->out_dir, o->seed, o->quiet, o->force, o->mcap,
@@ -524,7 +524,7 @@ Command AddCheckCommand(CLI::App& parent) {
   check->add_option("scenarios", o->check.inputs,
                     "Scenario files or directories of *.yaml (default: scenarios)");
   check->add_option("--junit", o->check.junit_path, "Write JUnit XML to this file");
-  check->add_option("--jobs", o->check.jobs, "Parallel runs (default: number of cores)")
+  check->add_option("--jobs", o->check.jobs, "Parallel runs (default: the cores this process may run on)")
       ->check(WholeNumber(0, 256));
   check->add_option("--seeds", o->check.seeds,
                     "Seeds per scenario: its seed + 0..N-1 (pass_fraction applies)")
