@@ -179,12 +179,13 @@ void ClosedLoopPilot::JoinMission(core::Time t_ns, const Eigen::Vector3d& p_WB_b
   const double dt_s = std::max(0.0, core::TimeToSeconds(t_ns - last_join_ns_));
   last_join_ns_ = t_ns;
   Eigen::Vector3d& offset_m = *join_offset_m_;
-  const double left_m = offset_m.norm() - kJoinSpeedMps * dt_s;
+  const double offset_norm_m = offset_m.norm();
+  const double left_m = offset_norm_m - kJoinSpeedMps * dt_s;
   if (left_m <= 0.0) {
     offset_m.setZero();
     return;
   }
-  offset_m *= left_m / offset_m.norm();
+  offset_m *= left_m / offset_norm_m;
   reference->p_WB += offset_m;
   reference->v_WB_W -= kJoinSpeedMps * offset_m.normalized();
 }

@@ -75,48 +75,19 @@ void InLoopMethods::Start(const RunRecord& record,
     const bool flown = flying_ && i == 0;
     if (threads_ > 1 && !flown && method.kind != replay::ReplayMethod::Kind::kClient) {
       threadable.push_back(i);
+    } else {
+      on_caller_.push_back(i);
     }
   }
-  on_worker_.assign(runners_.size(), false);
   // Methods dealt to the workers in turn (paper_consensus_indoor's four over two cores:
   // consensus with single:vio@clean, naive with single:vio).
   const std::size_t worker_count = std::min<std::size_t>(threadable.size(), threads_);
   for (std::size_t w = 0; w < worker_count; ++w) workers_.push_back(std::make_unique<Worker>());
   for (std::size_t k = 0; k < threadable.size(); ++k) {
     workers_[k % worker_count]->runners.push_back(threadable[k]);
-    on_worker_[threadable[k]] = true;
   }
-  for (const std::unique_ptr<Worker>& owned : workers_) {
-    Worker* worker = owned.get();
-    worker->thread = std::thread([this, worker] {
-      for (;;) {
-        std::shared_ptr<const std::vector<Item>> batch;
-        {
-          std::unique_lock lock(worker->mutex);
-          worker->changed.wait(lock, [&] { return worker->closing || !worker->batches.empty(); });
-          if (worker->batches.empty()) return;  // closing, and everything is done
-          batch = std::move(worker->batches.front());
-          worker->batches.pop_front();
-        }
-        worker->changed.notify_all();  // room for the flight's next batch
-        // After a failure the worker keeps taking batches (the flight must not wait on
-        // it) but runs nothing more: Finish reports the failure.
-        if (worker->error) continue;
-        try {
-          for (const Item& item : *batch) {
-            for (const std::size_t r : worker->runners) {
-              if (const auto* s = std::get_if<Item::Sample>(&item.entry)) {
-                if (clean_[r] == s->clean) runners_[r].Add(s->measurement, s->arrival_ns);
-              } else {
-                runners_[r].AddLabel(std::get<replay::LabelEvent>(item.entry));
-              }
-            }
-          }
-        } catch (...) {
-          worker->error = std::current_exception();
-        }
-      }
-    });
+  for (const std::unique_ptr<Worker>& worker : workers_) {
+    worker->thread = std::thread([this, w = worker.get()] { RunWorker(*w); });
   }
   if (!workers_.empty()) pending_ = std::make_shared<std::vector<Item>>();
   // The labels known so far: the fault schedule, and the conditions of the first step.
@@ -124,29 +95,58 @@ void InLoopMethods::Start(const RunRecord& record,
   for (const replay::LabelEvent& label : record.labels) AddLabel(label);
 }
 
+// A worker's loop: every batch in order through each of its methods, until the flight
+// closes the queue and it is empty. After a failure the worker keeps taking batches (the
+// flight must not wait on it) but runs nothing more: Finish reports the failure.
+void InLoopMethods::RunWorker(Worker& worker) {
+  for (;;) {
+    std::shared_ptr<const std::vector<Item>> batch;
+    {
+      std::unique_lock lock(worker.mutex);
+      worker.changed.wait(lock, [&] { return worker.closing || !worker.batches.empty(); });
+      if (worker.batches.empty()) return;  // closing, and everything is done
+      batch = std::move(worker.batches.front());
+      worker.batches.pop_front();
+    }
+    worker.changed.notify_all();  // room for the flight's next batch
+    if (worker.error) continue;
+    try {
+      for (const Item& item : *batch) Apply(item, worker.runners);
+    } catch (...) {
+      worker.error = std::current_exception();
+    }
+  }
+}
+
+// One item of the sequence to the methods `runners` (indices into runners_).
+void InLoopMethods::Apply(const Item& item, const std::vector<std::size_t>& runners) {
+  for (const std::size_t r : runners) {
+    if (const auto* s = std::get_if<Item::Sample>(&item.entry)) {
+      if (clean_[r] == s->clean) runners_[r].Add(s->measurement, s->arrival_ns);
+    } else {
+      runners_[r].AddLabel(std::get<replay::LabelEvent>(item.entry));
+    }
+  }
+}
+
 void InLoopMethods::SetFaultSchedule(std::vector<replay::LabelEvent> schedule) {
   schedule_ = std::move(schedule);
 }
 
-void InLoopMethods::AddLabel(const replay::LabelEvent& label) {
-  for (std::size_t i = 0; i < runners_.size(); ++i) {
-    if (!on_worker_[i]) runners_[i].AddLabel(label);
-  }
-  if (pending_) {
-    pending_->push_back(Item{label});
-    if (pending_->size() >= kBatchItems) Dispatch();
-  }
-}
+void InLoopMethods::AddLabel(const replay::LabelEvent& label) { Take(Item{label}); }
 
 void InLoopMethods::Feed(bool clean_stream, const std::vector<SensorStream>& streams,
                          const ArrivedSample& a) {
-  const SensorStream& stream = streams[a.stream];
-  core::StampedMeasurement m{stream.name, a.sample->t_ns, replay::AsRecorded(a.sample->measured)};
-  for (std::size_t i = 0; i < runners_.size(); ++i) {
-    if (!on_worker_[i] && clean_[i] == clean_stream) runners_[i].Add(m, a.sample->arrival_ns);
-  }
+  Take(Item{Item::Sample{clean_stream,
+                         {streams[a.stream].name, a.sample->t_ns, replay::AsRecorded(a.sample->measured)},
+                         a.sample->arrival_ns}});
+}
+
+// The next item of the sequence: to the methods on this thread now, to the workers' batch.
+void InLoopMethods::Take(Item item) {
+  Apply(item, on_caller_);
   if (pending_) {
-    pending_->push_back(Item{Item::Sample{clean_stream, std::move(m), a.sample->arrival_ns}});
+    pending_->push_back(std::move(item));
     if (pending_->size() >= kBatchItems) Dispatch();
   }
 }

@@ -70,6 +70,9 @@ class InLoopMethods {
   struct Worker;
   void Dispatch();
   void StopWorkers();
+  void RunWorker(Worker& worker);
+  void Take(Item item);
+  void Apply(const Item& item, const std::vector<std::size_t>& runners);
 
   std::vector<std::string> names_;
   replay::EstimationConfig config_;
@@ -78,7 +81,7 @@ class InLoopMethods {
   bool any_clean_ = false;
   std::vector<bool> clean_;
   std::vector<replay::MethodRunner> runners_;
-  std::vector<bool> on_worker_;  ///< runners_[i] runs on a worker thread
+  std::vector<std::size_t> on_caller_;  ///< runners_ that run on the caller's thread
   std::vector<replay::LabelEvent> schedule_;
   std::vector<std::unique_ptr<Worker>> workers_;
   std::shared_ptr<std::vector<Item>> pending_;  ///< the batch being filled for the workers

@@ -255,6 +255,9 @@ class Flight {
       throw core::InputError({scenario_.source_file, 0, 0}, "trajectory.segments", e.what());
     }
     record_.segments = trajectory_->segments();
+    const sim::Reference first = trajectory_->Sample(0);
+    put_down_.p_WB = first.p_WB;
+    put_down_.q_WB = first.q_WB;
     for (size_t i = 0; i < record_.segments.size(); ++i) {
       if (record_.segments[i].kind == "approach") approach_segments_.push_back(i);
     }
@@ -400,10 +403,7 @@ class Flight {
         // at a pose the robot has already left (the pad's), an error the flight never
         // recovers from (a figure-eight from t = 0: 0.47 m at the handover, then 33
         // contacts).
-        const sim::Reference start = trajectory_->Sample(0);
-        reference = sim::Reference{};
-        reference.p_WB = start.p_WB;
-        reference.q_WB = start.q_WB;
+        reference = put_down_;
       }
     }
     sim::AllocationResult allocation =
@@ -547,6 +547,8 @@ class Flight {
   // The world and what flies the robot.
   std::unique_ptr<sim::World> world_;
   std::unique_ptr<sim::Trajectory> trajectory_;
+  /// At rest where the trajectory starts: a closed-loop flight's reference before handover.
+  sim::Reference put_down_;
   std::unique_ptr<api::Controller> controller_;
   std::string controller_name_ = kBuiltinControllerName;
   std::optional<sim::Allocator> allocator_;

@@ -377,9 +377,9 @@ double SimulatedSeconds(const RunRecord& record) {
                              core::PeriodFromRate(record.scenario.physics.rate_hz));
 }
 
-// Draws a figure with one of scripts/; a missing interpreter or library is a warning.
-// The figures (script name, PNG) of the run in `dir`, drawn at once: each script is a
-// process of its own that mostly waits on matplotlib's import and layout.
+// Draws the run's figures (script of scripts/, PNG) in `dir`, all at once: each script is
+// a process of its own that mostly waits on matplotlib's import and layout. A missing
+// interpreter or library is a warning.
 void Plot(const std::vector<std::pair<std::string, fs::path>>& figures, const fs::path& dir) {
   std::vector<std::future<int>> drawn;
   for (const auto& [script_name, png] : figures) {
@@ -392,7 +392,8 @@ void Plot(const std::vector<std::pair<std::string, fs::path>>& figures, const fs
   for (std::size_t i = 0; i < figures.size(); ++i) {
     if (drawn[i].get() != 0) {
       fmt::print(stderr, "tofu: warning: no {} ({} failed; needs python3-matplotlib)\n",
-                 figures[i].second.filename().string(), figures[i].first);
+                 figures[i].second.filename().string(),
+                 (fs::path(TOFU_SCRIPTS_DIR) / figures[i].first).string());
     }
   }
 }

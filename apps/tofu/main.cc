@@ -94,9 +94,6 @@ CLI::Validator FiniteIn(double min, double max, const std::string& unit, bool mi
 }
 
 // A count or seed: digits only (CLI11 would turn "-1" into 2^64 - 1 for an unsigned).
-// `tofu run`'s threads for its in-loop methods and closed-loop flights.
-int DefaultThreads() { return tofu::core::UsableCores(); }
-
 CLI::Validator WholeNumber(std::uint64_t min, std::uint64_t max) {
   const std::string range = fmt::format("a whole number in [{}, {}]", min, max);
   return CLI::Validator(
@@ -357,7 +354,7 @@ Command AddRunCommand(CLI::App& parent) {
     bool quiet = false;
     bool force = false;
     std::optional<std::string> mcap;
-    int threads = DefaultThreads();
+    int threads = tofu::core::UsableCores();
   };
   auto o = std::make_shared<Options>();
   CLI::App* run = parent.add_subcommand("run", "Fly a scenario and write its run directory");
