@@ -107,6 +107,24 @@ def no_data(ax, text):
             fontsize=9)
 
 
+def fit_margins(fig, axes):
+    """Margins that hold what sticks out of the axes: the sensor and method names left of
+    the categorical panels, the legends right of the axes. Measured from those texts
+    alone: constrained_layout measures every axis's ticks for its tight boxes, a third of
+    this script's time, and the log axes' tick labels are short."""
+    renderer = fig.canvas.get_renderer()
+    width_px = fig.get_figwidth() * fig.dpi
+    tick_labels_px = [t.get_window_extent(renderer).width
+                      for ax in axes for t in ax.get_yticklabels() if t.get_text()]
+    # Room for a log axis's "10^-2" labels and the axis label beside them, at the least.
+    left_px = max([45.0] + tick_labels_px) + 40.0
+    legends_px = [ax.get_legend().get_window_extent(renderer).width
+                  for ax in axes if ax.get_legend() is not None]
+    right_px = max([0.0] + legends_px) + 15.0
+    fig.subplots_adjust(left=left_px / width_px, right=1.0 - right_px / width_px,
+                        top=0.93, bottom=0.05, hspace=0.32)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=pathlib.Path)
@@ -161,7 +179,7 @@ def main():
     end_s = max([float(summary.get("simulated_s") or 0.0)] + stamps + [1e-9])
 
     fig, axes = plt.subplots(
-        5, 1, figsize=(12, 11), sharex=True, constrained_layout=True,
+        5, 1, figsize=(12, 11), sharex=True,
         gridspec_kw={"height_ratios": [1.0, 1.6, 1.6, 1.1, 1.5]})
     timeline, pos_ax, rot_ax, fused_ax, cons_ax = axes
 
@@ -295,6 +313,7 @@ def main():
     if "seed" in summary:
         title += f" (seed {summary['seed']})"
     fig.suptitle(f"{title}: corruption, errors, fused sensors and consistency")
+    fit_margins(fig, axes)
     out = args.out or (run / "consensus.png")
     fig.savefig(out, dpi=100)
     print(f"plot_consensus: wrote {out}", file=sys.stderr)
