@@ -45,4 +45,24 @@ Eigen::Vector3d LidarBeamPattern::Direction_s(int row, int column,
   return Eigen::Vector3d(ce * std::cos(a), ce * std::sin(a), std::sin(e));
 }
 
+void LidarBeamPattern::Directions_s(double azimuth_offset_rad,
+                                    std::vector<Eigen::Vector3d>* directions_s) const {
+  std::vector<double> cos_azimuth(azimuth_count), sin_azimuth(azimuth_count);
+  for (int column = 0; column < azimuth_count; ++column) {
+    const double a = azimuth_offset_rad + AzimuthStepRad() * column;
+    cos_azimuth[column] = std::cos(a);
+    sin_azimuth[column] = std::sin(a);
+  }
+  directions_s->resize(static_cast<std::size_t>(azimuth_count) * elevation_count);
+  auto out = directions_s->begin();
+  for (int row = 0; row < elevation_count; ++row) {
+    const double e = ElevationRad(row);
+    const double ce = std::cos(e);
+    const double se = std::sin(e);
+    for (int column = 0; column < azimuth_count; ++column) {
+      *out++ = Eigen::Vector3d(ce * cos_azimuth[column], ce * sin_azimuth[column], se);
+    }
+  }
+}
+
 }  // namespace tofu::core

@@ -7,6 +7,7 @@
 
 #include <span>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -44,6 +45,9 @@ struct LidarBeamPattern {
   /// column `column`, the azimuths turned by `azimuth_offset_rad` (a scan pattern that
   /// does not repeat from scan to scan).
   Eigen::Vector3d Direction_s(int row, int column, double azimuth_offset_rad = 0.0) const;
+  /// Every ray's Direction_s(row, column, azimuth_offset_rad), row by row, into
+  /// *directions_s (resized): the same values, each angle's sine and cosine taken once.
+  void Directions_s(double azimuth_offset_rad, std::vector<Eigen::Vector3d>* directions_s) const;
   /// Whether a return at `distance_m` is inside [min_range_m, max_range_m].
   bool InRange(double distance_m) const {
     return distance_m >= min_range_m && distance_m <= max_range_m;

@@ -102,17 +102,17 @@ LidarScanGeometry LidarOdometryModel::AnalyseScan(const World& world,
   LidarScanGeometry g;
   g.ray_count = beams.azimuth_count * beams.elevation_count;
   Eigen::Matrix<double, 6, 6> S = Eigen::Matrix<double, 6, 6>::Zero();
-  for (int j = 0; j < beams.elevation_count; ++j) {
-    for (int i = 0; i < beams.azimuth_count; ++i) {
-      const Eigen::Vector3d u_s = beams.Direction_s(j, i, azimuth_offset);
-      const std::optional<RayHit> hit = world.CastRay(origin_W, R_Ws * u_s, kRayScene);
-      if (!hit || !beams.InRange(hit->distance_m)) continue;
-      ++g.return_count;
-      const Eigen::Vector3d p = hit->point_W - origin_W;
-      Eigen::Matrix<double, 6, 1> J;
-      J << p.cross(hit->normal_W), hit->normal_W;
-      S.selfadjointView<Eigen::Lower>().rankUpdate(J);
-    }
+  std::vector<Eigen::Vector3d> directions_s;
+  beams.Directions_s(azimuth_offset, &directions_s);
+  const RayFan rays = world.RaysFrom(origin_W, kRayScene);
+  for (const Eigen::Vector3d& u_s : directions_s) {
+    const std::optional<RayHit> hit = rays.Cast(R_Ws * u_s);
+    if (!hit || !beams.InRange(hit->distance_m)) continue;
+    ++g.return_count;
+    const Eigen::Vector3d p = hit->point_W - origin_W;
+    Eigen::Matrix<double, 6, 1> J;
+    J << p.cross(hit->normal_W), hit->normal_W;
+    S.selfadjointView<Eigen::Lower>().rankUpdate(J);
   }
   S = S.selfadjointView<Eigen::Lower>();
 

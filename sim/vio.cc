@@ -105,8 +105,9 @@ double VioModel::FeatureScore(const World& world, const Eigen::Isometry3d& T_Ws)
   const Eigen::Vector3d origin_W = T_Ws.translation();
   const Eigen::Matrix3d R_Ws = T_Ws.linear();
   int features = 0;
+  const RayFan rays = world.RaysFrom(origin_W, kRayScene);
   for (const Eigen::Vector3d& u_s : ray_directions_s_) {
-    const std::optional<RayHit> hit = world.CastRay(origin_W, R_Ws * u_s, kRayScene);
+    const std::optional<RayHit> hit = rays.Cast(R_Ws * u_s);
     if (hit && hit->textured && hit->distance_m >= options_.feature_min_depth_m &&
         hit->distance_m <= options_.feature_max_depth_m) {
       ++features;

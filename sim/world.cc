@@ -323,6 +323,10 @@ struct World::Impl {
   }
 
   const mjModel* Full() const { return m_full != nullptr ? m_full : m; }
+  // The hit of a ray (unit direction) on `geom` of the physics model, or of the complete
+  // scene when `full`, at `distance_m` (see CastRay).
+  RayHit HitOn(bool full, int geom, double distance_m, const Eigen::Vector3d& origin_W,
+               const Eigen::Vector3d& unit_W);
   int ToFull(int geom) const { return geom < 0 || m_full == nullptr ? geom : geom_to_full[geom]; }
 
   // The complete scene at the physics state: state arrays now, kinematics (geom and site
@@ -937,6 +941,104 @@ Eigen::Vector3d GeomSurfaceNormal_W(const mjModel* m, const mjData* d, int g,
 
 }  // namespace
 
+namespace {
+
+// The geom groups of a RayGroups mask, as mj_ray takes them.
+std::array<mjtByte, mjNGROUP> GroupMask(uint32_t groups) {
+  std::array<mjtByte, mjNGROUP> mask{};
+  for (int g = 0; g < mjNGROUP; ++g) mask[g] = (groups >> g) & 1u;
+  return mask;
+}
+
+// mj_ray's choice of the geoms a ray may meet (engine_ray.c, ray_eliminate), for
+// mj_ray(..., flg_static = 1, bodyexclude = -1): visible, and in one of the groups.
+bool RayMayMeet(const mjModel* m, int geom, const std::array<mjtByte, mjNGROUP>& mask) {
+  const int material = m->geom_matid[geom];
+  if (material < 0 && m->geom_rgba[4 * geom + 3] == 0) return false;
+  if (material >= 0 && m->mat_rgba[4 * material + 3] == 0) return false;
+  return mask[std::clamp(m->geom_group[geom], 0, mjNGROUP - 1)] != 0;
+}
+
+// Distance along the ray to `geom` by MuJoCo's own intersection (mj_ray's dispatch), -1
+// when it misses.
+mjtNum RayToGeom(const mjModel* m, const mjData* d, int geom, const mjtNum* origin_W,
+                 const mjtNum* unit_W) {
+  switch (m->geom_type[geom]) {
+    case mjGEOM_MESH:
+      return mj_rayMesh(m, d, geom, origin_W, unit_W);
+    case mjGEOM_HFIELD:
+      return mj_rayHfield(m, d, geom, origin_W, unit_W);
+    default:
+      return mju_rayGeom(d->geom_xpos + 3 * geom, d->geom_xmat + 9 * geom,
+                         m->geom_size + 3 * geom, origin_W, unit_W, m->geom_type[geom]);
+  }
+}
+
+// How a fan rules a geom out for most rays: a box by its own faces (walls and slabs, whose
+// bounding spheres are as large as the room), the other solids by their bounding sphere
+// (geom_rbound); planes, height fields and meshes are tested by every ray.
+}  // namespace
+
+RayFan::Bound RayFan::BoundOf(int geom_type) {
+  switch (geom_type) {
+    case mjGEOM_BOX:
+      return RayFan::Bound::kBox;
+    case mjGEOM_SPHERE:
+    case mjGEOM_CAPSULE:
+    case mjGEOM_ELLIPSOID:
+    case mjGEOM_CYLINDER:
+      return RayFan::Bound::kSphere;
+    default:
+      return RayFan::Bound::kNone;
+  }
+}
+
+namespace {
+
+// The bounds are grown (and the lower bounds shrunk) by far more than the rounding of
+// MuJoCo's own intersections, so that they never rule out a hit MuJoCo would report.
+constexpr double kFanRelativeSlack = 1e-9;
+constexpr double kFanAbsoluteSlackM = 1e-9;
+
+// Whether the ray o + t u, t >= 0, can meet the box |x_k| <= h_k (in the box's frame): the
+// slab test (Kay & Kajiya 1986).
+bool RayMeetsBox(const Eigen::Vector3d& origin_G, const Eigen::Vector3d& unit_G,
+                 const Eigen::Vector3d& half_size_m) {
+  double enter = 0.0;
+  double leave = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < 3; ++k) {
+    if (unit_G[k] == 0.0) {
+      if (std::abs(origin_G[k]) > half_size_m[k]) return false;
+      continue;
+    }
+    const double inverse = 1.0 / unit_G[k];
+    double near = (-half_size_m[k] - origin_G[k]) * inverse;
+    double far = (half_size_m[k] - origin_G[k]) * inverse;
+    if (near > far) std::swap(near, far);
+    enter = std::max(enter, near);
+    leave = std::min(leave, far);
+    if (enter > leave) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+RayHit World::Impl::HitOn(bool full, int geom, double distance_m, const Eigen::Vector3d& origin_W,
+                          const Eigen::Vector3d& unit_W) {
+  const mjModel* model = full ? Full() : m;
+  const mjData* data = full ? SyncedFull() : d;
+  RayHit hit;
+  hit.distance_m = distance_m;
+  hit.geom = full ? geom : ToFull(geom);
+  hit.point_W = origin_W + distance_m * unit_W;
+  hit.normal_W = GeomSurfaceNormal_W(model, data, geom, hit.point_W, unit_W);
+  const int material = model->geom_matid[geom];
+  hit.textured = material >= 0 && model->mat_texid[material] >= 0;
+  hit.group = model->geom_group[geom];
+  return hit;
+}
+
 std::optional<RayHit> World::CastRay(const Eigen::Vector3d& origin_W,
                                      const Eigen::Vector3d& direction_W,
                                      uint32_t groups) const {
@@ -947,20 +1049,87 @@ std::optional<RayHit> World::CastRay(const Eigen::Vector3d& origin_W,
   const mjModel* m = full ? s.Full() : s.m;
   const mjData* d = full ? s.SyncedFull() : s.d;
   const Eigen::Vector3d dir = direction_W.normalized();
-  mjtByte group_mask[mjNGROUP] = {};
-  for (int g = 0; g < mjNGROUP; ++g) group_mask[g] = (groups >> g) & 1u;
+  std::array<mjtByte, mjNGROUP> group_mask = GroupMask(groups);
   int geom = -1;
-  const mjtNum distance = mj_ray(m, d, origin_W.data(), dir.data(), group_mask, 1, -1, &geom);
+  const mjtNum distance =
+      mj_ray(m, d, origin_W.data(), dir.data(), group_mask.data(), 1, -1, &geom);
   if (distance < 0.0 || geom < 0) return std::nullopt;
-  RayHit hit;
-  hit.distance_m = distance;
-  hit.geom = full ? geom : s.ToFull(geom);
-  hit.point_W = origin_W + distance * dir;
-  hit.normal_W = GeomSurfaceNormal_W(m, d, geom, hit.point_W, dir);
-  const int material = m->geom_matid[geom];
-  hit.textured = material >= 0 && m->mat_texid[material] >= 0;
-  hit.group = m->geom_group[geom];
-  return hit;
+  return s.HitOn(full, geom, distance, origin_W, dir);
+}
+
+RayFan World::RaysFrom(const Eigen::Vector3d& origin_W, uint32_t groups) const {
+  Impl& s = *impl_;
+  RayFan fan;
+  fan.world_ = this;
+  fan.full_ = (groups & s.visual_only_groups) != 0;
+  fan.origin_W_ = origin_W;
+  const mjModel* m = fan.full_ ? s.Full() : s.m;
+  const mjData* d = fan.full_ ? s.SyncedFull() : s.d;
+  const std::array<mjtByte, mjNGROUP> group_mask = GroupMask(groups);
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (!RayMayMeet(m, g, group_mask)) continue;
+    RayFan::Candidate& c = fan.candidates_.emplace_back();
+    c.geom = g;
+    c.bound = RayFan::BoundOf(m->geom_type[g]);
+    const Eigen::Vector3d p_WG = Vec3(d->geom_xpos + 3 * g);
+    double distance_m = 0.0;  // from the origin to the geom's bound
+    if (c.bound == RayFan::Bound::kBox) {
+      c.R_WG = Mat3(d->geom_xmat + 9 * g);
+      c.origin_G = c.R_WG.transpose() * (origin_W - p_WG);
+      const Eigen::Vector3d half_size_m = Vec3(m->geom_size + 3 * g);
+      c.half_size_m =
+          half_size_m * (1.0 + kFanRelativeSlack) + Eigen::Vector3d::Constant(kFanAbsoluteSlackM);
+      distance_m = (c.origin_G.cwiseAbs() - half_size_m).cwiseMax(0.0).norm();
+    } else if (c.bound == RayFan::Bound::kSphere) {
+      c.center_from_origin_W = p_WG - origin_W;
+      c.squared_center_distance_m2 = c.center_from_origin_W.squaredNorm();
+      const double radius_m = m->geom_rbound[g];
+      c.squared_radius_m2 = radius_m * radius_m;
+      distance_m = std::max(0.0, std::sqrt(c.squared_center_distance_m2) - radius_m);
+    }
+    c.lower_bound_m =
+        std::max(0.0, distance_m * (1.0 - kFanRelativeSlack) - kFanAbsoluteSlackM);
+  }
+  std::sort(fan.candidates_.begin(), fan.candidates_.end(),
+            [](const RayFan::Candidate& a, const RayFan::Candidate& b) {
+              return a.lower_bound_m != b.lower_bound_m ? a.lower_bound_m < b.lower_bound_m
+                                                        : a.geom < b.geom;
+            });
+  return fan;
+}
+
+std::optional<RayHit> RayFan::Cast(const Eigen::Vector3d& direction_W) const {
+  World::Impl& s = *world_->impl_;
+  const mjModel* m = full_ ? s.Full() : s.m;
+  const mjData* d = full_ ? s.SyncedFull() : s.d;
+  const Eigen::Vector3d dir = direction_W.normalized();
+  double best_m = -1.0;
+  int best_geom = -1;
+  for (const Candidate& c : candidates_) {
+    if (best_m >= 0.0 && c.lower_bound_m > best_m) break;  // sorted: no nearer hit follows
+    if (c.bound == Bound::kBox) {
+      if (!RayMeetsBox(c.origin_G, c.R_WG.transpose() * dir, c.half_size_m)) continue;
+    } else if (c.bound == Bound::kSphere) {
+      // It passes wide of the sphere, or the sphere lies behind an origin outside it.
+      const double along_m = c.center_from_origin_W.dot(dir);
+      const double slack_m2 = 2.0 * kFanRelativeSlack * c.squared_radius_m2 +
+                              1e-12 * (1.0 + c.squared_center_distance_m2);
+      const bool outside = c.squared_center_distance_m2 > c.squared_radius_m2 + slack_m2;
+      if (outside && along_m < 0.0) continue;
+      if (c.squared_center_distance_m2 - along_m * along_m > c.squared_radius_m2 + slack_m2) {
+        continue;
+      }
+    }
+    const double distance_m = RayToGeom(m, d, c.geom, origin_W_.data(), dir.data());
+    // mj_ray keeps the first geom (lowest id) of equal distances.
+    if (distance_m >= 0.0 &&
+        (best_m < 0.0 || distance_m < best_m || (distance_m == best_m && c.geom < best_geom))) {
+      best_m = distance_m;
+      best_geom = c.geom;
+    }
+  }
+  if (best_geom < 0) return std::nullopt;
+  return s.HitOn(full_, best_geom, best_m, origin_W_, dir);
 }
 
 std::array<double, kArmCount * kRotorsPerArm> World::RotorThrusts_N() const {

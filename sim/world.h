@@ -111,6 +111,40 @@ struct Proximity {
   int structure_geom = -1;
 };
 
+class World;
+
+/// Rays from one origin at one instant (a LiDAR scan): the hits CastRay gives, bit for
+/// bit, without its pass over every geom per ray. The geoms the rays may meet are chosen
+/// once and sorted by how near their bounding spheres come to the origin; a ray skips the
+/// spheres it misses and stops at the first geom that cannot be nearer than its hit.
+/// Made by World::RaysFrom; valid until the world steps.
+class RayFan {
+ public:
+  /// As World::CastRay(origin, direction_W, groups) for the fan's origin and groups.
+  std::optional<RayHit> Cast(const Eigen::Vector3d& direction_W) const;
+
+ private:
+  friend class World;
+  // A geom the fan's rays may meet, with what rules most of them out cheaply.
+  enum class Bound { kNone, kSphere, kBox };
+  static Bound BoundOf(int geom_type);
+  struct Candidate {
+    int geom = -1;
+    Bound bound = Bound::kNone;  ///< planes and height fields: none, every ray is tested
+    double lower_bound_m = 0.0;  ///< no hit on it is nearer than this
+    Eigen::Vector3d center_from_origin_W = Eigen::Vector3d::Zero();  ///< kSphere
+    double squared_center_distance_m2 = 0.0;                         ///< kSphere
+    double squared_radius_m2 = 0.0;                                  ///< kSphere
+    Eigen::Matrix3d R_WG = Eigen::Matrix3d::Identity();              ///< kBox
+    Eigen::Vector3d origin_G = Eigen::Vector3d::Zero();              ///< kBox
+    Eigen::Vector3d half_size_m = Eigen::Vector3d::Zero();  ///< kBox, grown by the slack
+  };
+  const World* world_ = nullptr;
+  bool full_ = false;  ///< in the complete scene (the robot's visual shapes)
+  Eigen::Vector3d origin_W_ = Eigen::Vector3d::Zero();
+  std::vector<Candidate> candidates_;  ///< by lower bound, then geom id
+};
+
 class World {
  public:
   /// Loads and compiles the scene. Throws core::InputError when a model is missing or
@@ -161,6 +195,9 @@ class World {
                                 const Eigen::Vector3d& direction_W,
                                 uint32_t groups = kRayScene) const;
 
+  /// Rays from one origin now, among the geom groups of `groups` (see RayFan).
+  RayFan RaysFrom(const Eigen::Vector3d& origin_W, uint32_t groups = kRayScene) const;
+
   /// Actual (motor-filtered) rotor thrusts [N], arm-major: [arm0 top, arm0 bottom, ...].
   std::array<double, kArmCount * kRotorsPerArm> RotorThrusts_N() const;
 
@@ -181,6 +218,7 @@ class World {
   const mjData_* physics_data() const;
 
  private:
+  friend class RayFan;
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

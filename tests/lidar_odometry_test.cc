@@ -381,6 +381,28 @@ TEST(LidarOdometryOptionsReader, RejectsAnOutOfRangeValue) {
 
 // ---- the beam pattern (core/lidar_beam_pattern.h), shared with the run's readers ----
 
+// The scan's table of directions (what the model casts) is Direction_s, bit for bit, for
+// any pattern and azimuth offset.
+TEST(LidarBeamPattern, TheDirectionTableIsDirectionSBitForBit) {
+  core::LidarBeamPattern beams;
+  std::vector<Eigen::Vector3d> table;
+  for (const auto& [columns, rows] : {std::pair{72, 12}, std::pair{5, 1}, std::pair{360, 32}}) {
+    beams.azimuth_count = columns;
+    beams.elevation_count = rows;
+    for (const double offset_rad : {0.0, 0.031, -1.7, 1e-300}) {
+      beams.Directions_s(offset_rad, &table);
+      ASSERT_EQ(table.size(), static_cast<std::size_t>(columns * rows));
+      for (int row = 0; row < rows; ++row) {
+        for (int column = 0; column < columns; ++column) {
+          ASSERT_EQ(table[static_cast<std::size_t>(row * columns + column)],
+                    beams.Direction_s(row, column, offset_rad))
+              << row << ", " << column << ", offset " << offset_rad;
+        }
+      }
+    }
+  }
+}
+
 TEST(LidarBeamPattern, RaysSpanTheElevationsAndTheFullTurn) {
   core::LidarBeamPattern beams;  // Mid-360: 72 x 12 over [-7, 52] deg
   for (int row = 0; row < beams.elevation_count; ++row) {

@@ -401,6 +401,80 @@ TEST(World, PhysicsModelHasSmallBuiltinTexturesAndTheSameTexturedMaterials) {
   EXPECT_FALSE(plain->textured);
 }
 
+// A fan of rays (what the LiDAR model casts) gives CastRay's hits bit for bit: the same
+// geom, distance, point and normal, from anywhere (in the open, inside a wall, on a face)
+// along any direction, including rays along a box's axes and at its corners and edges,
+// where the fan's own tests of boxes and spheres are closest to ruling out a hit.
+TEST(World, RayFanHitsAreCastRaysBitForBit) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+  auto random_unit = [&] {
+    Eigen::Vector3d u;
+    do u = Eigen::Vector3d(uniform(rng), uniform(rng), uniform(rng));
+    while (u.norm() < 0.1);
+    return u.normalized();
+  };
+  int hits = 0;
+  for (const char* name : {"indoor_arena", "inspection_wall", "building_window", "bridge",
+                           "corridor_hall"}) {
+    World world(OptionsFor(name));
+    world.Reset(Pose({0.3, -0.2, 1.5}, 5, -3, 40));
+    for (int k = 0; k < 5; ++k) world.Step();
+    const mjModel* m = world.physics_model();
+    const mjData* d = world.physics_data();
+    std::vector<Eigen::Vector3d> origins = {Eigen::Vector3d(0.3, -0.2, 1.5),
+                                            Eigen::Vector3d(1.0, 0.0, 1.5)};
+    std::vector<Eigen::Vector3d> targets;
+    for (int g = 0; g < m->ngeom; ++g) {
+      if (m->geom_type[g] == mjGEOM_PLANE) continue;
+      const Eigen::Vector3d p(d->geom_xpos + 3 * g);
+      const Eigen::Matrix3d R = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(
+          d->geom_xmat + 9 * g);
+      const Eigen::Vector3d size(m->geom_size + 3 * g);
+      origins.push_back(p);                                  // inside the geom
+      origins.push_back(p + R * Eigen::Vector3d(size.x(), 0.0, 0.0));  // on a face
+      origins.push_back(p + R * Eigen::Vector3d(0.0, 0.0, size.z() + 1.5));
+      for (double sx : {-1.0, 1.0}) {
+        for (double sz : {-1.0, 1.0}) {
+          targets.push_back(p + R * Eigen::Vector3d(sx * size.x(), size.y(), sz * size.z()));
+          targets.push_back(p + R * Eigen::Vector3d(sx * size.x(), 0.0, sz * size.z()));
+        }
+      }
+    }
+    for (int k = 0; k < 20; ++k) {
+      origins.emplace_back(6.0 * uniform(rng), 6.0 * uniform(rng), 1.5 + 1.4 * uniform(rng));
+    }
+    for (const uint32_t groups : {static_cast<uint32_t>(kRayScene),
+                                  static_cast<uint32_t>(kRaySceneAndRobot)}) {
+      for (const Eigen::Vector3d& origin_W : origins) {
+        std::vector<Eigen::Vector3d> directions = {
+            Eigen::Vector3d::UnitX(),  -Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(),
+            -Eigen::Vector3d::UnitY(), Eigen::Vector3d::UnitZ(),  -Eigen::Vector3d::UnitZ()};
+        for (int k = 0; k < 200; ++k) directions.push_back(random_unit());
+        for (const Eigen::Vector3d& target : targets) {
+          if ((target - origin_W).norm() > 1e-6) directions.push_back(target - origin_W);
+        }
+        const RayFan fan = world.RaysFrom(origin_W, groups);
+        for (const Eigen::Vector3d& direction_W : directions) {
+          const std::optional<RayHit> cast = world.CastRay(origin_W, direction_W, groups);
+          const std::optional<RayHit> fanned = fan.Cast(direction_W);
+          ASSERT_EQ(cast.has_value(), fanned.has_value())
+              << name << " from " << origin_W.transpose() << " along " << direction_W.transpose();
+          if (!cast) continue;
+          ++hits;
+          ASSERT_EQ(cast->geom, fanned->geom) << name << " from " << origin_W.transpose();
+          ASSERT_EQ(cast->distance_m, fanned->distance_m);
+          ASSERT_EQ(cast->point_W, fanned->point_W);
+          ASSERT_EQ(cast->normal_W, fanned->normal_W);
+          ASSERT_EQ(cast->textured, fanned->textured);
+          ASSERT_EQ(cast->group, fanned->group);
+        }
+      }
+    }
+  }
+  EXPECT_GT(hits, 100000);
+}
+
 // ---- contacts and distances to structure ----
 
 // Robot poses close to (and into) each world's structure: around a random static group-0
