@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <future>
 #include <limits>
 #include <set>
 
@@ -58,7 +59,8 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
                                                  const replay::EstimationConfig& config,
                                                  const std::vector<LabelEvent>& labels,
                                                  double run_duration_s,
-                                                 std::vector<ReplayResult>& results) {
+                                                 std::vector<ReplayResult>& results,
+                                                 int threads) {
   // The streams' descriptions and the ground truth: the samples went through the
   // estimators in the loop (results), not through this reader.
   RecordedLogOptions read;
@@ -76,18 +78,38 @@ std::vector<MethodEvaluation> EvaluateEstimation(const fs::path& run_dir,
   errors_csv.Append("#timestamp [ns],method,position_error [m],rotation_error [deg],valid,nees\n");
   replay::ConsensusFiles consensus_files(run_dir);
   std::vector<MethodEvaluation> evaluations;
-  for (ReplayResult& result : results) {
-    const ReplayMethod& method = result.method;
-    replay::MethodScores scores = replay::ScoreMethod(log, result, scoring);
-    WriteMethodResult(log, result, scores, run_dir);
-    if (const std::optional<TrajectoryErrors>& t = scores.errors) {
-      AppendErrorRows(method.name, *t, scores.nees, errors_csv);
+  const std::size_t at_once =
+      run_duration_s <= kScoreSideBySideMaxS ? static_cast<std::size_t>(std::max(1, threads)) : 1;
+  for (std::size_t first = 0; first < results.size(); first += at_once) {
+    const std::size_t end = std::min(results.size(), first + at_once);
+    // Scored and their own files written side by side; the shared files (errors.csv, the
+    // consensus files) then take them in the methods' order.
+    std::vector<replay::MethodScores> scores(end - first);
+    {
+      std::vector<std::future<void>> scoring_methods;
+      for (std::size_t i = first; i < end; ++i) {
+        scoring_methods.push_back(std::async(
+            at_once > 1 ? std::launch::async : std::launch::deferred, [&, i] {
+              scores[i - first] = replay::ScoreMethod(log, results[i], scoring);
+              WriteMethodResult(log, results[i], scores[i - first], run_dir);
+            }));
+      }
+      // get() rethrows a method's failure; the futures still running are waited for as
+      // they go out of scope.
+      for (std::future<void>& scored : scoring_methods) scored.get();
     }
-    consensus_files.Add(result);
-    // Done with the outputs: an in-memory method's are freed, a spilled one's file closes.
-    std::vector<estimator::EstimatorOutput>().swap(result.outputs);
-    result.spilled.reset();
-    evaluations.push_back(std::move(scores.evaluation));
+    for (std::size_t i = first; i < end; ++i) {
+      ReplayResult& result = results[i];
+      const replay::MethodScores& method_scores = scores[i - first];
+      if (const std::optional<TrajectoryErrors>& t = method_scores.errors) {
+        AppendErrorRows(result.method.name, *t, method_scores.nees, errors_csv);
+      }
+      consensus_files.Add(result);
+      // Done with the outputs: an in-memory method's are freed, a spilled one's file closes.
+      std::vector<estimator::EstimatorOutput>().swap(result.outputs);
+      result.spilled.reset();
+      evaluations.push_back(std::move(scores[i - first].evaluation));
+    }
   }
   errors_csv.Commit();
   consensus_files.Commit();

@@ -31,11 +31,16 @@ using replay::MethodEvaluation;
 /// against the run directory `run_dir` (its ground truth and stream descriptions), writes
 /// the files listed above into it and returns the evaluations. `labels` are the run's
 /// fault labels. Each result's outputs are released once written (left empty): an hour
-/// of them is 280 MB, and nothing after the scoring reads them.
+/// of them is 280 MB, and nothing after the scoring reads them. Up to `threads` methods
+/// are scored at once in runs of at most kScoreSideBySideMaxS (each holds a trajectory
+/// and errors as long as the run while scored; longer runs score one at a time, so that
+/// their peak is one method's); the files are the same for any count.
+inline constexpr double kScoreSideBySideMaxS = 600.0;
 std::vector<MethodEvaluation> EvaluateEstimation(const std::filesystem::path& run_dir,
                                                  const replay::EstimationConfig& config,
                                                  const std::vector<replay::LabelEvent>& labels,
                                                  double run_duration_s,
-                                                 std::vector<replay::ReplayResult>& results);
+                                                 std::vector<replay::ReplayResult>& results,
+                                                 int threads = 1);
 
 }  // namespace tofu::harness

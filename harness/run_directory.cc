@@ -425,7 +425,8 @@ Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
   WriteRunDirectory(record, evaluation, out_dir, [&](const fs::path& staging) {
     if (estimation) {
       record.methods = EvaluateEstimation(staging, *record.scenario.estimation, record.labels,
-                                          SimulatedSeconds(record), record.in_loop);
+                                          SimulatedSeconds(record), record.in_loop,
+                                          options.threads);
     }
     for (RunRecord& flight : record.closed_loop_flights) {
       WriteClosedLoopFlight(flight,

@@ -45,6 +45,8 @@ struct RunOutputOptions {
   /// Draw consensus.png with scripts/plot_consensus.py (python3 + matplotlib); a missing
   /// interpreter or library is a warning, never a failure of the run.
   bool plot = true;
+  /// Methods scored at once after the flight (EvaluateEstimation; `tofu run --threads`).
+  int threads = 1;
 };
 
 /// calibration.yaml of a run: mounts (nominal and true), the sensors' options, the true

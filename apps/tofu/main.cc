@@ -298,6 +298,7 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
     throw;
   }
   tofu::harness::RunOutputOptions output;
+  output.threads = threads;
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
   tofu::replay::ThrowIfInterrupted();
@@ -367,7 +368,7 @@ Command AddRunCommand(CLI::App& parent) {
                 "Replace an earlier run directory at --out (never a directory of other files)");
   run->add_option("--mcap", o->mcap, "Also write the run as an MCAP file (Foxglove Studio)");
   run->add_option("--threads", o->threads,
-                  "Threads for the in-loop estimation methods and the closed-loop flights "
+                  "Threads for the in-loop estimation methods, the closed-loop flights and the scoring "
                   "(default: the cores this process may run on); the output is the same for any number")
       ->check(WholeNumber(1, 256));
   return {run, true, [o] {
