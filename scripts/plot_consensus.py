@@ -68,12 +68,17 @@ def intervals(events, end_s):
 
 
 def steps(times_states, end_s):
-    """{state: [(start, end)]} from a step signal given as sorted (t, states) samples."""
+    """{state: [(start, end)]} from a step signal given as sorted (t, states) samples; the
+    samples of one stretch in one interval (a rectangle per stretch, not per sample: the
+    hatched ones cost Agg a pattern fill each)."""
     out = collections.defaultdict(list)
     for k, (t, states) in enumerate(times_states):
         t_next = times_states[k + 1][0] if k + 1 < len(times_states) else end_s
         for s in states:
-            out[s].append((t, t_next))
+            if out[s] and out[s][-1][1] == t:
+                out[s][-1] = (out[s][-1][0], t_next)
+            else:
+                out[s].append((t, t_next))
     return out
 
 
@@ -107,15 +112,15 @@ def no_data(ax, text):
             fontsize=9)
 
 
-def fit_margins(fig, axes):
+def fit_margins(fig, axes, named_axes):
     """Margins that hold what sticks out of the axes: the sensor and method names left of
-    the categorical panels, the legends right of the axes. Measured from those texts
-    alone: constrained_layout measures every axis's ticks for its tight boxes, a third of
-    this script's time, and the log axes' tick labels are short."""
+    the categorical panels (named_axes), the legends right of the axes. Measured from
+    those texts alone: constrained_layout measures every axis's ticks for its tight boxes,
+    a third of this script's time, and the log axes' tick labels are short."""
     renderer = fig.canvas.get_renderer()
     width_px = fig.get_figwidth() * fig.dpi
     tick_labels_px = [t.get_window_extent(renderer).width
-                      for ax in axes for t in ax.get_yticklabels() if t.get_text()]
+                      for ax in named_axes for t in ax.get_yticklabels() if t.get_text()]
     # Room for a log axis's "10^-2" labels and the axis label beside them, at the least.
     left_px = max([45.0] + tick_labels_px) + 40.0
     legends_px = [ax.get_legend().get_window_extent(renderer).width
@@ -313,7 +318,7 @@ def main():
     if "seed" in summary:
         title += f" (seed {summary['seed']})"
     fig.suptitle(f"{title}: corruption, errors, fused sensors and consistency")
-    fit_margins(fig, axes)
+    fit_margins(fig, axes, [timeline, fused_ax])
     out = args.out or (run / "consensus.png")
     fig.savefig(out, dpi=100)
     print(f"plot_consensus: wrote {out}", file=sys.stderr)
