@@ -5,6 +5,7 @@
 #include <deque>
 #include <exception>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <utility>
 #include <variant>
@@ -40,14 +41,42 @@ struct InLoopMethods::Item {
   std::variant<Sample, replay::LabelEvent> entry;
 };
 
-struct InLoopMethods::Worker {
-  std::vector<std::size_t> runners;  // indices into runners_, run in this order
-  std::thread thread;
+// tofu's own methods off the caller's thread: the batches every method still needs, and
+// per method how far it got. A worker takes one batch of one method at a time: the method
+// furthest behind that no other worker is running. So a method's batches go through it in
+// order, one thread at a time (the pool's mutex hands its state from one to the next), and
+// the cores stay busy however unequal the methods' costs are.
+struct InLoopMethods::Pool {
+  struct Method {
+    std::size_t runner = 0;      // index into runners_
+    std::size_t next_batch = 0;  // the first batch it has not run
+    bool running = false;        // a worker has it now
+    std::exception_ptr error;    // after a failure it runs nothing more
+  };
+  std::vector<Method> methods;
+  std::vector<std::thread> threads;
   std::mutex mutex;
   std::condition_variable changed;
-  std::deque<std::shared_ptr<const std::vector<Item>>> batches;
-  bool closing = false;  // nothing more will be queued
-  std::exception_ptr error;
+  std::deque<std::shared_ptr<const std::vector<Item>>> batches;  // from first_batch on
+  std::size_t first_batch = 0;  // index of batches.front()
+  std::size_t batch_count = 0;  // batches queued so far
+  bool closing = false;         // nothing more will be queued
+
+  // Under the mutex: the method a free worker should run next, if any.
+  std::optional<std::size_t> NextMethod() const {
+    std::optional<std::size_t> next;
+    for (std::size_t m = 0; m < methods.size(); ++m) {
+      if (methods[m].running || methods[m].next_batch == batch_count) continue;
+      if (!next || methods[m].next_batch < methods[*next].next_batch) next = m;
+    }
+    return next;
+  }
+  // Under the mutex: how many batches the slowest method has still to run.
+  std::size_t Backlog() const {
+    std::size_t slowest = batch_count;
+    for (const Method& method : methods) slowest = std::min(slowest, method.next_batch);
+    return batch_count - slowest;
+  }
 };
 
 InLoopMethods::InLoopMethods(std::vector<std::string> names, const replay::EstimationConfig& config,
@@ -79,53 +108,65 @@ void InLoopMethods::Start(const RunRecord& record,
       on_caller_.push_back(i);
     }
   }
-  // Methods dealt to the workers in turn (paper_consensus_indoor's four over two cores:
-  // consensus with single:vio@clean, naive with single:vio).
-  const std::size_t worker_count = std::min<std::size_t>(threadable.size(), threads_);
-  for (std::size_t w = 0; w < worker_count; ++w) workers_.push_back(std::make_unique<Worker>());
-  for (std::size_t k = 0; k < threadable.size(); ++k) {
-    workers_[k % worker_count]->runners.push_back(threadable[k]);
+  if (!threadable.empty()) {
+    pool_ = std::make_unique<Pool>();
+    for (const std::size_t r : threadable) pool_->methods.emplace_back().runner = r;
+    const std::size_t worker_count = std::min<std::size_t>(threadable.size(), threads_);
+    for (std::size_t w = 0; w < worker_count; ++w) {
+      pool_->threads.emplace_back([this] { RunWorker(); });
+    }
+    pending_ = std::make_shared<std::vector<Item>>();
   }
-  for (const std::unique_ptr<Worker>& worker : workers_) {
-    worker->thread = std::thread([this, w = worker.get()] { RunWorker(*w); });
-  }
-  if (!workers_.empty()) pending_ = std::make_shared<std::vector<Item>>();
   // The labels known so far: the fault schedule, and the conditions of the first step.
   for (const replay::LabelEvent& label : schedule_) AddLabel(label);
   for (const replay::LabelEvent& label : record.labels) AddLabel(label);
 }
 
-// A worker's loop: every batch in order through each of its methods, until the flight
-// closes the queue and it is empty. After a failure the worker keeps taking batches (the
-// flight must not wait on it) but runs nothing more: Finish reports the failure.
-void InLoopMethods::RunWorker(Worker& worker) {
+// A worker's loop: one batch of one method at a time (Pool), until the flight has closed
+// the queue and no method has a batch left that no other worker is running. After a
+// failure a method takes its batches (the flight must not wait on it) but runs nothing
+// more: Finish reports the failure.
+void InLoopMethods::RunWorker() {
+  Pool& pool = *pool_;
   for (;;) {
+    std::size_t m = 0;
     std::shared_ptr<const std::vector<Item>> batch;
     {
-      std::unique_lock lock(worker.mutex);
-      worker.changed.wait(lock, [&] { return worker.closing || !worker.batches.empty(); });
-      if (worker.batches.empty()) return;  // closing, and everything is done
-      batch = std::move(worker.batches.front());
-      worker.batches.pop_front();
+      std::unique_lock lock(pool.mutex);
+      std::optional<std::size_t> next;
+      pool.changed.wait(lock, [&] { return (next = pool.NextMethod()) || pool.closing; });
+      if (!next) return;  // closing, and what is left is another worker's
+      m = *next;
+      pool.methods[m].running = true;
+      batch = pool.batches[pool.methods[m].next_batch - pool.first_batch];
     }
-    worker.changed.notify_all();  // room for the flight's next batch
-    if (worker.error) continue;
-    try {
-      for (const Item& item : *batch) Apply(item, worker.runners);
-    } catch (...) {
-      worker.error = std::current_exception();
+    Pool::Method& method = pool.methods[m];
+    if (!method.error) {
+      try {
+        for (const Item& item : *batch) Apply(item, method.runner);
+      } catch (...) {
+        method.error = std::current_exception();
+      }
     }
+    {
+      std::lock_guard lock(pool.mutex);
+      method.running = false;
+      ++method.next_batch;
+      while (pool.first_batch < pool.batch_count - pool.Backlog()) {
+        pool.batches.pop_front();
+        ++pool.first_batch;
+      }
+    }
+    pool.changed.notify_all();  // the method for another worker, room for the flight
   }
 }
 
-// One item of the sequence to the methods `runners` (indices into runners_).
-void InLoopMethods::Apply(const Item& item, const std::vector<std::size_t>& runners) {
-  for (const std::size_t r : runners) {
-    if (const auto* s = std::get_if<Item::Sample>(&item.entry)) {
-      if (clean_[r] == s->clean) runners_[r].Add(s->measurement, s->arrival_ns);
-    } else {
-      runners_[r].AddLabel(std::get<replay::LabelEvent>(item.entry));
-    }
+// One item of the sequence to the method runners_[r].
+void InLoopMethods::Apply(const Item& item, std::size_t r) {
+  if (const auto* s = std::get_if<Item::Sample>(&item.entry)) {
+    if (clean_[r] == s->clean) runners_[r].Add(s->measurement, s->arrival_ns);
+  } else {
+    runners_[r].AddLabel(std::get<replay::LabelEvent>(item.entry));
   }
 }
 
@@ -144,7 +185,7 @@ void InLoopMethods::Feed(bool clean_stream, const std::vector<SensorStream>& str
 
 // The next item of the sequence: to the methods on this thread now, to the workers' batch.
 void InLoopMethods::Take(Item item) {
-  Apply(item, on_caller_);
+  for (const std::size_t r : on_caller_) Apply(item, r);
   if (pending_) {
     pending_->push_back(std::move(item));
     if (pending_->size() >= kBatchItems) Dispatch();
@@ -156,26 +197,25 @@ void InLoopMethods::Dispatch() {
   std::shared_ptr<const std::vector<Item>> batch = std::move(pending_);
   pending_ = std::make_shared<std::vector<Item>>();
   pending_->reserve(kBatchItems);
-  for (const std::unique_ptr<Worker>& worker : workers_) {
-    {
-      std::unique_lock lock(worker->mutex);
-      worker->changed.wait(lock, [&] { return worker->batches.size() < kMaxWaitingBatches; });
-      worker->batches.push_back(batch);
-    }
-    worker->changed.notify_all();
+  Pool& pool = *pool_;
+  {
+    std::unique_lock lock(pool.mutex);
+    pool.changed.wait(lock, [&] { return pool.Backlog() < kMaxWaitingBatches; });
+    pool.batches.push_back(std::move(batch));
+    ++pool.batch_count;
   }
+  pool.changed.notify_all();
 }
 
 void InLoopMethods::StopWorkers() {
-  for (const std::unique_ptr<Worker>& worker : workers_) {
-    {
-      std::lock_guard lock(worker->mutex);
-      worker->closing = true;
-    }
-    worker->changed.notify_all();
+  if (!pool_) return;
+  {
+    std::lock_guard lock(pool_->mutex);
+    pool_->closing = true;
   }
-  for (const std::unique_ptr<Worker>& worker : workers_) {
-    if (worker->thread.joinable()) worker->thread.join();
+  pool_->changed.notify_all();
+  for (std::thread& thread : pool_->threads) {
+    if (thread.joinable()) thread.join();
   }
 }
 
@@ -189,8 +229,10 @@ const replay::MethodRunner& InLoopMethods::SyncFlying() {
 std::vector<replay::ReplayResult> InLoopMethods::Finish() {
   Dispatch();
   StopWorkers();
-  for (const std::unique_ptr<Worker>& worker : workers_) {
-    if (worker->error) std::rethrow_exception(worker->error);
+  if (pool_) {
+    for (const Pool::Method& method : pool_->methods) {
+      if (method.error) std::rethrow_exception(method.error);
+    }
   }
   std::vector<replay::ReplayResult> results;
   for (replay::MethodRunner& r : runners_) results.push_back(std::move(r).Finish());

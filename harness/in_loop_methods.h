@@ -8,8 +8,9 @@
 // Each method is a sequential computation over one input sequence (samples and labels in
 // arrival order) and shares nothing with the others, so tofu's own methods can run on
 // worker threads beside the flight without changing a bit of their output: the flight
-// hands every worker the same batches of that sequence, in order, and each worker runs
-// its methods over them. Clients stay on the flight's thread (a process client is already
+// queues batches of that sequence, and a worker takes one batch of one method at a time
+// (the method furthest behind that no other worker has), so that each method runs through
+// every batch in order, on one thread at a time. Clients stay on the flight's thread (a process client is already
 // asynchronous; a plug-in need not be thread-safe), and so does the method a closed-loop
 // flight flies on (the controller needs its every answer at once).
 
@@ -67,12 +68,12 @@ class InLoopMethods {
 
  private:
   struct Item;
-  struct Worker;
+  struct Pool;
   void Dispatch();
   void StopWorkers();
-  void RunWorker(Worker& worker);
+  void RunWorker();
   void Take(Item item);
-  void Apply(const Item& item, const std::vector<std::size_t>& runners);
+  void Apply(const Item& item, std::size_t runner);
 
   std::vector<std::string> names_;
   replay::EstimationConfig config_;
@@ -83,7 +84,7 @@ class InLoopMethods {
   std::vector<replay::MethodRunner> runners_;
   std::vector<std::size_t> on_caller_;  ///< runners_ that run on the caller's thread
   std::vector<replay::LabelEvent> schedule_;
-  std::vector<std::unique_ptr<Worker>> workers_;
+  std::unique_ptr<Pool> pool_;  ///< tofu's own methods on worker threads, if any
   std::shared_ptr<std::vector<Item>> pending_;  ///< the batch being filled for the workers
 };
 
