@@ -6,12 +6,12 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <charconv>
 #include <cmath>
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
-#include <future>
 #include <fstream>
 #include <iterator>
 #include <stdexcept>
@@ -25,6 +25,7 @@
 #include "harness/estimation.h"
 #include "harness/run_recorder.h"
 #include "harness/sensor_config.h"
+#include "interface/child_process.h"
 #include "replay/file_io.h"
 #include "replay/interrupt.h"
 #include "replay/replay.h"
@@ -377,26 +378,66 @@ double SimulatedSeconds(const RunRecord& record) {
                              core::PeriodFromRate(record.scenario.physics.rate_hz));
 }
 
-// Draws the run's figures (script of scripts/, PNG) in `dir`, all at once: each script is
-// a process of its own that mostly waits on matplotlib's import and layout. A missing
-// interpreter or library is a warning.
-void Plot(const std::vector<std::pair<std::string, fs::path>>& figures, const fs::path& dir) {
-  std::vector<std::future<int>> drawn;
-  for (const auto& [script_name, png] : figures) {
-    const fs::path script = fs::path(TOFU_SCRIPTS_DIR) / script_name;
-    drawn.push_back(std::async(std::launch::async, [script, &dir, png = png] {
-      if (!fs::exists(script)) return -1;
-      return RunQuietly({script.string(), dir.string(), "--out", png.string()});
-    }));
-  }
-  for (std::size_t i = 0; i < figures.size(); ++i) {
-    if (drawn[i].get() != 0) {
-      fmt::print(stderr, "tofu: warning: no {} ({} failed; needs python3-matplotlib)\n",
-                 figures[i].second.filename().string(),
-                 (fs::path(TOFU_SCRIPTS_DIR) / figures[i].first).string());
+// The run's figures (a script of scripts/ each, drawing a PNG into the run's directory),
+// started before the files they read are written: a script imports matplotlib, a third
+// of its time, while the run is scored, then waits for a line "go" on its standard input
+// (--when-ready), which Draw() sends to all at once once the files are there. A script
+// that cannot start or fails (no python3-matplotlib) is a warning. One never told to
+// draw (the run failed or was interrupted first) reads the end of its input and ends
+// without drawing; ChildProcess ends it if it does not.
+class Figures {
+ public:
+  Figures(const std::vector<std::pair<std::string, fs::path>>& figures, const fs::path& dir) {
+    for (const auto& [script_name, png] : figures) {
+      Figure& figure = figures_.emplace_back();
+      figure.script = fs::path(TOFU_SCRIPTS_DIR) / script_name;
+      figure.png = png;
+      if (!fs::exists(figure.script)) continue;
+      try {
+        figure.process = std::make_unique<interface::ChildProcess>(
+            std::vector<std::string>{figure.script.string(), dir.string(), "--out", png.string(),
+                                     "--when-ready"},
+            fs::path());
+      } catch (const std::runtime_error&) {
+        // Not started (no interpreter): the warning below.
+      }
     }
   }
-}
+
+  void Draw() {
+    using Clock = interface::ChildProcess::Clock;
+    std::string ignored;
+    for (Figure& figure : figures_) {
+      if (!figure.process) continue;
+      figure.process->Communicate("go\n", &ignored, Clock::now());
+      figure.process->CloseStdin();
+    }
+    for (Figure& figure : figures_) {
+      bool drawn = false;
+      if (figure.process) {
+        std::optional<int> status;
+        // Its output read as it comes, so that a chatty matplotlib never fills a pipe.
+        while (!(status = figure.process->WaitForExit(Clock::now() + std::chrono::milliseconds(20)))) {
+          figure.process->Communicate("", &ignored, Clock::now());
+          ignored.clear();
+        }
+        drawn = WIFEXITED(*status) && WEXITSTATUS(*status) == 0;
+      }
+      if (!drawn) {
+        fmt::print(stderr, "tofu: warning: no {} ({} failed; needs python3-matplotlib)\n",
+                   figure.png.filename().string(), figure.script.string());
+      }
+    }
+  }
+
+ private:
+  struct Figure {
+    fs::path script;
+    fs::path png;
+    std::unique_ptr<interface::ChildProcess> process;
+  };
+  std::vector<Figure> figures_;
+};
 
 // A closed-loop flight into <staging>/closed_loop/<method>/: its own run files, and the
 // estimate of the method that flew, scored like an open-loop method.
@@ -423,6 +464,12 @@ Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
     return evaluation;
   }
   WriteRunDirectory(record, evaluation, out_dir, [&](const fs::path& staging) {
+    std::vector<std::pair<std::string, fs::path>> figures;
+    if (options.plot && estimation) figures.emplace_back("plot_consensus.py", staging / "consensus.png");
+    if (options.plot && !record.closed_loop_flights.empty()) {
+      figures.emplace_back("plot_closed_loop.py", staging / "closed_loop.png");
+    }
+    Figures drawing(figures, staging);
     if (estimation) {
       record.methods = EvaluateEstimation(staging, *record.scenario.estimation, record.labels,
                                           SimulatedSeconds(record), record.in_loop,
@@ -434,12 +481,7 @@ Evaluation WriteRun(RunRecord& record, const std::string& out_dir,
     }
     evaluation = Evaluate(record);
     WriteFileAtomically(staging / "summary.json", evaluation.summary.dump(2) + "\n");
-    std::vector<std::pair<std::string, fs::path>> figures;
-    if (options.plot && estimation) figures.emplace_back("plot_consensus.py", staging / "consensus.png");
-    if (options.plot && !record.closed_loop_flights.empty()) {
-      figures.emplace_back("plot_closed_loop.py", staging / "closed_loop.png");
-    }
-    Plot(figures, staging);
+    drawing.Draw();
   });
   return evaluation;
 }

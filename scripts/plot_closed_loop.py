@@ -9,7 +9,7 @@ and is judged against ground truth.
  (d) distance of the robot to the nearest structure.
 Time plots shade every scheduled fault (labels.csv) and mark handovers and failsafes.
 
-    scripts/plot_closed_loop.py RUN_DIR [--out FILE.png] [--models DIR]
+    scripts/plot_closed_loop.py RUN_DIR [--out FILE.png] [--models DIR] [--when-ready]
                                 (default RUN_DIR/closed_loop.png, DIR = repository models/)
 
 Reads RUN_DIR/summary.json (closed_loop), RUN_DIR/labels.csv, RUN_DIR/scenario.yaml (world)
@@ -183,7 +183,13 @@ def main():
     parser.add_argument("--out", type=pathlib.Path, help="PNG file (default RUN_DIR/closed_loop.png)")
     parser.add_argument("--models", type=pathlib.Path,
                         default=pathlib.Path(__file__).resolve().parent.parent / "models")
+    parser.add_argument("--when-ready", action="store_true",
+                        help="import, then wait for a line 'go' on standard input before "
+                             "reading RUN_DIR (tofu starts the script while it writes the "
+                             "files); anything else ends the script without drawing, exit 0")
     args = parser.parse_args()
+    if args.when_ready and sys.stdin.readline().strip() != "go":
+        return 0
     run = args.run_dir
     out = args.out or run / "closed_loop.png"
 

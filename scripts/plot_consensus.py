@@ -10,7 +10,8 @@ paper's Fig. "abs_errs", Lanegger et al.): on one time axis,
  (e) the consistency values each consensus method computed (consistency_<method>.csv),
      with its threshold dashed (summary.json methods.<method>.threshold, else 0.1).
 
-    scripts/plot_consensus.py RUN_DIR [--out FILE.png]     (default RUN_DIR/consensus.png)
+    scripts/plot_consensus.py RUN_DIR [--out FILE.png] [--when-ready]
+                                                      (default RUN_DIR/consensus.png)
 
 Missing files and methods are left out of the plot (exit 0); a malformed CSV is an error
 naming the file and line (exit 2).
@@ -135,7 +136,13 @@ def main():
     parser.add_argument("run_dir", type=pathlib.Path)
     parser.add_argument("--out", type=pathlib.Path,
                         help="PNG file (default RUN_DIR/consensus.png)")
+    parser.add_argument("--when-ready", action="store_true",
+                        help="import, then wait for a line 'go' on standard input before "
+                             "reading RUN_DIR (tofu starts the script while it writes the "
+                             "files); anything else ends the script without drawing, exit 0")
     args = parser.parse_args()
+    if args.when_ready and sys.stdin.readline().strip() != "go":
+        return 0
     run = args.run_dir
     if not run.is_dir():
         print(f"plot_consensus: {run} is not a directory (expected a tofu run directory)",

@@ -538,6 +538,37 @@ TEST_F(CliTest, InterruptedRunRemovesItsStagingDirectoryAndExits128PlusTheSignal
   }
 }
 
+// The figure scripts start while the run is scored and wait to be told to draw
+// (run_directory.cc, Figures). A run interrupted while one lives (importing matplotlib,
+// waiting or drawing) ends it too: no script outlives the run, and no run directory.
+TEST_F(CliTest, AnInterruptedRunLeavesNoFigureScriptBehind) {
+  WriteFile(work_ / "est.yaml", LongHover(20) + "estimation:\n  methods: [consensus]\n");
+  test::ChildProcess run({TOFU_BINARY, "run", "est.yaml", "--out", "run", "--quiet"}, work_,
+                         logs_ / "run.log");
+  std::vector<pid_t> scripts;
+  ASSERT_TRUE(test::WaitUntil(
+      [&] {
+        scripts.clear();
+        for (const pid_t child : test::ChildrenOf(run.pid())) {
+          const std::string argv = ReadFile(fs::path("/proc") / std::to_string(child) / "cmdline");
+          if (argv.find("--when-ready") != std::string::npos) scripts.push_back(child);
+        }
+        return !scripts.empty() || run.Exited();
+      },
+      std::chrono::minutes(5)));
+  ASSERT_FALSE(run.Exited()) << "ended before a figure script was seen: "
+                             << ReadFile(logs_ / "run.log");
+  ASSERT_EQ(::kill(run.pid(), SIGTERM), 0);
+  const std::optional<int> status = run.Wait(std::chrono::minutes(2));
+  ASSERT_TRUE(status.has_value()) << "still running 2 min after the signal";
+  ASSERT_TRUE(WIFEXITED(*status)) << "ended by signal " << WTERMSIG(*status);
+  EXPECT_EQ(WEXITSTATUS(*status), 128 + SIGTERM) << ReadFile(logs_ / "run.log");
+  for (const pid_t script : scripts) {
+    EXPECT_FALSE(test::ProcessExists(script)) << "figure script " << script << " outlived the run";
+  }
+  EXPECT_EQ(WorkEntries(), std::set<std::string>{"est.yaml"});
+}
+
 // A staging directory that a killed run left (SIGKILL, a power cut) is removed by the next
 // run to the same --out when its process is gone or its pid now belongs to another
 // program; never while a tofu process that may still write it is alive.

@@ -679,6 +679,9 @@ TEST(ClosedLoopCli, TheSameClosedLoopRunTwiceIsByteIdenticalButForTiming) {
   EXPECT_EQ(files, FilesIn(work / "B"));
   EXPECT_TRUE(files.count("closed_loop/consensus/control.csv"));
   EXPECT_TRUE(files.count("closed_loop/naive/estimate_naive.csv"));
+  // The figures, drawn by scripts started while the run was scored (run_directory.cc).
+  EXPECT_TRUE(files.count("consensus.png"));
+  EXPECT_TRUE(files.count("closed_loop.png"));
   // `tofu estimate` on a closed-loop flight's recorded streams reproduces the estimate of
   // the method that flew, configured from the run's scenario.
   ASSERT_EQ(RunTofu("estimate A/closed_loop/consensus --method consensus --out E --quiet", work),
