@@ -13,8 +13,6 @@
 namespace tofu::estimator {
 namespace {
 
-bool AllFinite(const Eigen::Vector3d& v) { return v.allFinite(); }
-
 struct RawSample {
   core::Time t_ns = 0;
   Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
@@ -181,7 +179,7 @@ struct ConsensusEstimator::Impl {
     RawSample r;
     r.t_ns = m.t_ns;
     if (const auto* pose = std::get_if<core::PoseMeasurement>(&m.value)) {
-      if (!AllFinite(pose->p_Ss) || !pose->q_Ss.coeffs().allFinite() || pose->q_Ss.norm() < 1e-9) return;
+      if (!pose->p_Ss.allFinite() || !pose->q_Ss.coeffs().allFinite() || pose->q_Ss.norm() < 1e-9) return;
       r.p_As = pose->p_Ss;
       r.q_As = pose->q_Ss.normalized();
       r.cov_p_As = pose->covariance.bottomRightCorner<3, 3>();
@@ -190,7 +188,7 @@ struct ConsensusEstimator::Impl {
         r.cov_v_s = pose->twist_covariance.topLeftCorner<3, 3>();
       }
     } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
-      if (!AllFinite(position->p_Ss)) return;
+      if (!position->p_Ss.allFinite()) return;
       r.p_As = position->p_Ss;
       r.cov_p_As = position->covariance;
     } else {

@@ -89,8 +89,6 @@ Scratch& ThreadScratch() {
   return scratch;
 }
 
-bool AllFinite(const Eigen::Vector3d& v) { return v.allFinite(); }
-
 // Copies the finite values of x into out.
 void CopyFinite(std::span<const double> x, std::vector<double>& out) {
   out.clear();
@@ -164,7 +162,7 @@ void FiniteIndices(const VelocitySeries& s, std::size_t lo, std::size_t hi,
                    std::vector<std::size_t>& out) {
   out.clear();
   for (std::size_t k = lo; k < hi; ++k) {
-    if (AllFinite(s.v_mps[k])) out.push_back(k);
+    if (s.v_mps[k].allFinite()) out.push_back(k);
   }
 }
 

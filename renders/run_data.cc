@@ -230,13 +230,6 @@ std::optional<Eigen::Isometry3d> JsonPose(const fs::path& path, const nlohmann::
   return T;
 }
 
-Eigen::Isometry3d ToIsometry(const TimedPose& pose) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = pose.q_W.toRotationMatrix();
-  T.translation() = pose.p_W;
-  return T;
-}
-
 void ReadErrorsFile(RunData& run, const fs::path& path, const std::string& method_of_file) {
   const CsvTable csv(path, method_of_file.empty()
                                ? "#timestamp [ns],method,position_error [m],rotation_error [deg],"
@@ -310,14 +303,14 @@ void ReadEstimates(RunData& run) {
       estimate.T_WL = *T_WL;
       estimate.alignment_source = fmt::format("T_WL of {}", json_path.filename().string());
     } else {
-      const Eigen::Isometry3d T_WB0 = ToIsometry(InterpolatePose(run.groundtruth, T_LI.front().t_ns));
-      const Eigen::Isometry3d T_LI0 = ToIsometry(T_LI.front());
+      const Eigen::Isometry3d T_WB0 = InterpolatePose(run.groundtruth, T_LI.front().t_ns).T_W();
+      const Eigen::Isometry3d T_LI0 = T_LI.front().T_W();
       estimate.T_WL = T_WB0 * run.T_BI * T_LI0.inverse();
       estimate.alignment_source = "first valid sample against ground truth";
     }
     const Eigen::Isometry3d T_IB = run.T_BI.inverse();
     for (const TimedPose& pose : T_LI) {
-      const Eigen::Isometry3d T_WB = estimate.T_WL * ToIsometry(pose) * T_IB;
+      const Eigen::Isometry3d T_WB = estimate.T_WL * pose.T_W() * T_IB;
       TimedPose ghost;
       ghost.t_ns = pose.t_ns;
       ghost.p_W = T_WB.translation();
@@ -440,6 +433,13 @@ void ReadConsistency(RunData& run) {
 }
 
 }  // namespace
+
+Eigen::Isometry3d TimedPose::T_W() const {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = q_W.toRotationMatrix();
+  T.translation() = p_W;
+  return T;
+}
 
 TimedPose InterpolatePose(const std::vector<TimedPose>& poses, core::Time t_ns) {
   if (t_ns <= poses.front().t_ns) return poses.front();

@@ -27,6 +27,8 @@ struct TimedPose {
   core::Time t_ns = 0;
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
   Eigen::Quaterniond q_W = Eigen::Quaterniond::Identity();
+  /// The pose as a transform (T_WB, or T_LI for an estimate).
+  Eigen::Isometry3d T_W() const;
 };
 
 /// Pose at `t_ns` by linear interpolation of position and slerp of attitude; clamped to

@@ -43,13 +43,6 @@ constexpr core::Time kMarkerMaxAge_ns = 1'000'000'000;
 constexpr Rgba kClearGreen = {0.10f, 0.85f, 0.20f, 1.0f};
 constexpr Rgba kBlockedRed = {0.95f, 0.10f, 0.10f, 1.0f};
 
-Eigen::Isometry3d ToIsometry(const TimedPose& pose) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = pose.q_W.toRotationMatrix();
-  T.translation() = pose.p_W;
-  return T;
-}
-
 }  // namespace
 
 bool RenderOptions::IsValid(std::string* why) const {
@@ -565,7 +558,7 @@ struct SceneRenderer::Impl {
       }
     }
 
-    const Eigen::Isometry3d T_WB = ToIsometry(truth);
+    const Eigen::Isometry3d T_WB = truth.T_W();
     AddLineOfSight(t_ns, T_WB);
     AddSensorMarkers(t_ns);
     if (options.lidar_hits) AddLidarHits(T_WB);
