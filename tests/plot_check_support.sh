@@ -21,3 +21,16 @@ expect_rejected() {
   [[ ! -e "$png" ]] || fail "$what: a PNG was written despite the malformed input"
   rm -f "$err"
 }
+
+# expect_drawn_when_ready SCRIPT FIXTURE WORK PNG_NAME: with --when-ready (how tofu runs the
+# scripts) SCRIPT draws after a line "go" on standard input, and the end of the input
+# instead (a run that failed first) ends it without drawing, exit 0.
+expect_drawn_when_ready() {
+  local script="$1" fixture="$2" work="$3" png="$4"
+  cp -r "$fixture" "$work/ready"
+  echo go | "$script" "$work/ready" --when-ready || fail "exit $? with --when-ready and go"
+  is_png "$work/ready/$png" || fail "no PNG with --when-ready and go"
+  cp -r "$fixture" "$work/never"
+  "$script" "$work/never" --when-ready < /dev/null || fail "exit $? with --when-ready and no go"
+  [[ ! -e "$work/never/$png" ]] || fail "drew without go"
+}

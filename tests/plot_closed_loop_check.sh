@@ -23,14 +23,8 @@ is_png "$work/full/closed_loop.png" || fail "no PNG at $work/full/closed_loop.pn
 is_png "$work/full.png" || fail "no PNG at $work/full.png"
 (( $(stat -c %s "$work/full.png") > 40000 )) || fail "$work/full.png is suspiciously small"
 
-# --when-ready (how tofu runs it): draws after a line "go" on standard input; the end of
-# the input instead (a run that failed first) ends it without drawing, exit 0.
-cp -r "$fixture" "$work/ready"
-echo go | "$script" "$work/ready" --when-ready || fail "exit $? with --when-ready and go"
-is_png "$work/ready/closed_loop.png" || fail "no PNG with --when-ready and go"
-cp -r "$fixture" "$work/never"
-"$script" "$work/never" --when-ready < /dev/null || fail "exit $? with --when-ready and no go"
-[[ ! -e "$work/never/closed_loop.png" ]] || fail "drew without go"
+# --when-ready, with and without "go".
+expect_drawn_when_ready "$script" "$fixture" "$work" closed_loop.png
 
 # Missing files: a flight's folder, the labels, the world: what exists is drawn, exit 0.
 cp -r "$fixture" "$work/partial"

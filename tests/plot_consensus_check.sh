@@ -25,14 +25,8 @@ is_png "$work/full/consensus.png" || fail "no PNG at $work/full/consensus.png"
 is_png "$work/full.png" || fail "no PNG at $work/full.png"
 (( $(stat -c %s "$work/full.png") > 20000 )) || fail "$work/full.png is suspiciously small"
 
-# --when-ready (how tofu runs it): draws after a line "go" on standard input; the end of
-# the input instead (a run that failed first) ends it without drawing, exit 0.
-cp -r "$fixture" "$work/ready"
-echo go | "$script" "$work/ready" --when-ready || fail "exit $? with --when-ready and go"
-is_png "$work/ready/consensus.png" || fail "no PNG with --when-ready and go"
-cp -r "$fixture" "$work/never"
-"$script" "$work/never" --when-ready < /dev/null || fail "exit $? with --when-ready and no go"
-[[ ! -e "$work/never/consensus.png" ]] || fail "drew without go"
+# --when-ready, with and without "go".
+expect_drawn_when_ready "$script" "$fixture" "$work" consensus.png
 
 # Missing files: what exists is drawn, exit 0.
 cp -r "$fixture" "$work/partial"
