@@ -11,6 +11,7 @@
 #include <benchmark/benchmark.h>
 #include <mujoco/mujoco.h>
 
+#include "core/lidar_beam_pattern.h"
 #include "harness/run.h"
 #include "harness/scenario.h"
 #include "sim/world.h"
@@ -171,6 +172,40 @@ BENCHMARK(BM_ClosedLoopFlight200s)->Apply([](benchmark::internal::Benchmark* b) 
   b->ArgName("naive")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1)
       ->ComputeStatistics("min", Fastest);
 });
+
+// One LiDAR scan's rays (the default Mid-360 pattern, 72 x 12) from 1.5 m above the indoor
+// arena's floor, tilted so that walls, floor and ceiling are all hit. Arg 0: a CastRay per
+// ray (mj_ray over every geom); arg 1: one RayFan for the scan, what the LiDAR model casts.
+// The same hits either way (ctest World.RayFanHitsAreCastRaysBitForBit).
+void BM_LidarScanRays(benchmark::State& state) {
+  tofu::sim::WorldOptions options;
+  options.world = "indoor_arena";
+  tofu::sim::World world(options);
+  world.Reset({Eigen::Vector3d(0.5, -0.3, 1.5), Eigen::Quaterniond::Identity()});
+  const tofu::core::LidarBeamPattern beams;
+  std::vector<Eigen::Vector3d> directions_s;
+  beams.Directions_s(0.0, &directions_s);
+  const Eigen::Vector3d origin_W(0.5, -0.3, 1.5);
+  const Eigen::Matrix3d R_Ws =
+      Eigen::AngleAxisd(0.3, Eigen::Vector3d(1.0, 0.5, 0.0).normalized()).toRotationMatrix();
+  const bool fan = state.range(0) != 0;
+  std::size_t hits = 0;
+  for (auto _ : state) {
+    if (fan) {
+      const tofu::sim::RayFan rays = world.RaysFrom(origin_W);
+      for (const Eigen::Vector3d& u_s : directions_s) hits += rays.Cast(R_Ws * u_s).has_value();
+    } else {
+      for (const Eigen::Vector3d& u_s : directions_s) {
+        hits += world.CastRay(origin_W, R_Ws * u_s).has_value();
+      }
+    }
+  }
+  state.counters["rays_per_s"] = benchmark::Counter(
+      static_cast<double>(state.iterations() * directions_s.size()), benchmark::Counter::kIsRate);
+  state.counters["hit_fraction"] =
+      static_cast<double>(hits) / static_cast<double>(state.iterations() * directions_s.size());
+}
+BENCHMARK(BM_LidarScanRays)->ArgName("fan")->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 
