@@ -10,9 +10,9 @@
 // worker threads beside the flight without changing a bit of their output: the flight
 // queues batches of that sequence, and a worker takes one batch of one method at a time
 // (the method furthest behind that no other worker has), so that each method runs through
-// every batch in order, on one thread at a time. Clients stay on the flight's thread (a process client is already
-// asynchronous; a plug-in need not be thread-safe), and so does the method a closed-loop
-// flight flies on (the controller needs its every answer at once).
+// every batch in order, on one thread at a time. Clients stay on the flight's thread (a
+// process client is already asynchronous; a plug-in need not be thread-safe), and so does
+// the method a closed-loop flight flies on (the controller needs its every answer at once).
 
 #include <cstddef>
 #include <filesystem>

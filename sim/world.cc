@@ -323,10 +323,10 @@ struct World::Impl {
   }
 
   const mjModel* Full() const { return m_full != nullptr ? m_full : m; }
-  // The hit of a ray (unit direction) on `geom` of the physics model, or of the complete
-  // scene when `full`, at `distance_m` (see CastRay).
-  RayHit HitOn(bool full, int geom, double distance_m, const Eigen::Vector3d& origin_W,
-               const Eigen::Vector3d& unit_W);
+  // The hit of a ray (unit direction) on `geom` of `model` (the physics model, or the
+  // complete scene when `full`) at `distance_m` (see CastRay).
+  RayHit HitOn(const mjModel* model, const mjData* data, bool full, int geom, double distance_m,
+               const Eigen::Vector3d& origin_W, const Eigen::Vector3d& unit_W) const;
   int ToFull(int geom) const { return geom < 0 || m_full == nullptr ? geom : geom_to_full[geom]; }
 
   // The complete scene at the physics state: state arrays now, kinematics (geom and site
@@ -939,10 +939,6 @@ Eigen::Vector3d GeomSurfaceNormal_W(const mjModel* m, const mjData* d, int g,
   return n;
 }
 
-}  // namespace
-
-namespace {
-
 // The geom groups of a RayGroups mask, as mj_ray takes them.
 std::array<mjtByte, mjNGROUP> GroupMask(uint32_t groups) {
   std::array<mjtByte, mjNGROUP> mask{};
@@ -974,27 +970,6 @@ mjtNum RayToGeom(const mjModel* m, const mjData* d, int geom, const mjtNum* orig
   }
 }
 
-// How a fan rules a geom out for most rays: a box by its own faces (walls and slabs, whose
-// bounding spheres are as large as the room), the other solids by their bounding sphere
-// (geom_rbound); planes, height fields and meshes are tested by every ray.
-}  // namespace
-
-RayFan::Bound RayFan::BoundOf(int geom_type) {
-  switch (geom_type) {
-    case mjGEOM_BOX:
-      return RayFan::Bound::kBox;
-    case mjGEOM_SPHERE:
-    case mjGEOM_CAPSULE:
-    case mjGEOM_ELLIPSOID:
-    case mjGEOM_CYLINDER:
-      return RayFan::Bound::kSphere;
-    default:
-      return RayFan::Bound::kNone;
-  }
-}
-
-namespace {
-
 // The bounds are grown (and the lower bounds shrunk) by far more than the rounding of
 // MuJoCo's own intersections, so that they never rule out a hit MuJoCo would report.
 constexpr double kFanRelativeSlack = 1e-9;
@@ -1024,10 +999,26 @@ bool RayMeetsBox(const Eigen::Vector3d& origin_G, const Eigen::Vector3d& unit_G,
 
 }  // namespace
 
-RayHit World::Impl::HitOn(bool full, int geom, double distance_m, const Eigen::Vector3d& origin_W,
-                          const Eigen::Vector3d& unit_W) {
-  const mjModel* model = full ? Full() : m;
-  const mjData* data = full ? SyncedFull() : d;
+// How a fan rules a geom out for most rays: a box by its own faces (walls and slabs, whose
+// bounding spheres are as large as the room), the other solids by their bounding sphere
+// (geom_rbound); planes, height fields and meshes are tested by every ray.
+RayFan::Bound RayFan::BoundOf(int geom_type) {
+  switch (geom_type) {
+    case mjGEOM_BOX:
+      return Bound::kBox;
+    case mjGEOM_SPHERE:
+    case mjGEOM_CAPSULE:
+    case mjGEOM_ELLIPSOID:
+    case mjGEOM_CYLINDER:
+      return Bound::kSphere;
+    default:
+      return Bound::kNone;
+  }
+}
+
+RayHit World::Impl::HitOn(const mjModel* model, const mjData* data, bool full, int geom,
+                          double distance_m, const Eigen::Vector3d& origin_W,
+                          const Eigen::Vector3d& unit_W) const {
   RayHit hit;
   hit.distance_m = distance_m;
   hit.geom = full ? geom : ToFull(geom);
@@ -1049,12 +1040,12 @@ std::optional<RayHit> World::CastRay(const Eigen::Vector3d& origin_W,
   const mjModel* m = full ? s.Full() : s.m;
   const mjData* d = full ? s.SyncedFull() : s.d;
   const Eigen::Vector3d dir = direction_W.normalized();
-  std::array<mjtByte, mjNGROUP> group_mask = GroupMask(groups);
+  const std::array<mjtByte, mjNGROUP> group_mask = GroupMask(groups);
   int geom = -1;
   const mjtNum distance =
       mj_ray(m, d, origin_W.data(), dir.data(), group_mask.data(), 1, -1, &geom);
   if (distance < 0.0 || geom < 0) return std::nullopt;
-  return s.HitOn(full, geom, distance, origin_W, dir);
+  return s.HitOn(m, d, full, geom, distance, origin_W, dir);
 }
 
 RayFan World::RaysFrom(const Eigen::Vector3d& origin_W, uint32_t groups) const {
@@ -1065,6 +1056,8 @@ RayFan World::RaysFrom(const Eigen::Vector3d& origin_W, uint32_t groups) const {
   fan.origin_W_ = origin_W;
   const mjModel* m = fan.full_ ? s.Full() : s.m;
   const mjData* d = fan.full_ ? s.SyncedFull() : s.d;
+  fan.model_ = m;
+  fan.data_ = d;
   const std::array<mjtByte, mjNGROUP> group_mask = GroupMask(groups);
   for (int g = 0; g < m->ngeom; ++g) {
     if (!RayMayMeet(m, g, group_mask)) continue;
@@ -1099,9 +1092,6 @@ RayFan World::RaysFrom(const Eigen::Vector3d& origin_W, uint32_t groups) const {
 }
 
 std::optional<RayHit> RayFan::Cast(const Eigen::Vector3d& direction_W) const {
-  World::Impl& s = *world_->impl_;
-  const mjModel* m = full_ ? s.Full() : s.m;
-  const mjData* d = full_ ? s.SyncedFull() : s.d;
   const Eigen::Vector3d dir = direction_W.normalized();
   double best_m = -1.0;
   int best_geom = -1;
@@ -1120,7 +1110,7 @@ std::optional<RayHit> RayFan::Cast(const Eigen::Vector3d& direction_W) const {
         continue;
       }
     }
-    const double distance_m = RayToGeom(m, d, c.geom, origin_W_.data(), dir.data());
+    const double distance_m = RayToGeom(model_, data_, c.geom, origin_W_.data(), dir.data());
     // mj_ray keeps the first geom (lowest id) of equal distances.
     if (distance_m >= 0.0 &&
         (best_m < 0.0 || distance_m < best_m || (distance_m == best_m && c.geom < best_geom))) {
@@ -1129,7 +1119,7 @@ std::optional<RayHit> RayFan::Cast(const Eigen::Vector3d& direction_W) const {
     }
   }
   if (best_geom < 0) return std::nullopt;
-  return s.HitOn(full_, best_geom, best_m, origin_W_, dir);
+  return world_->impl_->HitOn(model_, data_, full_, best_geom, best_m, origin_W_, dir);
 }
 
 std::array<double, kArmCount * kRotorsPerArm> World::RotorThrusts_N() const {

@@ -115,9 +115,9 @@ class World;
 
 /// Rays from one origin at one instant (a LiDAR scan): the hits CastRay gives, bit for
 /// bit, without its pass over every geom per ray. The geoms the rays may meet are chosen
-/// once and sorted by how near their bounding spheres come to the origin; a ray skips the
-/// spheres it misses and stops at the first geom that cannot be nearer than its hit.
-/// Made by World::RaysFrom; valid until the world steps.
+/// once and sorted by how near they can come to the origin; a ray skips the boxes and
+/// bounding spheres it misses and stops at the first geom that cannot be nearer than its
+/// hit. Made by World::RaysFrom; valid until the world steps.
 class RayFan {
  public:
   /// As World::CastRay(origin, direction_W, groups) for the fan's origin and groups.
@@ -140,6 +140,8 @@ class RayFan {
     Eigen::Vector3d half_size_m = Eigen::Vector3d::Zero();  ///< kBox, grown by the slack
   };
   const World* world_ = nullptr;
+  const mjModel_* model_ = nullptr;  ///< the world's model the rays are cast in
+  const mjData_* data_ = nullptr;
   bool full_ = false;  ///< in the complete scene (the robot's visual shapes)
   Eigen::Vector3d origin_W_ = Eigen::Vector3d::Zero();
   std::vector<Candidate> candidates_;  ///< by lower bound, then geom id
