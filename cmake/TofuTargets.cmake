@@ -5,7 +5,9 @@ function(tofu_set_warnings target)
   # -Wshadow=local is GCC's; clang (the TOFU_FUZZ build) has no such option.
   target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic
                          $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>
-                         $<$<CXX_COMPILER_ID:GNU>:-fno-semantic-interposition>)
+                         $<$<CXX_COMPILER_ID:GNU>:-fno-semantic-interposition>
+                         # a precompiled header the compiler cannot use is said, not skipped
+                         $<$<BOOL:${TOFU_PRECOMPILE_HEADERS}>:-Winvalid-pch>)
   if(TOFU_SANITIZE)
     # Eigen turns EIGEN_MALLOC_ALREADY_ALIGNED off under ASan, which makes our objects free
     # with its hand-made aligned allocator what the prebuilt libceres allocated with plain
@@ -27,17 +29,19 @@ function(tofu_set_warnings target)
 endfunction()
 
 # The headers nearly every translation unit parses (the standard library's, Eigen's, fmt's),
-# precompiled once per library. A library names its own heavy ones beside them (Ceres for
-# estimator, nlohmann/json where messages and run files are read, yaml-cpp in harness):
-# 11 % of the CPU time of compiling `tofu` (docs/BENCHMARKS.md, "Compiling tofu"). The code
-# compiled is the same: a precompiled header only saves parsing. TOFU_PRECOMPILE_HEADERS=OFF
-# builds without them, which is how a translation unit that forgot an #include is caught.
+# precompiled: once in core for the libraries below Ceres (core, sim, interface), and once
+# with Ceres, nlohmann/json and yaml-cpp in estimator for those above it, which take it
+# over (PRECOMPILED_HEADERS_FROM estimator). A library that takes a header it does not
+# include gains nothing it could use: its files still #include what they use, and
+# TOFU_PRECOMPILE_HEADERS=OFF builds without any, which is how a translation unit that
+# forgot an #include is caught (the sanitized build). The code compiled is the same: a
+# precompiled header only saves parsing (docs/BENCHMARKS.md, "Compiling tofu").
 set(TOFU_COMMON_PRECOMPILED_HEADERS <algorithm> <array> <cmath> <cstdint> <functional> <map>
     <memory> <optional> <stdexcept> <string> <string_view> <utility> <vector> <Eigen/Core>
     <Eigen/Geometry> <fmt/format.h>)
 
 function(tofu_add_library name)
-  cmake_parse_arguments(ARG "" "" "DEPS;PRECOMPILED_HEADERS" ${ARGN})
+  cmake_parse_arguments(ARG "" "PRECOMPILED_HEADERS_FROM" "DEPS;PRECOMPILED_HEADERS" ${ARGN})
   file(GLOB sources CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/${name}/*.cc)
   add_library(tofu_${name} STATIC ${sources})
   add_library(tofu::${name} ALIAS tofu_${name})
@@ -45,7 +49,9 @@ function(tofu_add_library name)
   target_include_directories(tofu_${name} PUBLIC ${PROJECT_SOURCE_DIR})
   target_link_libraries(tofu_${name} PUBLIC ${ARG_DEPS})
   tofu_set_warnings(tofu_${name})
-  if(TOFU_PRECOMPILE_HEADERS)
+  if(TOFU_PRECOMPILE_HEADERS AND ARG_PRECOMPILED_HEADERS_FROM)
+    target_precompile_headers(tofu_${name} REUSE_FROM tofu_${ARG_PRECOMPILED_HEADERS_FROM})
+  elseif(TOFU_PRECOMPILE_HEADERS)
     target_precompile_headers(tofu_${name} PRIVATE ${TOFU_COMMON_PRECOMPILED_HEADERS}
                               ${ARG_PRECOMPILED_HEADERS})
   endif()
