@@ -42,6 +42,10 @@ set(TOFU_COMMON_PRECOMPILED_HEADERS <algorithm> <array> <cmath> <cstdint> <funct
 
 function(tofu_add_library name)
   cmake_parse_arguments(ARG "" "PRECOMPILED_HEADERS_FROM" "DEPS;PRECOMPILED_HEADERS" ${ARGN})
+  if(ARG_PRECOMPILED_HEADERS_FROM AND ARG_PRECOMPILED_HEADERS)
+    message(FATAL_ERROR "tofu_add_library(${name}): PRECOMPILED_HEADERS_FROM takes another "
+                        "library's precompiled header as it is; name its headers there")
+  endif()
   file(GLOB sources CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/${name}/*.cc)
   add_library(tofu_${name} STATIC ${sources})
   add_library(tofu::${name} ALIAS tofu_${name})

@@ -30,16 +30,21 @@ trap cleanup EXIT
 
 debootstrap --variant=minbase bookworm "$fresh" http://deb.debian.org/debian > "$fresh.debootstrap.log" 2>&1 ||
   { echo "time_demo_fresh.sh: debootstrap failed, see $fresh.debootstrap.log" >&2; exit 1; }
-mount -t proc proc "$fresh/proc" && mounted+=("$fresh/proc")
-# rslave: unmounting these on exit must not reach the host's own mounts.
-mount --rbind /sys "$fresh/sys" && mount --make-rslave "$fresh/sys" && mounted+=("$fresh/sys")
-mount --rbind /dev "$fresh/dev" && mount --make-rslave "$fresh/dev" && mounted+=("$fresh/dev")
+# One command per line: set -e stops at a failed mount (not inside an && list), and
+# rslave keeps the unmounts on exit from reaching the host's own mounts.
+mount -t proc proc "$fresh/proc"
+mounted+=("$fresh/proc")
+for dir in sys dev; do
+  mount --rbind "/$dir" "$fresh/$dir"
+  mounted+=("$fresh/$dir")
+  mount --make-rslave "$fresh/$dir"
+done
 cp /etc/resolv.conf "$fresh/etc/"
 chroot "$fresh" bash -c 'apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends git ca-certificates time' > /dev/null
 
 mkdir -p "$fresh/root/w"
 git clone -q "$root" "$fresh/root/w/tofu"
-[[ -d "$shared" ]] && cp -r "$shared" "$fresh/root/w/shared"
+if [[ -d "$shared" ]]; then cp -r "$shared" "$fresh/root/w/shared"; fi
 echo "time_demo_fresh.sh: $(git -C "$root" log -1 --format='%h %cs') on a fresh Debian $(cat "$fresh/etc/debian_version") root, $(nproc) cores, $(date -u '+%Y-%m-%d %H:%M UTC')"
 chroot "$fresh" env -i HOME=/root PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
   bash -c 'cd /root/w/tofu && /usr/bin/time -f "time_demo_fresh.sh: the demo took %e s wall (%U s user, %S s sys), package installation included" scripts/dev.sh demo'
