@@ -391,6 +391,29 @@ bool PositionInLocalFactor::Evaluate(double const* const* parameters, double* re
   return OutputsFinite(*this, residuals, jacobians);
 }
 
+PositionWithOffsetFactor::PositionWithOffsetFactor(const Eigen::Vector3d& p_Is,
+                                                   const Eigen::Vector3d& p_L_measured,
+                                                   const Eigen::Matrix3d& sqrt_information)
+    : p_Is_(p_Is), p_L_measured_(p_L_measured), sqrt_information_(sqrt_information) {}
+
+bool PositionWithOffsetFactor::Evaluate(double const* const* parameters, double* residuals,
+                                        double** jacobians) const {
+  PoseBlock pose;
+  if (!ReadPose(parameters[0], &pose)) return false;
+  const Eigen::Map<const Eigen::Vector3d> o_L(parameters[1]);
+  const Eigen::Vector3d r = pose.p_LI + pose.R_LI * p_Is_ - p_L_measured_ - o_L;
+  Eigen::Map<Eigen::Vector3d>{residuals} = sqrt_information_ * r;
+  if (jacobians != nullptr && jacobians[0] != nullptr) {
+    Eigen::Matrix<double, 3, 6> J;
+    J << Eigen::Matrix3d::Identity(), -pose.R_LI * core::Hat(p_Is_);
+    SetPoseJacobian<3>(sqrt_information_.lazyProduct(J), parameters[0], jacobians[0]);
+  }
+  if (jacobians != nullptr && jacobians[1] != nullptr) {
+    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>{jacobians[1]} = -sqrt_information_;
+  }
+  return OutputsFinite(*this, residuals, jacobians);
+}
+
 // ---- priors ----
 
 PosePriorFactor::PosePriorFactor(const double* pose_prior,

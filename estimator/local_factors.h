@@ -168,6 +168,30 @@ class PositionInLocalFactor : public ceres::SizedCostFunction<3, 7> {
   Eigen::Matrix3d sqrt_information_;
 };
 
+/// Position of a sensor's mount point in L up to an offset the graph estimates: one
+/// offset per chain (the translation of T_LA, o_L = p_LA, from the chain's first
+/// position on). Residual S r, in L:
+///   r = (p + R p_Is) − (R_LA p̄_A + o_L).
+/// With white position noise this is exactly what the paper's displacements (eq. 3) carry
+/// once their correlation is accounted for: consecutive displacements p̄_k+1 − p̄_k share
+/// the noise of p̄_k, and a chain of them fused as independent factors states the sum of
+/// n displacements as n times as uncertain as its two ends make it. The offset, free at
+/// the chain's start, keeps the paper's seamless switching (a sensor fused again starts a
+/// new chain at zero residual) without the frozen T_AL's translation taken as exact.
+class PositionWithOffsetFactor : public ceres::SizedCostFunction<3, 7, 3> {
+ public:
+  PositionWithOffsetFactor(const Eigen::Vector3d& p_Is, const Eigen::Vector3d& p_L_measured,
+                           const Eigen::Matrix3d& sqrt_information);
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override;
+
+ private:
+  Eigen::Vector3d p_Is_;
+  Eigen::Vector3d p_L_measured_;  ///< R_LA p̄_A
+  Eigen::Matrix3d sqrt_information_;
+};
+
 /// Prior on a pose: r = S (x ⊟ x0) = S [p − p0; Log(q0^{-1} q)] (PoseManifold::Minus).
 class PosePriorFactor : public ceres::SizedCostFunction<6, 7> {
  public:

@@ -85,7 +85,15 @@ struct PendingMeasurement {
   Eigen::Matrix3d R_LA = Eigen::Matrix3d::Identity();
   bool position_in_reference = false;  ///< pose: displacement in A through R_LA
   std::optional<Eigen::Vector3d> p_LA;  ///< position: absolute in L through T_LA
+  bool with_offset = false;             ///< position: in L up to the chain's offset
   double min_std_m = 0.0;
+};
+
+// A position chain's offset o_L (PositionWithOffsetFactor): free from the chain's first
+// position on; kept while a factor or the marginalisation prior names it.
+struct ChainOffset {
+  double o_L[kWindowOffsetSize] = {0, 0, 0};
+  bool open = true;  ///< its chain still adds factors
 };
 
 // The last measurement of a fused sensor that made (or reused) a keyframe: the start of
@@ -99,6 +107,7 @@ struct Chain {
   /// The newest measurement skipped as not yet due: it joins a keyframe another sensor
   /// makes at its time (see ChainDue).
   std::optional<PendingMeasurement> skipped;
+  ChainOffset* offset = nullptr;  ///< positions with an offset: the chain's
 
   void MoveTo(Keyframe* kf, const PendingMeasurement& m) {
     keyframe = kf;
@@ -133,7 +142,9 @@ struct LocalSmoother::Impl {
   WindowSolver solver;
   std::vector<WindowState> window_states;
   std::vector<WindowFactor> window_factors;
+  std::vector<double*> window_offsets;
   std::vector<std::unique_ptr<Keyframe>> keyframes;  // sorted by time
+  std::vector<std::unique_ptr<ChainOffset>> offsets;  // in order of creation
   std::vector<std::unique_ptr<Factor>> factors;
   std::deque<ImuInterval> imu;
   bool has_last_raw = false;
@@ -194,8 +205,37 @@ struct LocalSmoother::Impl {
     return MarginalBlock{kf->speed_bias, kSpeedBiasSize, kSpeedBiasSize, nullptr};
   }
 
-  // The window as the solver sees it: keyframes in time order, factors by state index.
+  bool Names(const Factor& f, const ChainOffset& o) const {
+    return std::any_of(f.blocks.begin(), f.blocks.end(),
+                       [&](const MarginalBlock& b) { return b.data == o.o_L; });
+  }
+
+  // Ends a chain: its offset takes no new factor and will be marginalised.
+  static void Close(Chain& chain) {
+    if (chain.offset != nullptr) chain.offset->open = false;
+    chain.offset = nullptr;
+  }
+
+  // Offsets that no factor names any more (their factors discarded) leave the graph.
+  void PruneOffsets() {
+    std::erase_if(offsets, [&](const std::unique_ptr<ChainOffset>& o) {
+      if (std::any_of(factors.begin(), factors.end(),
+                      [&](const auto& f) { return Names(*f, *o); })) {
+        return false;
+      }
+      for (auto& [sensor, chain] : chains) {
+        if (chain.offset == o.get()) chain.offset = nullptr;
+      }
+      return true;
+    });
+  }
+
+  // The window as the solver sees it: keyframes in time order, factors by state index,
+  // offsets after them.
   void BuildWindow() {
+    PruneOffsets();
+    window_offsets.clear();
+    for (const auto& o : offsets) window_offsets.push_back(o->o_L);
     window_states.resize(keyframes.size());
     for (std::size_t i = 0; i < keyframes.size(); ++i) {
       Keyframe& kf = *keyframes[i];
@@ -211,6 +251,11 @@ struct LocalSmoother::Impl {
       w.blocks.resize(factor.blocks.size());
       for (std::size_t b = 0; b < factor.blocks.size(); ++b) {
         const double* data = factor.blocks[b].data;
+        const auto offset = std::find(window_offsets.begin(), window_offsets.end(), data);
+        if (offset != window_offsets.end()) {
+          w.blocks[b] = WindowBlockRef{0, false, static_cast<int>(offset - window_offsets.begin())};
+          continue;
+        }
         for (const Keyframe* kf : factor.keyframes) {
           if (kf->pose == data || kf->speed_bias == data) {
             w.blocks[b] = WindowBlockRef{kf->index, kf->pose == data};
@@ -326,6 +371,8 @@ struct LocalSmoother::Impl {
       AddPoseBetween(chain, kf, m);
     } else if (m.p_LA) {
       AddPositionInLocal(kf, m);
+    } else if (m.with_offset) {
+      AddPositionWithOffset(chain, kf, m);
     } else {
       AddPositionBetween(chain, kf, m);
     }
@@ -380,6 +427,33 @@ struct LocalSmoother::Impl {
     unconfirmed_between.push_back(factor);
   }
 
+  // Position in L up to the chain's offset, which starts where the keyframe's state puts
+  // the first position (zero residual: no jump when a sensor is fused again).
+  void AddPositionWithOffset(Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
+    const Eigen::Vector3d p_L_measured = m.R_LA * m.p_As;
+    if (chain.offset == nullptr) {
+      auto offset = std::make_unique<ChainOffset>();
+      const NavState s = kf->state();
+      Eigen::Map<Eigen::Vector3d>{offset->o_L} = s.p_LI + s.q_LI * m.p_Is - p_L_measured;
+      chain.offset = offset.get();
+      offsets.push_back(std::move(offset));
+    }
+    Eigen::Matrix3d covariance = m.R_LA * m.covariance_A * m.R_LA.transpose();
+    covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
+    const Eigen::Matrix3d sqrt_information =
+        Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
+    std::unique_ptr<ceres::LossFunction> loss;
+    if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+    Factor* factor = AddFactor(
+        FactorKind::kBetween,
+        std::make_unique<PositionWithOffsetFactor>(m.p_Is, p_L_measured, sqrt_information),
+        std::move(loss), {kf},
+        {PoseBlock(kf), MarginalBlock{chain.offset->o_L, kWindowOffsetSize, kWindowOffsetSize,
+                                      nullptr}});
+    factor->sensor = m.sensor;
+    unconfirmed_between.push_back(factor);
+  }
+
   // Position: r^p (eq. 3); both ends' noise enters the displacement (white position noise).
   void AddPositionBetween(const Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
     Eigen::Matrix3d covariance = chain.covariance_A + m.covariance_A;
@@ -405,8 +479,9 @@ struct LocalSmoother::Impl {
     }
     Chain& chain = chains[m.sensor];
     MeasurementUse use = MeasurementUse::kAnchor;
-    if (!m.is_pose && m.p_LA && chain.keyframe != kf) {
-      // Absolute: every due measurement constrains its keyframe, the first one too.
+    if (!m.is_pose && (m.p_LA || m.with_offset) && chain.keyframe != kf) {
+      // Absolute or with an offset: every due measurement constrains its keyframe, the
+      // first one too.
       AddBetweenFrom(chain, kf, m);
       use = MeasurementUse::kFactor;
     } else if (chain.keyframe != nullptr && chain.keyframe != kf) {
@@ -452,18 +527,35 @@ struct LocalSmoother::Impl {
 
   void MarginalizeOldest() {
     Keyframe* old = keyframes.front().get();
+    const auto touches_old = [&](const Factor& f) {
+      return std::find(f.keyframes.begin(), f.keyframes.end(), old) != f.keyframes.end();
+    };
+    // A closed chain's offset goes with the oldest keyframe once nothing else names it but
+    // the marginalisation prior.
+    std::vector<double*> marginalised = {old->pose, old->speed_bias};
+    std::vector<ChainOffset*> leaving;
+    for (const auto& o : offsets) {
+      if (o->open) continue;
+      const bool only_prior_or_old = std::all_of(factors.begin(), factors.end(), [&](const auto& f) {
+        return !Names(*f, *o) || f->kind == FactorKind::kPrior || touches_old(*f);
+      });
+      if (only_prior_or_old) {
+        leaving.push_back(o.get());
+        marginalised.push_back(o->o_L);
+      }
+    }
     std::vector<Factor*> touching;
     for (auto& f : factors) {
-      if (std::find(f->keyframes.begin(), f->keyframes.end(), old) != f->keyframes.end()) {
-        touching.push_back(f.get());
-      }
+      const bool names_leaving = std::any_of(leaving.begin(), leaving.end(),
+                                             [&](const ChainOffset* o) { return Names(*f, *o); });
+      if (touches_old(*f) || names_leaving) touching.push_back(f.get());
     }
     std::optional<LinearPrior> prior;
     if (options.marginalize) {
       std::vector<MarginalFactor> linearised;
       for (Factor* f : touching) linearised.push_back({f->cost.get(), f->loss.get(), f->blocks});
       LinearPrior result;
-      if (Marginalize(linearised, {old->pose, old->speed_bias}, &result)) {
+      if (Marginalize(linearised, marginalised, &result)) {
         prior = std::move(result);
       } else {
         ++stats->marginalisation_failures;
@@ -474,11 +566,14 @@ struct LocalSmoother::Impl {
       if (chain.keyframe == old) chain.keyframe = nullptr;
     }
     keyframes.erase(keyframes.begin());
+    std::erase_if(offsets, [&](const std::unique_ptr<ChainOffset>& o) {
+      return std::find(leaving.begin(), leaving.end(), o.get()) != leaving.end();
+    });
     if (prior) {
       std::vector<Keyframe*> kfs;
       for (const MarginalBlock& b : prior->blocks) {
         Keyframe* kf = KeyframeOfBlock(b.data);
-        if (std::find(kfs.begin(), kfs.end(), kf) == kfs.end()) kfs.push_back(kf);
+        if (kf != nullptr && std::find(kfs.begin(), kfs.end(), kf) == kfs.end()) kfs.push_back(kf);
       }
       std::vector<MarginalBlock> blocks = prior->blocks;
       AddFactor(FactorKind::kPrior, std::make_unique<LinearPriorFactor>(std::move(*prior)),
@@ -582,6 +677,7 @@ void LocalSmoother::Reset() {
   m.unconfirmed_between.clear();
   m.keyframes.clear();
   m.chains.clear();
+  m.offsets.clear();
   m.pending.clear();
   m.propagation.reset();
   m.dirty = false;
@@ -712,8 +808,32 @@ MeasurementUse LocalSmoother::AddPosition(int sensor, core::Time t_ns, const Eig
   return impl_->Submit(std::move(p));
 }
 
+MeasurementUse LocalSmoother::AddPositionWithOffset(int sensor, core::Time t_ns,
+                                                    const Eigen::Vector3d& p_As,
+                                                    const Eigen::Matrix3d& covariance_A,
+                                                    const Eigen::Vector3d& p_Is,
+                                                    const Eigen::Matrix3d& R_LA, double min_std_m) {
+  if (!p_As.allFinite() || !covariance_A.allFinite() || !R_LA.allFinite()) {
+    return MeasurementUse::kRejected;
+  }
+  PendingMeasurement p;
+  p.is_pose = false;
+  p.sensor = sensor;
+  p.t_ns = t_ns;
+  p.p_As = p_As;
+  p.covariance_A = covariance_A;
+  p.p_Is = p_Is;
+  p.R_LA = R_LA;
+  p.min_std_m = min_std_m;
+  p.with_offset = true;
+  return impl_->Submit(std::move(p));
+}
+
 void LocalSmoother::EndChain(int sensor) {
-  impl_->chains.erase(sensor);
+  if (auto chain = impl_->chains.find(sensor); chain != impl_->chains.end()) {
+    Impl::Close(chain->second);
+    impl_->chains.erase(chain);
+  }
   auto& pending = impl_->pending;
   pending.erase(std::remove_if(pending.begin(), pending.end(),
                                [&](const PendingMeasurement& m) { return m.sensor == sensor; }),
@@ -751,9 +871,15 @@ bool LocalSmoother::Update() {
   solver.max_time_s = options_.max_solver_time_s;
   solver.function_tolerance = options_.function_tolerance;
   solver.initial_trust_region_radius = options_.initial_trust_region_radius;
-  m.BuildWindow();
+  m.BuildWindow();  // prunes offsets no factor names: snapshot them after it
+  std::vector<std::array<double, kWindowOffsetSize>> saved_offsets;
+  for (const auto& o : m.offsets) {
+    saved_offsets.emplace_back();
+    std::copy(o->o_L, o->o_L + kWindowOffsetSize, saved_offsets.back().begin());
+  }
   const auto start = std::chrono::steady_clock::now();
-  const WindowSolveSummary summary = m.solver.Solve(m.window_states, m.window_factors, solver);
+  const WindowSolveSummary summary =
+      m.solver.Solve(m.window_states, m.window_factors, solver, m.window_offsets);
   stats_.solve_time_s.push_back(
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   ++stats_.solves;
@@ -776,6 +902,9 @@ bool LocalSmoother::Update() {
       std::copy(saved[i].first.begin(), saved[i].first.end(), m.keyframes[i]->pose);
       std::copy(saved[i].second.begin(), saved[i].second.end(), m.keyframes[i]->speed_bias);
     }
+    for (std::size_t i = 0; i < saved_offsets.size(); ++i) {
+      std::copy(saved_offsets[i].begin(), saved_offsets[i].end(), m.offsets[i]->o_L);
+    }
     // The measurements that made the solve go wrong leave with it; their sensors' chains
     // restart at the next measurement.
     const std::vector<Factor*> discard = std::move(m.unconfirmed_between);
@@ -784,6 +913,7 @@ bool LocalSmoother::Update() {
       ++stats_.discarded_between_factors;
       m.RemoveFactor(f);
     }
+    for (auto& [sensor, chain] : m.chains) Impl::Close(chain);
     m.chains.clear();
   }
   m.unconfirmed_between.clear();
@@ -845,7 +975,7 @@ std::optional<Eigen::Matrix<double, 15, 15>> LocalSmoother::NewestCovariance() c
   // Σ = H⁻¹ of the window's information at the current estimate (Laplace approximation),
   // read off the banded Cholesky factor with the newest keyframe ordered last.
   m.BuildWindow();
-  return m.solver.LastStateCovariance(m.window_states, m.window_factors);
+  return m.solver.LastStateCovariance(m.window_states, m.window_factors, m.window_offsets);
 }
 
 }  // namespace tofu::estimator

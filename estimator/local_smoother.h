@@ -174,6 +174,17 @@ class LocalSmoother {
                              const Eigen::Matrix3d& covariance_A, const Eigen::Vector3d& p_Is,
                              const Eigen::Matrix3d& R_LA, double min_std_m,
                              const std::optional<Eigen::Vector3d>& p_LA = std::nullopt);
+  /// Position of mount point s in A, constraining its keyframe in L up to an offset o_L
+  /// that the graph estimates, one per chain (PositionWithOffsetFactor): r = p_Ls −
+  /// (R_LA p_As + o_L). A chain's offset starts at zero residual on its first position and
+  /// is free (no prior): the chain constrains the motion since its start, with the
+  /// correlation that the paper's displacements (eq. 3) leave out, and a sensor fused again
+  /// starts a new chain without a jump. The offset leaves the graph, marginalised, once
+  /// its chain has ended and no factor but the marginalisation prior names it.
+  MeasurementUse AddPositionWithOffset(int sensor, core::Time t_ns, const Eigen::Vector3d& p_As,
+                                       const Eigen::Matrix3d& covariance_A,
+                                       const Eigen::Vector3d& p_Is, const Eigen::Matrix3d& R_LA,
+                                       double min_std_m);
   /// Ends a sensor's chain of between factors (the sensor is no longer fused, or its
   /// frame jumped): its next measurement starts a new chain.
   void EndChain(int sensor);

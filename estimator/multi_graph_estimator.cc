@@ -633,14 +633,21 @@ struct MultiGraphEstimator::Impl {
         ++counters.streams[sensor.spec.name].not_fused_unaligned;
         return;
       }
-      std::optional<Eigen::Vector3d> p_LA;
-      if (sensor.spec.absolute_position) {
-        p_LA = T_AL->inverse().translation() -
-               ReadmissionOffset(sensor, m.t_ns, T_AL->inverse() * position->p_Ss);
+      if (sensor.spec.position_factors == PositionFactors::kOffset) {
+        use = smoother.AddPositionWithOffset(sensor.id, m.t_ns, position->p_Ss,
+                                             position->covariance, sensor.spec.T_Is.translation(),
+                                             T_AL->linear().transpose(),
+                                             sensor.spec.min_position_std_m);
+      } else {
+        std::optional<Eigen::Vector3d> p_LA;
+        if (sensor.spec.position_factors == PositionFactors::kAbsolute) {
+          p_LA = T_AL->inverse().translation() -
+                 ReadmissionOffset(sensor, m.t_ns, T_AL->inverse() * position->p_Ss);
+        }
+        use = smoother.AddPosition(sensor.id, m.t_ns, position->p_Ss, position->covariance,
+                                   sensor.spec.T_Is.translation(), T_AL->linear().transpose(),
+                                   sensor.spec.min_position_std_m, p_LA);
       }
-      use = smoother.AddPosition(sensor.id, m.t_ns, position->p_Ss, position->covariance,
-                                 sensor.spec.T_Is.translation(), T_AL->linear().transpose(),
-                                 sensor.spec.min_position_std_m, p_LA);
     }
     if (use == MeasurementUse::kFactor || use == MeasurementUse::kAnchor ||
         use == MeasurementUse::kPending || use == MeasurementUse::kSkipped) {

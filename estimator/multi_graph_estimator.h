@@ -35,6 +35,15 @@ namespace tofu::estimator {
 
 enum class SensorKind { kPose, kPosition };
 
+/// How a position sensor (total station, GNSS) constrains the local graph
+/// (local_smoother.h AddPosition, AddPositionWithOffset).
+enum class PositionFactors {
+  kBetween,   ///< displacements between its keyframes (the paper's eq. 3)
+  kAbsolute,  ///< each position in L through the frozen T_AL (beyond the paper)
+  kOffset,    ///< each position in L up to an offset per chain the graph estimates: the
+              ///< displacements with their correlation (beyond the paper)
+};
+
 /// A sensor the estimator can fuse.
 struct SensorSpec {
   std::string name;
@@ -69,12 +78,11 @@ struct SensorSpec {
   /// Position sensors: floor on the std of one between factor (m), added to the stated
   /// covariances of its two ends.
   double min_position_std_m = 0.002;
-  /// Position sensors: each position constrains the local graph in L through the frozen
-  /// T_AL (a unary factor, beyond the paper) instead of as a displacement from the
-  /// previous one (the paper's between factor, eq. 3). Displacements keep the local graph
-  /// free to switch sensors without a jump but make an absolute sensor relative: fused
-  /// with a drifting odometry, the estimate drifts too.
-  bool absolute_position = false;
+  /// Position sensors: how each position constrains the local graph. The paper's
+  /// displacements keep the local graph free to switch sensors without a jump but are
+  /// fused as independent although consecutive ones share a position's noise (an absolute
+  /// sensor becomes relative: fused with a drifting odometry, the estimate drifts too).
+  PositionFactors position_factors = PositionFactors::kBetween;
   /// Position sensors: the reference frame A is levelled (a total station, GNSS ENU). When
   /// such a sensor is the first one fused, L is chosen with R_AL = I.
   bool reference_is_gravity_aligned = true;
@@ -129,7 +137,7 @@ struct MultiGraphEstimatorOptions {
   /// Uncertainty of the local estimate's positions over an alignment window, added to each
   /// pair's sensor covariance.
   double alignment_local_position_std_m = 0.02;
-  /// Position sensors fused as absolute (SensorSpec::absolute_position), fused again
+  /// Position sensors fused as absolute (PositionFactors::kAbsolute), fused again
   /// while the local graph runs: L drifted with the other sensors meanwhile, and unary
   /// factors would pull it back in one solve (a step of the state the controller flies
   /// on: 0.12 m when the total station came back in total_station_jump). Instead the

@@ -21,6 +21,13 @@ using PlusJacobian = Eigen::Matrix<double, kPoseSize, kPoseTangentSize, Eigen::R
 constexpr int kSpeedBiasOffset = kPoseTangentSize;
 int TangentSize(bool is_pose) { return is_pose ? kPoseTangentSize : kSpeedBiasSize; }
 int AmbientSize(bool is_pose) { return is_pose ? kPoseSize : kSpeedBiasSize; }
+int TangentSize(const WindowBlockRef& b) {
+  return b.offset >= 0 ? kWindowOffsetSize : TangentSize(b.is_pose);
+}
+int AmbientSize(const WindowBlockRef& b) {
+  return b.offset >= 0 ? kWindowOffsetSize : AmbientSize(b.is_pose);
+}
+using BorderBlock = Eigen::Matrix<double, kStateTangentSize, Eigen::Dynamic>;
 
 // Ceres's bounds on the LM diagonal D = diag(H).
 constexpr double kMinLmDiagonal = 1e-6;
@@ -59,6 +66,18 @@ struct WindowSolver::Impl final : LmProblem {
   std::vector<StateVector> delta;
   std::vector<PlusJacobian> plus_jacobian;
   std::vector<char> pose_constant;
+  // The offsets, ordered after the band: G = 3 × their count tangent dimensions. B_i (15 x
+  // G) couples state i to them, C (G x G) is their own block; X_i = (L_A⁻¹ B)_i and L_C
+  // factorises C + λD − XᵀX. All empty when G = 0: the band alone, as before.
+  const std::vector<double*>* offsets = nullptr;
+  int G = 0;
+  std::vector<BorderBlock> B;
+  std::vector<BorderBlock> X;
+  Eigen::MatrixXd C;
+  Eigen::MatrixXd L_C;
+  Eigen::VectorXd g_offset;
+  Eigen::VectorXd delta_offset;
+  std::vector<double> saved_offsets;
   // Evaluation buffers, kept between calls.
   std::vector<const double*> parameters;
   std::vector<double> residual;
@@ -73,7 +92,10 @@ struct WindowSolver::Impl final : LmProblem {
   const StateMatrix& HBlock(int i, int j) const { return H[i * (bandwidth + 1) + (i - j)]; }
   StateMatrix& LBlock(int i, int j) { return L[i * (bandwidth + 1) + (i - j)]; }
 
-  void Setup(const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors) {
+  void Setup(const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors,
+             const std::vector<double*>& offset_blocks) {
+    offsets = &offset_blocks;
+    G = kWindowOffsetSize * static_cast<int>(offset_blocks.size());
     n = static_cast<int>(states.size());
     bandwidth = 0;
     first.resize(n);
@@ -86,6 +108,12 @@ struct WindowSolver::Impl final : LmProblem {
       int lo = n, hi = -1;
       for (std::size_t k = 0; k < f.blocks.size(); ++k) {
         const WindowBlockRef& b = f.blocks[k];
+        if (b.offset >= 0) {
+          if (kWindowOffsetSize * b.offset >= G || sizes[k] != kWindowOffsetSize) {
+            throw std::invalid_argument("WindowSolver: a factor names an offset it cannot have");
+          }
+          continue;
+        }
         if (b.state < 0 || b.state >= n || sizes[k] != AmbientSize(b.is_pose)) {
           throw std::invalid_argument("WindowSolver: a factor names a block it cannot have");
         }
@@ -94,7 +122,9 @@ struct WindowSolver::Impl final : LmProblem {
       }
       if (hi < lo) continue;
       bandwidth = std::max(bandwidth, hi - lo);
-      for (const WindowBlockRef& b : f.blocks) first[b.state] = std::min(first[b.state], lo);
+      for (const WindowBlockRef& b : f.blocks) {
+        if (b.offset < 0) first[b.state] = std::min(first[b.state], lo);
+      }
     }
     const std::size_t blocks = static_cast<std::size_t>(n) * (bandwidth + 1);
     H.resize(blocks);
@@ -104,6 +134,13 @@ struct WindowSolver::Impl final : LmProblem {
     plus_jacobian.resize(n);
     pose_constant.resize(n);
     for (int i = 0; i < n; ++i) pose_constant[i] = states[i].pose_constant ? 1 : 0;
+    if (G > 0) {
+      B.assign(n, BorderBlock::Zero(kStateTangentSize, G));
+      X.assign(n, BorderBlock::Zero(kStateTangentSize, G));
+      C.setZero(G, G);
+      g_offset.setZero(G);
+      delta_offset.setZero(G);
+    }
   }
 
   // Evaluates one factor; with_jacobians fills J (tangent, constant columns zeroed).
@@ -122,10 +159,12 @@ struct WindowSolver::Impl final : LmProblem {
     int columns = 0;
     for (std::size_t k = 0; k < count; ++k) {
       const WindowBlockRef& b = f.blocks[k];
-      parameters[k] = b.is_pose ? states[b.state].pose : states[b.state].speed_bias;
-      jacobian_storage[k].resize(static_cast<std::size_t>(m) * AmbientSize(b.is_pose));
+      parameters[k] = b.offset >= 0 ? (*offsets)[b.offset]
+                      : b.is_pose   ? states[b.state].pose
+                                    : states[b.state].speed_bias;
+      jacobian_storage[k].resize(static_cast<std::size_t>(m) * AmbientSize(b));
       jacobians[k] = jacobian_storage[k].data();
-      columns += TangentSize(b.is_pose);
+      columns += TangentSize(b);
     }
     residual.resize(m);
     if (!f.cost->Evaluate(parameters.data(), residual.data(),
@@ -139,7 +178,12 @@ struct WindowSolver::Impl final : LmProblem {
       int column = 0;
       for (std::size_t k = 0; k < count; ++k) {
         const WindowBlockRef& b = f.blocks[k];
-        if (b.is_pose) {
+        if (b.offset >= 0) {
+          using Ambient = Eigen::Matrix<double, M, kWindowOffsetSize, Eigen::RowMajor>;
+          const Eigen::Map<const Ambient> ambient(jacobians[k], m, kWindowOffsetSize);
+          if (!ambient.allFinite()) return false;
+          J.middleCols<kWindowOffsetSize>(column) = ambient;
+        } else if (b.is_pose) {
           using Ambient = Eigen::Matrix<double, M, kPoseSize, Eigen::RowMajor>;
           const Eigen::Map<const Ambient> ambient(jacobians[k], m, kPoseSize);
           if (!ambient.allFinite()) return false;
@@ -155,7 +199,7 @@ struct WindowSolver::Impl final : LmProblem {
           if (!ambient.allFinite()) return false;
           J.middleCols<kSpeedBiasSize>(column) = ambient;
         }
-        column += TangentSize(b.is_pose);
+        column += TangentSize(b);
       }
     }
     const double squared_norm = r.squaredNorm();
@@ -205,6 +249,11 @@ struct WindowSolver::Impl final : LmProblem {
     const Eigen::Map<const Eigen::Matrix<double, M, 1>> r(residual.data(), m);
     int column_k = 0;
     for (const WindowBlockRef& bk : f.blocks) {
+      if (bk.offset >= 0 || HasOffset(f)) {
+        AccumulateBordered(f, bk, column_k, Jf, r);
+        column_k += TangentSize(bk);
+        continue;
+      }
       if (bk.is_pose) {
         g[bk.state].template head<kPoseTangentSize>().noalias() +=
             Jf.template middleCols<kPoseTangentSize>(column_k).transpose() * r;
@@ -221,6 +270,47 @@ struct WindowSolver::Impl final : LmProblem {
         column_l += TangentSize(bl.is_pose);
       }
       column_k += TangentSize(bk.is_pose);
+    }
+  }
+
+  static bool HasOffset(const WindowFactor& f) {
+    for (const WindowBlockRef& b : f.blocks) {
+      if (b.offset >= 0) return true;
+    }
+    return false;
+  }
+
+  // Accumulate for a factor with an offset block, block row k: into the band, the border
+  // B or C, and g. Few factors have one; plain dynamic-size products.
+  template <typename JMap, typename RMap>
+  void AccumulateBordered(const WindowFactor& f, const WindowBlockRef& bk, int column_k,
+                          const JMap& Jf, const RMap& r) {
+    const int tk = TangentSize(bk);
+    const auto J_k = Jf.middleCols(column_k, tk);
+    const int row_k = bk.offset >= 0 ? kWindowOffsetSize * bk.offset
+                      : bk.is_pose   ? 0
+                                     : kSpeedBiasOffset;
+    if (bk.offset >= 0) {
+      g_offset.segment(row_k, tk).noalias() += J_k.transpose() * r;
+    } else {
+      g[bk.state].segment(row_k, tk).noalias() += J_k.transpose() * r;
+    }
+    int column_l = 0;
+    for (const WindowBlockRef& bl : f.blocks) {
+      const int tl = TangentSize(bl);
+      const auto J_l = Jf.middleCols(column_l, tl);
+      if (bk.offset >= 0 && bl.offset >= 0) {
+        C.block(row_k, kWindowOffsetSize * bl.offset, tk, tl).noalias() +=
+            J_k.transpose() * J_l;
+      } else if (bk.offset < 0 && bl.offset >= 0) {
+        B[bk.state].block(row_k, kWindowOffsetSize * bl.offset, tk, tl).noalias() +=
+            J_k.transpose() * J_l;
+      } else if (bk.offset < 0 && bk.state >= bl.state) {
+        const int row_l = bl.is_pose ? 0 : kSpeedBiasOffset;
+        HBlock(bk.state, bl.state).block(row_k, row_l, tk, tl).noalias() +=
+            J_k.transpose() * J_l;
+      }
+      column_l += tl;
     }
   }
 
@@ -263,6 +353,11 @@ struct WindowSolver::Impl final : LmProblem {
       for (int j = first[i]; j <= i; ++j) HBlock(i, j).setZero();
     }
     for (StateVector& v : g) v.setZero();
+    if (G > 0) {
+      for (BorderBlock& b : B) b.setZero();
+      C.setZero();
+      g_offset.setZero();
+    }
     for (int i = 0; i < n; ++i) manifold.PlusJacobian(states[i].pose, plus_jacobian[i].data());
     *cost = 0.0;
     for (const WindowFactor& f : factors) {
@@ -311,6 +406,26 @@ struct WindowSolver::Impl final : LmProblem {
         }
       }
     }
+    return G == 0 || FactorizeBorder(lambda);
+  }
+
+  // X_i = L_ii⁻¹ (B_i − Σ_k L_ik X_k) (forward substitution of L_A X = B), then
+  // L_C L_Cᵀ = C + λ D − Σ_i X_iᵀ X_i.
+  bool FactorizeBorder(double lambda) {
+    Eigen::MatrixXd S = C;
+    for (int i = 0; i < n; ++i) {
+      BorderBlock x = B[i];
+      for (int k = first[i]; k < i; ++k) x.noalias() -= LBlock(i, k) * X[k];
+      LBlock(i, i).triangularView<Eigen::Lower>().solveInPlace(x);
+      X[i] = x;
+      S.noalias() -= x.transpose() * x;
+    }
+    if (lambda > 0.0) {
+      S.diagonal() += lambda * C.diagonal().cwiseMax(kMinLmDiagonal).cwiseMin(kMaxLmDiagonal);
+    }
+    const Eigen::LLT<Eigen::MatrixXd> llt(S);
+    if (llt.info() != Eigen::Success) return false;
+    L_C = llt.matrixL();
     return true;
   }
 
@@ -321,6 +436,15 @@ struct WindowSolver::Impl final : LmProblem {
       for (int k = first[i]; k < i; ++k) y.noalias() -= LBlock(i, k) * delta[k];
       LBlock(i, i).triangularView<Eigen::Lower>().solveInPlace(y);
       delta[i] = y;
+    }
+    if (G > 0) {
+      // L_C y_C = −g_C − Xᵀ y_A; L_Cᵀ δ_C = y_C; then L_Aᵀ δ_A = y_A − X δ_C below.
+      Eigen::VectorXd y = -g_offset;
+      for (int i = 0; i < n; ++i) y.noalias() -= X[i].transpose() * delta[i];
+      L_C.triangularView<Eigen::Lower>().solveInPlace(y);
+      L_C.transpose().triangularView<Eigen::Upper>().solveInPlace(y);
+      delta_offset = y;
+      for (int i = 0; i < n; ++i) delta[i].noalias() -= X[i] * delta_offset;
     }
     for (int i = n - 1; i >= 0; --i) {
       StateVector x = delta[i];
@@ -339,6 +463,9 @@ struct WindowSolver::Impl final : LmProblem {
       out = std::copy(s.pose, s.pose + kPoseSize, out);
       out = std::copy(s.speed_bias, s.speed_bias + kSpeedBiasSize, out);
     }
+    saved_offsets.resize(static_cast<std::size_t>(G));
+    out = saved_offsets.data();
+    for (const double* o : *offsets) out = std::copy(o, o + kWindowOffsetSize, out);
   }
   void Restore(const std::vector<WindowState>& states) const {
     const double* in = saved.data();
@@ -347,6 +474,11 @@ struct WindowSolver::Impl final : LmProblem {
       in += kPoseSize;
       std::copy(in, in + kSpeedBiasSize, s.speed_bias);
       in += kSpeedBiasSize;
+    }
+    in = saved_offsets.data();
+    for (double* o : *offsets) {
+      std::copy(in, in + kWindowOffsetSize, o);
+      in += kWindowOffsetSize;
     }
   }
 
@@ -360,13 +492,23 @@ struct WindowSolver::Impl final : LmProblem {
       }
       for (int k = 0; k < kSpeedBiasSize; ++k) s.speed_bias[k] += delta[i][kSpeedBiasOffset + k];
     }
+    for (int j = 0; j < G; ++j) (*offsets)[j / kWindowOffsetSize][j % kWindowOffsetSize] += delta_offset[j];
   }
 
-  // H = L Lᵀ with the last state ordered last: (H⁻¹)_nn = L_nn⁻ᵀ L_nn⁻¹.
+  // H = L Lᵀ with the last state ordered last among the states: (A⁻¹)_nn = L_nn⁻ᵀ L_nn⁻¹.
+  // With offsets, (H⁻¹)_nn = (A⁻¹)_nn + Z_n S⁻¹ Z_nᵀ, Z = A⁻¹ B, whose last block row is
+  // L_nn⁻ᵀ X_n (nothing follows it in the back substitution), S = L_C L_Cᵀ.
   std::optional<StateCovariance> LastBlockCovariance() {
     StateMatrix L_inverse = StateMatrix::Identity();
     LBlock(n - 1, n - 1).triangularView<Eigen::Lower>().solveInPlace(L_inverse);
     StateCovariance covariance = L_inverse.transpose() * L_inverse;
+    if (G > 0) {
+      BorderBlock Z_n = X[n - 1];
+      LBlock(n - 1, n - 1).transpose().triangularView<Eigen::Upper>().solveInPlace(Z_n);
+      Eigen::MatrixXd W = Z_n.transpose();
+      L_C.triangularView<Eigen::Lower>().solveInPlace(W);
+      covariance.noalias() += W.transpose() * W;
+    }
     if (!covariance.allFinite()) return std::nullopt;
     return covariance;
   }
@@ -374,6 +516,7 @@ struct WindowSolver::Impl final : LmProblem {
   double DeltaNorm() const override {
     double sum = 0.0;
     for (const StateVector& d : delta) sum += d.squaredNorm();
+    if (G > 0) sum += delta_offset.squaredNorm();
     return std::sqrt(sum);
   }
   double StateNorm(const std::vector<WindowState>& states) const {
@@ -382,17 +525,22 @@ struct WindowSolver::Impl final : LmProblem {
       for (int k = 0; k < kPoseSize; ++k) sum += s.pose[k] * s.pose[k];
       for (int k = 0; k < kSpeedBiasSize; ++k) sum += s.speed_bias[k] * s.speed_bias[k];
     }
+    for (const double* o : *offsets) {
+      for (int k = 0; k < kWindowOffsetSize; ++k) sum += o[k] * o[k];
+    }
     return std::sqrt(sum);
   }
   double GradientMaxNorm() const override {
     double max = 0.0;
     for (const StateVector& v : g) max = std::max(max, v.cwiseAbs().maxCoeff());
+    if (G > 0) max = std::max(max, g_offset.cwiseAbs().maxCoeff());
     return max;
   }
   // gᵀδ and δᵀ D δ of the last step.
   double GradientDotDelta() const override {
     double sum = 0.0;
     for (int i = 0; i < n; ++i) sum += g[i].dot(delta[i]);
+    if (G > 0) sum += g_offset.dot(delta_offset);
     return sum;
   }
   double DampingEnergy() const override {
@@ -401,6 +549,10 @@ struct WindowSolver::Impl final : LmProblem {
       const StateVector d =
           HBlock(i, i).diagonal().cwiseMax(kMinLmDiagonal).cwiseMin(kMaxLmDiagonal);
       sum += delta[i].cwiseProduct(d).dot(delta[i]);
+    }
+    if (G > 0) {
+      const Eigen::VectorXd d = C.diagonal().cwiseMax(kMinLmDiagonal).cwiseMin(kMaxLmDiagonal);
+      sum += delta_offset.cwiseProduct(d).dot(delta_offset);
     }
     return sum;
   }
@@ -411,11 +563,12 @@ WindowSolver::~WindowSolver() = default;
 
 WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
                                        const std::vector<WindowFactor>& factors,
-                                       const WindowSolverOptions& options) {
+                                       const WindowSolverOptions& options,
+                                       const std::vector<double*>& offsets) {
   std::string why;
   if (!options.IsValid(&why)) throw std::invalid_argument("LmOptions: " + why);
   Impl& s = *impl_;
-  s.Setup(states, factors);
+  s.Setup(states, factors, offsets);
   if (s.n == 0) {
     WindowSolveSummary summary;
     summary.termination = WindowTermination::kConverged;
@@ -430,9 +583,10 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
 }
 
 std::optional<StateCovariance> WindowSolver::LastStateCovariance(
-    const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors) {
+    const std::vector<WindowState>& states, const std::vector<WindowFactor>& factors,
+    const std::vector<double*>& offsets) {
   Impl& s = *impl_;
-  s.Setup(states, factors);
+  s.Setup(states, factors, offsets);
   if (s.n == 0) return std::nullopt;
   double cost = 0.0;
   if (!s.Linearize(states, factors, &cost) || !s.Factorize(0.0)) return std::nullopt;

@@ -46,14 +46,21 @@ struct WindowState {
   bool pose_constant = false;  ///< held fixed (its tangent columns are not estimated)
 };
 
-/// A parameter block of a factor: which state, and which of its two blocks.
+/// Size of an offset block: a Euclidean 3-vector shared by factors at any keyframes (a
+/// position sensor's chain offset, local_factors.h PositionWithOffsetFactor).
+constexpr int kWindowOffsetSize = 3;
+
+/// A parameter block of a factor: which state, and which of its two blocks; or, with
+/// offset ≥ 0, the offset block of that index (state and is_pose unused).
 struct WindowBlockRef {
   int state = 0;
   bool is_pose = true;
+  int offset = -1;
 };
 
 /// A factor: its cost, its robust loss (may be null) and its blocks in the cost's
-/// parameter order. Blocks are pose (7) or speed-bias (9) blocks, as the cost declares.
+/// parameter order. Blocks are pose (7), speed-bias (9) or offset (3) blocks, as the cost
+/// declares.
 struct WindowFactor {
   const ceres::CostFunction* cost = nullptr;
   const ceres::LossFunction* loss = nullptr;
@@ -72,18 +79,26 @@ class WindowSolver {
   WindowSolver(const WindowSolver&) = delete;
   WindowSolver& operator=(const WindowSolver&) = delete;
 
-  /// Minimises ½ Σ ρ(‖r_f‖²) over the states (in place). Factors must only name states of
-  /// `states`; a factor whose blocks do not match its cost's parameter sizes, or options
-  /// that are not IsValid(), are a programming error (std::invalid_argument).
+  /// Minimises ½ Σ ρ(‖r_f‖²) over the states and offsets (in place). Factors must only
+  /// name states of `states` and offsets of `offsets` (kWindowOffsetSize numbers each); a
+  /// factor whose blocks do not match its cost's parameter sizes, or options that are not
+  /// IsValid(), are a programming error (std::invalid_argument).
+  ///
+  /// Offsets join factors far apart in time, so they are ordered after the band: the
+  /// bordered system [[A, B], [Bᵀ, C]] is factorised as the band A, then X = L_A⁻¹ B and
+  /// the Schur complement C − XᵀX (dense, 3 per offset).
   WindowSolveSummary Solve(const std::vector<WindowState>& states,
                            const std::vector<WindowFactor>& factors,
-                           const WindowSolverOptions& options);
+                           const WindowSolverOptions& options,
+                           const std::vector<double*>& offsets = {});
 
   /// Marginal covariance of the last state (tangent order [δp, δθ, δv, δb_a, δb_g]) from
-  /// the information matrix at the states' current values (Laplace approximation).
-  /// nullopt if a factor does not evaluate or the information is not positive definite.
+  /// the information matrix at the states' current values (Laplace approximation), the
+  /// offsets marginalised. nullopt if a factor does not evaluate or the information is
+  /// not positive definite.
   std::optional<StateCovariance> LastStateCovariance(const std::vector<WindowState>& states,
-                                                     const std::vector<WindowFactor>& factors);
+                                                     const std::vector<WindowFactor>& factors,
+                                                     const std::vector<double*>& offsets = {});
 
  private:
   struct Impl;

@@ -133,8 +133,15 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
              &config.alignment_level_prior_deg);
   if (const auto factors = map.Optional("position_factors")) {
     const std::string kind = factors->String();
-    if (kind != "between" && kind != "absolute") factors->FailExpected("between or absolute");
-    config.absolute_positions = kind == "absolute";
+    if (kind == "between") {
+      config.position_factors = estimator::PositionFactors::kBetween;
+    } else if (kind == "absolute") {
+      config.position_factors = estimator::PositionFactors::kAbsolute;
+    } else if (kind == "offset") {
+      config.position_factors = estimator::PositionFactors::kOffset;
+    } else {
+      factors->FailExpected("between, absolute or offset");
+    }
   }
   if (const auto degenerate = map.Optional("degenerate_directions")) {
     const std::string kind = degenerate->String();
@@ -828,7 +835,9 @@ void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
   out << YAML::EndMap;
   EmitNumber(out, "huber_delta", ec.huber_delta);
   out << YAML::Key << "position_factors" << YAML::Value
-      << (ec.absolute_positions ? "absolute" : "between");
+      << (ec.position_factors == estimator::PositionFactors::kAbsolute ? "absolute"
+          : ec.position_factors == estimator::PositionFactors::kOffset ? "offset"
+                                                                       : "between");
   // Only when not the paper's, so the run directories that fuse every direction keep
   // their bytes.
   if (ec.leave_out_degenerate_directions) {

@@ -41,7 +41,7 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
       core::RadFromDeg(config.alignment_level_prior_deg);
   setup.sensors = SensorSpecsOf(log);
   for (estimator::SensorSpec& spec : setup.sensors) {
-    spec.absolute_position = config.absolute_positions;
+    spec.position_factors = config.position_factors;
     if (!config.leave_out_degenerate_directions) continue;
     const auto stream = std::find_if(log.streams.begin(), log.streams.end(),
                                      [&](const RecordedStream& s) { return s.name == spec.name; });

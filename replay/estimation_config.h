@@ -72,9 +72,10 @@ struct EstimationConfig {
   /// robust loss, metre-level outliers in that time can wreck the local graph.
   double huber_delta = 0.0;
   /// How position sensors (total station, GNSS) constrain the local graph: "between"
-  /// (displacements, the paper's eq. 3) or "absolute" (each position in L through the
-  /// frozen T_AL; estimator::SensorSpec::absolute_position).
-  bool absolute_positions = false;
+  /// (displacements, the paper's eq. 3), "absolute" (each position in L through the
+  /// frozen T_AL) or "offset" (each position in L up to an offset per chain that the
+  /// graph estimates); estimator::PositionFactors.
+  estimator::PositionFactors position_factors = estimator::PositionFactors::kBetween;
   /// Whether a LiDAR odometry's between factors leave out the directions its own
   /// information calls degenerate (`degenerate_directions: left_out`; RecordedStream's
   /// unobserved stds) or fuse every direction (`fused`, the paper).

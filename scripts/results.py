@@ -913,14 +913,15 @@ def _factor_methods(text, where):
         text[found.end():]
 
 
-def _factor_variants(r):
-    """The suite's scenarios without expectations, once with the paper's between factors
-    (each absolute sensor fused as displacements between keyframes, the default) and once
-    with `position_factors: absolute` (unary factors through each sensor's T_AL)."""
+def _factor_variants(r, variants=FACTOR_VARIANTS, source="position_factors"):
+    """The suite's scenarios without expectations, with `position_factors: VARIANT` for each
+    of `variants`: between (the paper's displacements between keyframes, the default),
+    absolute (unary factors through each sensor's T_AL), offset (unary factors up to an
+    offset per chain that the local graph estimates)."""
     def edit(text, variant, where):
         return _with_estimation_key(text, "position_factors", variant, where)
 
-    return _write_suite_variants(r, "position_factors", FACTOR_VARIANTS, _factor_methods, edit)
+    return _write_suite_variants(r, source, variants, _factor_methods, edit)
 
 
 def run_position_factors(r):
@@ -929,33 +930,60 @@ def run_position_factors(r):
 
 def extract_position_factors(r):
     v = {}
+    for variant in FACTOR_VARIANTS:
+        v.update(_factor_scores(r, "position_factors", variant))
+    return v
+
+
+def run_position_offset(r):
+    dirs = _factor_variants(r, ("offset",), "position_offset")
+    _run_variants(r, "position_offset", dirs, FACTOR_SEEDS)
+
+
+def extract_position_offset(r):
+    v = _factor_scores(r, "position_offset", "offset")
     for scenario in _suite_scenarios(r.root):
-        for variant in FACTOR_VARIANTS:
-            s = seed_summaries(r.out("position_factors", variant), scenario, FACTOR_SEEDS)
-            m = {i: s[i]["methods"] for i in FACTOR_SEEDS}
-            key = f"position_factors.{scenario}.{variant}."
+        s = seed_summaries(r.out("position_offset", "offset"), scenario, FACTOR_SEEDS)
+        key = f"position_offset.{scenario}.offset."
+        for method in ("oracle",):
+            nees = [s[i]["methods"][method].get("nees_position_mean") for i in FACTOR_SEEDS]
+            inside = [s[i]["methods"][method].get("position_containment_95") for i in FACTOR_SEEDS]
+            nees = [x for x in nees if x is not None]
+            inside = [x for x in inside if x is not None]
+            v[f"{key}{method}_nees"] = sci(statistics.median(nees), 2) if nees else "-"
+            v[f"{key}{method}_containment"] = percent(statistics.median(inside), 0) if inside else "-"
+    return v
 
-            def values(method, metric):
-                return [m[i][method].get(metric) for i in FACTOR_SEEDS]
 
-            oracle = values("oracle", "ate_m")
-            consensus = values("consensus", "ate_m")
-            singles = sorted(meth for meth in m[1] if meth.startswith("single:") and meth.endswith("@clean"))
-            best = min(singles, key=lambda meth: statistics.median(values(meth, "ate_m")))
-            best_ate = values(best, "ate_m")
-            over_oracle = [c / o for c, o in zip(consensus, oracle)]
-            v[key + "oracle_ate"] = sig(statistics.median(oracle), 3)
-            v[key + "consensus_ate"] = sig(statistics.median(consensus), 3)
-            v[key + "best_single"] = f"{best[len('single:'):-len('@clean')]} {sig(statistics.median(best_ate), 3)}"
-            v[key + "oracle_over_best"] = fixed(statistics.median([o / b for o, b in zip(oracle, best_ate)]), 2)
-            v[key + "consensus_over_oracle"] = f"{fixed(statistics.median(over_oracle), 2)} / {fixed(max(over_oracle), 2)}"
-            for method, name in (("consensus", "consensus"), ("oracle", "oracle")):
-                steps = [x * 1000.0 for x in values(method, "position_step_max_m")]
-                v[f"{key}{name}_step_mm"] = f"{sig(statistics.median(steps), 2)} / {sig(max(steps), 2)}"
-            nees = [x for x in values("consensus", "nees_position_mean") if x is not None]
-            inside = [x for x in values("consensus", "position_containment_95") if x is not None]
-            v[key + "consensus_nees"] = sci(statistics.median(nees), 2) if nees else "-"
-            v[key + "consensus_containment"] = percent(statistics.median(inside), 0) if inside else "-"
+def _factor_scores(r, source, variant):
+    """Per suite scenario, the scores of one variant of a position-factor comparison."""
+    v = {}
+    for scenario in _suite_scenarios(r.root):
+        s = seed_summaries(r.out(source, variant), scenario, FACTOR_SEEDS)
+        m = {i: s[i]["methods"] for i in FACTOR_SEEDS}
+        key = f"{source}.{scenario}.{variant}."
+
+        def values(method, metric):
+            return [m[i][method].get(metric) for i in FACTOR_SEEDS]
+
+        oracle = values("oracle", "ate_m")
+        consensus = values("consensus", "ate_m")
+        singles = sorted(meth for meth in m[1] if meth.startswith("single:") and meth.endswith("@clean"))
+        best = min(singles, key=lambda meth: statistics.median(values(meth, "ate_m")))
+        best_ate = values(best, "ate_m")
+        over_oracle = [c / o for c, o in zip(consensus, oracle)]
+        v[key + "oracle_ate"] = sig(statistics.median(oracle), 3)
+        v[key + "consensus_ate"] = sig(statistics.median(consensus), 3)
+        v[key + "best_single"] = f"{best[len('single:'):-len('@clean')]} {sig(statistics.median(best_ate), 3)}"
+        v[key + "oracle_over_best"] = fixed(statistics.median([o / b for o, b in zip(oracle, best_ate)]), 2)
+        v[key + "consensus_over_oracle"] = f"{fixed(statistics.median(over_oracle), 2)} / {fixed(max(over_oracle), 2)}"
+        for method, name in (("consensus", "consensus"), ("oracle", "oracle")):
+            steps = [x * 1000.0 for x in values(method, "position_step_max_m")]
+            v[f"{key}{name}_step_mm"] = f"{sig(statistics.median(steps), 2)} / {sig(max(steps), 2)}"
+        nees = [x for x in values("consensus", "nees_position_mean") if x is not None]
+        inside = [x for x in values("consensus", "position_containment_95") if x is not None]
+        v[key + "consensus_nees"] = sci(statistics.median(nees), 2) if nees else "-"
+        v[key + "consensus_containment"] = percent(statistics.median(inside), 0) if inside else "-"
     return v
 
 
@@ -1057,6 +1085,11 @@ SOURCES = {
                                      "(the default) and `absolute`, --seeds 10",
                          "seeds": FACTOR_SEEDS, "run": run_position_factors,
                          "extract": extract_position_factors},
+    "position_offset": {"describe": "`tofu check` of the suite's scenarios without naive and "
+                                    "consensus:consistent_set, with `position_factors: offset`, "
+                                    "--seeds 10",
+                        "seeds": FACTOR_SEEDS, "run": run_position_offset,
+                        "extract": extract_position_offset},
     "degenerate_directions": {"describe": "`tofu check` of the suite's scenarios with a LiDAR odometry, "
                                           "methods [consensus, consensus:consistent_set, oracle, "
                                           "single:lio@clean], with `degenerate_directions: fused` (the "

@@ -575,6 +575,37 @@ TEST(PositionInLocalFactor, ZeroAtTheMeasuredPositionAndJacobiansMatch) {
   }
 }
 
+TEST(PositionWithOffsetFactor, ZeroAtTheMeasuredPositionAndJacobiansMatch) {
+  Sampler sample("position_with_offset");
+  const PoseManifold pose_manifold;
+  const std::vector<const ceres::Manifold*> manifolds = {&pose_manifold, nullptr};
+  for (int trial = 0; trial < 6; ++trial) {
+    const Eigen::Vector3d p_Is = sample.Vector(0.3);
+    const Eigen::Quaterniond q = sample.Rotation(2.0, 3.0);
+    const Eigen::Vector3d p = sample.Vector(5.0);
+    const Eigen::Matrix3d S = sample.SqrtInformation<3>(50.0);
+    const Pose pose = MakePose(p, q);
+    Eigen::Vector3d o_L = sample.Vector(2.0);
+    // Measured at the mount point less the offset: zero residual.
+    const PositionWithOffsetFactor exact(p_Is, p + q * p_Is - o_L, S);
+    Eigen::VectorXd residual;
+    ASSERT_TRUE(EvaluateTangent(exact, {pose.data(), o_L.data()}, manifolds, &residual, nullptr));
+    EXPECT_LT(residual.norm(), 1e-10);
+    // Moving the offset by d moves the residual by −S d, whatever the pose.
+    const Eigen::Vector3d d = sample.Vector(0.5);
+    Eigen::Vector3d moved = o_L + d;
+    ASSERT_TRUE(EvaluateTangent(exact, {pose.data(), moved.data()}, manifolds, &residual, nullptr));
+    EXPECT_LT((residual + S * d).norm(), 1e-9);
+
+    const PositionWithOffsetFactor factor(p_Is, sample.Vector(5.0), S);
+    const std::string what = "PositionWithOffset trial " + std::to_string(trial);
+    ExpectTangentJacobiansMatch(factor, {pose.data(), o_L.data()}, manifolds, what);
+    if (trial < 2) {
+      ExpectGradientCheckerPasses(factor, {pose.data(), o_L.data()}, manifolds, what);
+    }
+  }
+}
+
 // ---- priors ----
 
 TEST(PosePriorFactor, IsTheManifoldMinusAndJacobiansMatch) {

@@ -155,7 +155,9 @@ struct Readmission {
 };
 Readmission ReadmitAbsoluteTotalStation(const replay::RecordedLog& log, double rate_mps) {
   std::vector<estimator::SensorSpec> specs = replay::SensorSpecsOf(log);
-  for (auto& s : specs) s.absolute_position = s.name == "leica";
+  for (auto& s : specs) {
+    if (s.name == "leica") s.position_factors = estimator::PositionFactors::kAbsolute;
+  }
   estimator::MultiGraphEstimatorOptions options = replay::DefaultEstimatorOptions(log);
   options.absolute_readmission_rate_mps = rate_mps;
   estimator::MultiGraphEstimator estimator(log.imu_stream, specs, options);

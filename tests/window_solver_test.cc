@@ -9,12 +9,15 @@
 //  - a constant pose stays put and the rest matches Ceres with that block held constant;
 //  - one step only: the iteration cap is reported and the cost decreased;
 //  - a non-finite state: failure, states untouched;
+//  - with offset blocks (two position chains, one in the marginalisation prior): the same
+//    optimum as Ceres, and the newest state's covariance with the offsets marginalised;
 //  - LmOptions::IsValid refuses each broken limit by name, and Solve throws for it.
 
 #include "estimator/window_solver.h"
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -56,7 +59,9 @@ struct OwnedFactor {
 // measurement noise and one outlier added, then every state pushed away from the truth.
 class Window {
  public:
-  explicit Window(bool with_outlier = true) {
+  /// offset_chains: 0, or 2 position chains with an offset each (PositionWithOffsetFactor),
+  /// keyframes 0-6 and 7-13.
+  explicit Window(bool with_outlier = true, int offset_chains = 0) {
     core::RandomStream rng(7, "window_solver_test");
     const Eigen::Vector3d gravity(0, 0, -9.81);
     const ImuNoiseParams noise;
@@ -127,6 +132,21 @@ class Window {
                                                   Eigen::Matrix3d::Identity() * 100.0),
           std::make_unique<ceres::HuberLoss>(2.0), {{i, true}, {i + 2, true}});
     }
+    // Sensor C: positions with an offset per chain, 5 mm noise.
+    offsets_.resize(offset_chains);
+    for (int c = 0; c < offset_chains; ++c) {
+      const Eigen::Vector3d o_true(0.3 - 0.4 * c, -0.2 + 0.6 * c, 0.1);
+      Eigen::Map<Eigen::Vector3d>{offsets_[c].data()} =
+          o_true + 0.05 * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
+      for (int i = 7 * c; i < std::min(7 * (c + 1), kStates); ++i) {
+        const Eigen::Vector3d mount = states_true[i].p_LI + states_true[i].q_LI * p_Is;
+        const Eigen::Vector3d measured_L =
+            mount - o_true + 0.005 * Eigen::Vector3d(rng.Normal(), rng.Normal(), rng.Normal());
+        Add(std::make_unique<PositionWithOffsetFactor>(p_Is, measured_L,
+                                                       Eigen::Matrix3d::Identity() * 200.0),
+            nullptr, {{i, true}, {0, false, c}});
+      }
+    }
     // Push every state away from the truth.
     for (State& s : states_) {
       for (int k = 0; k < 3; ++k) s.pose[k] += 0.05 * rng.Normal();
@@ -145,13 +165,17 @@ class Window {
     PoseManifold* manifold = &pose_manifold_;
     for (OwnedFactor& f : factors_) {
       bool touches = false;
-      for (const WindowBlockRef& b : f.blocks) touches |= b.state == 0;
+      for (const WindowBlockRef& b : f.blocks) touches |= b.offset < 0 && b.state == 0;
       if (!touches) {
         kept.push_back(std::move(f));
         continue;
       }
       MarginalFactor m{f.cost.get(), f.loss.get(), {}};
       for (const WindowBlockRef& b : f.blocks) {
+        if (b.offset >= 0) {
+          m.blocks.push_back(MarginalBlock{offsets_[b.offset].data(), 3, 3, nullptr});
+          continue;
+        }
         State& s = states_[b.state];
         m.blocks.push_back(b.is_pose ? MarginalBlock{s.pose, kPoseSize, 6, manifold}
                                      : MarginalBlock{s.speed_bias, kSpeedBiasSize, 9, nullptr});
@@ -166,6 +190,9 @@ class Window {
       for (int i = 0; i < kStates; ++i) {
         if (b.data == states_[i].pose) blocks.push_back({i, true});
         if (b.data == states_[i].speed_bias) blocks.push_back({i, false});
+      }
+      for (std::size_t c = 0; c < offsets_.size(); ++c) {
+        if (b.data == offsets_[c].data()) blocks.push_back({0, false, static_cast<int>(c)});
       }
     }
     factors_ = std::move(kept);
@@ -183,7 +210,9 @@ class Window {
     std::vector<WindowFactor> out;
     for (const OwnedFactor& f : factors_) {
       WindowFactor w{f.cost.get(), f.loss.get(), f.blocks};
-      for (WindowBlockRef& b : w.blocks) b.state -= first_;
+      for (WindowBlockRef& b : w.blocks) {
+        if (b.offset < 0) b.state -= first_;
+      }
       out.push_back(w);
     }
     return out;
@@ -200,10 +229,13 @@ class Window {
       problem->AddParameterBlock(states_[i].pose, kPoseSize, &pose_manifold_);
       problem->AddParameterBlock(states_[i].speed_bias, kSpeedBiasSize);
     }
+    for (auto& o : offsets_) problem->AddParameterBlock(o.data(), 3);
     for (const OwnedFactor& f : factors_) {
       std::vector<double*> blocks;
       for (const WindowBlockRef& b : f.blocks) {
-        blocks.push_back(b.is_pose ? states_[b.state].pose : states_[b.state].speed_bias);
+        blocks.push_back(b.offset >= 0 ? offsets_[b.offset].data()
+                         : b.is_pose   ? states_[b.state].pose
+                                       : states_[b.state].speed_bias);
       }
       problem->AddResidualBlock(f.cost.get(), f.loss.get(), blocks);
     }
@@ -212,6 +244,12 @@ class Window {
 
   std::vector<State>& states() { return states_; }
   int first() const { return first_; }
+  std::vector<double*> Offsets() {
+    std::vector<double*> out;
+    for (auto& o : offsets_) out.push_back(o.data());
+    return out;
+  }
+  const std::vector<std::array<double, 3>>& offsets() const { return offsets_; }
 
  private:
   static Eigen::Isometry3d Pose(const NavState& s) {
@@ -240,6 +278,7 @@ class Window {
   std::vector<State> states_;
   std::vector<OwnedFactor> factors_;
   std::vector<OwnedFactor> marginalised_;  // kept alive: the prior was built from them
+  std::vector<std::array<double, 3>> offsets_;
   int first_ = 0;
 };
 
@@ -317,6 +356,49 @@ TEST(WindowSolver, NewestCovarianceEqualsDenseInverseOfCeresInformation) {
   EXPECT_LT((*covariance - expected).norm(), 1e-6 * expected.norm());
   // Not trivially right: the newest state's position is uncertain at the centimetre level.
   EXPECT_GT(std::sqrt(expected(0, 0)), 1e-3);
+}
+
+// Offsets join keyframes far apart (a chain's every position): the bordered factorisation
+// must reach Ceres's optimum, and the newest state's covariance must be that of the dense
+// inverse with the offsets in it. The first chain's offset is in the marginalisation prior.
+TEST(WindowSolver, WithOffsetsReachesCeresOptimumAndDenseCovariance) {
+  Window ours(true, 2);
+  ours.MarginalizeFirst();
+  Window theirs(true, 2);
+  theirs.MarginalizeFirst();
+
+  WindowSolver solver;
+  const WindowSolveSummary summary =
+      solver.Solve(ours.WindowStates(), ours.WindowFactors(), TightWindow(), ours.Offsets());
+  EXPECT_EQ(summary.termination, WindowTermination::kConverged);
+  auto problem = theirs.CeresProblem();
+  ceres::Solver::Summary ceres_summary;
+  ceres::Solve(TightCeres(), problem.get(), &ceres_summary);
+  ASSERT_EQ(ceres_summary.termination_type, ceres::CONVERGENCE);
+  EXPECT_NEAR(summary.final_cost, ceres_summary.final_cost, 1e-9 * ceres_summary.final_cost);
+  ExpectSameStates(ours.states(), theirs.states(), ours.first());
+  for (int c = 0; c < 2; ++c) {
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(ours.offsets()[c][k], theirs.offsets()[c][k], 1e-6);
+  }
+
+  const auto covariance =
+      solver.LastStateCovariance(ours.WindowStates(), ours.WindowFactors(), ours.Offsets());
+  ASSERT_TRUE(covariance.has_value());
+  ceres::CRSMatrix crs;
+  ASSERT_TRUE(problem->Evaluate(ceres::Problem::EvaluateOptions(), nullptr, nullptr, nullptr, &crs));
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
+  for (int row = 0; row < crs.num_rows; ++row) {
+    for (int k = crs.rows[row]; k < crs.rows[row + 1]; ++k) J(row, crs.cols[k]) = crs.values[k];
+  }
+  const int states = kStates - 1;
+  ASSERT_EQ(J.cols(), 15 * states + 6);
+  const Eigen::MatrixXd H = J.transpose() * J;
+  const Eigen::MatrixXd expected = H.inverse().block(15 * (states - 1), 15 * (states - 1), 15, 15);
+  EXPECT_LT((*covariance - expected).norm(), 1e-6 * expected.norm());
+  // The offsets matter: without them (the band's inverse alone) the covariance differs.
+  const Eigen::MatrixXd H_band = H.topLeftCorner(15 * states, 15 * states);
+  const Eigen::MatrixXd band_only = H_band.inverse().bottomRightCorner(15, 15);
+  EXPECT_GT((band_only - expected).norm(), 1e-3 * expected.norm());
 }
 
 TEST(WindowSolver, ConstantPoseStaysAndTheRestMatchesCeres) {
