@@ -431,12 +431,17 @@ struct LocalSmoother::Impl {
   // the first position (zero residual: no jump when a sensor is fused again).
   void AddPositionWithOffset(Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
     const Eigen::Vector3d p_L_measured = m.R_LA * m.p_As;
+    if (chain.offset != nullptr && chain.keyframe != nullptr && FrameJumped(chain, kf, m)) {
+      Close(chain);
+      ++stats->chain_offset_restarts;
+    }
     if (chain.offset == nullptr) {
       auto offset = std::make_unique<ChainOffset>();
       const NavState s = kf->state();
       Eigen::Map<Eigen::Vector3d>{offset->o_L} = s.p_LI + s.q_LI * m.p_Is - p_L_measured;
       chain.offset = offset.get();
       offsets.push_back(std::move(offset));
+      ++stats->chain_offsets;
     }
     Eigen::Matrix3d covariance = m.R_LA * m.covariance_A * m.R_LA.transpose();
     covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
@@ -452,6 +457,19 @@ struct LocalSmoother::Impl {
                                       nullptr}});
     factor->sensor = m.sensor;
     unconfirmed_between.push_back(factor);
+  }
+
+  // The displacement since the chain's previous position against the states' (both in the
+  // window; the new keyframe predicted by the IMU), normalised by both positions' noise.
+  bool FrameJumped(const Chain& chain, const Keyframe* kf, const PendingMeasurement& m) const {
+    const NavState a = chain.keyframe->state();
+    const NavState b = kf->state();
+    const Eigen::Vector3d measured = m.R_LA * (m.p_As - chain.p_As);
+    const Eigen::Vector3d predicted = (b.p_LI + b.q_LI * m.p_Is) - (a.p_LI + a.q_LI * m.p_Is);
+    Eigen::Matrix3d covariance = m.R_LA * (m.covariance_A + chain.covariance_A) * m.R_LA.transpose();
+    covariance += Eigen::Matrix3d::Identity() * (2.0 * m.min_std_m * m.min_std_m);
+    const Eigen::Vector3d d = measured - predicted;
+    return d.dot(covariance.ldlt().solve(d)) > options.offset_chain_restart_chi2;
   }
 
   // Position: r^p (eq. 3); both ends' noise enters the displacement (white position noise).
@@ -569,6 +587,7 @@ struct LocalSmoother::Impl {
     std::erase_if(offsets, [&](const std::unique_ptr<ChainOffset>& o) {
       return std::find(leaving.begin(), leaving.end(), o.get()) != leaving.end();
     });
+    if (prior) stats->chain_offsets_marginalised += static_cast<std::int64_t>(leaving.size());
     if (prior) {
       std::vector<Keyframe*> kfs;
       for (const MarginalBlock& b : prior->blocks) {
@@ -642,6 +661,9 @@ bool LocalSmootherOptions::IsValid(std::string* why) const {
   }
   if (!(huber_delta >= 0.0) || !std::isfinite(huber_delta)) {
     return fail("huber_delta must be >= 0 and finite");
+  }
+  if (!(offset_chain_restart_chi2 > 0.0)) {
+    return fail("offset_chain_restart_chi2 must be > 0 (+inf: never restart)");
   }
   if (!(max_speed_mps > 0.0) || !std::isfinite(max_speed_mps)) {
     return fail("max_speed_mps must be positive and finite");

@@ -70,6 +70,13 @@ struct LocalSmootherOptions {
   double initial_trust_region_radius = 1e8;
   /// > 0: Huber loss on the between factors, in standard deviations.
   double huber_delta = 0.0;
+  /// AddPositionWithOffset: a position whose displacement from the chain's previous one
+  /// disagrees with the states' beyond this squared Mahalanobis distance (both positions'
+  /// covariances; χ²(3) at 1 − 1e-6 by default) starts a new chain: the sensor's frame
+  /// jumped (a wrong GNSS fix, a total station re-locked on another prism), and a chain
+  /// that kept its offset would pull the state by the whole jump in one solve. The paper's
+  /// displacements take such a jump once, in one factor; a new chain takes none of it.
+  double offset_chain_restart_chi2 = 30.7;
 
   // ---- sanity limits: a solve beyond them is a bad solve (reverted, counted) ----
   double max_speed_mps = 50.0;
@@ -116,6 +123,9 @@ struct LocalSmootherStats {
   std::int64_t discarded_between_factors = 0;  ///< removed with a bad solve
   std::int64_t faulty_between_factors = 0;     ///< removed by DiscardSensor
   std::int64_t marginalisation_failures = 0;
+  std::int64_t chain_offsets = 0;               ///< AddPositionWithOffset chains started
+  std::int64_t chain_offset_restarts = 0;       ///< of them, at a jump of the frame
+  std::int64_t chain_offsets_marginalised = 0;  ///< their offsets gone with the prior
   std::vector<double> solve_time_s;       ///< wall time of each solve (for benchmarks)
 };
 
