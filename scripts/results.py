@@ -1285,6 +1285,24 @@ def table_position_factors(V):
                      "NEES consensus (med)", "95 % containment consensus (med)"], rows)
 
 
+def table_position_offset(V):
+    """`position_factors: offset` beside the between → absolute figures of position_factors
+    (the same flights; the between and absolute estimates do not depend on the offset's
+    code, which golden_runs and the stamps of the two sources show)."""
+    rows = []
+    for scenario in _suite_scenarios(SCRIPT_ROOT):
+        k = f"position_factors.{scenario}."
+        o = f"position_offset.{scenario}.offset."
+        rows.append([scenario] + [f"{V(k + 'between.' + f)} → {V(k + 'absolute.' + f)} → {V(o + f)}" for f in (
+            "consensus_ate", "oracle_ate", "best_single", "oracle_over_best", "consensus_over_oracle",
+            "consensus_step_mm", "consensus_nees", "consensus_containment")] +
+            [f"{V(o + 'oracle_nees')} / {V(o + 'oracle_containment')}"])
+    return md_table(["scenario (between → absolute → offset)", "consensus ATE med [m]", "oracle ATE med [m]",
+                     "best single @clean (med)", "oracle × best single (med)", "consensus × oracle (med / worst)",
+                     "largest step consensus [mm] (med / worst)", "NEES consensus (med)",
+                     "95 % containment consensus (med)", "oracle with offset: NEES / 95 % containment (med)"], rows)
+
+
 def table_degenerate_directions(V):
     rows = []
     for scenario in _lio_scenarios(SCRIPT_ROOT):
@@ -1386,6 +1404,7 @@ TABLES = {
     "consensus_nis": table_consensus_nis,
     "level_alignment": table_level_alignment,
     "position_factors": table_position_factors,
+    "position_offset": table_position_offset,
     "degenerate_directions": table_degenerate_directions,
 }
 

@@ -739,6 +739,28 @@ TEST(ScenarioModels, AnEstimationBlockWithoutAnImuIsRejectedAtParse) {
   EXPECT_CONTAINS(e.what(), "vio, lio");
 }
 
+// `position_factors` takes each of its three kinds, keeps it through the resolved YAML,
+// and names the three when given another.
+TEST(ScenarioLoad, PositionFactorsAreReadResolvedAndABadKindIsNamed) {
+  const std::string base = std::string(kMinimal) +
+                           "sensors:\n  imu: {}\n  leica: {type: total_station}\n"
+                           "estimation:\n  methods: [consensus]\n  position_factors: ";
+  const std::pair<const char*, estimator::PositionFactors> kinds[] = {
+      {"between", estimator::PositionFactors::kBetween},
+      {"absolute", estimator::PositionFactors::kAbsolute},
+      {"offset", estimator::PositionFactors::kOffset}};
+  for (const auto& [name, kind] : kinds) {
+    const Scenario scenario = ParseScenario(base + name + "\n", kLabel);
+    ASSERT_TRUE(scenario.estimation.has_value()) << name;
+    EXPECT_EQ(scenario.estimation->position_factors, kind) << name;
+    const Scenario reloaded = ParseScenario(ResolvedScenarioYaml(scenario), "resolved.yaml");
+    EXPECT_EQ(reloaded.estimation->position_factors, kind) << name;
+  }
+  const core::InputError e = ParseError(base + "relative\n");
+  ExpectLocated(e, 13, "estimation.position_factors");
+  EXPECT_CONTAINS(e.what(), "between, absolute or offset");
+}
+
 // ---- faults scored as intervals per sensor and kind (issue 19, finding 4) ----
 
 // Two overlapping divergence faults on the VIO, 8-14 s and 10-16 s. Before, the scoring
