@@ -502,11 +502,12 @@ def _naive_hit(check_dir, scenario, seed):
     return text
 
 
-def _closed_loop_values(r, name, scenario, window_nth, open_loop_methods):
+def _closed_loop_values(r, name, scenario, window_nth, open_loop_methods, check_dir=None):
     """Per seed and over seeds: the flights on consensus and on naive fusion (summary.json
     closed_loop), the open-loop ATE of open_loop_methods; "RMSE in window": the
-    window_nth expectation on closed_loop.consensus.tracking_rmse_m (its window)."""
-    check_dir = r.out(name)
+    window_nth expectation on closed_loop.consensus.tracking_rmse_m (its window). Keys
+    under `name.`; the run in check_dir (default <runs>/<name>)."""
+    check_dir = check_dir or r.out(name)
     s = seed_summaries(check_dir, scenario, CLOSED_LOOP_SEEDS)
     v = {}
     k = f"{name}."
@@ -604,6 +605,33 @@ def extract_closed_loop_corridor(r):
 def extract_closed_loop_window(r):
     _, v = _closed_loop_values(r, "closed_loop_window", "closed_loop_indoor_outdoor_window", 1,
                                ["consensus", "naive", "single:vio"])
+    return v
+
+
+# The three closed-loop scenarios with `position_factors: offset`: (short name, scenario,
+# window expectation's index, open-loop methods), as their own sources extract them.
+CLOSED_LOOP_OFFSET = (("wall", "closed_loop_vio_divergence_wall", 0, ["consensus", "naive"]),
+                      ("corridor", "closed_loop_corridor_occlusion", 1, ["consensus", "naive"]),
+                      ("window", "closed_loop_indoor_outdoor_window", 1, ["consensus", "naive", "single:vio"]))
+
+
+def run_closed_loop_offset(r):
+    d = r.out("closed_loop_offset", "scenarios")
+    d.mkdir(parents=True, exist_ok=True)
+    for short, scenario, _, _ in CLOSED_LOOP_OFFSET:
+        where = f"scenarios/{scenario}.yaml"
+        path = d / f"{scenario}.yaml"
+        path.write_text(_with_estimation_key((r.root / where).read_text(), "position_factors", "offset", where))
+        r.tofu_cmd(f"closed_loop_offset_{short}", "check", path, "--seeds", len(CLOSED_LOOP_SEEDS),
+                   "--jobs", r.jobs, "--quiet", "--out", r.out("closed_loop_offset", short), ok=(0, 1, 3))
+
+
+def extract_closed_loop_offset(r):
+    v = {}
+    for short, scenario, window_nth, methods in CLOSED_LOOP_OFFSET:
+        _, values = _closed_loop_values(r, f"closed_loop_offset_{short}", scenario, window_nth, methods,
+                                        check_dir=r.out("closed_loop_offset", short))
+        v.update(values)
     return v
 
 
@@ -1085,6 +1113,10 @@ SOURCES = {
                                      "(the default) and `absolute`, --seeds 10",
                          "seeds": FACTOR_SEEDS, "run": run_position_factors,
                          "extract": extract_position_factors},
+    "closed_loop_offset": {"describe": "`tofu check` of the three closed-loop scenarios with "
+                                       "`position_factors: offset`, --seeds 10",
+                           "seeds": CLOSED_LOOP_SEEDS, "run": run_closed_loop_offset,
+                           "extract": extract_closed_loop_offset},
     "position_offset": {"describe": "`tofu check` of the suite's scenarios without naive and "
                                     "consensus:consistent_set, with `position_factors: offset`, "
                                     "--seeds 10",
@@ -1303,6 +1335,135 @@ def table_position_offset(V):
                      "95 % containment consensus (med)", "oracle with offset: NEES / 95 % containment (med)"], rows)
 
 
+def table_closed_loop_offset(V):
+    """The closed-loop flights on consensus with displacements (the scenarios as written)
+    → with `position_factors: offset`, seeds 1-10."""
+    rows = []
+    for short, scenario, _, _ in CLOSED_LOOP_OFFSET:
+        a, b = f"closed_loop_{short}.", f"closed_loop_offset_{short}."
+        rows.append([scenario] + [f"{V(a + f)} → {V(b + f)}" for f in (
+            "seeds1_10.consensus_rmse_cm", "seeds1_10.consensus_window_rmse_cm", "window_rmse_above_5cm",
+            "consensus_dist_cm", "naive_hit_seeds", "passed")])
+    return md_table(["scenario (between → offset)", "consensus: tracking RMSE", "RMSE in window",
+                     "seeds above 5 cm in window", "nearest structure", "naive: seeds with contact",
+                     "seeds whose every expectation held"], rows)
+
+
+def _number(text):
+    """The first number of a generated value ('4.9 %' -> 4.9, 'inf' -> inf, '0.12 / 0.2'
+    -> 0.12, '1.1e3' -> 1100); None for '-'."""
+    text = text.strip()
+    if text.startswith("inf") or text == "never":
+        return math.inf
+    found = re.match(r"-?[0-9.]+(?:e-?[0-9]+)?", text)
+    return float(found.group(0)) if found else None
+
+
+def _numbers(text):
+    return [_number(part) for part in text.split("/")]
+
+
+def _goal_row(V, goal, variants, passes, worst_of, fmt):
+    """One goal over the suite's scenarios: per variant (label, key template with
+    {scenario}), how many scenarios pass, and the worst value."""
+    cells = []
+    met_any = False
+    for label, template in variants:
+        values = {sc: V(template.format(scenario=sc)) for sc in _suite_scenarios(SCRIPT_ROOT)}
+        held = [sc for sc, text in values.items() if passes(sc, text)]
+        worst = worst_of(values)
+        met_any |= len(held) == len(values)
+        cells.append(f"{label}: {len(held)} of {len(values)} ({fmt(worst)})")
+    return [goal, "; ".join(cells), "met" if met_any else "missed"]
+
+
+def table_issue34_goals(V):
+    """Issue 34's goals over seeds 1-10 of the suite (and the closed-loop scenarios), each
+    marked met where every scenario meets it in at least one variant."""
+    rows = []
+    slow = "total_station_slow_drift"
+    worst_max = lambda f: (lambda vals: max(f(t) for t in vals.values()))  # noqa: E731
+    rows.append(_goal_row(
+        V, "oracle ≤ 1.1x the best healthy single sensor (median)",
+        [("between", "position_factors.{scenario}.between.oracle_over_best"),
+         ("absolute", "position_factors.{scenario}.absolute.oracle_over_best"),
+         ("offset", "position_offset.{scenario}.offset.oracle_over_best")],
+        lambda sc, t: _number(t) <= 1.1, worst_max(_number), lambda x: f"worst {x:.2f}x"))
+    rows.append(_goal_row(
+        V, "consensus ≤ 1.5x the oracle's median ATE and ≤ 2.5x its worst",
+        [("between", "position_factors.{scenario}.between.consensus_over_oracle"),
+         ("absolute", "position_factors.{scenario}.absolute.consensus_over_oracle"),
+         ("offset", "position_offset.{scenario}.offset.consensus_over_oracle")],
+        lambda sc, t: _numbers(t)[0] <= 1.5 and _numbers(t)[1] <= 2.5,
+        worst_max(lambda t: _numbers(t)[0]), lambda x: f"largest median {x:.2f}x"))
+    selection = [("cm", "consensus_nis.{scenario}.cm."), ("nis", "consensus_nis.{scenario}.nis."),
+                 ("level prior", "level_alignment.{scenario}.level.")]
+    rows.append(_goal_row(
+        V, "detection ≤ 1 s after abrupt faults, ≤ 5 s for the slow drift (worst seed)",
+        [(label, prefix + "detection_worst_s") for label, prefix in selection],
+        lambda sc, t: _number(t) <= (5.0 if sc == slow else 1.0),
+        lambda vals: max(_number(t) for sc, t in vals.items() if sc != slow),
+        lambda x: f"abrupt worst {x:.1f} s"))
+    rows.append(_goal_row(
+        V, "re-admission ≤ 3 s after a fault ends (worst seed)",
+        [(label, prefix + "readmission_worst_s") for label, prefix in selection],
+        lambda sc, t: _number(t) <= 3.0, worst_max(_number), lambda x: f"worst {x:.1f} s"))
+    rows.append(_goal_row(
+        V, "false exclusion ≤ 1 % of healthy sensor time (worst seed)",
+        [(label, prefix + "false_exclusion_worst") for label, prefix in selection],
+        lambda sc, t: _number(t) <= 1.0, worst_max(_number), lambda x: f"worst {x:.1f} %"))
+    nees_ok = lambda t: 1.0 <= _number(t) <= 6.0  # noqa: E731
+    rows.append(_goal_row(
+        V, "NEES median within 1-6 (consensus)",
+        [("between", "position_factors.{scenario}.between.consensus_nees"),
+         ("absolute", "position_factors.{scenario}.absolute.consensus_nees"),
+         ("offset", "position_offset.{scenario}.offset.consensus_nees")],
+        lambda sc, t: nees_ok(t), worst_max(_number), lambda x: f"largest {sci(x)}"))
+    rows.append(_goal_row(
+        V, "NEES median within 1-6 (oracle)",
+        [("offset", "position_offset.{scenario}.offset.oracle_nees")],
+        lambda sc, t: nees_ok(t), worst_max(_number), lambda x: f"largest {sci(x)}"))
+    rows.append(_goal_row(
+        V, "95 % containment within 90-99 % (consensus)",
+        [("between", "position_factors.{scenario}.between.consensus_containment"),
+         ("absolute", "position_factors.{scenario}.absolute.consensus_containment"),
+         ("offset", "position_offset.{scenario}.offset.consensus_containment")],
+        lambda sc, t: 90.0 <= _number(t) <= 99.0,
+        lambda vals: min(_number(t) for t in vals.values()), lambda x: f"lowest {x:.0f} %"))
+    rows.append(_goal_row(
+        V, "95 % containment within 90-99 % (oracle)",
+        [("offset", "position_offset.{scenario}.offset.oracle_containment")],
+        lambda sc, t: 90.0 <= _number(t) <= 99.0,
+        lambda vals: min(_number(t) for t in vals.values()), lambda x: f"lowest {x:.0f} %"))
+    rows.append(_goal_row(
+        V, "rotation RMSE ≤ 1.5x the oracle's (consensus, median)",
+        [("between", "suite.{scenario}.c.rotation_over_oracle")],
+        lambda sc, t: _number(t) <= 1.5, worst_max(_number), lambda x: f"worst {x:.2f}x"))
+    # The closed-loop scenarios: the largest in-window tracking RMSE and contacts.
+    loops = ("wall", "corridor", "window")
+    cells = []
+    met = False
+    for label, prefix in (("between", "closed_loop_"), ("offset", "closed_loop_offset_")):
+        windows = [_number(V(f"{prefix}{k}.seeds1_10.consensus_window_rmse_cm").split("-")[-1]) for k in loops]
+        above = sum(int(V(f"{prefix}{k}.window_rmse_above_5cm").split()[0]) for k in loops)
+        cells.append(f"{label}: largest {max(windows):.1f} cm, {above} of 30 flights above 5 cm")
+        met |= above == 0
+    rows.append(["closed loop: tracking RMSE ≤ 5 cm while an absolute sensor is healthy",
+                 "; ".join(cells), "met" if met else "missed"])
+    hits = []
+    for label, prefix in (("between", "closed_loop_"), ("offset", "closed_loop_offset_")):
+        n = sum(int(V(f"{prefix}{k}.seed{i}.consensus_hits")) for k in loops for i in CLOSED_LOOP_SEEDS)
+        hits.append((label, n))
+    rows.append(["closed loop: no collision of consensus (30 flights)",
+                 "; ".join(f"{label}: {n} contacts" for label, n in hits),
+                 "met" if all(n == 0 for _, n in hits) else "missed"])
+    ratios = [_number(V(f"euroc.cut{start}.ratio")) for start, _ in EUROC_CUTS]
+    rows.append(["EuRoC: fused ATE ≤ 1.1x the pose stream's own (five cuts of V1_02)",
+                 f"worst {max(ratios):.2f}x", "met" if max(ratios) <= 1.1 else "missed"])
+    return md_table(["goal (issue 34)", "measured, per variant: scenarios meeting it of the suite's eight",
+                     "met / missed"], rows)
+
+
 def table_degenerate_directions(V):
     rows = []
     for scenario in _lio_scenarios(SCRIPT_ROOT):
@@ -1405,6 +1566,8 @@ TABLES = {
     "level_alignment": table_level_alignment,
     "position_factors": table_position_factors,
     "position_offset": table_position_offset,
+    "closed_loop_offset": table_closed_loop_offset,
+    "issue34_goals": table_issue34_goals,
     "degenerate_directions": table_degenerate_directions,
 }
 
