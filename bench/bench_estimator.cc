@@ -134,7 +134,9 @@ double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).coun
 //       LocalSmootherStats::solve_time_s (what the estimator records);
 //   x_realtime / x_realtime_cpu — log duration / wall (thread CPU) time of the replay loop.
 void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
-                     const std::string& method_name, const std::string& late_sensor = "") {
+                     const std::string& method_name, const std::string& late_sensor = "",
+                     tofu::estimator::PositionFactors position_factors =
+                         tofu::estimator::PositionFactors::kBetween) {
   const tofu::replay::RecordedLog& log = LogOf(scenario);
   const tofu::replay::ReplayMethod method = tofu::replay::ParseReplayMethod(method_name, log);
   // A position sensor fused from the start never gets a T_AL (its alignment graph is
@@ -156,7 +158,8 @@ void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
   };
   const tofu::estimator::MultiGraphEstimatorOptions options =
       tofu::replay::DefaultEstimatorOptions(log);
-  const std::vector<tofu::estimator::SensorSpec> specs = tofu::replay::SensorSpecsOf(log);
+  std::vector<tofu::estimator::SensorSpec> specs = tofu::replay::SensorSpecsOf(log);
+  for (tofu::estimator::SensorSpec& spec : specs) spec.position_factors = position_factors;
   const auto [lo, hi] = std::minmax_element(
       log.measurements.begin(), log.measurements.end(),
       [](const auto& a, const auto& b) { return a.t_ns < b.t_ns; });
@@ -253,7 +256,9 @@ void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
     state.counters["late_fused_at_s"] = late_fused_at_s;  // -1: never
     state.counters["late_unaligned"] = late_unaligned;    // its measurements not fused
   }
-  state.SetLabel(method_name + (late_sensor.empty() ? "" : " then +" + late_sensor) + ", " +
+  const bool offset = position_factors == tofu::estimator::PositionFactors::kOffset;
+  state.SetLabel(method_name + (late_sensor.empty() ? "" : " then +" + late_sensor) +
+                 (offset ? " (offset)" : "") + ", " +
                  std::to_string(static_cast<int>(log_duration_s)) + " s log");
 }
 
@@ -278,6 +283,14 @@ BENCHMARK_CAPTURE(BM_Estimator200s, vio, std::string("single:vio"), std::string(
     ->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 BENCHMARK_CAPTURE(BM_Estimator200s, vio_leica, std::string("single:vio"), std::string("leica"))
     ->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+// The same with the total station's positions fused with an offset per chain
+// (`position_factors: offset`): the window solve then has an offset block beside the band.
+void BM_Estimator200sOffset(benchmark::State& state) {
+  ReplayBenchmark(state, "scenarios/bench/estimator_200s.yaml", "single:vio", "leica",
+                  tofu::estimator::PositionFactors::kOffset);
+}
+BENCHMARK(BM_Estimator200sOffset)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
 // 2. Alignment update latency: synthetic pairs along a figure-eight with height changes
 // (local estimate p_Ls in L), measured by a position sensor whose frame A is offset by the

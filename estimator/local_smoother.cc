@@ -205,7 +205,7 @@ struct LocalSmoother::Impl {
     return MarginalBlock{kf->speed_bias, kSpeedBiasSize, kSpeedBiasSize, nullptr};
   }
 
-  bool Names(const Factor& f, const ChainOffset& o) const {
+  static bool Names(const Factor& f, const ChainOffset& o) {
     return std::any_of(f.blocks.begin(), f.blocks.end(),
                        [&](const MarginalBlock& b) { return b.data == o.o_L; });
   }
@@ -233,9 +233,13 @@ struct LocalSmoother::Impl {
   // The window as the solver sees it: keyframes in time order, factors by state index,
   // offsets after them.
   void BuildWindow() {
-    PruneOffsets();
     window_offsets.clear();
-    for (const auto& o : offsets) window_offsets.push_back(o->o_L);
+    for (const auto& o : offsets) {
+      const auto names = [&](const auto& f) { return Names(*f, *o); };
+      if (std::any_of(factors.begin(), factors.end(), names)) {
+        window_offsets.push_back(o->o_L);
+      }
+    }
     window_states.resize(keyframes.size());
     for (std::size_t i = 0; i < keyframes.size(); ++i) {
       Keyframe& kf = *keyframes[i];
@@ -431,7 +435,11 @@ struct LocalSmoother::Impl {
   // the first position (zero residual: no jump when a sensor is fused again).
   void AddPositionWithOffset(Chain& chain, Keyframe* kf, const PendingMeasurement& m) {
     const Eigen::Vector3d p_L_measured = m.R_LA * m.p_As;
-    if (chain.offset != nullptr && chain.keyframe != nullptr && FrameJumped(chain, kf, m)) {
+    // The chain's previous position left the window (a dropout): nothing to test the new
+    // one against but the offset, and L drifted meanwhile; a new chain, as a displacement
+    // chain restarts at an anchor there.
+    if (chain.offset != nullptr && chain.keyframe == nullptr) Close(chain);
+    if (chain.offset != nullptr && FrameJumped(chain, kf, m)) {
       Close(chain);
       ++stats->chain_offset_restarts;
     }
@@ -449,6 +457,7 @@ struct LocalSmoother::Impl {
         Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
     std::unique_ptr<ceres::LossFunction> loss;
     if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+    // A factor of the sensor's like a between factor (discarded with it at an exclusion).
     Factor* factor = AddFactor(
         FactorKind::kBetween,
         std::make_unique<PositionWithOffsetFactor>(m.p_Is, p_L_measured, sqrt_information),
@@ -466,7 +475,8 @@ struct LocalSmoother::Impl {
     const NavState b = kf->state();
     const Eigen::Vector3d measured = m.R_LA * (m.p_As - chain.p_As);
     const Eigen::Vector3d predicted = (b.p_LI + b.q_LI * m.p_Is) - (a.p_LI + a.q_LI * m.p_Is);
-    Eigen::Matrix3d covariance = m.R_LA * (m.covariance_A + chain.covariance_A) * m.R_LA.transpose();
+    Eigen::Matrix3d covariance =
+        m.R_LA * (m.covariance_A + chain.covariance_A) * m.R_LA.transpose();
     covariance += Eigen::Matrix3d::Identity() * (2.0 * m.min_std_m * m.min_std_m);
     const Eigen::Vector3d d = measured - predicted;
     return d.dot(covariance.ldlt().solve(d)) > options.offset_chain_restart_chi2;
@@ -544,6 +554,7 @@ struct LocalSmoother::Impl {
   }
 
   void MarginalizeOldest() {
+    PruneOffsets();
     Keyframe* old = keyframes.front().get();
     const auto touches_old = [&](const Factor& f) {
       return std::find(f.keyframes.begin(), f.keyframes.end(), old) != f.keyframes.end();
@@ -554,9 +565,10 @@ struct LocalSmoother::Impl {
     std::vector<ChainOffset*> leaving;
     for (const auto& o : offsets) {
       if (o->open) continue;
-      const bool only_prior_or_old = std::all_of(factors.begin(), factors.end(), [&](const auto& f) {
-        return !Names(*f, *o) || f->kind == FactorKind::kPrior || touches_old(*f);
-      });
+      const bool only_prior_or_old =
+          std::all_of(factors.begin(), factors.end(), [&](const auto& f) {
+            return !Names(*f, *o) || f->kind == FactorKind::kPrior || touches_old(*f);
+          });
       if (only_prior_or_old) {
         leaving.push_back(o.get());
         marginalised.push_back(o->o_L);
@@ -893,7 +905,8 @@ bool LocalSmoother::Update() {
   solver.max_time_s = options_.max_solver_time_s;
   solver.function_tolerance = options_.function_tolerance;
   solver.initial_trust_region_radius = options_.initial_trust_region_radius;
-  m.BuildWindow();  // prunes offsets no factor names: snapshot them after it
+  m.PruneOffsets();
+  m.BuildWindow();
   std::vector<std::array<double, kWindowOffsetSize>> saved_offsets;
   for (const auto& o : m.offsets) {
     saved_offsets.emplace_back();
@@ -910,6 +923,10 @@ bool LocalSmoother::Update() {
   if (summary.termination == WindowTermination::kTimeCap) ++stats_.time_cap_hits;
   bool good = summary.termination != WindowTermination::kFailure &&
               std::isfinite(summary.final_cost);
+  for (const auto& o : m.offsets) {
+    good = good && std::all_of(o->o_L, o->o_L + kWindowOffsetSize,
+                               [](double v) { return std::isfinite(v); });
+  }
   for (auto& kf : m.keyframes) {
     if (!good) break;
     const NavState s = kf->state();
@@ -995,7 +1012,8 @@ std::optional<Eigen::Matrix<double, 15, 15>> LocalSmoother::NewestCovariance() c
   Impl& m = *impl_;
   if (m.keyframes.empty()) return std::nullopt;
   // Σ = H⁻¹ of the window's information at the current estimate (Laplace approximation),
-  // read off the banded Cholesky factor with the newest keyframe ordered last.
+  // read off the banded Cholesky factor with the newest keyframe ordered last among the
+  // states, the offsets marginalised (WindowSolver::LastStateCovariance).
   m.BuildWindow();
   return m.solver.LastStateCovariance(m.window_states, m.window_factors, m.window_offsets);
 }

@@ -75,8 +75,9 @@ struct SensorSpec {
   /// direction is fused with the weights above (the paper).
   double unobserved_position_std_m = 0.0;
   double unobserved_rotation_std_rad = 0.0;
-  /// Position sensors: floor on the std of one between factor (m), added to the stated
-  /// covariances of its two ends.
+  /// Position sensors: floor on the std (m) of one between factor, added to the stated
+  /// covariances of its two ends; of one position with PositionFactors::kAbsolute or
+  /// kOffset (so 2·min² on a displacement of an offset chain).
   double min_position_std_m = 0.002;
   /// Position sensors: how each position constrains the local graph. The paper's
   /// displacements keep the local graph free to switch sensors without a jump but are

@@ -247,9 +247,10 @@ struct WindowSolver::Impl final : LmProblem {
     const int m = static_cast<int>(J.rows());
     const Eigen::Map<const Eigen::Matrix<double, M, Eigen::Dynamic>> Jf(J.data(), m, J.cols());
     const Eigen::Map<const Eigen::Matrix<double, M, 1>> r(residual.data(), m);
+    const bool bordered = G > 0 && HasOffset(f);
     int column_k = 0;
     for (const WindowBlockRef& bk : f.blocks) {
-      if (bk.offset >= 0 || HasOffset(f)) {
+      if (bordered) {
         AccumulateBordered(f, bk, column_k, Jf, r);
         column_k += TangentSize(bk);
         continue;
@@ -492,7 +493,9 @@ struct WindowSolver::Impl final : LmProblem {
       }
       for (int k = 0; k < kSpeedBiasSize; ++k) s.speed_bias[k] += delta[i][kSpeedBiasOffset + k];
     }
-    for (int j = 0; j < G; ++j) (*offsets)[j / kWindowOffsetSize][j % kWindowOffsetSize] += delta_offset[j];
+    for (int j = 0; j < G; ++j) {
+      (*offsets)[j / kWindowOffsetSize][j % kWindowOffsetSize] += delta_offset[j];
+    }
   }
 
   // H = L Lᵀ with the last state ordered last among the states: (A⁻¹)_nn = L_nn⁻ᵀ L_nn⁻¹.
@@ -579,6 +582,7 @@ WindowSolveSummary WindowSolver::Solve(const std::vector<WindowState>& states,
   const WindowSolveSummary summary = MinimizeLm(s, options);
   s.problem_states = nullptr;
   s.problem_factors = nullptr;
+  s.offsets = nullptr;
   return summary;
 }
 
@@ -589,8 +593,10 @@ std::optional<StateCovariance> WindowSolver::LastStateCovariance(
   s.Setup(states, factors, offsets);
   if (s.n == 0) return std::nullopt;
   double cost = 0.0;
-  if (!s.Linearize(states, factors, &cost) || !s.Factorize(0.0)) return std::nullopt;
-  return s.LastBlockCovariance();
+  std::optional<StateCovariance> covariance;
+  if (s.Linearize(states, factors, &cost) && s.Factorize(0.0)) covariance = s.LastBlockCovariance();
+  s.offsets = nullptr;
+  return covariance;
 }
 
 }  // namespace tofu::estimator

@@ -6,14 +6,15 @@
 // is re-solved 30-60 times a second from a warm start in one or two Gauss-Newton steps.
 // Each ceres::Solve call rebuilds its reduced program, orders it and runs a new symbolic
 // sparse Cholesky analysis; with Ceres's block-sparse JᵀJ that fixed cost was ~70 % of a
-// local update (docs/BENCHMARKS.md). The window's factors only join keyframes that are
-// close in time (IMU and bias factors join neighbours, a sensor's between factor joins its
-// consecutive keyframes, the marginalisation prior the oldest few), so with keyframes in
-// time order the information matrix H = JᵀJ is block-banded with a bandwidth of one to
-// three keyframes, and its Cholesky factor has no fill-in outside that band. The band is
-// factorised with dense 15x15 blocks, cost O(N b²), no symbolic phase; and the newest
-// keyframe, ordered last, has its marginal covariance in the last diagonal block of the
-// factor: Σ_nn = (L_nn L_nnᵀ)⁻¹.
+// local update (docs/BENCHMARKS.md). The window's factors on keyframe states only join
+// keyframes that are close in time (IMU and bias factors join neighbours, a sensor's
+// between factor joins its consecutive keyframes, the marginalisation prior the oldest
+// few), so with keyframes in time order that part of H = JᵀJ is block-banded with a
+// bandwidth of one to three keyframes, and its Cholesky factor has no fill-in outside that
+// band. The band is factorised with dense 15x15 blocks, cost O(N b²), no symbolic phase;
+// and the newest keyframe, ordered last among the states, has its marginal covariance in
+// the last diagonal block of the factor: Σ_nn = (L_nn L_nnᵀ)⁻¹. Offset blocks (a position
+// chain's, shared by keyframes far apart) border the band (Solve below).
 //
 // The factors stay ceres::CostFunctions with their analytic Jacobians (tested against
 // numeric differentiation in local_factors_test), robust losses get Triggs et al. 1999's

@@ -751,7 +751,8 @@ TEST(LocalSmoother, NewestCovarianceIsPositiveDefiniteAndConsistent) {
 
 // A 30 Hz position sensor on the mount point p_Is, in frame A (kT_AL), with white noise
 // of position_std per axis; from shift_at_ns on its frame is moved by shift_A (and its
-// chain ended there if end_chain_at_shift). Fused as the paper's displacements or with an offset per chain.
+// chain ended there if end_chain_at_shift), after a dropout of dropout_before_shift_ns.
+// Fused as the paper's displacements or with an offset per chain.
 struct PositionRun {
   std::vector<double> nees_position;  ///< newest keyframe, every 0.5 s
   double max_error_m = 0.0;           ///< newest keyframe position, after 0.5 s
@@ -762,7 +763,8 @@ struct PositionRun {
 PositionRun RunWhitePositions(std::uint64_t seed, bool with_offset, double duration_s,
                               std::optional<core::Time> shift_at_ns = std::nullopt,
                               const Eigen::Vector3d& shift_A = Eigen::Vector3d::Zero(),
-                              bool end_chain_at_shift = true) {
+                              bool end_chain_at_shift = true,
+                              core::Time dropout_before_shift_ns = 0) {
   constexpr double kPositionStd = 0.005;
   WorldConfig config = NoisyWorld(2000 + seed, duration_s);
   Rng bias_rng(6000 + seed);
@@ -788,6 +790,7 @@ PositionRun RunWhitePositions(std::uint64_t seed, bool with_offset, double durat
       const core::Time t = next_position_ns;
       next_position_ns += kPosePeriodNs;
       Eigen::Vector3d p_As = kT_AL * (Trajectory::Pose(t) * p_Is) + noise.Vector(kPositionStd);
+      if (shift_at_ns && t < *shift_at_ns && t >= *shift_at_ns - dropout_before_shift_ns) continue;
       if (shift_at_ns && t >= *shift_at_ns) {
         if (!shifted && end_chain_at_shift) smoother.EndChain(0);
         shifted = true;
@@ -872,9 +875,27 @@ TEST(LocalSmoother, AFrameJumpInsideAChainStartsANewChain) {
   EXPECT_EQ(run.stats.bad_solves, 0);
   EXPECT_EQ(run.stats.chain_offsets, 2);
   EXPECT_EQ(run.stats.chain_offset_restarts, 1);
+  EXPECT_EQ(run.stats.chain_offsets_marginalised, 1);
   EXPECT_LT(run.max_error_m, 0.02);
   // 4 s of 5 mm white noise restart no chain.
   EXPECT_EQ(RunWhitePositions(3, true, 4.0).stats.chain_offset_restarts, 0);
+}
+
+// The same jump after a 1 s dropout, longer than the window: the chain's previous
+// position has left it, so nothing tests the jump, and the chain starts again (as a
+// displacement chain restarts at an anchor) instead of pulling the state by 30 cm.
+TEST(LocalSmoother, AChainWhosePreviousPositionLeftTheWindowStartsAgain) {
+  const PositionRun run =
+      RunWhitePositions(3, true, 4.0, core::SecondsToTime(2.0), Eigen::Vector3d(0.3, -0.2, 0.1),
+                        false, core::SecondsToTime(1.0));
+  std::printf("largest position error %.1f mm, final %.1f mm\n", run.max_error_m * 1e3,
+              run.final_error_m * 1e3);
+  EXPECT_EQ(run.stats.bad_solves, 0);
+  EXPECT_EQ(run.stats.chain_offsets, 2);
+  EXPECT_EQ(run.stats.chain_offset_restarts, 0);
+  // The IMU alone drifts ~4 cm in the 1 s; the old offset would add the 37 cm jump.
+  EXPECT_LT(run.max_error_m, 0.1);
+  EXPECT_LT(run.final_error_m, 0.05);
 }
 
 // ---- bad data ----
@@ -996,6 +1017,7 @@ TEST(LocalSmootherOptions, DefaultsAndTheValuesInUseAreValid) {
   EXPECT_TRUE(Options(100.0, false, ImuNoiseParams{}, true).IsValid(&why)) << why;
   LocalSmootherOptions uncapped;
   uncapped.max_solver_time_s = std::numeric_limits<double>::infinity();
+  uncapped.offset_chain_restart_chi2 = std::numeric_limits<double>::infinity();  // no restart
   EXPECT_TRUE(uncapped.IsValid(&why)) << why;
   // tofu estimate's CLI bounds (--keyframe-rate [0.1, 1000] Hz, --huber [0, 100]).
   LocalSmootherOptions cli;

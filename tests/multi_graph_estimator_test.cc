@@ -153,7 +153,7 @@ struct Readmission {
   double largest_step_m = 0.0;  ///< of the position error, 40-60 s
   double late_error_m = 0.0;    ///< RMS after the slew had time to finish (48-60 s)
 };
-Readmission ReadmitAbsoluteTotalStation(
+Readmission ReadmitTotalStation(
     const replay::RecordedLog& log, double rate_mps,
     estimator::PositionFactors factors = estimator::PositionFactors::kAbsolute) {
   std::vector<estimator::SensorSpec> specs = replay::SensorSpecsOf(log);
@@ -211,8 +211,8 @@ Readmission ReadmitAbsoluteTotalStation(
 }
 
 TEST_F(MultiGraphEstimatorTest, AnAbsoluteSensorFusedAgainSlewsTheStateBackAtTheStatedRate) {
-  const Readmission jump = ReadmitAbsoluteTotalStation(*log_, 0.0);
-  const Readmission slew = ReadmitAbsoluteTotalStation(*log_, 0.1);
+  const Readmission jump = ReadmitTotalStation(*log_, 0.0);
+  const Readmission slew = ReadmitTotalStation(*log_, 0.1);
   RecordProperty("jump_largest_step_mm", std::to_string(1e3 * jump.largest_step_m));
   RecordProperty("slew_largest_step_mm", std::to_string(1e3 * slew.largest_step_m));
   RecordProperty("jump_late_error_mm", std::to_string(1e3 * jump.late_error_m));
@@ -233,9 +233,9 @@ TEST_F(MultiGraphEstimatorTest, AnAbsoluteSensorFusedAgainSlewsTheStateBackAtThe
 // the paper's displacements (both ~11 mm once, 0.3 s after the switch).
 TEST_F(MultiGraphEstimatorTest, ASensorFusedAgainWithAnOffsetSwitchesAsSmoothlyAsDisplacements) {
   const Readmission offset =
-      ReadmitAbsoluteTotalStation(*log_, 0.0, estimator::PositionFactors::kOffset);
+      ReadmitTotalStation(*log_, 0.0, estimator::PositionFactors::kOffset);
   const Readmission between =
-      ReadmitAbsoluteTotalStation(*log_, 0.0, estimator::PositionFactors::kBetween);
+      ReadmitTotalStation(*log_, 0.0, estimator::PositionFactors::kBetween);
   RecordProperty("offset_largest_step_mm", std::to_string(1e3 * offset.largest_step_m));
   RecordProperty("between_largest_step_mm", std::to_string(1e3 * between.largest_step_m));
   RecordProperty("offset_late_error_mm", std::to_string(1e3 * offset.late_error_m));
