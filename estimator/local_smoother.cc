@@ -119,6 +119,27 @@ struct Chain {
   }
 };
 
+// A position measurement as AddPosition and AddPositionWithOffset take it; nullopt when
+// not finite.
+std::optional<PendingMeasurement> PositionMeasurement(int sensor, core::Time t_ns,
+                                                      const Eigen::Vector3d& p_As,
+                                                      const Eigen::Matrix3d& covariance_A,
+                                                      const Eigen::Vector3d& p_Is,
+                                                      const Eigen::Matrix3d& R_LA,
+                                                      double min_std_m) {
+  if (!p_As.allFinite() || !covariance_A.allFinite() || !R_LA.allFinite()) return std::nullopt;
+  PendingMeasurement p;
+  p.is_pose = false;
+  p.sensor = sensor;
+  p.t_ns = t_ns;
+  p.p_As = p_As;
+  p.covariance_A = covariance_A;
+  p.p_Is = p_Is;
+  p.R_LA = R_LA;
+  p.min_std_m = min_std_m;
+  return p;
+}
+
 bool Finite(const Keyframe& kf) {
   for (double v : kf.pose) if (!std::isfinite(v)) return false;
   for (double v : kf.speed_bias) if (!std::isfinite(v)) return false;
@@ -823,23 +844,14 @@ MeasurementUse LocalSmoother::AddPosition(int sensor, core::Time t_ns, const Eig
                                           const Eigen::Vector3d& p_Is, const Eigen::Matrix3d& R_LA,
                                           double min_std_m,
                                           const std::optional<Eigen::Vector3d>& p_LA) {
-  if (!p_As.allFinite() || !covariance_A.allFinite() || !R_LA.allFinite()) {
-    return MeasurementUse::kRejected;
-  }
-  PendingMeasurement p;
-  p.is_pose = false;
-  p.sensor = sensor;
-  p.t_ns = t_ns;
-  p.p_As = p_As;
-  p.covariance_A = covariance_A;
-  p.p_Is = p_Is;
-  p.R_LA = R_LA;
-  p.min_std_m = min_std_m;
+  std::optional<PendingMeasurement> p =
+      PositionMeasurement(sensor, t_ns, p_As, covariance_A, p_Is, R_LA, min_std_m);
+  if (!p) return MeasurementUse::kRejected;
   if (p_LA) {
     if (!p_LA->allFinite()) return MeasurementUse::kRejected;
-    p.p_LA = p_LA;
+    p->p_LA = p_LA;
   }
-  return impl_->Submit(std::move(p));
+  return impl_->Submit(std::move(*p));
 }
 
 MeasurementUse LocalSmoother::AddPositionWithOffset(int sensor, core::Time t_ns,
@@ -847,20 +859,11 @@ MeasurementUse LocalSmoother::AddPositionWithOffset(int sensor, core::Time t_ns,
                                                     const Eigen::Matrix3d& covariance_A,
                                                     const Eigen::Vector3d& p_Is,
                                                     const Eigen::Matrix3d& R_LA, double min_std_m) {
-  if (!p_As.allFinite() || !covariance_A.allFinite() || !R_LA.allFinite()) {
-    return MeasurementUse::kRejected;
-  }
-  PendingMeasurement p;
-  p.is_pose = false;
-  p.sensor = sensor;
-  p.t_ns = t_ns;
-  p.p_As = p_As;
-  p.covariance_A = covariance_A;
-  p.p_Is = p_Is;
-  p.R_LA = R_LA;
-  p.min_std_m = min_std_m;
-  p.with_offset = true;
-  return impl_->Submit(std::move(p));
+  std::optional<PendingMeasurement> p =
+      PositionMeasurement(sensor, t_ns, p_As, covariance_A, p_Is, R_LA, min_std_m);
+  if (!p) return MeasurementUse::kRejected;
+  p->with_offset = true;
+  return impl_->Submit(std::move(*p));
 }
 
 void LocalSmoother::EndChain(int sensor) {

@@ -364,6 +364,18 @@ WorldConfig NoisyWorld(std::uint64_t seed, double duration_s) {
   return c;
 }
 
+// A noisy world whose true biases are drawn from the smoother's own prior (so that the
+// truth is a sample of what the smoother assumes).
+WorldConfig WorldWithBiasesFromThePrior(std::uint64_t seed, std::uint64_t bias_seed,
+                                        double duration_s) {
+  WorldConfig config = NoisyWorld(seed, duration_s);
+  Rng bias_rng(bias_seed);
+  const InitialStatePrior prior;
+  config.true_bias.accel_mps2 = bias_rng.Vector(prior.accel_bias_std_mps2);
+  config.true_bias.gyro_radps = bias_rng.Vector(prior.gyro_bias_std_radps);
+  return config;
+}
+
 // ---- the world itself ----
 
 // Noise-free samples preintegrated over 1 s reproduce the analytic motion: the synthetic
@@ -703,12 +715,8 @@ TEST(LocalSmoother, NewestCovarianceIsPositiveDefiniteAndConsistent) {
   constexpr int kSeeds = 20;
   std::vector<double> nees_position, nees_full, nees_position_final, nees_full_final;
   for (int seed = 0; seed < kSeeds; ++seed) {
-    WorldConfig config = NoisyWorld(1000 + seed, 2.0);
+    WorldConfig config = WorldWithBiasesFromThePrior(1000 + seed, 5000 + seed, 2.0);
     config.relative_pose_noise = true;
-    Rng bias_rng(5000 + seed);
-    const InitialStatePrior prior;
-    config.true_bias.accel_mps2 = bias_rng.Vector(prior.accel_bias_std_mps2);
-    config.true_bias.gyro_radps = bias_rng.Vector(prior.gyro_bias_std_radps);
     const World world = MakeWorld(config);
     const Initial init = MakeInitial(world, true, seed);
     LocalSmoother smoother(Options(0.5, true, config.imu_noise, false));
@@ -766,11 +774,7 @@ PositionRun RunWhitePositions(std::uint64_t seed, bool with_offset, double durat
                               bool end_chain_at_shift = true,
                               core::Time dropout_before_shift_ns = 0) {
   constexpr double kPositionStd = 0.005;
-  WorldConfig config = NoisyWorld(2000 + seed, duration_s);
-  Rng bias_rng(6000 + seed);
-  const InitialStatePrior prior;
-  config.true_bias.accel_mps2 = bias_rng.Vector(prior.accel_bias_std_mps2);
-  config.true_bias.gyro_radps = bias_rng.Vector(prior.gyro_bias_std_radps);
+  const WorldConfig config = WorldWithBiasesFromThePrior(2000 + seed, 6000 + seed, duration_s);
   const World world = MakeWorld(config);
   const Initial init = MakeInitial(world, true, seed);
   LocalSmoother smoother(Options(0.5, true, config.imu_noise, false));
