@@ -409,9 +409,7 @@ struct LocalSmoother::Impl {
   // a solve with it succeeds.
   void AddBetween(int sensor, std::unique_ptr<ceres::CostFunction> cost, Keyframe* a,
                   Keyframe* b) {
-    std::unique_ptr<ceres::LossFunction> loss;
-    if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
-    Factor* factor = AddFactor(FactorKind::kBetween, std::move(cost), std::move(loss), {a, b},
+    Factor* factor = AddFactor(FactorKind::kBetween, std::move(cost), BetweenLoss(), {a, b},
                                {PoseBlock(a), PoseBlock(b)});
     factor->sensor = sensor;
     unconfirmed_between.push_back(factor);
@@ -435,19 +433,30 @@ struct LocalSmoother::Impl {
                chain.keyframe, kf);
   }
 
+  // The between factors' robust loss (none unless huber_delta > 0).
+  std::unique_ptr<ceres::LossFunction> BetweenLoss() const {
+    if (options.huber_delta <= 0) return nullptr;
+    return std::make_unique<ceres::HuberLoss>(options.huber_delta);
+  }
+
+  // Square-root information in L of a position covariance stated in A, plus the floor.
+  static Eigen::Matrix3d SqrtInformationInL(const Eigen::Matrix3d& covariance_A,
+                                            const Eigen::Matrix3d& R_LA, double min_std_m) {
+    Eigen::Matrix3d covariance = R_LA * covariance_A * R_LA.transpose();
+    covariance += Eigen::Matrix3d::Identity() * (min_std_m * min_std_m);
+    return Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
+  }
+
   // Position in L through the frozen T_AL: one measurement's noise, plus the floor. A
   // factor of the sensor's like a between factor (discarded with it at an exclusion).
   void AddPositionInLocal(Keyframe* kf, const PendingMeasurement& m) {
-    Eigen::Matrix3d covariance = m.R_LA * m.covariance_A * m.R_LA.transpose();
-    covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
     const Eigen::Matrix3d sqrt_information =
-        Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
-    std::unique_ptr<ceres::LossFunction> loss;
-    if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+        SqrtInformationInL(m.covariance_A, m.R_LA, m.min_std_m);
     Factor* factor = AddFactor(
         FactorKind::kBetween,
-        std::make_unique<PositionInLocalFactor>(m.p_Is, m.R_LA * m.p_As + *m.p_LA, sqrt_information),
-        std::move(loss), {kf}, {PoseBlock(kf)});
+        std::make_unique<PositionInLocalFactor>(m.p_Is, m.R_LA * m.p_As + *m.p_LA,
+                                                sqrt_information),
+        BetweenLoss(), {kf}, {PoseBlock(kf)});
     factor->sensor = m.sensor;
     unconfirmed_between.push_back(factor);
   }
@@ -472,17 +481,13 @@ struct LocalSmoother::Impl {
       offsets.push_back(std::move(offset));
       ++stats->chain_offsets;
     }
-    Eigen::Matrix3d covariance = m.R_LA * m.covariance_A * m.R_LA.transpose();
-    covariance += Eigen::Matrix3d::Identity() * (m.min_std_m * m.min_std_m);
     const Eigen::Matrix3d sqrt_information =
-        Eigen::LLT<Eigen::Matrix3d>(covariance.inverse()).matrixU();
-    std::unique_ptr<ceres::LossFunction> loss;
-    if (options.huber_delta > 0) loss = std::make_unique<ceres::HuberLoss>(options.huber_delta);
+        SqrtInformationInL(m.covariance_A, m.R_LA, m.min_std_m);
     // A factor of the sensor's like a between factor (discarded with it at an exclusion).
     Factor* factor = AddFactor(
         FactorKind::kBetween,
         std::make_unique<PositionWithOffsetFactor>(m.p_Is, p_L_measured, sqrt_information),
-        std::move(loss), {kf},
+        BetweenLoss(), {kf},
         {PoseBlock(kf), MarginalBlock{chain.offset->o_L, kWindowOffsetSize, kWindowOffsetSize,
                                       nullptr}});
     factor->sensor = m.sensor;

@@ -969,18 +969,7 @@ def run_position_offset(r):
 
 
 def extract_position_offset(r):
-    v = _factor_scores(r, "position_offset", "offset")
-    for scenario in _suite_scenarios(r.root):
-        s = seed_summaries(r.out("position_offset", "offset"), scenario, FACTOR_SEEDS)
-        key = f"position_offset.{scenario}.offset."
-        for method in ("oracle",):
-            nees = [s[i]["methods"][method].get("nees_position_mean") for i in FACTOR_SEEDS]
-            inside = [s[i]["methods"][method].get("position_containment_95") for i in FACTOR_SEEDS]
-            nees = [x for x in nees if x is not None]
-            inside = [x for x in inside if x is not None]
-            v[f"{key}{method}_nees"] = sci(statistics.median(nees), 2) if nees else "-"
-            v[f"{key}{method}_containment"] = percent(statistics.median(inside), 0) if inside else "-"
-    return v
+    return _factor_scores(r, "position_offset", "offset")
 
 
 def _factor_scores(r, source, variant):
@@ -1008,10 +997,11 @@ def _factor_scores(r, source, variant):
         for method, name in (("consensus", "consensus"), ("oracle", "oracle")):
             steps = [x * 1000.0 for x in values(method, "position_step_max_m")]
             v[f"{key}{name}_step_mm"] = f"{sig(statistics.median(steps), 2)} / {sig(max(steps), 2)}"
-        nees = [x for x in values("consensus", "nees_position_mean") if x is not None]
-        inside = [x for x in values("consensus", "position_containment_95") if x is not None]
-        v[key + "consensus_nees"] = sci(statistics.median(nees), 2) if nees else "-"
-        v[key + "consensus_containment"] = percent(statistics.median(inside), 0) if inside else "-"
+        for method in ("consensus", "oracle"):
+            nees = [x for x in values(method, "nees_position_mean") if x is not None]
+            inside = [x for x in values(method, "position_containment_95") if x is not None]
+            v[f"{key}{method}_nees"] = sci(statistics.median(nees), 2) if nees else "-"
+            v[f"{key}{method}_containment"] = percent(statistics.median(inside), 0) if inside else "-"
     return v
 
 
