@@ -106,6 +106,16 @@ bool ConsensusEstimatorOptions::IsValid(std::string* why) const {
     return fail("grid_rate_hz must be in [1e-9, 1e9]");
   }
   if (max_interpolation_gap_ns <= 0) return fail("max_interpolation_gap_ns must be positive");
+  if (bias_window_ns < 0) return fail("bias_window_ns must not be negative (0: off)");
+  if (bias_window_ns > 0) {
+    if (!bias.IsValid(&nested)) return fail("bias." + nested);
+    if (bias_min_span_ns <= 0 || bias_min_span_ns > bias_window_ns) {
+      return fail("bias_min_span_ns must be in (0, bias_window_ns]");
+    }
+    if (!(bias_false_alarm > 0.0 && bias_false_alarm < 1.0)) {
+      return fail("bias_false_alarm must be in (0, 1)");
+    }
+  }
   return true;
 }
 
@@ -124,6 +134,11 @@ struct ConsensusEstimator::Impl {
     // while its alignment is re-estimated after an exclusion (R_AL changes only with the
     // slow drift of L), so a recovered sensor shows that it is consistent again.
     std::optional<Eigen::Matrix3d> last_R_AL;
+    std::optional<core::Time> period_ns;
+    // With the bias test: the grid's velocities of the IMU point in L, with covariances,
+    // and for differentiated positions their newest stated covariance in L.
+    VelocitySeries in_L;
+    std::optional<Eigen::Matrix3d> position_covariance_L;
   };
 
   Impl(std::string imu, std::vector<SensorSpec> specs, MultiGraphEstimatorOptions estimator_options,
@@ -213,6 +228,7 @@ struct ConsensusEstimator::Impl {
         }
         std::nth_element(spacing.begin(), spacing.begin() + spacing.size() / 2, spacing.end());
         const core::Time period = spacing[spacing.size() / 2];
+        s.period_ns = period;
         // 1.5 periods + 10 % so a sample's neighbours on both sides are inside despite jitter.
         s.half_window_ns = std::max(options.min_differentiation_half_window_ns,
                                     period * 3 / 2 + period / 10);
@@ -245,6 +261,86 @@ struct ConsensusEstimator::Impl {
     return it->second - gyro_bias_radps;
   }
 
+  bool BiasTest() const { return options.bias_window_ns > 0; }
+
+  // A grid velocity of the IMU point in I, into L through the local attitude at its time
+  // (the bias test needs a frame in which a drift stays one vector while the robot turns).
+  void AddInLocal(Sensor& s, core::Time t_ns, const Eigen::Vector3d& v_I,
+                  const Eigen::Matrix3d& cov_I) {
+    const LocalSample* l = LocalAt(t_ns);
+    if (l == nullptr) return;
+    VelocitySeries& series = s.in_L;
+    if (!series.t_ns.empty() && t_ns <= series.t_ns.back()) return;
+    series.t_ns.push_back(t_ns);
+    series.v_mps.push_back(l->R_LI * v_I);
+    series.cov_m2ps2.push_back(l->R_LI * cov_I * l->R_LI.transpose());
+  }
+
+  // What the errors of a stream's mean velocity are: a twist's white errors, correlated
+  // over its sample period or the grid's; differentiated positions telescope.
+  MeanNoise MeanNoiseOf(const Sensor& s) const {
+    MeanNoise noise;
+    const core::Time grid = core::PeriodFromRate(options.grid_rate_hz);
+    noise.correlation_time_ns = std::max(grid, s.period_ns.value_or(grid));
+    if (!s.reports_twist) noise.position_covariance_m2 = s.position_covariance_L;
+    return noise;
+  }
+
+  // The mean-difference test of every sensor pair over the window since the pair was last
+  // inconsistent by its value (or unavailable), into input.pair_biased and the record.
+  void TestBias(core::Time t_eval, ConsensusInput& input, ConsensusRecord& record) {
+    const int n = static_cast<int>(sensors.size());
+    if (bias_from_ns.empty()) bias_from_ns.assign(input.pair.size(), INT64_MIN);
+    input.pair_biased.assign(input.pair.size(), false);
+    const core::Time keep_from = t_eval - options.bias_window_ns;
+    for (Sensor& s : sensors) {
+      VelocitySeries& series = s.in_L;
+      const auto old = std::upper_bound(series.t_ns.begin(), series.t_ns.end(), keep_from) -
+                       series.t_ns.begin();
+      if (old > 0) {
+        series.t_ns.erase(series.t_ns.begin(), series.t_ns.begin() + old);
+        series.v_mps.erase(series.v_mps.begin(), series.v_mps.begin() + old);
+        series.cov_m2ps2.erase(series.cov_m2ps2.begin(), series.cov_m2ps2.begin() + old);
+      }
+    }
+    for (int i = 0; i < n; ++i) {
+      for (int j = i + 1; j < n; ++j) {
+        const auto pair = static_cast<std::size_t>(ConsistencyMatrix::PairIndex(i, j, n));
+        const Sensor& a = sensors[static_cast<std::size_t>(i)];
+        const Sensor& b = sensors[static_cast<std::size_t>(j)];
+        std::optional<double> chi2;
+        const std::optional<double>& value = input.pair[pair];
+        if (!value || !(*value < options.selection.threshold)) {
+          bias_from_ns[pair] = t_eval;
+        } else if (t_eval - std::max(keep_from, bias_from_ns[pair]) >= options.bias_min_span_ns &&
+                   (a.reports_twist || a.position_covariance_L) &&
+                   (b.reports_twist || b.position_covariance_L)) {
+          MeanDifferenceOptions test = options.bias;
+          test.a = MeanNoiseOf(a);
+          test.b = MeanNoiseOf(b);
+          test.estimate_rotation =
+              a.spec.kind == SensorKind::kPosition || b.spec.kind == SensorKind::kPosition;
+          // A drift that began t ago shows best over a window of about t (its mean grows
+          // with t, the noise of the mean falls with √window): the window and its half and
+          // quarter, each at a third of the false-alarm probability. The record keeps the
+          // largest χ² (the bound is the same for each).
+          const core::Time from = std::max(keep_from, bias_from_ns[pair]);
+          for (const core::Time window : {t_eval - from, (t_eval - from) / 2, (t_eval - from) / 4}) {
+            if (window < options.bias_min_span_ns) break;
+            const std::optional<MeanDifference> d =
+                WindowMeanDifference(a.in_L, b.in_L, t_eval - window, t_eval, test);
+            if (!d) continue;
+            chi2 = std::max(chi2.value_or(0.0), d->chi2);
+            if (d->chi2 > ChiSquareUpperQuantile(d->dof, options.bias_false_alarm / 3.0)) {
+              input.pair_biased[pair] = true;
+            }
+          }
+        }
+        record.bias_chi2.emplace_back(a.spec.name + "-" + b.spec.name, chi2);
+      }
+    }
+  }
+
   // Velocities of the sensor's samples in (last_velocity, t_eval], as v_I of the IMU
   // point in I (paper eq. 1), onto the grid and into the matrix. The sensor's own twist
   // when it reports one (odometry does: the paper compares these), else its positions
@@ -253,12 +349,14 @@ struct ConsensusEstimator::Impl {
     if (s.raw.empty()) return;
     const Eigen::Matrix3d R_Is = s.spec.T_Is.linear();
     const Eigen::Vector3d p_Is = s.spec.T_Is.translation();
+    // Covariances only where the metric or the bias test reads them: the paper's metrics
+    // compare the numbers alone.
+    const bool nis = options.consistency.metric == ConsistencyMetric::kNis;
+    const bool stated = nis || BiasTest();
     const auto emit = [&](core::Time tg, const Eigen::Vector3d& v, const Eigen::Matrix3d* cov) {
-      matrix.Add(s.stream, tg, v, cov);
+      matrix.Add(s.stream, tg, v, nis ? cov : nullptr);
+      if (BiasTest()) AddInLocal(s, tg, v, *cov);
     };
-    // Covariances only where the metric reads them (kNis): the paper's metrics compare
-    // the numbers alone.
-    const bool stated = options.consistency.metric == ConsistencyMetric::kNis;
     const core::Time half = HalfWindowOf(s);
     if (s.reports_twist) {
       for (const RawSample& r : s.raw) {
@@ -314,6 +412,14 @@ struct ConsensusEstimator::Impl {
         // v_I = R_AIᵀ v_A(s) − ω_I × p_Is.
         Eigen::Matrix3d cov_I;
         if (stated) cov_I = R_AI.transpose() * v_A.cov_m2ps2[k] * R_AI;
+        if (BiasTest()) {
+          if (const LocalSample* l = LocalAt(tk)) {
+            const Eigen::Matrix3d R_LA = l->R_LI * R_AI.transpose();
+            const auto it = std::lower_bound(t.begin(), t.end(), tk);
+            s.position_covariance_L =
+                R_LA * s.raw[static_cast<std::size_t>(it - t.begin())].cov_p_As * R_LA.transpose();
+          }
+        }
         s.grid->Add(tk, R_AI.transpose() * v_A.v_mps[k] - omega_I->cross(p_Is),
                     stated ? &cov_I : nullptr, emit);
       }
@@ -395,6 +501,7 @@ struct ConsensusEstimator::Impl {
       input.vs_local.push_back(v);
       record.values.emplace_back(sensors[i].spec.name + "-local", v);
     }
+    if (BiasTest()) TestBias(t_eval, input, record);
     record.decision = selector.Decide(input);
     // A fused sensor just found inconsistent was fused while its fault went unnoticed:
     // its factors since the start of the window that showed it go too (beyond the paper,
@@ -453,6 +560,7 @@ struct ConsensusEstimator::Impl {
   std::deque<std::pair<core::Time, Eigen::Vector3d>> gyro;  // raw rate samples, time order
   Eigen::Vector3d gyro_bias_radps = Eigen::Vector3d::Zero();
   std::optional<core::Time> last_local_velocity_ns;
+  std::vector<core::Time> bias_from_ns;  // per sensor pair: where its bias window starts
   std::optional<GridResampler> local_grid;
   std::optional<core::Time> next_evaluation_ns;
   std::vector<EstimatorOutput> outputs;

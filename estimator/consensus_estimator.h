@@ -60,6 +60,24 @@ struct ConsensusEstimatorOptions {
   /// No interpolation across a gap longer than this (a dropout stays a dropout).
   core::Time max_interpolation_gap_ns = 250'000'000;
 
+  /// Beyond the paper: a pair of sensors is also inconsistent when the mean of its
+  /// velocity differences in L over this window fails the test of consistency.h
+  /// (WindowMeanDifference: a slow drift that every 1 s window hides); 0 = off (the
+  /// paper). The window starts again whenever the pair's value is unavailable or not
+  /// below selection.threshold: a fault the window metric sees (and its edges) never
+  /// enters the mean, and the test cannot hold a recovered sensor out for longer.
+  core::Time bias_window_ns = 0;
+  /// The test is taken once the window holds this much since its start.
+  core::Time bias_min_span_ns = 2'000'000'000;
+  /// Probability that a consistent pair fails one evaluation of the test: the χ² bound
+  /// is its quantile for the pair's observed directions.
+  double bias_false_alarm = 1e-4;
+  /// The test's options; the streams' noise (a, b) and estimate_rotation are set per
+  /// pair: a twist's errors correlated over its sample period (or the grid's),
+  /// differentiated positions by their stated covariance, and the rotation estimated for
+  /// a pair with a position sensor (its velocity comes through its alignment's R_AL).
+  MeanDifferenceOptions bias;
+
   /// True when the options (the nested ones too) are usable; otherwise false with the
   /// broken constraint in *why (if why is not null).
   bool IsValid(std::string* why = nullptr) const;
@@ -76,6 +94,9 @@ struct ConsensusRecord {
   ConsistencyMetric metric = ConsistencyMetric::kCm;
   /// "a-b" for sensor pairs, "a-local" against the local estimate, in matrix order.
   std::vector<std::pair<std::string, std::optional<double>>> values;
+  /// With bias_window_ns: "a-b" for sensor pairs, the χ² of the mean-difference test
+  /// (nullopt: not taken).
+  std::vector<std::pair<std::string, std::optional<double>>> bias_chi2;
 };
 
 class ConsensusEstimator {

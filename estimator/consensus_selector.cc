@@ -38,6 +38,7 @@ struct Snapshot {
   std::vector<bool> available;
   std::vector<std::optional<double>> value;  // n*n, symmetric; nullopt also off-diagonal
   std::vector<Relation> rel;                 // n*n, by the pair rule (hysteresis applied)
+  std::vector<bool> biased;                  // n*n: inconsistent whatever the value
   std::vector<std::optional<double>> local;  // n
   std::vector<LocalTier> tier;               // n
 
@@ -45,6 +46,7 @@ struct Snapshot {
     return value[static_cast<std::size_t>(i * n + j)];
   }
   Relation Rel(int i, int j) const { return rel[static_cast<std::size_t>(i * n + j)]; }
+  bool Biased(int i, int j) const { return biased[static_cast<std::size_t>(i * n + j)]; }
   bool Available(int i) const { return available[static_cast<std::size_t>(i)]; }
   LocalTier Tier(int i) const { return tier[static_cast<std::size_t>(i)]; }
   const std::optional<double>& Local(int i) const { return local[static_cast<std::size_t>(i)]; }
@@ -492,7 +494,7 @@ class Chooser {
     const bool both_fused = At(current_, i) && At(current_, j);
     const double limit = options_.leave_threshold && both_fused ? *options_.leave_threshold
                                                                 : options_.threshold;
-    return *v < limit ? Relation::kConsistent : Relation::kInconsistent;
+    return *v < limit && !s_.Biased(i, j) ? Relation::kConsistent : Relation::kInconsistent;
   }
 
   // The eligible sensor consistent with f with the smallest value, or -1.
@@ -640,7 +642,8 @@ void CheckDecideInput(const ConsensusInput& input, int n) {
   const auto un = static_cast<std::size_t>(n);
   if (input.available.size() != un || input.vs_local.size() != un ||
       (!input.fusable.empty() && input.fusable.size() != un) ||
-      input.pair.size() != un * (un - (n > 0 ? 1 : 0)) / 2) {
+      input.pair.size() != un * (un - (n > 0 ? 1 : 0)) / 2 ||
+      (!input.pair_biased.empty() && input.pair_biased.size() != input.pair.size())) {
     throw std::invalid_argument("ConsensusSelector::Decide: " + std::to_string(n) +
                                 " sensors need available[" + std::to_string(n) + "] pair[" +
                                 std::to_string(n * (n - 1) / 2) + "] vs_local[" +
@@ -672,19 +675,23 @@ Snapshot Judge(const ConsensusInput& input, const std::vector<bool>& fused_mask,
   s.available = input.available;
   s.value.assign(un * un, std::nullopt);
   s.rel.assign(un * un, Relation::kUnknown);
+  s.biased.assign(un * un, false);
   s.local.assign(un, std::nullopt);
   s.tier.assign(un, LocalTier::kUnknown);
   for (int i = 0; i < n; ++i) {
     const auto ui = static_cast<std::size_t>(i);
     for (int j = i + 1; j < n; ++j) {
       const auto uj = static_cast<std::size_t>(j);
-      const auto v = clean(input.pair[static_cast<std::size_t>(
-          ConsistencyMatrix::PairIndex(i, j, n))]);
+      const auto pair = static_cast<std::size_t>(ConsistencyMatrix::PairIndex(i, j, n));
+      const auto v = clean(input.pair[pair]);
       if (!v || !s.available[ui] || !s.available[uj]) continue;
+      const bool biased = !input.pair_biased.empty() && input.pair_biased[pair];
       const double limit = fused_mask[ui] || fused_mask[uj] ? leave : enter;
-      const Relation r = *v < limit ? Relation::kConsistent : Relation::kInconsistent;
+      const Relation r =
+          *v < limit && !biased ? Relation::kConsistent : Relation::kInconsistent;
       s.value[ui * un + uj] = s.value[uj * un + ui] = v;
       s.rel[ui * un + uj] = s.rel[uj * un + ui] = r;
+      s.biased[ui * un + uj] = s.biased[uj * un + ui] = biased;
     }
     const auto v = clean(input.vs_local[ui]);
     if (!v || !s.available[ui]) continue;
@@ -732,7 +739,7 @@ std::vector<bool> AdvanceReadmission(const Snapshot& s, const std::vector<bool>&
       evidence = s.Tier(i) == LocalTier::kConsistent;
       for (int j = 0; j < s.n && !evidence; ++j) {
         evidence = j != i && s.Available(j) && !At(cross, j) && s.Value(i, j) &&
-                   *s.Value(i, j) < options.threshold;
+                   *s.Value(i, j) < options.threshold && !s.Biased(i, j);
       }
     }
     if (!evidence) {

@@ -113,6 +113,10 @@ struct ConsensusInput {
   /// Size N, or empty (= every sensor fusable): whether the sensor could constrain the
   /// estimate now. A sensor that is available but not fusable counts as evidence only.
   std::vector<bool> fusable;
+  /// Empty, or N*(N-1)/2 in the order of `pair`: the pair failed a test beyond its value
+  /// (ConsensusEstimatorOptions::bias_window_ns, a bias the window cannot see) and is
+  /// inconsistent whatever its value says.
+  std::vector<bool> pair_biased;
 };
 
 struct ConsensusDecision {

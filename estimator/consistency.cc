@@ -473,4 +473,193 @@ std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocityS
   return total;
 }
 
+bool MeanDifferenceOptions::IsValid(std::string* why) const {
+  auto fail = [why](const char* message) {
+    if (why != nullptr) *why = message;
+    return false;
+  };
+  for (const MeanNoise* noise : {&a, &b}) {
+    if (noise->correlation_time_ns <= 0) return fail("correlation_time_ns must be positive");
+    if (noise->position_covariance_m2 && !noise->position_covariance_m2->allFinite()) {
+      return fail("position_covariance_m2 must be finite");
+    }
+  }
+  if (!(floor_std_mps >= 0.0) || !std::isfinite(floor_std_mps)) {
+    return fail("floor_std_mps must be finite and >= 0");
+  }
+  if (!(rotation_prior_std_rad > 0.0) || !std::isfinite(rotation_prior_std_rad)) {
+    return fail("rotation_prior_std_rad must be positive and finite");
+  }
+  if (!(unobserved_std_mps > 0.0) || !std::isfinite(unobserved_std_mps)) {
+    return fail("unobserved_std_mps must be positive and finite");
+  }
+  if (min_samples < 2) return fail("min_samples must be at least 2");
+  if (!(clip_sigma > 0.0)) return fail("clip_sigma must be positive (+inf: no clipping)");
+  if (!(sample_floor_std_mps >= 0.0) || !std::isfinite(sample_floor_std_mps)) {
+    return fail("sample_floor_std_mps must be finite and >= 0");
+  }
+  return true;
+}
+
+std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
+                                                   const VelocitySeries& b,
+                                                   core::Time t_from_ns, core::Time t_to_ns,
+                                                   const MeanDifferenceOptions& options) {
+  if (a.cov_m2ps2.size() != a.t_ns.size() || b.cov_m2ps2.size() != b.t_ns.size()) {
+    return std::nullopt;
+  }
+  // The pairs (equal stamps), each difference clipped.
+  struct Pair {
+    core::Time t_ns;
+    Eigen::Vector3d difference;
+    Eigen::Vector3d v_a;
+    std::size_t ia;
+    std::size_t ib;
+  };
+  std::vector<Pair> pairs;
+  const double sample_floor_variance = options.sample_floor_std_mps * options.sample_floor_std_mps;
+  std::size_t ia = static_cast<std::size_t>(
+      std::upper_bound(a.t_ns.begin(), a.t_ns.end(), t_from_ns) - a.t_ns.begin());
+  std::size_t ib = static_cast<std::size_t>(
+      std::upper_bound(b.t_ns.begin(), b.t_ns.end(), t_from_ns) - b.t_ns.begin());
+  while (ia < a.t_ns.size() && ib < b.t_ns.size() && a.t_ns[ia] <= t_to_ns &&
+         b.t_ns[ib] <= t_to_ns) {
+    if (a.t_ns[ia] != b.t_ns[ib]) {
+      (a.t_ns[ia] < b.t_ns[ib] ? ia : ib) += 1;
+      continue;
+    }
+    if (a.cov_m2ps2[ia].allFinite() && b.cov_m2ps2[ib].allFinite() && a.v_mps[ia].allFinite() &&
+        b.v_mps[ib].allFinite()) {
+      Eigen::Vector3d difference = a.v_mps[ia] - b.v_mps[ib];
+      Eigen::Matrix3d S = a.cov_m2ps2[ia] + b.cov_m2ps2[ib];
+      S.diagonal().array() += sample_floor_variance;
+      const double sigmas = std::sqrt(difference.dot(S.ldlt().solve(difference)));
+      if (sigmas > options.clip_sigma) difference *= options.clip_sigma / sigmas;
+      pairs.push_back({a.t_ns[ia], difference, a.v_mps[ia], ia, ib});
+    }
+    ++ia;
+    ++ib;
+  }
+  const int n = static_cast<int>(pairs.size());
+  if (n < options.min_samples || pairs.back().t_ns <= pairs.front().t_ns) return std::nullopt;
+  const double samples = static_cast<double>(n);
+  const core::Time span_ns = pairs.back().t_ns - pairs.front().t_ns;
+  const double grid_s = core::TimeToSeconds(span_ns) / (samples - 1.0);
+
+  Eigen::Matrix3d per_sample_a = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d per_sample_b = Eigen::Matrix3d::Zero();
+  for (const Pair& p : pairs) {
+    per_sample_a += a.cov_m2ps2[p.ia];
+    per_sample_b += b.cov_m2ps2[p.ib];
+  }
+  per_sample_a /= samples;
+  per_sample_b /= samples;
+  const Eigen::Matrix3d per_sample = per_sample_a + per_sample_b;
+
+  // b̂ = Σ_k A_k d_k: weighted least squares of d_k = b + δ × v_k, with a prior of
+  // rotation_prior_std_rad on δ, or the mean (A_k = I / N). The weight is the samples'
+  // typical information: a direction the pair does not observe neither moves δ nor b.
+  Eigen::Matrix3d typical = per_sample;
+  typical.diagonal().array() += std::max(sample_floor_variance, 1e-12);
+  const Eigen::Matrix3d W = typical.inverse();
+  const int unknowns = options.estimate_rotation ? 6 : 3;
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(unknowns, unknowns);
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(unknowns);
+  const auto jacobian = [&](const Pair& p) {
+    Eigen::MatrixXd J(3, unknowns);
+    J.leftCols<3>().setIdentity();
+    if (options.estimate_rotation) {
+      // δ × v = −[v]ₓ δ.
+      const Eigen::Vector3d& v = p.v_a;
+      Eigen::Matrix3d minus_v_cross;
+      minus_v_cross << 0, v.z(), -v.y(), -v.z(), 0, v.x(), v.y(), -v.x(), 0;
+      J.rightCols<3>() = minus_v_cross;
+    }
+    return J;
+  };
+  for (const Pair& p : pairs) {
+    const Eigen::MatrixXd J = jacobian(p);
+    H.noalias() += J.transpose() * W * J;
+    g.noalias() += J.transpose() * W * p.difference;
+  }
+  if (options.estimate_rotation) {
+    H.bottomRightCorner(3, 3).diagonal().array() +=
+        1.0 / (options.rotation_prior_std_rad * options.rotation_prior_std_rad);
+  }
+  const Eigen::LDLT<Eigen::MatrixXd> solver(H);
+  const Eigen::VectorXd x = solver.solve(g);
+  const Eigen::MatrixXd H_inverse = solver.solve(Eigen::MatrixXd::Identity(unknowns, unknowns));
+  const auto weights = [&](const Pair& p) -> Eigen::Matrix3d {
+    return (H_inverse * jacobian(p).transpose() * W).topRows(3);
+  };
+
+  // Each stream's share of Cov(b̂). White errors, counted once per correlation time:
+  // Σ_k A_k Σ_k A_kᵀ scaled by N / N_eff. Differentiated positions: Σ_k A_k ė(t_k) sums
+  // by parts to A_N e(t_N)/Δt − A_1 e(t_1)/Δt and interior terms of order (sensor period /
+  // span) smaller, left out; for the plain mean that is 2 P / span².
+  const auto share = [&](const MeanNoise& noise, const VelocitySeries& series, bool is_a) {
+    if (noise.position_covariance_m2) {
+      const Eigen::Matrix3d first = weights(pairs.front()) / grid_s;
+      const Eigen::Matrix3d last = weights(pairs.back()) / grid_s;
+      return Eigen::Matrix3d(first * *noise.position_covariance_m2 * first.transpose() +
+                             last * *noise.position_covariance_m2 * last.transpose());
+    }
+    const double independent = std::clamp(
+        static_cast<double>(span_ns) / static_cast<double>(noise.correlation_time_ns) + 1.0, 1.0,
+        samples);
+    Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+    for (const Pair& p : pairs) {
+      const Eigen::Matrix3d A = weights(p);
+      sum += A * series.cov_m2ps2[is_a ? p.ia : p.ib] * A.transpose();
+    }
+    return Eigen::Matrix3d(sum * samples / independent);
+  };
+
+  MeanDifference result;
+  result.samples = n;
+  result.mean_mps = x.head<3>();
+  if (options.estimate_rotation) result.rotation_rad = x.tail<3>();
+  result.covariance_m2ps2 = share(options.a, a, true) + share(options.b, b, false) +
+                            Eigen::Matrix3d::Identity() *
+                                (options.floor_std_mps * options.floor_std_mps);
+  // The directions the pair observes: those of the per-sample covariance within the bound.
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
+  eigen.computeDirect(0.5 * (per_sample + per_sample.transpose()));
+  const double max_variance = options.unobserved_std_mps * options.unobserved_std_mps;
+  Eigen::Matrix<double, 3, Eigen::Dynamic> observed(3, 0);
+  for (int d = 0; d < 3; ++d) {
+    const double variance = eigen.eigenvalues()[d];
+    if (!(variance <= max_variance)) continue;
+    observed.conservativeResize(Eigen::NoChange, observed.cols() + 1);
+    observed.col(observed.cols() - 1) = eigen.eigenvectors().col(d);
+  }
+  result.dof = static_cast<int>(observed.cols());
+  if (result.dof == 0) return std::nullopt;
+  const Eigen::VectorXd d = observed.transpose() * result.mean_mps;
+  const Eigen::MatrixXd S = observed.transpose() * result.covariance_m2ps2 * observed;
+  result.chi2 = d.dot(S.ldlt().solve(d));
+  return result;
+}
+
+double ChiSquareUpperQuantile(int dof, double upper_tail) {
+  // P(χ²(k) > x): k = 1 erfc(√(x/2)); k = 2 e^(−x/2); k = 3 erfc(√(x/2)) + √(2x/π) e^(−x/2).
+  const auto tail = [dof](double x) {
+    const double root = std::sqrt(0.5 * x);
+    switch (dof) {
+      case 1: return std::erfc(root);
+      case 2: return std::exp(-0.5 * x);
+      default: return std::erfc(root) + std::sqrt(2.0 * x / M_PI) * std::exp(-0.5 * x);
+    }
+  };
+  if (dof < 1 || dof > 3 || !(upper_tail > 0.0 && upper_tail < 1.0)) return kNaN;
+  double lo = 0.0;
+  double hi = 1.0;
+  while (tail(hi) > upper_tail) hi *= 2.0;
+  for (int i = 0; i < 200 && hi - lo > 1e-12 * hi; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (tail(mid) > upper_tail ? lo : hi) = mid;
+  }
+  return 0.5 * (lo + hi);
+}
+
 }  // namespace tofu::estimator

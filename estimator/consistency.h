@@ -99,4 +99,74 @@ std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocityS
                                         core::Time t_eval_ns, ConsistencyMetric metric,
                                         const ConsistencyOptions& options = {});
 
+/// Beyond the paper: a test for a bias that a short window cannot see. A slow drift (a
+/// total station creeping at 1 cm/s) hides in the scatter of every 1 s window, but it is
+/// the same vector for seconds in a frame both streams share, while the streams' own
+/// errors average out: b̂, the mean difference of the paired samples over a long window
+/// (or, with estimate_rotation, the constant part of d_k = b + δ × v_k fitted by weighted
+/// least squares, δ a small rotation between the streams' frames: an alignment's R_AL
+/// error moves the difference with the velocity, a drift does not), tested against the
+/// covariance the streams state for it,
+///   χ² = b̂ᵀ Σ̄⁻¹ b̂,   b̂ = Σ_k A_k d_k,   Σ̄ = Σ̄_a + Σ̄_b + floor² I.
+/// Each stream's Σ̄_s depends on what its errors are (MeanNoise): a twist's white errors
+/// give Σ_k A_k Σ_k A_kᵀ · N / N_eff, N_eff = min(N, span / correlation_time + 1) (an
+/// interpolated grid sample shares its error with its neighbours); the velocities of a
+/// differentiated position stream telescope, Σ_k A_k ė_k summing by parts to its two
+/// ends' position errors (2 P / span² for the mean). floor is what no stated covariance
+/// includes. Under consistency χ² follows χ²(dof), dof the directions the pair observes
+/// (a little less: the clipping below only shrinks).
+struct MeanNoise {
+  /// White errors: samples closer than this in time share theirs [ns].
+  core::Time correlation_time_ns = 20'000'000;
+  /// Velocities differentiated from positions with this white-noise covariance [m²], in
+  /// the series' frame: the mean's error telescopes (see above).
+  std::optional<Eigen::Matrix3d> position_covariance_m2;
+};
+
+struct MeanDifferenceOptions {
+  MeanNoise a;
+  MeanNoise b;
+  /// Added in quadrature to the mean's standard deviation in every direction [m/s].
+  double floor_std_mps = 0.001;
+  /// Fit a small rotation δ between the two streams' frames beside the bias (for a pair
+  /// with a velocity rotated through an estimated alignment), with this prior std [rad].
+  bool estimate_rotation = false;
+  double rotation_prior_std_rad = 0.035;
+  /// A direction whose per-sample pair standard deviation exceeds this [m/s] is not
+  /// observed and left out (ConsistencyOptions::unobserved_std_mps).
+  double unobserved_std_mps = 1.0;
+  /// Fewer paired samples: unavailable.
+  int min_samples = 10;
+  /// A sample's difference beyond this many of its standard deviations (Mahalanobis, by
+  /// the two stated covariances plus sample_floor_std_mps² I) is shrunk to it before
+  /// averaging: a gross error (an outlier, a step's edge) is the window metric's to judge,
+  /// and must not hold the mean off for a whole window. A drift within the samples'
+  /// scatter is untouched; symmetric noise stays unbiased.
+  double clip_sigma = 3.0;
+  double sample_floor_std_mps = 0.005;
+
+  bool IsValid(std::string* why = nullptr) const;
+};
+
+struct MeanDifference {
+  Eigen::Vector3d mean_mps = Eigen::Vector3d::Zero();          ///< b̂ (a − b)
+  Eigen::Vector3d rotation_rad = Eigen::Vector3d::Zero();      ///< δ̂ (estimate_rotation)
+  Eigen::Matrix3d covariance_m2ps2 = Eigen::Matrix3d::Zero();  ///< Σ̄
+  double chi2 = 0.0;  ///< d̄ᵀ Σ̄⁻¹ d̄ over the observed directions
+  int dof = 0;        ///< observed directions (0-3)
+  int samples = 0;    ///< paired samples N
+};
+
+/// The mean-difference test of a and b over (t_from_ns, t_to_ns], pairing the samples
+/// with equal stamps (two streams on one grid). nullopt with fewer than min_samples pairs,
+/// when a stream states no covariances, or when no direction is observed.
+std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
+                                                   const VelocitySeries& b,
+                                                   core::Time t_from_ns, core::Time t_to_ns,
+                                                   const MeanDifferenceOptions& options = {});
+
+/// x with P(χ²(dof) > x) = upper_tail, for dof 1-3 (the test's observed directions) and
+/// upper_tail in (0, 1); by bisection on the closed-form distribution functions.
+double ChiSquareUpperQuantile(int dof, double upper_tail);
+
 }  // namespace tofu::estimator

@@ -179,7 +179,8 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
     ConsensusConfig& c = config.consensus;
     YamlMap cmap = consensus->Map({"metric", "threshold", "leave_threshold", "min_dwell_s",
                                    "fuse", "return_to_priority", "priority", "window_s",
-                                   "rate_hz"});
+                                   "rate_hz", "bias_window_s", "bias_false_alarm",
+                                   "bias_floor_mps"});
     if (const auto metric = cmap.Optional("metric")) {
       const auto parsed = estimator::MetricFromName(metric->String());
       if (!parsed || (*parsed != estimator::ConsistencyMetric::kCm &&
@@ -217,6 +218,14 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
     }
     ReadNumber(cmap, "window_s", NumberRule::Between(0.1, 60.0, "s"), &c.window_s);
     ReadNumber(cmap, "rate_hz", NumberRule::Between(0.5, 100.0, "Hz"), &c.rate_hz);
+    ReadNumber(cmap, "bias_window_s", NumberRule::Between(0.0, 600.0, "s (0: off)"),
+               &c.bias_window_s);
+    ReadNumber(cmap, "bias_false_alarm", NumberRule::Between(1e-12, 0.5, "a probability"),
+               &c.bias_false_alarm);
+    ReadNumber(cmap, "bias_floor_mps", NumberRule::Between(0.0, 1.0, "m/s"), &c.bias_floor_mps);
+    if (c.bias_window_s > 0.0 && c.bias_window_s < 0.5) {
+      cmap.Required("bias_window_s").FailExpected("0 (off) or at least 0.5 s");
+    }
     cmap.Finish();
   }
   map.Finish();
@@ -832,6 +841,12 @@ void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
   out << YAML::EndSeq;
   EmitNumber(out, "window_s", cons.window_s);
   EmitNumber(out, "rate_hz", cons.rate_hz);
+  // Only when on, so the run directories of the paper's consensus keep their bytes.
+  if (cons.bias_window_s > 0.0) {
+    EmitNumber(out, "bias_window_s", cons.bias_window_s);
+    EmitNumber(out, "bias_false_alarm", cons.bias_false_alarm);
+    EmitNumber(out, "bias_floor_mps", cons.bias_floor_mps);
+  }
   out << YAML::EndMap;
   EmitNumber(out, "huber_delta", ec.huber_delta);
   out << YAML::Key << "position_factors" << YAML::Value

@@ -56,6 +56,11 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
   setup.consensus.consistency.history_ns =
       setup.consensus.consistency.consistency.window_ns + 2'000'000'000;
   setup.consensus.evaluation_period_ns = core::PeriodFromRate(config.consensus.rate_hz);
+  setup.consensus.bias_window_ns = core::SecondsToTime(config.consensus.bias_window_s);
+  setup.consensus.bias_min_span_ns =
+      std::min(setup.consensus.bias_min_span_ns, setup.consensus.bias_window_ns);
+  setup.consensus.bias_false_alarm = config.consensus.bias_false_alarm;
+  setup.consensus.bias.floor_std_mps = config.consensus.bias_floor_mps;
   RequireValidOptions(setup.estimator, setup.consensus, {}, "estimation");
   return setup;
 }

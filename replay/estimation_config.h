@@ -35,6 +35,13 @@ struct ConsensusConfig {
   std::vector<std::string> priority;      ///< sensors, most preferred first
   double window_s = 1.0;                  ///< CM window
   double rate_hz = 10.0;                  ///< evaluations per second
+  /// Beyond the paper: the window of the mean-difference test of each sensor pair (0: off;
+  /// estimator/consensus_estimator.h, bias_window_ns), its false-alarm probability per
+  /// evaluation and the floor of its mean's standard deviation (consistency.h
+  /// MeanDifferenceOptions::floor_std_mps).
+  double bias_window_s = 0.0;
+  double bias_false_alarm = 1e-4;
+  double bias_floor_mps = 0.001;
 };
 
 /// A user's estimator (or controller) a scenario names: `external: {<key>: {command: [...],

@@ -111,6 +111,17 @@ std::string ConsistencyMatrixCsv(const ReplayResult& result) {
   return csv;
 }
 
+std::string BiasTestCsv(const ReplayResult& result) {
+  std::string csv = "#timestamp [ns],pair,chi2\n";
+  for (const estimator::ConsensusRecord& r : result.consensus) {
+    for (const auto& [pair, chi2] : r.bias_chi2) {
+      csv += fmt::format("{},{},{}\n", r.window_end_ns, pair,
+                         chi2 ? fmt::format("{:.6g}", *chi2) : std::string());
+    }
+  }
+  return csv;
+}
+
 ConsensusFiles::ConsensusFiles(std::filesystem::path out_dir) : out_dir_(std::move(out_dir)) {}
 
 void ConsensusFiles::Add(const ReplayResult& result) {
@@ -119,6 +130,12 @@ void ConsensusFiles::Add(const ReplayResult& result) {
   decisions_csv_ += DecisionRows(result);
   WriteFileAtomically(out_dir_ / ("consistency_" + MethodFileStem(result.method.name) + ".csv"),
                       ConsistencyMatrixCsv(result));
+  const bool bias_test = std::any_of(result.consensus.begin(), result.consensus.end(),
+                                     [](const auto& r) { return !r.bias_chi2.empty(); });
+  if (bias_test) {
+    WriteFileAtomically(out_dir_ / ("bias_" + MethodFileStem(result.method.name) + ".csv"),
+                        BiasTestCsv(result));
+  }
 }
 
 void ConsensusFiles::Commit() const {

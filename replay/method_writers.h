@@ -33,6 +33,9 @@ std::string DecisionRows(const ReplayResult& result);
 /// consistency_<method>.csv of a consensus method: t_ns (end of the window), pair ("a-b",
 /// "a-local"), metric, value (empty when unavailable).
 std::string ConsistencyMatrixCsv(const ReplayResult& result);
+/// bias_<method>.csv: the χ² of each sensor pair's mean-difference test per evaluation
+/// (empty: not taken), when the consensus method ran it.
+std::string BiasTestCsv(const ReplayResult& result);
 
 /// The consensus files of a directory, as the run loop and `tofu estimate` both leave
 /// them: Add each method's result in method order (consistency_<method>.csv is written

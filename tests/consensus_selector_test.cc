@@ -60,6 +60,14 @@ class Matrix {
     input_.vs_local[static_cast<std::size_t>(a - 1)] = value;
     return *this;
   }
+  // The pair failed the bias test (ConsensusInput::pair_biased), whatever its value.
+  Matrix& Biased(int a, int b) {
+    if (a > b) std::swap(a, b);
+    input_.pair_biased.resize(input_.pair.size(), false);
+    input_.pair_biased[static_cast<std::size_t>(ConsistencyMatrix::PairIndex(a - 1, b - 1, n_))] =
+        true;
+    return *this;
+  }
   Matrix& Unavailable(int a) {
     input_.available[static_cast<std::size_t>(a - 1)] = false;
     return *this;
@@ -144,6 +152,29 @@ TEST(ConsensusSelectorCross, ThreeSensorsOneCross) {
   const ConsensusDecision d = Decide(selector, Matrix(3, 0.05).Row(3, 0.3).At(0));
   EXPECT_EQ(d.excluded, Names{"S3"}) << d.reason;
   EXPECT_EQ(d.fused, Names{"S1"}) << d.reason;
+}
+
+// A slow drift: every value low (the 1 s window sees nothing), but S3's mean differences
+// with S1 and S2 failed the bias test: S3 is the cross, and is not taken back while they
+// fail.
+TEST(ConsensusSelectorCross, APairThatFailedTheBiasTestIsInconsistentWhateverItsValue) {
+  ConsensusSelector selector(Sensors(3), WithPriority({"S3", "S1"}));
+  const ConsensusDecision clean = Decide(selector, Matrix(3, 0.05).At(0));
+  EXPECT_EQ(clean.fused, Names{"S3"}) << clean.reason;
+  const Matrix drifting = Matrix(3, 0.05).Biased(3, 1).Biased(3, 2);
+  const ConsensusDecision d = Decide(selector, drifting.At(kStep));
+  EXPECT_EQ(d.excluded, Names{"S3"}) << d.reason;
+  EXPECT_EQ(d.inconsistent, Names{"S3"}) << d.reason;
+  EXPECT_EQ(d.fused, Names{"S1"}) << d.reason;
+  EXPECT_TRUE(Contains(d.reason, "S3 inconsistent with 2 of 2 (cross pattern)")) << d.reason;
+  // One biased pair of two is no majority: nobody is the cross.
+  ConsensusSelector other(Sensors(3), WithPriority({"S3", "S1"}));
+  const ConsensusDecision one = Decide(other, Matrix(3, 0.05).Biased(3, 1).At(0));
+  EXPECT_TRUE(one.excluded.empty()) << one.reason;
+  // A pair_biased of the wrong size is refused like a wrong pair vector.
+  ConsensusInput wrong = Matrix(3, 0.05).At(2 * kStep);
+  wrong.pair_biased.assign(2, false);
+  EXPECT_THROW(selector.Decide(wrong), std::invalid_argument);
 }
 
 TEST(ConsensusSelectorCross, TwoAgainstTwoIsResolvedByTheLocalEstimate) {

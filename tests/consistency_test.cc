@@ -14,12 +14,14 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
 #include "core/random.h"
 #include "core/time.h"
 #include "estimator/consistency.h"
 #include "estimator/consistency_matrix.h"
+#include "estimator/velocity.h"
 
 namespace tofu::estimator {
 namespace {
@@ -811,6 +813,242 @@ TEST(NisConsistency, TheMatrixKeepsCovariancesInStepWithTheSamples) {
   matrix.Evaluate(t_end + 20'000'000);
   ASSERT_TRUE(matrix.Value(0, 1).has_value());
   EXPECT_LT(*matrix.Value(0, 1), 3.0);
+}
+
+
+// ---- the mean-difference test: a bias that every short window hides ----
+
+TEST(ChiSquareUpperQuantile, MatchesTabulatedValues) {
+  EXPECT_NEAR(ChiSquareUpperQuantile(1, 0.05), 3.8415, 1e-3);
+  EXPECT_NEAR(ChiSquareUpperQuantile(2, 0.05), 5.9915, 1e-3);
+  EXPECT_NEAR(ChiSquareUpperQuantile(3, 0.05), 7.8147, 1e-3);
+  EXPECT_NEAR(ChiSquareUpperQuantile(2, 1e-4), -2.0 * std::log(1e-4), 1e-6);
+  EXPECT_NEAR(ChiSquareUpperQuantile(3, 1e-4), 21.108, 1e-2);
+  EXPECT_TRUE(std::isnan(ChiSquareUpperQuantile(4, 0.05)));
+  EXPECT_TRUE(std::isnan(ChiSquareUpperQuantile(3, 0.0)));
+}
+
+MeanDifferenceOptions WhiteMeanOptions() {
+  MeanDifferenceOptions o;
+  o.a.correlation_time_ns = 20'000'000;  // NoisyStream's period: independent samples
+  o.b.correlation_time_ns = 20'000'000;
+  o.floor_std_mps = 0.0;
+  return o;
+}
+
+// Independent white streams over 100 windows of 10 s: χ²(3) each, so the mean over the
+// windows is 3 with sd √(6/100) = 0.24; 4 sd = 1.0. Their 1 s NIS sits at 1 either way.
+TEST(MeanDifference, WhiteStreamsGiveChiSquareWithThreeDegreesOfFreedom) {
+  const VelocitySeries a = NoisyStream(1000.0, Eigen::Vector3d::Constant(0.02),
+                                       Eigen::Vector3d::Zero(), "mean_a");
+  const VelocitySeries b = NoisyStream(1000.0, Eigen::Vector3d(0.01, 0.05, 0.03),
+                                       Eigen::Vector3d::Zero(), "mean_b");
+  double sum = 0.0;
+  constexpr int kWindows = 100;
+  for (int w = 0; w < kWindows; ++w) {
+    const std::optional<MeanDifference> d =
+        WindowMeanDifference(a, b, core::SecondsToTime(10.0 * w), core::SecondsToTime(10.0 * (w + 1)),
+                             WhiteMeanOptions());
+    ASSERT_TRUE(d.has_value());
+    EXPECT_EQ(d->dof, 3);
+    EXPECT_EQ(d->samples, 500);
+    sum += d->chi2;
+  }
+  EXPECT_NEAR(sum / kWindows, 3.0, 4.0 * std::sqrt(6.0 / kWindows));
+}
+
+// A bias of 2 mm/s on x, a tenth of the per-sample sd: 1 s windows of the NIS cannot see
+// it ((0.1)²/2 adds 0.005 per dof), while the mean over 10 s of 500 samples is 2 mm/s
+// against a sd of √(2·0.02²/500) = 1.26 mm/s per axis: noncentral χ², λ = 2.5 per window,
+// over 100 windows mean 5.5 ± 0.35 (sd √(2·3 + 4λ)/10).
+TEST(MeanDifference, ABiasTheShortWindowHidesShowsInTheMean) {
+  const Eigen::Vector3d sd = Eigen::Vector3d::Constant(0.02);
+  const VelocitySeries a = NoisyStream(1000.0, sd, Eigen::Vector3d::Zero(), "bias_a");
+  const VelocitySeries b = NoisyStream(1000.0, sd, Eigen::Vector3d(0.002, 0.0, 0.0), "bias_b");
+  double sum = 0.0;
+  for (int w = 0; w < 100; ++w) {
+    const auto d = WindowMeanDifference(a, b, core::SecondsToTime(10.0 * w),
+                                        core::SecondsToTime(10.0 * (w + 1)), WhiteMeanOptions());
+    ASSERT_TRUE(d.has_value());
+    sum += d->chi2;
+  }
+  EXPECT_NEAR(sum / 100.0, 5.5, 4.0 * std::sqrt(2.0 * 3.0 + 4.0 * 2.5) / 10.0);
+  // Over the whole 1000 s the same bias is 2 mm/s against 0.13 mm/s: far beyond any bound
+  // (d̄ = a − b: b is the biased one).
+  const auto whole = WindowMeanDifference(a, b, 0, core::SecondsToTime(1000.0), WhiteMeanOptions());
+  ASSERT_TRUE(whole.has_value());
+  EXPECT_GT(whole->chi2, ChiSquareUpperQuantile(3, 1e-9));
+  EXPECT_NEAR(whole->mean_mps.x(), -0.002, 4.0 * std::sqrt(2.0 * 0.02 * 0.02 / 50000.0));
+}
+
+// Correlated samples count once per correlation time: the same streams stated as
+// correlated over 0.2 s (10 samples) give a tenth of the χ².
+TEST(MeanDifference, SamplesWithinTheCorrelationTimeCountOnce) {
+  const Eigen::Vector3d sd = Eigen::Vector3d::Constant(0.02);
+  const VelocitySeries a = NoisyStream(20.0, sd, Eigen::Vector3d::Zero(), "corr_a");
+  const VelocitySeries b = NoisyStream(20.0, sd, Eigen::Vector3d(0.01, 0.0, 0.0), "corr_b");
+  MeanDifferenceOptions correlated = WhiteMeanOptions();
+  correlated.a.correlation_time_ns = 200'000'000;
+  correlated.b.correlation_time_ns = 200'000'000;
+  const auto white = WindowMeanDifference(a, b, 0, core::SecondsToTime(20.0), WhiteMeanOptions());
+  const auto slow = WindowMeanDifference(a, b, 0, core::SecondsToTime(20.0), correlated);
+  ASSERT_TRUE(white && slow);
+  // N_eff = span / 0.2 s + 1 = 100.9 of 1000 samples.
+  EXPECT_NEAR(slow->chi2 / white->chi2, 100.9 / 1000.0, 1e-3);
+}
+
+// Velocities differentiated from white positions telescope: their mean is the
+// displacement over the span, whose error 2 P / span² bounds (each end a fit's average of
+// positions). Stated per sample with a fit's correlation time instead, the same streams'
+// χ² would be a small fraction of it: a drift would have to be several times larger to
+// be seen.
+TEST(MeanDifference, DifferentiatedPositionsAreJudgedByTheirDisplacement) {
+  core::RandomStream random(21, "telescope");
+  const double sd_p_m = 0.003;
+  const core::Time period_ns = 50'000'000;  // a 20 Hz total station
+  std::vector<core::Time> t;
+  std::vector<Eigen::Vector3d> p;
+  std::vector<Eigen::Matrix3d> cov_p;
+  for (core::Time k = 0; k <= core::SecondsToTime(1000.0); k += period_ns) {
+    const double s = core::TimeToSeconds(k);
+    Eigen::Vector3d noise(random.Normal(), random.Normal(), random.Normal());
+    t.push_back(k);
+    // Slow enough that the fit's curvature error (the third derivative's) stays far
+    // below the noise.
+    p.push_back(Eigen::Vector3d(2.0 * std::cos(0.3 * s), 0.5 * std::sin(0.2 * s), 0.2 * s) +
+                sd_p_m * noise);
+    cov_p.push_back(Eigen::Matrix3d::Identity() * sd_p_m * sd_p_m);
+  }
+  DifferentiationOptions diff;
+  diff.half_window_ns = 160'000'000;
+  const VelocitySeries station = DifferentiatePositions(t, p, cov_p, diff);
+  // A twist of 1 mm/s at the station's stamps, exact velocity otherwise.
+  VelocitySeries twist;
+  core::RandomStream twist_noise(22, "telescope_twist");
+  for (const core::Time k : station.t_ns) {
+    const double s = core::TimeToSeconds(k);
+    twist.t_ns.push_back(k);
+    twist.v_mps.push_back(Eigen::Vector3d(-0.6 * std::sin(0.3 * s), 0.1 * std::cos(0.2 * s), 0.2) +
+                          0.001 * Eigen::Vector3d(twist_noise.Normal(), twist_noise.Normal(),
+                                                  twist_noise.Normal()));
+    twist.cov_m2ps2.push_back(Eigen::Matrix3d::Identity() * 1e-6);
+  }
+  MeanDifferenceOptions telescoping = WhiteMeanOptions();
+  telescoping.a.position_covariance_m2 = Eigen::Matrix3d::Identity() * sd_p_m * sd_p_m;
+  telescoping.b.correlation_time_ns = period_ns;
+  MeanDifferenceOptions per_sample = telescoping;
+  per_sample.a.position_covariance_m2.reset();
+  per_sample.a.correlation_time_ns = 2 * diff.half_window_ns;
+  double sum_telescoping = 0.0;
+  double sum_per_sample = 0.0;
+  for (int w = 0; w < 100; ++w) {
+    const core::Time from = core::SecondsToTime(10.0 * w);
+    const core::Time to = core::SecondsToTime(10.0 * (w + 1));
+    const auto d = WindowMeanDifference(station, twist, from, to, telescoping);
+    const auto e = WindowMeanDifference(station, twist, from, to, per_sample);
+    ASSERT_TRUE(d && e);
+    sum_telescoping += d->chi2;
+    sum_per_sample += e->chi2;
+  }
+  // A bound, not an equality: below χ²(3)'s mean of 3 (4 sd of 100 windows: +1.0). Each
+  // end is a fit's average of 7 positions, 0.18 of a sample's variance for a line: about
+  // 3 × 0.18 = 0.54 expected (0.65 measured with the twist's share), well above 0.35.
+  EXPECT_LT(sum_telescoping / 100.0, 3.0 + 1.0);
+  EXPECT_GT(sum_telescoping / 100.0, 0.35);
+  EXPECT_LT(sum_per_sample, 0.2 * sum_telescoping);
+}
+
+// A burst of gross errors (15 samples 2 m/s off: one outlier of a total station through
+// its fit) moves the plain mean of 500 samples by 6 cm/s, 40 of its sd; shrunk to 3 sd
+// each it moves it by 0.09 sample sd, within the bound. A drift inside the scatter is
+// untouched by the clipping.
+TEST(MeanDifference, GrossErrorsAreClippedWhileADriftIsNot) {
+  const Eigen::Vector3d sd = Eigen::Vector3d::Constant(0.02);
+  const VelocitySeries a = NoisyStream(10.0, sd, Eigen::Vector3d::Zero(), "clip_a");
+  VelocitySeries b = NoisyStream(10.0, sd, Eigen::Vector3d::Zero(), "clip_b");
+  for (std::size_t k = 200; k < 215; ++k) b.v_mps[k].x() += 2.0;
+  MeanDifferenceOptions clipped = WhiteMeanOptions();
+  MeanDifferenceOptions plain = clipped;
+  plain.clip_sigma = std::numeric_limits<double>::infinity();
+  const core::Time end = core::SecondsToTime(10.0);
+  const auto with_burst = WindowMeanDifference(a, b, 0, end, clipped);
+  const auto unclipped = WindowMeanDifference(a, b, 0, end, plain);
+  ASSERT_TRUE(with_burst && unclipped);
+  EXPECT_GT(unclipped->chi2, ChiSquareUpperQuantile(3, 1e-9));
+  EXPECT_LT(with_burst->chi2, ChiSquareUpperQuantile(3, 1e-4));
+  const VelocitySeries drifting =
+      NoisyStream(10.0, sd, Eigen::Vector3d(0.01, 0.0, 0.0), "clip_b");
+  const auto drift_clipped = WindowMeanDifference(a, drifting, 0, end, clipped);
+  const auto drift_plain = WindowMeanDifference(a, drifting, 0, end, plain);
+  ASSERT_TRUE(drift_clipped && drift_plain);
+  EXPECT_GT(drift_clipped->chi2, 0.95 * drift_plain->chi2);
+  EXPECT_GT(drift_clipped->chi2, ChiSquareUpperQuantile(3, 1e-4));
+}
+
+// A position sensor's velocity comes through its alignment: 1° of yaw error moves the
+// difference by 1.7 cm/s at 1 m/s, turning with the velocity. Fitted as a rotation, it
+// is not a bias (χ² back to χ²(3)'s range, δ̂ the 1°), while a drift beside it still is.
+TEST(MeanDifference, ARotationBetweenTheFramesIsFittedAndADriftBesideItIsNot) {
+  const Eigen::Vector3d sd = Eigen::Vector3d::Constant(0.01);
+  const double yaw_rad = M_PI / 180.0;
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(yaw_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  // A flight with a mean horizontal velocity of 0.58 m/s over the window (a figure-eight's
+  // part) besides NoisyStream's oscillation.
+  const Eigen::Vector3d cruise(0.5, 0.3, 0.0);
+  const VelocitySeries reference = NoisyStream(20.0, sd, cruise, "rot_ref");
+  const auto rotated = [&](const Eigen::Vector3d& bias, const char* name) {
+    VelocitySeries s = NoisyStream(20.0, sd, cruise, name);
+    for (Eigen::Vector3d& v : s.v_mps) v = R * v + bias;
+    return s;
+  };
+  const VelocitySeries misaligned = rotated(Eigen::Vector3d::Zero(), "rot_b");
+  MeanDifferenceOptions options = WhiteMeanOptions();
+  const core::Time end = core::SecondsToTime(20.0);
+  const auto plain = WindowMeanDifference(misaligned, reference, 0, end, options);
+  options.estimate_rotation = true;
+  const auto fitted = WindowMeanDifference(misaligned, reference, 0, end, options);
+  ASSERT_TRUE(plain && fitted);
+  EXPECT_GT(plain->chi2, ChiSquareUpperQuantile(3, 1e-6));
+  EXPECT_LT(fitted->chi2, ChiSquareUpperQuantile(3, 1e-3));
+  EXPECT_NEAR(fitted->rotation_rad.z(), yaw_rad, 0.1 * yaw_rad);
+  const VelocitySeries drifting = rotated(Eigen::Vector3d(0.005, -0.005, 0.0), "rot_b");
+  const auto drift = WindowMeanDifference(drifting, reference, 0, end, options);
+  ASSERT_TRUE(drift.has_value());
+  EXPECT_GT(drift->chi2, ChiSquareUpperQuantile(3, 1e-4));
+  EXPECT_NEAR(drift->mean_mps.x(), 0.005, 0.0015);
+}
+
+// A direction the pair does not observe (a degenerate LiDAR odometry's) is left out of
+// the test, its bias with it.
+TEST(MeanDifference, AnUnobservedDirectionIsLeftOut) {
+  const VelocitySeries reference = NoisyStream(20.0, Eigen::Vector3d::Constant(0.02),
+                                               Eigen::Vector3d::Zero(), "unobs_ref");
+  const VelocitySeries degenerate = NoisyStream(20.0, Eigen::Vector3d(3.0, 0.02, 0.02),
+                                                Eigen::Vector3d(2.0, 0.0, 0.0), "unobs_lio");
+  const auto d = WindowMeanDifference(reference, degenerate, 0, core::SecondsToTime(20.0),
+                                      WhiteMeanOptions());
+  ASSERT_TRUE(d.has_value());
+  EXPECT_EQ(d->dof, 2);
+  EXPECT_LT(d->chi2, ChiSquareUpperQuantile(2, 1e-4));
+}
+
+TEST(MeanDifference, NoCovarianceOrTooFewPairsIsUnavailableAndBrokenOptionsAreNamed) {
+  VelocitySeries a = NoisyStream(1.0, Eigen::Vector3d::Constant(0.02), Eigen::Vector3d::Zero(), "na");
+  const VelocitySeries b = NoisyStream(1.0, Eigen::Vector3d::Constant(0.02), Eigen::Vector3d::Zero(), "nb");
+  MeanDifferenceOptions options = WhiteMeanOptions();
+  options.min_samples = 60;  // 50 pairs in 1 s
+  EXPECT_FALSE(WindowMeanDifference(a, b, 0, core::SecondsToTime(1.0), options).has_value());
+  a.cov_m2ps2.clear();
+  EXPECT_FALSE(WindowMeanDifference(a, b, 0, core::SecondsToTime(1.0)).has_value());
+  std::string why;
+  MeanDifferenceOptions broken;
+  broken.b.correlation_time_ns = 0;
+  EXPECT_FALSE(broken.IsValid(&why));
+  EXPECT_NE(why.find("correlation_time_ns"), std::string::npos) << why;
+  broken = {};
+  broken.min_samples = 1;
+  EXPECT_FALSE(broken.IsValid(&why));
+  EXPECT_NE(why.find("min_samples"), std::string::npos) << why;
 }
 
 }  // namespace
