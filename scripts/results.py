@@ -925,6 +925,47 @@ def extract_level_alignment(r):
     return _selection_scores(r, "level_alignment", LEVEL_VARIANTS, LEVEL_SEEDS)
 
 
+BIAS_SEEDS = list(range(1, 11))
+# The bias test's window and its mean's floor (consistency.h MeanDifferenceOptions), both
+# chosen before the runs; the floor of 3 mm/s is run beside it to show the trade.
+BIAS_WINDOW_S = 10
+BIAS_VARIANTS = ("paper", "bias", "bias_floor3")
+BIAS_FLOOR_MPS = {"bias": 0.001, "bias_floor3": 0.003}
+
+
+def _bias_variants(r):
+    """The suite's scenarios with methods [consensus, oracle] and no expectations, as
+    written (the paper's window metric alone) and with the bias test at two floors."""
+    def edit(text, variant, where):
+        if variant == "paper":
+            return text
+        out, count = re.subn(r"^  consensus: \{",
+                             f"  consensus: {{bias_window_s: {BIAS_WINDOW_S}, "
+                             f"bias_floor_mps: {BIAS_FLOOR_MPS[variant]:g}, ", text, flags=re.M)
+        if count != 1:
+            raise ResultsError(f"{where}: no single `  consensus: {{` line in its estimation block")
+        return out
+
+    return _write_suite_variants(r, "bias_test", BIAS_VARIANTS, _consensus_and_oracle, edit)
+
+
+def run_bias_test(r):
+    _run_variants(r, "bias_test", _bias_variants(r), BIAS_SEEDS)
+
+
+def extract_bias_test(r):
+    """_selection_scores, and consensus × oracle over all ten seeds (median / worst)."""
+    v = _selection_scores(r, "bias_test", BIAS_VARIANTS, BIAS_SEEDS)
+    for scenario in _suite_scenarios(r.root):
+        for variant in BIAS_VARIANTS:
+            s = seed_summaries(r.out("bias_test", variant), scenario, BIAS_SEEDS)
+            ratio = [s[i]["methods"]["consensus"]["ate_m"] / s[i]["methods"]["oracle"]["ate_m"]
+                     for i in BIAS_SEEDS]
+            v[f"bias_test.{scenario}.{variant}.ratio_1_10"] = \
+                f"{fixed(statistics.median(ratio), 2)} / {fixed(max(ratio), 2)}"
+    return v
+
+
 FACTOR_SEEDS = list(range(1, 11))
 FACTOR_VARIANTS = ("between", "absolute")
 
@@ -1098,6 +1139,12 @@ SOURCES = {
                                     "oracle], as written (the paper's 6-DoF alignments) and with "
                                     f"`alignment_level_prior_deg: {LEVEL_PRIOR_DEG:g}`, --seeds 10",
                         "seeds": LEVEL_SEEDS, "run": run_level_alignment, "extract": extract_level_alignment},
+    "bias_test": {"describe": "`tofu check` of the suite's scenarios with methods [consensus, "
+                              "oracle], as written (the paper's window metric) and with "
+                              f"`consensus: {{bias_window_s: {BIAS_WINDOW_S}, bias_floor_mps: F}}` "
+                              "for F = 0.001 (bias, the default floor) and 0.003 (bias_floor3), "
+                              "--seeds 10",
+                  "seeds": BIAS_SEEDS, "run": run_bias_test, "extract": extract_bias_test},
     "position_factors": {"describe": "`tofu check` of the suite's scenarios without naive and "
                                      "consensus:consistent_set, with `position_factors: between` "
                                      "(the default) and `absolute`, --seeds 10",
@@ -1294,6 +1341,13 @@ def table_level_alignment(V):
                             ["consensus ATE med [m]", "oracle ATE med [m]"] + SELECTION_HEADERS)
 
 
+def table_bias_test(V):
+    return _selection_table(V, "bias_test", BIAS_VARIANTS,
+                            "scenario (paper → bias test → floor 3 mm/s)",
+                            ("consensus_ate", "oracle_ate") + SELECTION_FIELDS,
+                            ["consensus ATE med [m]", "oracle ATE med [m]"] + SELECTION_HEADERS)
+
+
 def table_position_factors(V):
     rows = []
     for scenario in _suite_scenarios(SCRIPT_ROOT):
@@ -1383,11 +1437,13 @@ def table_issue34_goals(V):
         V, "consensus ≤ 1.5x the oracle's median ATE and ≤ 2.5x its worst",
         [("between", "position_factors.{scenario}.between.consensus_over_oracle"),
          ("absolute", "position_factors.{scenario}.absolute.consensus_over_oracle"),
-         ("offset", "position_offset.{scenario}.offset.consensus_over_oracle")],
+         ("offset", "position_offset.{scenario}.offset.consensus_over_oracle"),
+         ("between + bias test", "bias_test.{scenario}.bias.ratio_1_10")],
         lambda sc, t: _numbers(t)[0] <= 1.5 and _numbers(t)[1] <= 2.5,
         worst_max(lambda t: _numbers(t)[0]), lambda x: f"largest median {x:.2f}x"))
     selection = [("cm", "consensus_nis.{scenario}.cm."), ("nis", "consensus_nis.{scenario}.nis."),
-                 ("level prior", "level_alignment.{scenario}.level.")]
+                 ("level prior", "level_alignment.{scenario}.level."),
+                 ("bias test", "bias_test.{scenario}.bias.")]
     rows.append(_goal_row(
         V, "detection ≤ 1 s after abrupt faults, ≤ 5 s for the slow drift (worst seed)",
         [(label, prefix + "detection_worst_s") for label, prefix in selection],
@@ -1554,6 +1610,7 @@ TABLES = {
     "suite_failures": table_suite_failures,
     "consensus_nis": table_consensus_nis,
     "level_alignment": table_level_alignment,
+    "bias_test": table_bias_test,
     "position_factors": table_position_factors,
     "position_offset": table_position_offset,
     "closed_loop_offset": table_closed_loop_offset,

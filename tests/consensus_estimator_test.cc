@@ -77,6 +77,23 @@ bool Contains(const std::vector<std::string>& names, const std::string& name) {
   return std::find(names.begin(), names.end(), name) != names.end();
 }
 
+// The consensus estimator over a log (huber_delta 3, as the scenarios here state), each
+// record handed to on_record; returns the local graph's counters.
+estimator::LocalSmootherStats ReplayConsensus(
+    const replay::RecordedLog& log, const estimator::ConsensusEstimatorOptions& options,
+    const std::function<void(estimator::ConsensusRecord&&)>& on_record) {
+  estimator::MultiGraphEstimatorOptions estimator_options = replay::DefaultEstimatorOptions(log);
+  estimator_options.local.huber_delta = 3.0;
+  estimator::ConsensusEstimator consensus(log.imu_stream, replay::SensorSpecsOf(log),
+                                          estimator_options, options);
+  for (const core::StampedMeasurement& m : log.measurements) {
+    consensus.Add(m);
+    consensus.TakeOutputs();
+    for (auto& r : consensus.TakeRecords()) on_record(std::move(r));
+  }
+  return consensus.estimator().local().stats();
+}
+
 class ConsensusEstimatorTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -109,17 +126,10 @@ class ConsensusEstimatorTest : public ::testing::Test {
     estimator::ConsensusEstimatorOptions options;
     options.selection.threshold = 0.3;
     options.selection.priority = {"vio", "lio"};
-    estimator::MultiGraphEstimatorOptions estimator_options = replay::DefaultEstimatorOptions(log);
-    estimator_options.local.huber_delta = 3.0;
-    estimator::ConsensusEstimator consensus(log.imu_stream, replay::SensorSpecsOf(log),
-                                            estimator_options, options);
     Run run;
-    for (const core::StampedMeasurement& m : log.measurements) {
-      consensus.Add(m);
-      consensus.TakeOutputs();
-      for (auto& r : consensus.TakeRecords()) run.records.push_back(std::move(r));
-    }
-    run.stats = consensus.estimator().local().stats();
+    run.stats = ReplayConsensus(log, options, [&](estimator::ConsensusRecord&& r) {
+      run.records.push_back(std::move(r));
+    });
     return run;
   }
 
@@ -548,29 +558,21 @@ DriftRun RunDrift(const replay::RecordedLog& log, core::Time bias_window_ns) {
   options.selection.threshold = 0.3;
   options.selection.priority = {"leica", "vio", "lio"};
   options.bias_window_ns = bias_window_ns;
-  estimator::MultiGraphEstimatorOptions estimator_options = replay::DefaultEstimatorOptions(log);
-  estimator_options.local.huber_delta = 3.0;
-  estimator::ConsensusEstimator consensus(log.imu_stream, replay::SensorSpecsOf(log),
-                                          estimator_options, options);
   DriftRun run;
-  for (const core::StampedMeasurement& m : log.measurements) {
-    consensus.Add(m);
-    consensus.TakeOutputs();
-    for (const estimator::ConsensusRecord& r : consensus.TakeRecords()) {
-      // The first few seconds align the total station: not judged here.
-      if (r.t_ns > 8'000'000'000 && r.window_end_ns < kDriftOnsetNs &&
-          !r.decision.inconsistent.empty()) {
-        ++run.exclusions_before_onset;
-      }
-      if (r.window_end_ns >= kDriftOnsetNs && !run.excluded_after_ns &&
-          Contains(r.decision.inconsistent, "leica")) {
-        run.excluded_after_ns = r.window_end_ns - kDriftOnsetNs;
-      }
-      if (bias_window_ns > 0 && r.t_ns > 8'000'000'000) {
-        EXPECT_EQ(r.bias_chi2.size(), 3u);
-      }
+  ReplayConsensus(log, options, [&](estimator::ConsensusRecord&& r) {
+    // The first few seconds align the total station: not judged here.
+    if (r.t_ns > 8'000'000'000 && r.window_end_ns < kDriftOnsetNs &&
+        !r.decision.inconsistent.empty()) {
+      ++run.exclusions_before_onset;
     }
-  }
+    if (r.window_end_ns >= kDriftOnsetNs && !run.excluded_after_ns &&
+        Contains(r.decision.inconsistent, "leica")) {
+      run.excluded_after_ns = r.window_end_ns - kDriftOnsetNs;
+    }
+    if (bias_window_ns > 0 && r.t_ns > 8'000'000'000) {
+      EXPECT_EQ(r.bias_chi2.size(), 3u);
+    }
+  });
   return run;
 }
 
