@@ -517,6 +517,9 @@ std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
     std::size_t ib;
   };
   std::vector<Pair> pairs;
+  pairs.reserve(static_cast<std::size_t>(std::max<std::ptrdiff_t>(
+      0, std::min(a.t_ns.end() - std::upper_bound(a.t_ns.begin(), a.t_ns.end(), t_from_ns),
+                  b.t_ns.end() - std::upper_bound(b.t_ns.begin(), b.t_ns.end(), t_from_ns)))));
   const double sample_floor_variance = options.sample_floor_std_mps * options.sample_floor_std_mps;
   std::size_t ia = static_cast<std::size_t>(
       std::upper_bound(a.t_ns.begin(), a.t_ns.end(), t_from_ns) - a.t_ns.begin());
@@ -562,42 +565,51 @@ std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
   Eigen::Matrix3d typical = per_sample;
   typical.diagonal().array() += std::max(sample_floor_variance, 1e-12);
   const Eigen::Matrix3d W = typical.inverse();
-  const int unknowns = options.estimate_rotation ? 6 : 3;
-  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(unknowns, unknowns);
-  Eigen::VectorXd g = Eigen::VectorXd::Zero(unknowns);
+  // Fixed-size throughout (6 unknowns); without the rotation its Jacobian is zero and its
+  // block of H the identity, so δ̂ = 0 and b̂ is the mean.
+  using Matrix36 = Eigen::Matrix<double, 3, 6>;
+  using Matrix6 = Eigen::Matrix<double, 6, 6>;
+  using Vector6 = Eigen::Matrix<double, 6, 1>;
+  Matrix6 H = Matrix6::Zero();
+  Vector6 g = Vector6::Zero();
   const auto jacobian = [&](const Pair& p) {
-    Eigen::MatrixXd J(3, unknowns);
+    Matrix36 J = Matrix36::Zero();
     J.leftCols<3>().setIdentity();
     if (options.estimate_rotation) {
       // δ × v = −[v]ₓ δ.
       const Eigen::Vector3d& v = p.v_a;
-      Eigen::Matrix3d minus_v_cross;
-      minus_v_cross << 0, v.z(), -v.y(), -v.z(), 0, v.x(), v.y(), -v.x(), 0;
-      J.rightCols<3>() = minus_v_cross;
+      J.rightCols<3>() << 0, v.z(), -v.y(), -v.z(), 0, v.x(), v.y(), -v.x(), 0;
     }
     return J;
   };
+  // Σ_k (W J_k)ᵀ Σ_s,k (W J_k) per stream: with A_k = [H⁻¹]_b J_kᵀ W, Σ_k A_k Σ_s,k A_kᵀ
+  // is [H⁻¹]_b M_s [H⁻¹]_bᵀ (below).
+  Matrix6 M_a = Matrix6::Zero();
+  Matrix6 M_b = Matrix6::Zero();
   for (const Pair& p : pairs) {
-    const Eigen::MatrixXd J = jacobian(p);
-    H.noalias() += J.transpose() * W * J;
-    g.noalias() += J.transpose() * W * p.difference;
+    const Matrix36 J = jacobian(p);
+    const Matrix36 WJ = W * J;
+    H.noalias() += J.transpose() * WJ;
+    g.noalias() += WJ.transpose() * p.difference;
+    M_a.noalias() += WJ.transpose() * a.cov_m2ps2[p.ia] * WJ;
+    M_b.noalias() += WJ.transpose() * b.cov_m2ps2[p.ib] * WJ;
   }
-  if (options.estimate_rotation) {
-    H.bottomRightCorner(3, 3).diagonal().array() +=
-        1.0 / (options.rotation_prior_std_rad * options.rotation_prior_std_rad);
-  }
-  const Eigen::LDLT<Eigen::MatrixXd> solver(H);
-  const Eigen::VectorXd x = solver.solve(g);
-  const Eigen::MatrixXd H_inverse = solver.solve(Eigen::MatrixXd::Identity(unknowns, unknowns));
+  H.bottomRightCorner<3, 3>().diagonal().array() +=
+      options.estimate_rotation
+          ? 1.0 / (options.rotation_prior_std_rad * options.rotation_prior_std_rad)
+          : 1.0;
+  const Eigen::LDLT<Matrix6> solver(H);
+  const Vector6 x = solver.solve(g);
+  const Eigen::Matrix<double, 3, 6> H_inverse_top = solver.solve(Matrix6::Identity()).topRows<3>();
   const auto weights = [&](const Pair& p) -> Eigen::Matrix3d {
-    return (H_inverse * jacobian(p).transpose() * W).topRows(3);
+    return H_inverse_top * jacobian(p).transpose() * W;
   };
 
   // Each stream's share of Cov(b̂). White errors, counted once per correlation time:
   // Σ_k A_k Σ_k A_kᵀ scaled by N / N_eff. Differentiated positions: Σ_k A_k ė(t_k) sums
   // by parts to A_N e(t_N)/Δt − A_1 e(t_1)/Δt and interior terms of order (sensor period /
   // span) smaller, left out; for the plain mean that is 2 P / span².
-  const auto share = [&](const MeanNoise& noise, const VelocitySeries& series, bool is_a) {
+  const auto share = [&](const MeanNoise& noise, const Matrix6& M) {
     if (noise.position_covariance_m2) {
       const Eigen::Matrix3d first = weights(pairs.front()) / grid_s;
       const Eigen::Matrix3d last = weights(pairs.back()) / grid_s;
@@ -607,19 +619,14 @@ std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
     const double independent = std::clamp(
         static_cast<double>(span_ns) / static_cast<double>(noise.correlation_time_ns) + 1.0, 1.0,
         samples);
-    Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
-    for (const Pair& p : pairs) {
-      const Eigen::Matrix3d A = weights(p);
-      sum += A * series.cov_m2ps2[is_a ? p.ia : p.ib] * A.transpose();
-    }
-    return Eigen::Matrix3d(sum * samples / independent);
+    return Eigen::Matrix3d(H_inverse_top * M * H_inverse_top.transpose() * samples / independent);
   };
 
   MeanDifference result;
   result.samples = n;
   result.mean_mps = x.head<3>();
   if (options.estimate_rotation) result.rotation_rad = x.tail<3>();
-  result.covariance_m2ps2 = share(options.a, a, true) + share(options.b, b, false) +
+  result.covariance_m2ps2 = share(options.a, M_a) + share(options.b, M_b) +
                             Eigen::Matrix3d::Identity() *
                                 (options.floor_std_mps * options.floor_std_mps);
   // The directions the pair observes: those of the per-sample covariance within the bound.
