@@ -323,7 +323,8 @@ struct ConsensusEstimator::Impl {
           // A drift that began t ago shows best over a window of about t (its mean grows
           // with t, the noise of the mean falls with √window): the window and its half and
           // quarter, each at a third of the false-alarm probability. The record keeps the
-          // largest χ² (the bound is the same for each).
+          // largest χ² (the bound is the same for each but where a window observes fewer
+          // directions).
           const core::Time from = std::max(keep_from, bias_from_ns[pair]);
           for (const core::Time window : {t_eval - from, (t_eval - from) / 2, (t_eval - from) / 4}) {
             if (window < options.bias_min_span_ns) break;
