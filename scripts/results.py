@@ -929,16 +929,24 @@ BIAS_SEEDS = list(range(1, 11))
 # The bias test's window and its mean's floor (consistency.h MeanDifferenceOptions), both
 # chosen before the runs; the floor of 3 mm/s is run beside it to show the trade.
 BIAS_WINDOW_S = 10
-BIAS_VARIANTS = ("paper", "bias", "bias_floor3")
-BIAS_FLOOR_MPS = {"bias": 0.001, "bias_floor3": 0.003}
+BIAS_VARIANTS = ("paper", "bias", "bias_floor3", "nis_bias")
+BIAS_FLOOR_MPS = {"bias": 0.001, "bias_floor3": 0.003, "nis_bias": 0.001}
 
 
 def _bias_variants(r):
     """The suite's scenarios with methods [consensus, oracle] and no expectations, as
-    written (the paper's window metric alone) and with the bias test at two floors."""
+    written (the paper's window metric alone), with the bias test at two floors, and with
+    it beside `metric: nis` (consensus_nis's threshold), whose pairs with a GNSS are below
+    their threshold when healthy and so are tested too."""
     def edit(text, variant, where):
         if variant == "paper":
             return text
+        if variant == "nis_bias":
+            text, count = re.subn(r"consensus: \{threshold: [0-9.]+",
+                                  f"consensus: {{metric: nis, threshold: {NIS_THRESHOLD:g}", text)
+            if count != 1:
+                raise ResultsError(f"{where}: no single `consensus: {{threshold: ...`")
+            text = re.sub(r"leave_threshold: [0-9.]+", f"leave_threshold: {2 * NIS_THRESHOLD:g}", text)
         out, count = re.subn(r"^  consensus: \{",
                              f"  consensus: {{bias_window_s: {BIAS_WINDOW_S}, "
                              f"bias_floor_mps: {BIAS_FLOOR_MPS[variant]:g}, ", text, flags=re.M)
@@ -1143,7 +1151,7 @@ SOURCES = {
                               "oracle], as written (the paper's window metric) and with "
                               f"`consensus: {{bias_window_s: {BIAS_WINDOW_S}, bias_floor_mps: F}}` "
                               "for F = 0.001 (bias, the default floor) and 0.003 (bias_floor3), "
-                              "--seeds 10",
+                              "and with F = 0.001 beside `metric: nis` (nis_bias), --seeds 10",
                   "seeds": BIAS_SEEDS, "run": run_bias_test, "extract": extract_bias_test},
     "position_factors": {"describe": "`tofu check` of the suite's scenarios without naive and "
                                      "consensus:consistent_set, with `position_factors: between` "
@@ -1343,7 +1351,7 @@ def table_level_alignment(V):
 
 def table_bias_test(V):
     return _selection_table(V, "bias_test", BIAS_VARIANTS,
-                            "scenario (paper → bias test → floor 3 mm/s)",
+                            "scenario (paper → bias test → floor 3 mm/s → nis + bias test)",
                             ("consensus_ate", "oracle_ate") + SELECTION_FIELDS,
                             ["consensus ATE med [m]", "oracle ATE med [m]"] + SELECTION_HEADERS)
 
