@@ -1446,12 +1446,14 @@ def table_issue34_goals(V):
         [("between", "position_factors.{scenario}.between.consensus_over_oracle"),
          ("absolute", "position_factors.{scenario}.absolute.consensus_over_oracle"),
          ("offset", "position_offset.{scenario}.offset.consensus_over_oracle"),
-         ("between + bias test", "bias_test.{scenario}.bias.ratio_1_10")],
+         ("between + bias test", "bias_test.{scenario}.bias.ratio_1_10"),
+         ("between + nis + bias test", "bias_test.{scenario}.nis_bias.ratio_1_10")],
         lambda sc, t: _numbers(t)[0] <= 1.5 and _numbers(t)[1] <= 2.5,
         worst_max(lambda t: _numbers(t)[0]), lambda x: f"largest median {x:.2f}x"))
     selection = [("cm", "consensus_nis.{scenario}.cm."), ("nis", "consensus_nis.{scenario}.nis."),
                  ("level prior", "level_alignment.{scenario}.level."),
-                 ("bias test", "bias_test.{scenario}.bias.")]
+                 ("bias test", "bias_test.{scenario}.bias."),
+                 ("nis + bias test", "bias_test.{scenario}.nis_bias.")]
     rows.append(_goal_row(
         V, "detection ≤ 1 s after abrupt faults, ≤ 5 s for the slow drift (worst seed)",
         [(label, prefix + "detection_worst_s") for label, prefix in selection],
