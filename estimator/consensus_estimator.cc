@@ -294,14 +294,9 @@ struct ConsensusEstimator::Impl {
     input.pair_biased.assign(input.pair.size(), false);
     const core::Time keep_from = t_eval - options.bias_window_ns;
     for (Sensor& s : sensors) {
-      VelocitySeries& series = s.in_L;
-      const auto old = std::upper_bound(series.t_ns.begin(), series.t_ns.end(), keep_from) -
-                       series.t_ns.begin();
-      if (old > 0) {
-        series.t_ns.erase(series.t_ns.begin(), series.t_ns.begin() + old);
-        series.v_mps.erase(series.v_mps.begin(), series.v_mps.begin() + old);
-        series.cov_m2ps2.erase(series.cov_m2ps2.begin(), series.cov_m2ps2.begin() + old);
-      }
+      const auto& t = s.in_L.t_ns;
+      EraseFront(s.in_L, static_cast<std::size_t>(std::upper_bound(t.begin(), t.end(), keep_from) -
+                                                   t.begin()));
     }
     for (int i = 0; i < n; ++i) {
       for (int j = i + 1; j < n; ++j) {
@@ -398,28 +393,26 @@ struct ConsensusEstimator::Impl {
         s.last_velocity_ns = tk;
         const std::optional<Eigen::Vector3d> omega_I = GyroAt(tk);
         if (!omega_I) continue;
+        const RawSample& raw = s.raw[static_cast<std::size_t>(
+            std::lower_bound(t.begin(), t.end(), tk) - t.begin())];
+        // The local attitude: a position sensor's comes from it (and its T_AL), and the
+        // bias test takes every stream into L with it.
+        const LocalSample* l =
+            s.spec.kind == SensorKind::kPosition || BiasTest() ? LocalAt(tk) : nullptr;
         Eigen::Matrix3d R_AI;
         if (s.spec.kind == SensorKind::kPose) {
-          const auto it = std::lower_bound(t.begin(), t.end(), tk);
-          R_AI = s.raw[static_cast<std::size_t>(it - t.begin())].q_As.toRotationMatrix() *
-                 R_Is.transpose();
+          R_AI = raw.q_As.toRotationMatrix() * R_Is.transpose();
         } else {
-          // A position sensor's attitude comes from the local estimate and its T_AL:
-          // without both (nothing fused yet, never aligned) it is unavailable.
-          const LocalSample* l = LocalAt(tk);
+          // Without both (nothing fused yet, never aligned) it is unavailable.
           if (l == nullptr || !R_AL) continue;
           R_AI = *R_AL * l->R_LI;
         }
         // v_I = R_AIᵀ v_A(s) − ω_I × p_Is.
         Eigen::Matrix3d cov_I;
         if (stated) cov_I = R_AI.transpose() * v_A.cov_m2ps2[k] * R_AI;
-        if (BiasTest()) {
-          if (const LocalSample* l = LocalAt(tk)) {
-            const Eigen::Matrix3d R_LA = l->R_LI * R_AI.transpose();
-            const auto it = std::lower_bound(t.begin(), t.end(), tk);
-            s.position_covariance_L =
-                R_LA * s.raw[static_cast<std::size_t>(it - t.begin())].cov_p_As * R_LA.transpose();
-          }
+        if (BiasTest() && l != nullptr) {
+          const Eigen::Matrix3d R_LA = l->R_LI * R_AI.transpose();
+          s.position_covariance_L = R_LA * raw.cov_p_As * R_LA.transpose();
         }
         s.grid->Add(tk, R_AI.transpose() * v_A.v_mps[k] - omega_I->cross(p_Is),
                     stated ? &cov_I : nullptr, emit);

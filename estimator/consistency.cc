@@ -388,6 +388,15 @@ std::optional<double> NormalizedSquaredDifference(const VelocitySeries& a,
 
 }  // namespace
 
+void EraseFront(VelocitySeries& series, std::size_t count) {
+  const auto n = static_cast<std::ptrdiff_t>(std::min(count, series.t_ns.size()));
+  if (n == 0) return;
+  series.t_ns.erase(series.t_ns.begin(), series.t_ns.begin() + n);
+  series.v_mps.erase(series.v_mps.begin(), series.v_mps.begin() + n);
+  auto& cov = series.cov_m2ps2;
+  if (!cov.empty()) cov.erase(cov.begin(), cov.begin() + n);
+}
+
 std::optional<double> WindowConsistency(const VelocitySeries& a, const VelocitySeries& b,
                                         core::Time t_eval_ns, ConsistencyMetric metric,
                                         const ConsistencyOptions& options) {
@@ -516,15 +525,16 @@ std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
     std::size_t ia;
     std::size_t ib;
   };
-  std::vector<Pair> pairs;
-  pairs.reserve(static_cast<std::size_t>(std::max<std::ptrdiff_t>(
-      0, std::min(a.t_ns.end() - std::upper_bound(a.t_ns.begin(), a.t_ns.end(), t_from_ns),
-                  b.t_ns.end() - std::upper_bound(b.t_ns.begin(), b.t_ns.end(), t_from_ns)))));
   const double sample_floor_variance = options.sample_floor_std_mps * options.sample_floor_std_mps;
   std::size_t ia = static_cast<std::size_t>(
       std::upper_bound(a.t_ns.begin(), a.t_ns.end(), t_from_ns) - a.t_ns.begin());
   std::size_t ib = static_cast<std::size_t>(
       std::upper_bound(b.t_ns.begin(), b.t_ns.end(), t_from_ns) - b.t_ns.begin());
+  std::vector<Pair> pairs;
+  pairs.reserve(std::min(a.t_ns.size() - ia, b.t_ns.size() - ib));
+  // Σ_k Σ_a,k and Σ_k Σ_b,k over the pairs: their mean is the pair's typical covariance.
+  Eigen::Matrix3d sum_covariance_a = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d sum_covariance_b = Eigen::Matrix3d::Zero();
   while (ia < a.t_ns.size() && ib < b.t_ns.size() && a.t_ns[ia] <= t_to_ns &&
          b.t_ns[ib] <= t_to_ns) {
     if (a.t_ns[ia] != b.t_ns[ib]) {
@@ -539,6 +549,8 @@ std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
       const double sigmas = std::sqrt(difference.dot(S.ldlt().solve(difference)));
       if (sigmas > options.clip_sigma) difference *= options.clip_sigma / sigmas;
       pairs.push_back({a.t_ns[ia], difference, a.v_mps[ia], ia, ib});
+      sum_covariance_a += a.cov_m2ps2[ia];
+      sum_covariance_b += b.cov_m2ps2[ib];
     }
     ++ia;
     ++ib;
@@ -549,15 +561,7 @@ std::optional<MeanDifference> WindowMeanDifference(const VelocitySeries& a,
   const core::Time span_ns = pairs.back().t_ns - pairs.front().t_ns;
   const double grid_s = core::TimeToSeconds(span_ns) / (samples - 1.0);
 
-  Eigen::Matrix3d per_sample_a = Eigen::Matrix3d::Zero();
-  Eigen::Matrix3d per_sample_b = Eigen::Matrix3d::Zero();
-  for (const Pair& p : pairs) {
-    per_sample_a += a.cov_m2ps2[p.ia];
-    per_sample_b += b.cov_m2ps2[p.ib];
-  }
-  per_sample_a /= samples;
-  per_sample_b /= samples;
-  const Eigen::Matrix3d per_sample = per_sample_a + per_sample_b;
+  const Eigen::Matrix3d per_sample = sum_covariance_a / samples + sum_covariance_b / samples;
 
   // b̂ = Σ_k A_k d_k: weighted least squares of d_k = b + δ × v_k, with a prior of
   // rotation_prior_std_rad on δ, or the mean (A_k = I / N). The weight is the samples'

@@ -86,6 +86,9 @@ struct VelocitySeries {
   std::vector<Eigen::Matrix3d> cov_m2ps2;
 };
 
+/// Drops the first `count` samples of a series (its covariances too, when it has them).
+void EraseFront(VelocitySeries& series, std::size_t count);
+
 /// The metric between streams a and b over the window ending at t_eval_ns, per axis and
 /// summed over x, y, z (kNis: over the observed directions, per degree of freedom). MAE,
 /// PCC and NIS pair each sample of a with b linearly interpolated at its time (samples of

@@ -91,13 +91,9 @@ std::optional<double> ConsistencyMatrix::Value(int i, int j) const {
 }
 
 void ConsistencyMatrix::EraseFront(Stream& stream, std::size_t count) {
-  const auto n = static_cast<std::ptrdiff_t>(count);
-  stream.samples.t_ns.erase(stream.samples.t_ns.begin(), stream.samples.t_ns.begin() + n);
-  stream.samples.v_mps.erase(stream.samples.v_mps.begin(), stream.samples.v_mps.begin() + n);
-  auto& cov = stream.samples.cov_m2ps2;
-  if (!cov.empty()) cov.erase(cov.begin(), cov.begin() + n);
+  tofu::estimator::EraseFront(stream.samples, count);
   stream.base += count;
-  stream.counters.dropped += n;
+  stream.counters.dropped += static_cast<int64_t>(count);
 }
 
 void ConsistencyMatrix::DropOld(Stream& stream, core::Time cut_ns) {
