@@ -84,6 +84,7 @@ struct PendingMeasurement {
   Eigen::Vector3d p_Is = Eigen::Vector3d::Zero();
   Eigen::Matrix3d R_LA = Eigen::Matrix3d::Identity();
   bool position_in_reference = false;  ///< pose: displacement in A through R_LA
+  std::optional<PoseNoise> pose_noise;  ///< pose: the factor's covariance from its own noise
   std::optional<Eigen::Vector3d> p_LA;  ///< position: absolute in L through T_LA
   bool with_offset = false;             ///< position: in L up to the chain's offset
   double min_std_m = 0.0;
@@ -104,6 +105,8 @@ struct Chain {
   Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
   Eigen::Vector3d p_As = Eigen::Vector3d::Zero();
   Eigen::Matrix3d covariance_A = Eigen::Matrix3d::Identity();
+  /// A pose's white covariance, when its stream states its own noise (PoseNoise).
+  std::optional<Eigen::Matrix<double, 6, 6>> white_covariance;
   /// The newest measurement skipped as not yet due: it joins a keyframe another sensor
   /// makes at its time (see ChainDue).
   std::optional<PendingMeasurement> skipped;
@@ -115,6 +118,8 @@ struct Chain {
     T_As = m.T_As;
     p_As = m.p_As;
     covariance_A = m.covariance_A;
+    white_covariance.reset();
+    if (m.pose_noise) white_covariance = m.pose_noise->white_covariance;
     skipped.reset();
   }
 };
@@ -421,6 +426,19 @@ struct LocalSmoother::Impl {
     // T_IJ = T_Is (T_As,i⁻¹ T_As,j) T_Is⁻¹ (the lever arm and mount rotation of eq. 2).
     const Eigen::Isometry3d T_IJ = m.T_Is * (chain.T_As.inverse() * m.T_As) * m.T_Is.inverse();
     Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
+    if (m.pose_noise && chain.white_covariance) {
+      Eigen::Matrix<double, 6, 6> covariance =
+          PoseBetweenCovariance(chain.T_As, *chain.white_covariance, m.T_As,
+                                m.pose_noise->white_covariance, m.T_Is, m.pose_noise->drift);
+      covariance.topLeftCorner<3, 3>().diagonal().array() +=
+          m.pose_noise->min_position_std_m * m.pose_noise->min_position_std_m;
+      covariance.bottomRightCorner<3, 3>().diagonal().array() +=
+          m.pose_noise->min_rotation_std_rad * m.pose_noise->min_rotation_std_rad;
+      const Eigen::Matrix<double, 6, 6> information =
+          covariance.ldlt().solve(Eigen::Matrix<double, 6, 6>::Identity());
+      sqrt_information = Eigen::LLT<Eigen::Matrix<double, 6, 6>>(information).matrixU() *
+                         m.sqrt_information;
+    }
     if (m.position_in_reference) {
       sqrt_information.topRows<3>().setZero();
       AddBetween(m.sensor, std::make_unique<PositionBetweenFactor>(
@@ -825,7 +843,8 @@ void LocalSmoother::AddImu(core::Time t_ns, const Eigen::Vector3d& accel_I_mps2,
 MeasurementUse LocalSmoother::AddPose(int sensor, core::Time t_ns, const Eigen::Isometry3d& T_As,
                                       const Eigen::Isometry3d& T_Is,
                                       const Eigen::Matrix<double, 6, 6>& between_sqrt_information,
-                                      const std::optional<Eigen::Matrix3d>& R_LA) {
+                                      const std::optional<Eigen::Matrix3d>& R_LA,
+                                      const std::optional<PoseNoise>& noise) {
   if (!T_As.matrix().allFinite() || !between_sqrt_information.allFinite()) {
     return MeasurementUse::kRejected;
   }
@@ -837,9 +856,22 @@ MeasurementUse LocalSmoother::AddPose(int sensor, core::Time t_ns, const Eigen::
   p.T_Is = T_Is;
   p.sqrt_information = between_sqrt_information;
   if (R_LA) {
-    if (!R_LA->allFinite()) return MeasurementUse::kRejected;
+    if (!R_LA->allFinite() || noise) return MeasurementUse::kRejected;
     p.position_in_reference = true;
     p.R_LA = *R_LA;
+  }
+  if (noise) {
+    const Eigen::Matrix<double, 6, 6>& W = noise->white_covariance;
+    const bool valid = W.allFinite() && W.isApprox(W.transpose()) &&
+                       Eigen::LDLT<Eigen::Matrix<double, 6, 6>>(W).isPositive() &&
+                       noise->drift.position_random_walk_m_per_sqrtm >= 0.0 &&
+                       noise->drift.rotation_random_walk_rad_per_sqrtm >= 0.0 &&
+                       noise->min_position_std_m > 0.0 && noise->min_rotation_std_rad > 0.0 &&
+                       std::isfinite(noise->drift.position_random_walk_m_per_sqrtm +
+                                     noise->drift.rotation_random_walk_rad_per_sqrtm +
+                                     noise->min_position_std_m + noise->min_rotation_std_rad);
+    if (!valid) return MeasurementUse::kRejected;
+    p.pose_noise = noise;
   }
   return impl_->Submit(std::move(p));
 }

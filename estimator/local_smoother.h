@@ -26,6 +26,7 @@
 #include "core/time.h"
 #include "core/units.h"
 #include "estimator/imu_preintegration.h"
+#include "estimator/pose_noise.h"
 
 namespace tofu::estimator {
 
@@ -138,6 +139,16 @@ enum class MeasurementUse {
   kRejected,    ///< not initialised, or non-finite
 };
 
+/// A pose's own noise (LocalSmoother::AddPose): its white covariance in
+/// core::PoseMeasurement's order [δθ_s; δp_A], the stream's drift, and floors added to the
+/// between factor's stds.
+struct PoseNoise {
+  Eigen::Matrix<double, 6, 6> white_covariance = Eigen::Matrix<double, 6, 6>::Zero();
+  PoseDriftRates drift;
+  double min_position_std_m = 0.0;
+  double min_rotation_std_rad = 0.0;
+};
+
 class LocalSmoother {
  public:
   /// Throws std::invalid_argument when options.IsValid() is false.
@@ -170,10 +181,16 @@ class LocalSmoother {
   /// sensor's reference frame A instead of the body (a position between factor r^p of the
   /// mount point, eq. 3, beside a rotation-only r^o): the displacement then does not
   /// inherit the sensor's attitude errors, at the price of needing T_AL.
+  /// With `noise` (not with R_LA), the between factor's covariance is the stream's own,
+  /// from this pose's and the previous one's white errors and the drift between them
+  /// (PoseBetweenCovariance, pose_noise.h, plus the floors), and between_sqrt_information
+  /// multiplies its square-root information from the right: a projector that leaves out
+  /// directions the sensor does not observe, or the identity.
   MeasurementUse AddPose(int sensor, core::Time t_ns, const Eigen::Isometry3d& T_As,
                          const Eigen::Isometry3d& T_Is,
                          const Eigen::Matrix<double, 6, 6>& between_sqrt_information,
-                         const std::optional<Eigen::Matrix3d>& R_LA = std::nullopt);
+                         const std::optional<Eigen::Matrix3d>& R_LA = std::nullopt,
+                         const std::optional<PoseNoise>& noise = std::nullopt);
   /// Position of mount point s in A; R_LA from the sensor's alignment graph (frozen while
   /// the sensor is fused); covariance of the single measurement (the between factor's is
   /// the sum of both ends').

@@ -153,6 +153,29 @@ void LeaveOutUnobserved(const SensorSpec& spec, const core::PoseMeasurement& pos
       sqrt_information->bottomRightCorner<3, 3>() * R_Is * P_s * R_Is.transpose();
 }
 
+// A pose's own noise for PoseBetweenNoise::kWhiteAndDrift: the stated white stds, or
+// where they are 0 the sample's stated covariance.
+PoseNoise OwnNoiseOf(const SensorSpec& spec, const core::PoseMeasurement& pose) {
+  PoseNoise noise;
+  noise.white_covariance = pose.covariance;
+  if (spec.white_rotation_std_rad > 0.0) {
+    noise.white_covariance.topRows<3>().setZero();
+    noise.white_covariance.leftCols<3>().setZero();
+    noise.white_covariance.topLeftCorner<3, 3>().diagonal().setConstant(
+        spec.white_rotation_std_rad * spec.white_rotation_std_rad);
+  }
+  if (spec.white_position_std_m > 0.0) {
+    noise.white_covariance.bottomRows<3>().setZero();
+    noise.white_covariance.rightCols<3>().setZero();
+    noise.white_covariance.bottomRightCorner<3, 3>().diagonal().setConstant(
+        spec.white_position_std_m * spec.white_position_std_m);
+  }
+  noise.drift = spec.drift;
+  noise.min_position_std_m = spec.min_between_position_std_m;
+  noise.min_rotation_std_rad = spec.min_between_rotation_std_rad;
+  return noise;
+}
+
 // A stream whose noise is measured against the IMU needs the IMU of its window kept.
 LocalSmootherOptions LocalOptionsFor(const MultiGraphEstimatorOptions& options,
                                      const std::vector<SensorSpec>& specs) {
@@ -610,17 +633,24 @@ struct MultiGraphEstimator::Impl {
       Eigen::Isometry3d T_As = Eigen::Isometry3d::Identity();
       T_As.linear() = pose->q_Ss.normalized().toRotationMatrix();
       T_As.translation() = pose->p_Ss;
-      Eigen::Matrix<double, 6, 1> std_dev;
-      std_dev << Eigen::Vector3d::Constant(sensor.spec.between_position_std_m),
-          Eigen::Vector3d::Constant(sensor.spec.between_rotation_std_rad);
-      Eigen::Matrix<double, 6, 6> sqrt_information = std_dev.cwiseInverse().asDiagonal();
+      const SensorSpec& spec = sensor.spec;
+      std::optional<PoseNoise> noise;
+      Eigen::Matrix<double, 6, 6> sqrt_information = Eigen::Matrix<double, 6, 6>::Identity();
+      if (spec.pose_between_noise == PoseBetweenNoise::kWhiteAndDrift) {
+        noise = OwnNoiseOf(spec, *pose);
+      } else {
+        Eigen::Matrix<double, 6, 1> std_dev;
+        std_dev << Eigen::Vector3d::Constant(spec.between_position_std_m),
+            Eigen::Vector3d::Constant(spec.between_rotation_std_rad);
+        sqrt_information = std_dev.cwiseInverse().asDiagonal();
+      }
       std::optional<Eigen::Matrix3d> R_LA;
-      if (sensor.spec.between_position_in_reference) {
+      if (spec.between_position_in_reference) {
         const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
         if (T_AL) R_LA = T_AL->linear().transpose();
       }
-      LeaveOutUnobserved(sensor.spec, *pose, R_LA, &sqrt_information);
-      use = smoother.AddPose(sensor.id, m.t_ns, T_As, sensor.spec.T_Is, sqrt_information, R_LA);
+      LeaveOutUnobserved(spec, *pose, R_LA, &sqrt_information);
+      use = smoother.AddPose(sensor.id, m.t_ns, T_As, spec.T_Is, sqrt_information, R_LA, noise);
     } else if (const auto* position = std::get_if<core::PositionMeasurement>(&m.value)) {
       const std::optional<Eigen::Isometry3d> T_AL = AlignmentOf(sensor);
       // A position sensor fused before its T_AL was known: its graph kept collecting pairs
@@ -963,6 +993,23 @@ MultiGraphEstimator::MultiGraphEstimator(std::string imu_name, std::vector<Senso
                                          MultiGraphEstimatorOptions options) {
   std::string why;
   if (!options.IsValid(&why)) throw std::invalid_argument("MultiGraphEstimatorOptions: " + why);
+  for (const SensorSpec& spec : sensors) {
+    if (spec.pose_between_noise != PoseBetweenNoise::kWhiteAndDrift) continue;
+    const double values[] = {spec.white_position_std_m, spec.white_rotation_std_rad,
+                             spec.drift.position_random_walk_m_per_sqrtm,
+                             spec.drift.rotation_random_walk_rad_per_sqrtm};
+    for (double v : values) {
+      if (!(v >= 0.0) || !std::isfinite(v)) {
+        throw std::invalid_argument("SensorSpec " + spec.name +
+                                    ": white and drift noise must be >= 0 and finite");
+      }
+    }
+    if (spec.between_position_in_reference) {
+      throw std::invalid_argument("SensorSpec " + spec.name +
+                                  ": between_position_in_reference takes constant between "
+                                  "weights, not PoseBetweenNoise::kWhiteAndDrift");
+    }
+  }
   impl_ = std::make_unique<Impl>(std::move(imu_name), std::move(sensors), options);
 }
 

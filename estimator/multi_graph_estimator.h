@@ -29,6 +29,7 @@
 #include "estimator/imu_preintegration.h"
 #include "estimator/local_smoother.h"
 #include "estimator/mission_frame.h"
+#include "estimator/pose_noise.h"
 #include "estimator/visual_inertial_alignment.h"
 
 namespace tofu::estimator {
@@ -42,6 +43,14 @@ enum class PositionFactors {
   kAbsolute,  ///< each position in L through the frozen T_AL (beyond the paper)
   kOffset,    ///< each position in L up to an offset per chain the graph estimates: the
               ///< displacements with their correlation (beyond the paper)
+};
+
+/// How a pose sensor's between factors are weighted.
+enum class PoseBetweenNoise {
+  kConstant,       ///< one std per factor (between_*_std_m below; the paper's ω_o, ω_q)
+  kWhiteAndDrift,  ///< the stream's white error at both ends plus its drift over the
+                   ///< distance between the keyframes, bounding the ends' correlation
+                   ///< (pose_noise.h; beyond the paper)
 };
 
 /// A sensor the estimator can fuse.
@@ -65,6 +74,14 @@ struct SensorSpec {
   /// replaced by the stream's own scatter measured against the IMU over the initial
   /// alignment window (visual_inertial_alignment.h), floored at the values below.
   bool between_noise_from_data = false;
+  /// Pose sensors: PoseBetweenNoise::kWhiteAndDrift takes each pose's white error from
+  /// the stds below (a VIO's stated covariance is a tracking confidence, not its error),
+  /// or, where they are 0, from the sample's stated covariance (a LiDAR odometry states
+  /// its registration's); and its drift from `drift`. The floors min_between_* are added.
+  PoseBetweenNoise pose_between_noise = PoseBetweenNoise::kConstant;
+  double white_position_std_m = 0.0;
+  double white_rotation_std_rad = 0.0;
+  PoseDriftRates drift;
   double min_between_position_std_m = 5e-4;
   double min_between_rotation_std_rad = 1e-3;
   /// Pose sensors whose stated covariance is the inverse of their registration's

@@ -127,7 +127,7 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   config.clients = clients;
   YamlMap map = value.Map(
       {"methods", "consensus", "huber_delta", "position_factors", "degenerate_directions",
-       "alignment_level_prior_deg"});
+       "alignment_level_prior_deg", "pose_between_noise"});
   ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
   ReadNumber(map, "alignment_level_prior_deg", NumberRule::Between(0.0, 10.0, "deg"),
              &config.alignment_level_prior_deg);
@@ -141,6 +141,16 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
       config.position_factors = estimator::PositionFactors::kOffset;
     } else {
       factors->FailExpected("between, absolute or offset");
+    }
+  }
+  if (const auto noise = map.Optional("pose_between_noise")) {
+    const std::string kind = noise->String();
+    if (kind == "constant") {
+      config.pose_between_noise = estimator::PoseBetweenNoise::kConstant;
+    } else if (kind == "white_and_drift") {
+      config.pose_between_noise = estimator::PoseBetweenNoise::kWhiteAndDrift;
+    } else {
+      noise->FailExpected("constant or white_and_drift");
     }
   }
   if (const auto degenerate = map.Optional("degenerate_directions")) {
@@ -860,6 +870,9 @@ void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
   }
   if (ec.alignment_level_prior_deg > 0.0) {
     EmitNumber(out, "alignment_level_prior_deg", ec.alignment_level_prior_deg);
+  }
+  if (ec.pose_between_noise == estimator::PoseBetweenNoise::kWhiteAndDrift) {
+    out << YAML::Key << "pose_between_noise" << YAML::Value << "white_and_drift";
   }
   out << YAML::EndMap;
 }

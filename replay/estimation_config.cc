@@ -42,6 +42,9 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
   setup.sensors = SensorSpecsOf(log);
   for (estimator::SensorSpec& spec : setup.sensors) {
     spec.position_factors = config.position_factors;
+    if (spec.kind == estimator::SensorKind::kPose) {
+      spec.pose_between_noise = config.pose_between_noise;
+    }
     if (!config.leave_out_degenerate_directions) continue;
     const auto stream = std::find_if(log.streams.begin(), log.streams.end(),
                                      [&](const RecordedStream& s) { return s.name == spec.name; });

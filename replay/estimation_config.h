@@ -87,6 +87,11 @@ struct EstimationConfig {
   /// information calls degenerate (`degenerate_directions: left_out`; RecordedStream's
   /// unobserved stds) or fuse every direction (`fused`, the paper).
   bool leave_out_degenerate_directions = false;
+  /// How pose sensors' between factors are weighted: "constant" (one std per factor from
+  /// the stated noise and a nominal 5 cm between keyframes, the paper's ω) or
+  /// "white_and_drift" (each pose's white error and the drift over the distance between
+  /// the keyframes, with the ends' correlation bounded; estimator::PoseBetweenNoise).
+  estimator::PoseBetweenNoise pose_between_noise = estimator::PoseBetweenNoise::kConstant;
   /// > 0: a position sensor's frame and L are both levelled, and its alignment holds
   /// R_AL's tilt to this std (deg, as the scenario's `alignment_level_prior_deg` states
   /// it; AlignmentGraphOptions::level_prior_std_rad); 0: every rotation of T_AL from the

@@ -341,6 +341,13 @@ Eigen::Isometry3d ApplyCalibration(const RunCalibration& cal, RecordedLog& log) 
       if (const auto v = cal.OptionNumber(s.name, "position_random_walk_m_per_sqrtm")) {
         s.position_random_walk_m_per_sqrtm = *v;
       }
+      for (const char* key : {"rotation_random_walk_deg_per_sqrtm", "yaw_random_walk_deg_per_sqrtm",
+                              "tilt_random_walk_deg_per_sqrtm"}) {
+        if (const auto v = cal.OptionNumber(s.name, key)) {
+          s.rotation_random_walk_rad_per_sqrtm =
+              std::max(s.rotation_random_walk_rad_per_sqrtm.value_or(0.0), core::RadFromDeg(*v));
+        }
+      }
       // The degeneracy test λ σ_r² < threshold as a std: σ_r / √threshold.
       const auto range_noise_m = cal.OptionNumber(s.name, "range_noise_m");
       const auto std_at = [&](const char* threshold_key) -> std::optional<double> {

@@ -61,10 +61,13 @@ struct RecordedStream {
   bool covariance_stated = true;
   /// Odometry noise from calibration.yaml (sensors.<name>.options) when stated: white
   /// noise per sample (position_noise_m, rotation_noise_deg) and drift
-  /// (position_random_walk_m_per_sqrtm). They set the weights of the between factors.
+  /// (position_random_walk_m_per_sqrtm; the rotation's, the largest of
+  /// rotation_random_walk_deg_per_sqrtm, yaw_random_walk_deg_per_sqrtm and
+  /// tilt_random_walk_deg_per_sqrtm). They set the weights of the between factors.
   std::optional<double> position_noise_m;
   std::optional<double> rotation_noise_rad;
   std::optional<double> position_random_walk_m_per_sqrtm;
+  std::optional<double> rotation_random_walk_rad_per_sqrtm;
   /// A LiDAR odometry's degeneracy test from calibration.yaml (range_noise_m σ_r,
   /// degenerate_translation_threshold, degenerate_rotation_threshold_m2): a direction is
   /// degenerate when its information λ has λ σ_r² below the threshold, i.e. a conditional

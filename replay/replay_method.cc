@@ -181,6 +181,13 @@ std::vector<estimator::SensorSpec> SensorSpecsOf(const RecordedLog& log) {
           std::sqrt(2.0 * *s.position_noise_m * *s.position_noise_m + drift * drift);
     }
     if (s.rotation_noise_rad) spec.between_rotation_std_rad = std::sqrt(2.0) * *s.rotation_noise_rad;
+    // The same noise as the stream's own model (estimator::PoseBetweenNoise::kWhiteAndDrift):
+    // a white std not stated leaves the sample's stated covariance as its white error.
+    spec.white_position_std_m = s.position_noise_m.value_or(0.0);
+    spec.white_rotation_std_rad = s.rotation_noise_rad.value_or(0.0);
+    spec.drift.position_random_walk_m_per_sqrtm = s.position_random_walk_m_per_sqrtm.value_or(0.0);
+    spec.drift.rotation_random_walk_rad_per_sqrtm =
+        s.rotation_random_walk_rad_per_sqrtm.value_or(0.0);
     // A pose stream that states no noise, neither per sample nor in calibration.yaml (a
     // TUM file, a CSV without covariance columns), is weighted with its own scatter
     // against the IMU, measured from the data (multi_graph_estimator.h). A tofu run's

@@ -367,6 +367,43 @@ TEST(EstimationScenario, DegenerateDirectionsAreFusedOrLeftOutAndRoundTrip) {
   EXPECT_EQ(harness::ResolvedScenarioYaml(fused).find("degenerate_directions"), std::string::npos);
 }
 
+// Pose sensors' between weights: constant (the paper) or from each stream's white error and
+// drift; only the latter is written back, and it reaches the pose sensors' specs alone.
+TEST(EstimationScenario, PoseBetweenNoiseIsReadAndRoundTripsAndReachesPoseSensorsOnly) {
+  const std::string error =
+      ErrorOf(With("  huber_delta: 3", "  huber_delta: 3\n  pose_between_noise: drift"));
+  EXPECT_NE(error.find("constant or white_and_drift"), std::string::npos) << error;
+  const harness::Scenario own = harness::ParseScenario(
+      With("  huber_delta: 3", "  huber_delta: 3\n  pose_between_noise: white_and_drift"),
+      "n.yaml");
+  ASSERT_TRUE(own.estimation.has_value());
+  EXPECT_EQ(own.estimation->pose_between_noise, estimator::PoseBetweenNoise::kWhiteAndDrift);
+  const std::string echoed = harness::ResolvedScenarioYaml(own);
+  EXPECT_NE(echoed.find("pose_between_noise: white_and_drift"), std::string::npos) << echoed;
+  EXPECT_EQ(harness::ParseScenario(echoed, "echoed.yaml").estimation->pose_between_noise,
+            estimator::PoseBetweenNoise::kWhiteAndDrift);
+  replay::RecordedLog log;
+  log.streams.resize(2);
+  log.streams[0].name = "vio";
+  log.streams[0].kind = core::MeasurementKind::kPose;
+  log.streams[0].position_noise_m = 0.002;
+  log.streams[0].position_random_walk_m_per_sqrtm = 0.02;
+  log.streams[0].rotation_random_walk_rad_per_sqrtm = 0.002;
+  log.streams[1].name = "leica";
+  log.streams[1].kind = core::MeasurementKind::kPosition;
+  const replay::EstimationSetup setup = replay::MakeEstimationSetup(log, *own.estimation);
+  ASSERT_EQ(setup.sensors.size(), 2u);
+  EXPECT_EQ(setup.sensors[0].pose_between_noise, estimator::PoseBetweenNoise::kWhiteAndDrift);
+  EXPECT_EQ(setup.sensors[0].white_position_std_m, 0.002);
+  EXPECT_EQ(setup.sensors[0].white_rotation_std_rad, 0.0);  // from each sample's covariance
+  EXPECT_EQ(setup.sensors[0].drift.position_random_walk_m_per_sqrtm, 0.02);
+  EXPECT_EQ(setup.sensors[0].drift.rotation_random_walk_rad_per_sqrtm, 0.002);
+  EXPECT_EQ(setup.sensors[1].pose_between_noise, estimator::PoseBetweenNoise::kConstant);
+  const harness::Scenario paper = harness::ParseScenario(kScenario, "paper.yaml");
+  EXPECT_EQ(paper.estimation->pose_between_noise, estimator::PoseBetweenNoise::kConstant);
+  EXPECT_EQ(harness::ResolvedScenarioYaml(paper).find("pose_between_noise"), std::string::npos);
+}
+
 // The level prior of the position sensors' alignments: off unless stated, bounded, and
 // written back only when on; it reaches the estimator's alignment options.
 TEST(EstimationScenario, AlignmentLevelPriorIsReadBoundedAndRoundTrips) {

@@ -901,6 +901,107 @@ TEST(LocalSmoother, AChainResumesOnItsOffsetAfterADropoutLongerThanTheWindow) {
   EXPECT_LT(run.final_error_m, 0.01);
 }
 
+// ---- a pose stream's own noise: white error plus drift ----
+
+// A 30 Hz pose stream of the mount s in A (kT_AL) that drifts as sim/odometry_frame.h's
+// odometries do (per step of d metres: the attitude error R_err ← Exp(σ_R √d n) R_err, the
+// path integrated with it, plus σ_p √d n in position) with a white error on every pose;
+// fused with between factors weighted by its own noise (PoseNoise) or by one constant
+// std per factor computed as the replay does for the paper's weights (white of both
+// ends plus the drift over a nominal 5 cm). NEES of the newest position every 0.5 s.
+PositionRun RunDriftingPoses(std::uint64_t seed, bool own_noise, double duration_s) {
+  constexpr double kWhitePositionStd = 0.002, kWhiteRotationStd = 0.001;
+  constexpr double kPositionWalk = 0.05, kRotationWalk = 0.005;  // per √m: a starved VIO
+  const WorldConfig config = WorldWithBiasesFromThePrior(2000 + seed, 6000 + seed, duration_s);
+  const World world = MakeWorld(config);
+  const Initial init = MakeInitial(world, true, seed);
+  LocalSmoother smoother(Options(0.5, true, config.imu_noise, false));
+  Rng noise(9000 + seed);
+  PoseNoise own;
+  own.white_covariance.topLeftCorner<3, 3>().diagonal().setConstant(kWhiteRotationStd *
+                                                                    kWhiteRotationStd);
+  own.white_covariance.bottomRightCorner<3, 3>().diagonal().setConstant(kWhitePositionStd *
+                                                                        kWhitePositionStd);
+  own.drift = {kPositionWalk, kRotationWalk};
+  own.min_position_std_m = 5e-4;
+  own.min_rotation_std_rad = 1e-3;
+  Eigen::Matrix<double, 6, 1> constant_std;
+  constant_std << Eigen::Vector3d::Constant(std::sqrt(2.0 * kWhitePositionStd * kWhitePositionStd +
+                                                      kPositionWalk * kPositionWalk * 0.05)),
+      Eigen::Vector3d::Constant(std::sqrt(2.0) * kWhiteRotationStd);
+  const Eigen::Matrix<double, 6, 6> constant_sqrt_information =
+      constant_std.cwiseInverse().asDiagonal();
+  PositionRun run;
+  smoother.AddImu(world.imu[0].t_ns, world.imu[0].accel, world.imu[0].gyro);
+  smoother.Initialize(world.imu[0].t_ns, init.state, init.bias, init.prior);
+  Eigen::Matrix3d R_err = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d p_drifted = (kT_AL * Trajectory::Pose(0) * kT_Is).translation();
+  Eigen::Vector3d p_previous = p_drifted;
+  core::Time next_pose_ns = 0;
+  for (std::size_t k = 1; k < world.imu.size(); ++k) {
+    const ImuSample& m = world.imu[k];
+    smoother.AddImu(m.t_ns, m.accel, m.gyro);
+    while (next_pose_ns <= m.t_ns) {
+      const core::Time t = next_pose_ns;
+      next_pose_ns += kPosePeriodNs;
+      const Eigen::Isometry3d truth = kT_AL * Trajectory::Pose(t) * kT_Is;
+      const double step_m = (truth.translation() - p_previous).norm();
+      R_err = core::ExpSO3(kRotationWalk * std::sqrt(step_m) * noise.Vector(1.0)) * R_err;
+      p_drifted += R_err * (truth.translation() - p_previous) +
+                   kPositionWalk * std::sqrt(step_m) * noise.Vector(1.0);
+      p_previous = truth.translation();
+      Eigen::Isometry3d measured = Eigen::Isometry3d::Identity();
+      measured.linear() = R_err * truth.linear() * core::ExpSO3(noise.Vector(kWhiteRotationStd));
+      measured.translation() = p_drifted + noise.Vector(kWhitePositionStd);
+      if (own_noise) {
+        smoother.AddPose(0, t, measured, kT_Is, Eigen::Matrix<double, 6, 6>::Identity(),
+                         std::nullopt, own);
+      } else {
+        smoother.AddPose(0, t, measured, kT_Is, constant_sqrt_information);
+      }
+    }
+    smoother.Update();
+    const KeyframeState newest = *smoother.NewestKeyframe();
+    const Eigen::Vector3d error = newest.state.p_LI - Trajectory::State(newest.t_ns).p_LI;
+    run.final_error_m = error.norm();
+    if (m.t_ns % 500'000'000 == 0) {
+      const auto P = smoother.NewestCovariance();
+      if (P) run.nees_position.push_back(error.dot(P->topLeftCorner<3, 3>().ldlt().solve(error)));
+    }
+  }
+  run.stats = smoother.stats();
+  return run;
+}
+
+// 20 seeds of 6 s with a pose stream drifting 5 cm/√m (a starved VIO's rate) and a 2 mm,
+// 1 mrad white error, fused with the IMU alone (no absolute sensor: the error is the
+// drift). Weighted by its own noise, the newest position's mean NEES must lie within the
+// issue's goal band 1-6 for a 3-DoF position: the drift is stated as it grows with the
+// distance flown, and the white error's correlation bounded. Each factor alone is
+// conservative (its NEES over the run's factors, measured: 2.6 of 3: the bound's doubled
+// white part); the fused position is not: measured 4.45, above 3 by 2.6 standard errors
+// of the mean, with a larger error than the paper's constant weights (which state the
+// drift over a nominal 5 cm: 1.65 here). The cause is in the fusion, not in the factors,
+// and not traced (a candidate: the window's linearisation of the unobservable position
+// and yaw, the known inconsistency of sliding-window smoothers).
+TEST(LocalSmoother, ADriftingPoseStreamWeightedByItsOwnNoiseIsConsistent) {
+  constexpr int kSeeds = 20;
+  std::vector<double> own_final, constant_final;
+  for (int seed = 0; seed < kSeeds; ++seed) {
+    const PositionRun own = RunDriftingPoses(seed, true, 6.0);
+    const PositionRun constant = RunDriftingPoses(seed, false, 6.0);
+    ASSERT_FALSE(own.nees_position.empty());
+    ASSERT_FALSE(constant.nees_position.empty());
+    EXPECT_EQ(own.stats.bad_solves, 0);
+    own_final.push_back(own.nees_position.back());
+    constant_final.push_back(constant.nees_position.back());
+  }
+  std::printf("mean NEES of the newest position at 6 s: own noise %.3f, constant %.3f "
+              "(expect 3)\n", Mean(own_final), Mean(constant_final));
+  EXPECT_GT(Mean(own_final), 1.0);
+  EXPECT_LT(Mean(own_final), 6.0);
+}
+
 // ---- bad data ----
 
 struct WildRun {
