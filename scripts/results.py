@@ -1021,6 +1021,20 @@ def extract_position_offset(r):
     return _factor_scores(r, "position_offset", "offset")
 
 
+def run_pose_noise(r):
+    """The suite's scenarios as for position_factors, with `pose_between_noise:
+    white_and_drift` (pose streams' between factors from their own white error and drift)."""
+    def edit(text, variant, where):
+        return _with_estimation_key(text, "pose_between_noise", variant, where)
+
+    dirs = _write_suite_variants(r, "pose_noise", ("white_and_drift",), _factor_methods, edit)
+    _run_variants(r, "pose_noise", dirs, FACTOR_SEEDS)
+
+
+def extract_pose_noise(r):
+    return _factor_scores(r, "pose_noise", "white_and_drift")
+
+
 def _factor_scores(r, source, variant):
     """Per suite scenario, the scores of one variant of a position-factor comparison."""
     v = {}
@@ -1167,6 +1181,10 @@ SOURCES = {
                                     "--seeds 10",
                         "seeds": FACTOR_SEEDS, "run": run_position_offset,
                         "extract": extract_position_offset},
+    "pose_noise": {"describe": "`tofu check` of the suite's scenarios without naive and "
+                               "consensus:consistent_set, with `pose_between_noise: white_and_drift`, "
+                               "--seeds 10",
+                   "seeds": FACTOR_SEEDS, "run": run_pose_noise, "extract": extract_pose_noise},
     "degenerate_directions": {"describe": "`tofu check` of the suite's scenarios with a LiDAR odometry, "
                                           "methods [consensus, consensus:consistent_set, oracle, "
                                           "single:lio@clean], with `degenerate_directions: fused` (the "
@@ -1387,6 +1405,22 @@ def table_position_offset(V):
                      "95 % containment consensus (med)", "oracle with offset: NEES / 95 % containment (med)"], rows)
 
 
+def table_pose_noise(V):
+    """Pose streams' between factors with the paper's constant weights (position_factors'
+    between variant: the same flights) → from each stream's own white error and drift."""
+    rows = []
+    for scenario in _suite_scenarios(SCRIPT_ROOT):
+        k = f"position_factors.{scenario}.between."
+        o = f"pose_noise.{scenario}.white_and_drift."
+        rows.append([scenario] + [f"{V(k + f)} → {V(o + f)}" for f in (
+            "consensus_ate", "oracle_ate", "consensus_over_oracle", "consensus_nees",
+            "consensus_containment", "oracle_nees", "oracle_containment")])
+    return md_table(["scenario (constant → white and drift)", "consensus ATE med [m]", "oracle ATE med [m]",
+                     "consensus × oracle (med / worst)", "NEES consensus (med)",
+                     "95 % containment consensus (med)", "NEES oracle (med)",
+                     "95 % containment oracle (med)"], rows)
+
+
 def table_closed_loop_offset(V):
     """The closed-loop flights on consensus with displacements (the scenarios as written)
     → with `position_factors: offset`, seeds 1-10."""
@@ -1473,22 +1507,26 @@ def table_issue34_goals(V):
         V, "NEES median within 1-6 (consensus)",
         [("between", "position_factors.{scenario}.between.consensus_nees"),
          ("absolute", "position_factors.{scenario}.absolute.consensus_nees"),
-         ("offset", "position_offset.{scenario}.offset.consensus_nees")],
+         ("offset", "position_offset.{scenario}.offset.consensus_nees"),
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.consensus_nees")],
         lambda sc, t: nees_ok(t), worst_max(_number), lambda x: f"largest {sci(x)}"))
     rows.append(_goal_row(
         V, "NEES median within 1-6 (oracle)",
-        [("offset", "position_offset.{scenario}.offset.oracle_nees")],
+        [("offset", "position_offset.{scenario}.offset.oracle_nees"),
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.oracle_nees")],
         lambda sc, t: nees_ok(t), worst_max(_number), lambda x: f"largest {sci(x)}"))
     rows.append(_goal_row(
         V, "95 % containment within 90-99 % (consensus)",
         [("between", "position_factors.{scenario}.between.consensus_containment"),
          ("absolute", "position_factors.{scenario}.absolute.consensus_containment"),
-         ("offset", "position_offset.{scenario}.offset.consensus_containment")],
+         ("offset", "position_offset.{scenario}.offset.consensus_containment"),
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.consensus_containment")],
         lambda sc, t: 90.0 <= _number(t) <= 99.0,
         lambda vals: min(_number(t) for t in vals.values()), lambda x: f"lowest {x:.0f} %"))
     rows.append(_goal_row(
         V, "95 % containment within 90-99 % (oracle)",
-        [("offset", "position_offset.{scenario}.offset.oracle_containment")],
+        [("offset", "position_offset.{scenario}.offset.oracle_containment"),
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.oracle_containment")],
         lambda sc, t: 90.0 <= _number(t) <= 99.0,
         lambda vals: min(_number(t) for t in vals.values()), lambda x: f"lowest {x:.0f} %"))
     rows.append(_goal_row(
@@ -1623,6 +1661,7 @@ TABLES = {
     "bias_test": table_bias_test,
     "position_factors": table_position_factors,
     "position_offset": table_position_offset,
+    "pose_noise": table_pose_noise,
     "closed_loop_offset": table_closed_loop_offset,
     "issue34_goals": table_issue34_goals,
     "degenerate_directions": table_degenerate_directions,
