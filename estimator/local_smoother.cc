@@ -427,9 +427,15 @@ struct LocalSmoother::Impl {
     const Eigen::Isometry3d T_IJ = m.T_Is * (chain.T_As.inverse() * m.T_As) * m.T_Is.inverse();
     Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
     if (m.pose_noise && chain.white_covariance) {
-      Eigen::Matrix<double, 6, 6> covariance =
-          PoseBetweenCovariance(chain.T_As, *chain.white_covariance, m.T_As,
-                                m.pose_noise->white_covariance, m.T_Is, m.pose_noise->drift);
+      // The distance the mount travelled, from the states (the newest one predicted by the
+      // IMU), not from this measurement (PoseBetweenCovariance).
+      const NavState a = chain.keyframe->state();
+      const NavState b = kf->state();
+      const Eigen::Vector3d p_Is = m.T_Is.translation();
+      const double distance_m = ((b.p_LI + b.q_LI * p_Is) - (a.p_LI + a.q_LI * p_Is)).norm();
+      Eigen::Matrix<double, 6, 6> covariance = PoseBetweenCovariance(
+          chain.T_As, *chain.white_covariance, m.T_As, m.pose_noise->white_covariance, m.T_Is,
+          m.pose_noise->drift, distance_m);
       covariance.topLeftCorner<3, 3>().diagonal().array() +=
           m.pose_noise->min_position_std_m * m.pose_noise->min_position_std_m;
       covariance.bottomRightCorner<3, 3>().diagonal().array() +=

@@ -34,7 +34,7 @@ Eigen::Matrix<double, 6, 6> PoseBetweenCovariance(const Eigen::Isometry3d& T_As_
                                                   const Eigen::Isometry3d& T_As_j,
                                                   const Eigen::Matrix<double, 6, 6>& white_j,
                                                   const Eigen::Isometry3d& T_Is,
-                                                  const PoseDriftRates& drift) {
+                                                  const PoseDriftRates& drift, double distance_m) {
   const Eigen::Matrix<double, 6, 12> J = PoseBetweenJacobian(T_As_i, T_As_j, T_Is);
   const auto J_i = J.leftCols<6>();
   const auto J_j = J.rightCols<6>();
@@ -42,7 +42,6 @@ Eigen::Matrix<double, 6, 6> PoseBetweenCovariance(const Eigen::Isometry3d& T_As_
       2.0 * (J_i * white_i * J_i.transpose() + J_j * white_j * J_j.transpose());
   // The drift's increment: a random walk of the position in A (seen in I_i through the
   // rotation R_Is R_iᵀ, isotropic) and of the attitude, per metre travelled.
-  const double distance_m = (T_As_j.translation() - T_As_i.translation()).norm();
   covariance.topLeftCorner<3, 3>().diagonal().array() +=
       drift.position_random_walk_m_per_sqrtm * drift.position_random_walk_m_per_sqrtm * distance_m;
   covariance.bottomRightCorner<3, 3>().diagonal().array() +=

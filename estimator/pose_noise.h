@@ -48,13 +48,17 @@ Eigen::Matrix<double, 6, 12> PoseBetweenJacobian(const Eigen::Isometry3d& T_As_i
                                                  const Eigen::Isometry3d& T_Is);
 
 /// The between factor's covariance [δp_IJ; δθ_IJ] bounding the chain's joint covariance
-/// (header comment): 2 (J_i W_i J_iᵀ + J_j W_j J_jᵀ) + Q d, d = |p_As,j − p_As,i|, W the two
-/// poses' white covariances in core::PoseMeasurement's order [δθ_s; δp_A].
+/// (header comment): 2 (J_i W_i J_iᵀ + J_j W_j J_jᵀ) + Q d, W the two poses' white
+/// covariances in core::PoseMeasurement's order [δθ_s; δp_A], d ≥ 0 the distance the mount
+/// travelled between them. d must not come from the two poses themselves: a weight that
+/// grows with the measurement's own error biases the estimate (displacements measured
+/// short would be trusted more, and the fused path shrinks; measured in
+/// LocalSmoother.ADriftingPoseStreamWeightedByItsOwnNoiseIsConsistent, where it did).
 Eigen::Matrix<double, 6, 6> PoseBetweenCovariance(const Eigen::Isometry3d& T_As_i,
                                                   const Eigen::Matrix<double, 6, 6>& white_i,
                                                   const Eigen::Isometry3d& T_As_j,
                                                   const Eigen::Matrix<double, 6, 6>& white_j,
                                                   const Eigen::Isometry3d& T_Is,
-                                                  const PoseDriftRates& drift);
+                                                  const PoseDriftRates& drift, double distance_m);
 
 }  // namespace tofu::estimator

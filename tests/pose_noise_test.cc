@@ -77,16 +77,15 @@ TEST(PoseBetweenJacobian, MatchesCentralDifferences) {
   }
 }
 
-// The drift adds σ² d per axis, d the distance between the two poses.
+// The drift adds σ² d per axis, d the distance travelled between the two poses.
 TEST(PoseBetweenCovariance, DriftGrowsWithTheDistanceBetweenThePoses) {
   core::RandomStream rng(32, "pose_noise_test");
   const Eigen::Isometry3d T_As_i = RandomPose(rng, 3.0, 1.0);
-  Eigen::Isometry3d T_As_j = T_As_i;
-  T_As_j.translation() += Eigen::Vector3d(0.3, 0.0, 0.4);  // 0.5 m
+  const Eigen::Isometry3d T_As_j = T_As_i * RandomPose(rng, 0.3, 0.3);
   const Eigen::Isometry3d T_Is = RandomPose(rng, 0.2, 1.0);
   const Matrix6 W = RandomWhite(rng, 1e-3, 2e-3);
-  const Matrix6 white_only = PoseBetweenCovariance(T_As_i, W, T_As_j, W, T_Is, {});
-  const Matrix6 with_drift = PoseBetweenCovariance(T_As_i, W, T_As_j, W, T_Is, {0.02, 0.002});
+  const Matrix6 white_only = PoseBetweenCovariance(T_As_i, W, T_As_j, W, T_Is, {0.02, 0.002}, 0.0);
+  const Matrix6 with_drift = PoseBetweenCovariance(T_As_i, W, T_As_j, W, T_Is, {0.02, 0.002}, 0.5);
   Matrix6 expected = Matrix6::Zero();
   expected.topLeftCorner<3, 3>().diagonal().setConstant(0.02 * 0.02 * 0.5);
   expected.bottomRightCorner<3, 3>().diagonal().setConstant(0.002 * 0.002 * 0.5);
@@ -118,10 +117,11 @@ TEST(PoseBetweenCovariance, BoundsAChainsJointCovarianceWhereExactMarginalsDoNot
     for (int f = 0; f < 3; ++f) {
       const Eigen::Matrix<double, 6, 12> J = PoseBetweenJacobian(poses[f], poses[f + 1], T_Is);
       G.block<6, 12>(6 * f, 6 * f) = J;
-      bound.block<6, 6>(6 * f, 6 * f) =
-          PoseBetweenCovariance(poses[f], white[f], poses[f + 1], white[f + 1], T_Is, drift);
-      const Matrix6 drift_only =
-          PoseBetweenCovariance(poses[f], Matrix6::Zero(), poses[f + 1], Matrix6::Zero(), T_Is, drift);
+      const double distance_m = (poses[f + 1].translation() - poses[f].translation()).norm();
+      bound.block<6, 6>(6 * f, 6 * f) = PoseBetweenCovariance(
+          poses[f], white[f], poses[f + 1], white[f + 1], T_Is, drift, distance_m);
+      const Matrix6 drift_only = PoseBetweenCovariance(poses[f], Matrix6::Zero(), poses[f + 1],
+                                                       Matrix6::Zero(), T_Is, drift, distance_m);
       drift_part.block<6, 6>(6 * f, 6 * f) = drift_only;
       marginals.block<6, 6>(6 * f, 6 * f) = J.leftCols<6>() * white[f] * J.leftCols<6>().transpose() +
                                             J.rightCols<6>() * white[f + 1] *
