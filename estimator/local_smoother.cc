@@ -867,9 +867,10 @@ MeasurementUse LocalSmoother::AddPose(int sensor, core::Time t_ns, const Eigen::
     p.R_LA = *R_LA;
   }
   if (noise) {
-    const Eigen::Matrix<double, 6, 6>& W = noise->white_covariance;
-    const bool valid = W.allFinite() && W.isApprox(W.transpose()) &&
-                       Eigen::LDLT<Eigen::Matrix<double, 6, 6>>(W).isPositive() &&
+    // A covariance read back from text is symmetric to its digits only.
+    const Eigen::Matrix<double, 6, 6> W =
+        0.5 * (noise->white_covariance + noise->white_covariance.transpose());
+    const bool valid = W.allFinite() && Eigen::LDLT<Eigen::Matrix<double, 6, 6>>(W).isPositive() &&
                        noise->drift.position_random_walk_m_per_sqrtm >= 0.0 &&
                        noise->drift.rotation_random_walk_rad_per_sqrtm >= 0.0 &&
                        noise->min_position_std_m > 0.0 && noise->min_rotation_std_rad > 0.0 &&
@@ -878,6 +879,7 @@ MeasurementUse LocalSmoother::AddPose(int sensor, core::Time t_ns, const Eigen::
                                      noise->min_position_std_m + noise->min_rotation_std_rad);
     if (!valid) return MeasurementUse::kRejected;
     p.pose_noise = noise;
+    p.pose_noise->white_covariance = W;
   }
   return impl_->Submit(std::move(p));
 }

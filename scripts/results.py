@@ -1021,18 +1021,28 @@ def extract_position_offset(r):
     return _factor_scores(r, "position_offset", "offset")
 
 
+POSE_NOISE_VARIANTS = ("white_and_drift", "white_and_drift_offset")
+
+
 def run_pose_noise(r):
     """The suite's scenarios as for position_factors, with `pose_between_noise:
-    white_and_drift` (pose streams' between factors from their own white error and drift)."""
+    white_and_drift` (pose streams' between factors from their own white error and drift),
+    and with `position_factors: offset` as well."""
     def edit(text, variant, where):
-        return _with_estimation_key(text, "pose_between_noise", variant, where)
+        text = _with_estimation_key(text, "pose_between_noise", "white_and_drift", where)
+        if variant == "white_and_drift_offset":
+            text = _with_estimation_key(text, "position_factors", "offset", where)
+        return text
 
-    dirs = _write_suite_variants(r, "pose_noise", ("white_and_drift",), _factor_methods, edit)
+    dirs = _write_suite_variants(r, "pose_noise", POSE_NOISE_VARIANTS, _factor_methods, edit)
     _run_variants(r, "pose_noise", dirs, FACTOR_SEEDS)
 
 
 def extract_pose_noise(r):
-    return _factor_scores(r, "pose_noise", "white_and_drift")
+    v = {}
+    for variant in POSE_NOISE_VARIANTS:
+        v.update(_factor_scores(r, "pose_noise", variant))
+    return v
 
 
 def _factor_scores(r, source, variant):
@@ -1182,8 +1192,9 @@ SOURCES = {
                         "seeds": FACTOR_SEEDS, "run": run_position_offset,
                         "extract": extract_position_offset},
     "pose_noise": {"describe": "`tofu check` of the suite's scenarios without naive and "
-                               "consensus:consistent_set, with `pose_between_noise: white_and_drift`, "
-                               "--seeds 10",
+                               "consensus:consistent_set, with `pose_between_noise: white_and_drift` "
+                               "(white_and_drift) and with `position_factors: offset` as well "
+                               "(white_and_drift_offset), --seeds 10",
                    "seeds": FACTOR_SEEDS, "run": run_pose_noise, "extract": extract_pose_noise},
     "degenerate_directions": {"describe": "`tofu check` of the suite's scenarios with a LiDAR odometry, "
                                           "methods [consensus, consensus:consistent_set, oracle, "
@@ -1412,13 +1423,17 @@ def table_pose_noise(V):
     for scenario in _suite_scenarios(SCRIPT_ROOT):
         k = f"position_factors.{scenario}.between."
         o = f"pose_noise.{scenario}.white_and_drift."
-        rows.append([scenario] + [f"{V(k + f)} → {V(o + f)}" for f in (
-            "consensus_ate", "oracle_ate", "consensus_over_oracle", "consensus_nees",
-            "consensus_containment", "oracle_nees", "oracle_containment")])
-    return md_table(["scenario (constant → white and drift)", "consensus ATE med [m]", "oracle ATE med [m]",
+        b = f"pose_noise.{scenario}.white_and_drift_offset."
+        rows.append([scenario] + [f"{V(k + f)} → {V(o + f)} → {V(b + f)}" for f in (
+            "consensus_ate", "oracle_ate", "oracle_over_best", "consensus_over_oracle",
+            "consensus_nees", "consensus_containment")] +
+            [f"{V(o + 'oracle_nees')} / {V(o + 'oracle_containment')} → "
+             f"{V(b + 'oracle_nees')} / {V(b + 'oracle_containment')}"])
+    return md_table(["scenario (constant → white and drift → and offset)", "consensus ATE med [m]",
+                     "oracle ATE med [m]", "oracle × best single (med)",
                      "consensus × oracle (med / worst)", "NEES consensus (med)",
-                     "95 % containment consensus (med)", "NEES oracle (med)",
-                     "95 % containment oracle (med)"], rows)
+                     "95 % containment consensus (med)",
+                     "oracle: NEES / 95 % containment (med), white and drift → and offset"], rows)
 
 
 def table_closed_loop_offset(V):
@@ -1473,13 +1488,18 @@ def table_issue34_goals(V):
         V, "oracle ≤ 1.1x the best healthy single sensor (median)",
         [("between", "position_factors.{scenario}.between.oracle_over_best"),
          ("absolute", "position_factors.{scenario}.absolute.oracle_over_best"),
-         ("offset", "position_offset.{scenario}.offset.oracle_over_best")],
+         ("offset", "position_offset.{scenario}.offset.oracle_over_best"),
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.oracle_over_best"),
+         ("pose white+drift + offset", "pose_noise.{scenario}.white_and_drift_offset.oracle_over_best")],
         lambda sc, t: _number(t) <= 1.1, worst_max(_number), lambda x: f"worst {x:.2f}x"))
     rows.append(_goal_row(
         V, "consensus ≤ 1.5x the oracle's median ATE and ≤ 2.5x its worst",
         [("between", "position_factors.{scenario}.between.consensus_over_oracle"),
          ("absolute", "position_factors.{scenario}.absolute.consensus_over_oracle"),
          ("offset", "position_offset.{scenario}.offset.consensus_over_oracle"),
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.consensus_over_oracle"),
+         ("pose white+drift + offset",
+          "pose_noise.{scenario}.white_and_drift_offset.consensus_over_oracle"),
          ("between + bias test", "bias_test.{scenario}.bias.ratio_1_10"),
          ("between + nis + bias test", "bias_test.{scenario}.nis_bias.ratio_1_10")],
         lambda sc, t: _numbers(t)[0] <= 1.5 and _numbers(t)[1] <= 2.5,
@@ -1508,25 +1528,31 @@ def table_issue34_goals(V):
         [("between", "position_factors.{scenario}.between.consensus_nees"),
          ("absolute", "position_factors.{scenario}.absolute.consensus_nees"),
          ("offset", "position_offset.{scenario}.offset.consensus_nees"),
-         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.consensus_nees")],
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.consensus_nees"),
+         ("pose white+drift + offset", "pose_noise.{scenario}.white_and_drift_offset.consensus_nees")],
         lambda sc, t: nees_ok(t), worst_max(_number), lambda x: f"largest {sci(x)}"))
     rows.append(_goal_row(
         V, "NEES median within 1-6 (oracle)",
         [("offset", "position_offset.{scenario}.offset.oracle_nees"),
-         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.oracle_nees")],
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.oracle_nees"),
+         ("pose white+drift + offset", "pose_noise.{scenario}.white_and_drift_offset.oracle_nees")],
         lambda sc, t: nees_ok(t), worst_max(_number), lambda x: f"largest {sci(x)}"))
     rows.append(_goal_row(
         V, "95 % containment within 90-99 % (consensus)",
         [("between", "position_factors.{scenario}.between.consensus_containment"),
          ("absolute", "position_factors.{scenario}.absolute.consensus_containment"),
          ("offset", "position_offset.{scenario}.offset.consensus_containment"),
-         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.consensus_containment")],
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.consensus_containment"),
+         ("pose white+drift + offset",
+          "pose_noise.{scenario}.white_and_drift_offset.consensus_containment")],
         lambda sc, t: 90.0 <= _number(t) <= 99.0,
         lambda vals: min(_number(t) for t in vals.values()), lambda x: f"lowest {x:.0f} %"))
     rows.append(_goal_row(
         V, "95 % containment within 90-99 % (oracle)",
         [("offset", "position_offset.{scenario}.offset.oracle_containment"),
-         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.oracle_containment")],
+         ("pose white+drift", "pose_noise.{scenario}.white_and_drift.oracle_containment"),
+         ("pose white+drift + offset",
+          "pose_noise.{scenario}.white_and_drift_offset.oracle_containment")],
         lambda sc, t: 90.0 <= _number(t) <= 99.0,
         lambda vals: min(_number(t) for t in vals.values()), lambda x: f"lowest {x:.0f} %"))
     rows.append(_goal_row(
