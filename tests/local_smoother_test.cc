@@ -768,6 +768,19 @@ struct PositionRun {
   LocalSmootherStats stats;
 };
 
+// The newest keyframe's position error after the solve at t_ns: its largest after 0.5 s,
+// its last, and its NEES every 0.5 s.
+void RecordNewest(const LocalSmoother& smoother, core::Time t_ns, PositionRun* run) {
+  const KeyframeState newest = *smoother.NewestKeyframe();
+  const Eigen::Vector3d error = newest.state.p_LI - Trajectory::State(newest.t_ns).p_LI;
+  if (t_ns >= 500'000'000) run->max_error_m = std::max(run->max_error_m, error.norm());
+  run->final_error_m = error.norm();
+  if (t_ns % 500'000'000 == 0) {
+    const auto P = smoother.NewestCovariance();
+    if (P) run->nees_position.push_back(error.dot(P->topLeftCorner<3, 3>().ldlt().solve(error)));
+  }
+}
+
 PositionRun RunWhitePositions(std::uint64_t seed, bool with_offset, double duration_s,
                               std::optional<core::Time> shift_at_ns = std::nullopt,
                               const Eigen::Vector3d& shift_A = Eigen::Vector3d::Zero(),
@@ -807,14 +820,7 @@ PositionRun RunWhitePositions(std::uint64_t seed, bool with_offset, double durat
       }
     }
     smoother.Update();
-    const KeyframeState newest = *smoother.NewestKeyframe();
-    const Eigen::Vector3d error = newest.state.p_LI - Trajectory::State(newest.t_ns).p_LI;
-    if (m.t_ns >= 500'000'000) run.max_error_m = std::max(run.max_error_m, error.norm());
-    run.final_error_m = error.norm();
-    if (m.t_ns % 500'000'000 == 0) {
-      const auto P = smoother.NewestCovariance();
-      if (P) run.nees_position.push_back(error.dot(P->topLeftCorner<3, 3>().ldlt().solve(error)));
-    }
+    RecordNewest(smoother, m.t_ns, &run);
   }
   run.stats = smoother.stats();
   return run;
@@ -961,13 +967,7 @@ PositionRun RunDriftingPoses(std::uint64_t seed, bool own_noise, double duration
       }
     }
     smoother.Update();
-    const KeyframeState newest = *smoother.NewestKeyframe();
-    const Eigen::Vector3d error = newest.state.p_LI - Trajectory::State(newest.t_ns).p_LI;
-    run.final_error_m = error.norm();
-    if (m.t_ns % 500'000'000 == 0) {
-      const auto P = smoother.NewestCovariance();
-      if (P) run.nees_position.push_back(error.dot(P->topLeftCorner<3, 3>().ldlt().solve(error)));
-    }
+    RecordNewest(smoother, m.t_ns, &run);
   }
   run.stats = smoother.stats();
   return run;
