@@ -136,7 +136,9 @@ double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).coun
 void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
                      const std::string& method_name, const std::string& late_sensor = "",
                      tofu::estimator::PositionFactors position_factors =
-                         tofu::estimator::PositionFactors::kBetween) {
+                         tofu::estimator::PositionFactors::kBetween,
+                     tofu::estimator::PoseBetweenNoise pose_between_noise =
+                         tofu::estimator::PoseBetweenNoise::kConstant) {
   const tofu::replay::RecordedLog& log = LogOf(scenario);
   const tofu::replay::ReplayMethod method = tofu::replay::ParseReplayMethod(method_name, log);
   // A position sensor fused from the start never gets a T_AL (its alignment graph is
@@ -159,7 +161,10 @@ void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
   const tofu::estimator::MultiGraphEstimatorOptions options =
       tofu::replay::DefaultEstimatorOptions(log);
   std::vector<tofu::estimator::SensorSpec> specs = tofu::replay::SensorSpecsOf(log);
-  for (tofu::estimator::SensorSpec& spec : specs) spec.position_factors = position_factors;
+  for (tofu::estimator::SensorSpec& spec : specs) {
+    spec.position_factors = position_factors;
+    if (spec.kind == tofu::estimator::SensorKind::kPose) spec.pose_between_noise = pose_between_noise;
+  }
   const auto [lo, hi] = std::minmax_element(
       log.measurements.begin(), log.measurements.end(),
       [](const auto& a, const auto& b) { return a.t_ns < b.t_ns; });
@@ -257,8 +262,9 @@ void ReplayBenchmark(benchmark::State& state, const std::string& scenario,
     state.counters["late_unaligned"] = late_unaligned;    // its measurements not fused
   }
   const bool offset = position_factors == tofu::estimator::PositionFactors::kOffset;
+  const bool own_noise = pose_between_noise == tofu::estimator::PoseBetweenNoise::kWhiteAndDrift;
   state.SetLabel(method_name + (late_sensor.empty() ? "" : " then +" + late_sensor) +
-                 (offset ? " (offset)" : "") + ", " +
+                 (offset ? " (offset)" : "") + (own_noise ? " (white and drift)" : "") + ", " +
                  std::to_string(static_cast<int>(log_duration_s)) + " s log");
 }
 
@@ -291,6 +297,16 @@ void BM_Estimator200sOffset(benchmark::State& state) {
                   tofu::estimator::PositionFactors::kOffset);
 }
 BENCHMARK(BM_Estimator200sOffset)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+// The VIO's between factors weighted by its own white error and drift
+// (`pose_between_noise: white_and_drift`): a 6x6 covariance, its inverse and its Cholesky
+// factor per factor.
+void BM_Estimator200sPoseNoise(benchmark::State& state) {
+  ReplayBenchmark(state, "scenarios/bench/estimator_200s.yaml", "single:vio", "",
+                  tofu::estimator::PositionFactors::kBetween,
+                  tofu::estimator::PoseBetweenNoise::kWhiteAndDrift);
+}
+BENCHMARK(BM_Estimator200sPoseNoise)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
 // 2. Alignment update latency: synthetic pairs along a figure-eight with height changes
 // (local estimate p_Ls in L), measured by a position sensor whose frame A is offset by the
