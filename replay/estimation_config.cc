@@ -42,12 +42,24 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
   setup.sensors = SensorSpecsOf(log);
   for (estimator::SensorSpec& spec : setup.sensors) {
     spec.position_factors = config.position_factors;
-    if (spec.kind == estimator::SensorKind::kPose) {
-      spec.pose_between_noise = config.pose_between_noise;
-    }
-    if (!config.leave_out_degenerate_directions) continue;
     const auto stream = std::find_if(log.streams.begin(), log.streams.end(),
                                      [&](const RecordedStream& s) { return s.name == spec.name; });
+    if (spec.kind == estimator::SensorKind::kPose) {
+      spec.pose_between_noise = config.pose_between_noise;
+      // A white error the stream states nowhere would be the default identity covariance
+      // of its samples: 1 m and 1 rad, a factor that constrains nothing.
+      if (config.pose_between_noise == estimator::PoseBetweenNoise::kWhiteAndDrift &&
+          stream != log.streams.end() && !stream->covariance_stated &&
+          !(stream->position_noise_m && stream->rotation_noise_rad)) {
+        throw core::InputError({}, "estimation.pose_between_noise",
+                               "white_and_drift needs each pose stream's white noise, but '" +
+                                   spec.name +
+                                   "' states neither a covariance per sample nor "
+                                   "position_noise_m and rotation_noise_deg in "
+                                   "calibration.yaml; expected constant for it");
+      }
+    }
+    if (!config.leave_out_degenerate_directions) continue;
     if (stream == log.streams.end() || spec.kind != estimator::SensorKind::kPose) continue;
     spec.unobserved_position_std_m = stream->unobserved_position_std_m.value_or(0.0);
     spec.unobserved_rotation_std_rad = stream->unobserved_rotation_std_rad.value_or(0.0);

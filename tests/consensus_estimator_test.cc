@@ -399,6 +399,16 @@ TEST(EstimationScenario, PoseBetweenNoiseIsReadAndRoundTripsAndReachesPoseSensor
   EXPECT_EQ(setup.sensors[0].drift.position_random_walk_m_per_sqrtm, 0.02);
   EXPECT_EQ(setup.sensors[0].drift.rotation_random_walk_rad_per_sqrtm, 0.002);
   EXPECT_EQ(setup.sensors[1].pose_between_noise, estimator::PoseBetweenNoise::kConstant);
+  // A pose stream that states its white error nowhere (a TUM file) cannot be weighted by it.
+  log.streams[0].covariance_stated = false;
+  try {
+    replay::MakeEstimationSetup(log, *own.estimation);
+    ADD_FAILURE() << "a pose stream without a stated white error was accepted";
+  } catch (const core::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("'vio' states neither"), std::string::npos) << e.what();
+  }
+  log.streams[0].rotation_noise_rad = 0.001;
+  EXPECT_NO_THROW(replay::MakeEstimationSetup(log, *own.estimation));
   const harness::Scenario paper = harness::ParseScenario(kScenario, "paper.yaml");
   EXPECT_EQ(paper.estimation->pose_between_noise, estimator::PoseBetweenNoise::kConstant);
   EXPECT_EQ(harness::ResolvedScenarioYaml(paper).find("pose_between_noise"), std::string::npos);
