@@ -10,6 +10,7 @@
 #include <string>
 #include <utility>
 
+#include <Eigen/Eigenvalues>
 #include <ceres/loss_function.h>
 
 #include "core/lie.h"
@@ -426,24 +427,25 @@ struct LocalSmoother::Impl {
     // T_IJ = T_Is (T_As,i⁻¹ T_As,j) T_Is⁻¹ (the lever arm and mount rotation of eq. 2).
     const Eigen::Isometry3d T_IJ = m.T_Is * (chain.T_As.inverse() * m.T_As) * m.T_Is.inverse();
     Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
-    if (m.pose_noise && chain.white_covariance) {
+    if (m.pose_noise) {
       // The distance the mount travelled, from the states (the newest one predicted by the
       // IMU), not from this measurement (PoseBetweenCovariance).
       const NavState a = chain.keyframe->state();
       const NavState b = kf->state();
       const Eigen::Vector3d p_Is = m.T_Is.translation();
       const double distance_m = ((b.p_LI + b.q_LI * p_Is) - (a.p_LI + a.q_LI * p_Is)).norm();
-      Eigen::Matrix<double, 6, 6> covariance = PoseBetweenCovariance(
-          chain.T_As, *chain.white_covariance, m.T_As, m.pose_noise->white_covariance, m.T_Is,
-          m.pose_noise->drift, distance_m);
+      // A chain begun by a pose without its own noise (none of a sensor's are) would take
+      // this pose's for both ends.
+      const Eigen::Matrix<double, 6, 6>& white_i =
+          chain.white_covariance ? *chain.white_covariance : m.pose_noise->white_covariance;
+      Eigen::Matrix<double, 6, 6> covariance =
+          PoseBetweenCovariance(chain.T_As, white_i, m.T_As, m.pose_noise->white_covariance,
+                                m.T_Is, m.pose_noise->drift, distance_m);
       covariance.topLeftCorner<3, 3>().diagonal().array() +=
           m.pose_noise->min_position_std_m * m.pose_noise->min_position_std_m;
       covariance.bottomRightCorner<3, 3>().diagonal().array() +=
           m.pose_noise->min_rotation_std_rad * m.pose_noise->min_rotation_std_rad;
-      const Eigen::Matrix<double, 6, 6> information =
-          covariance.ldlt().solve(Eigen::Matrix<double, 6, 6>::Identity());
-      sqrt_information = Eigen::LLT<Eigen::Matrix<double, 6, 6>>(information).matrixU() *
-                         m.sqrt_information;
+      sqrt_information = ObservedSqrtInformation(covariance, m.sqrt_information);
     }
     if (m.position_in_reference) {
       sqrt_information.topRows<3>().setZero();
@@ -867,10 +869,17 @@ MeasurementUse LocalSmoother::AddPose(int sensor, core::Time t_ns, const Eigen::
     p.R_LA = *R_LA;
   }
   if (noise) {
-    // A covariance read back from text is symmetric to its digits only.
-    const Eigen::Matrix<double, 6, 6> W =
-        0.5 * (noise->white_covariance + noise->white_covariance.transpose());
-    const bool valid = W.allFinite() && Eigen::LDLT<Eigen::Matrix<double, 6, 6>>(W).isPositive() &&
+    // A covariance read back from text is symmetric, and positive semi-definite, to its
+    // digits only: a rounding's negative eigenvalue is clamped, a larger one rejected.
+    Eigen::Matrix<double, 6, 6> W = 0.5 * (noise->white_covariance + noise->white_covariance.transpose());
+    bool psd = W.allFinite() && Eigen::LDLT<Eigen::Matrix<double, 6, 6>>(W).isPositive();
+    if (!psd && W.allFinite()) {
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eigen(W);
+      const Eigen::Matrix<double, 6, 1> lambda = eigen.eigenvalues();
+      psd = lambda.minCoeff() >= -1e-9 * lambda.cwiseAbs().maxCoeff();
+      W = eigen.eigenvectors() * lambda.cwiseMax(0.0).asDiagonal() * eigen.eigenvectors().transpose();
+    }
+    const bool valid = psd &&
                        noise->drift.position_random_walk_m_per_sqrtm >= 0.0 &&
                        noise->drift.rotation_random_walk_rad_per_sqrtm >= 0.0 &&
                        noise->min_position_std_m > 0.0 && noise->min_rotation_std_rad > 0.0 &&

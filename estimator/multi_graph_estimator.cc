@@ -1004,6 +1004,14 @@ MultiGraphEstimator::MultiGraphEstimator(std::string imu_name, std::vector<Senso
                                     ": white and drift noise must be >= 0 and finite");
       }
     }
+    // The floors keep a factor's covariance positive definite where the white error and
+    // the drift are zero (a standing robot, a stream that states no error).
+    if (!(spec.min_between_position_std_m > 0.0) || !(spec.min_between_rotation_std_rad > 0.0) ||
+        !std::isfinite(spec.min_between_position_std_m + spec.min_between_rotation_std_rad)) {
+      throw std::invalid_argument("SensorSpec " + spec.name +
+                                  ": min_between_*_std must be > 0 and finite with "
+                                  "PoseBetweenNoise::kWhiteAndDrift");
+    }
     if (spec.between_position_in_reference) {
       throw std::invalid_argument("SensorSpec " + spec.name +
                                   ": between_position_in_reference takes constant between "
@@ -1180,7 +1188,8 @@ const std::vector<InitialisationRecord>& MultiGraphEstimator::initialisations() 
 std::optional<MultiGraphEstimator::BetweenNoise> MultiGraphEstimator::BetweenNoiseOf(
     const std::string& sensor) const {
   for (const auto& s : impl_->sensors) {
-    if (s->spec.name == sensor && s->spec.kind == SensorKind::kPose) {
+    if (s->spec.name == sensor && s->spec.kind == SensorKind::kPose &&
+        s->spec.pose_between_noise == PoseBetweenNoise::kConstant) {
       return BetweenNoise{s->spec.between_position_std_m, s->spec.between_rotation_std_rad,
                           s->noise_measured_at_ns};
     }

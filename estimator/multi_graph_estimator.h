@@ -297,7 +297,9 @@ class MultiGraphEstimator {
   const EstimatorCounters& counters() const;
   /// Every (re-)initialisation of the local graph, oldest first.
   const std::vector<InitialisationRecord>& initialisations() const;
-  /// The between-factor stds in use for a pose sensor (the measured ones once known).
+  /// The between-factor stds in use for a pose sensor weighted by constant stds (the
+  /// measured ones once known); nullopt for one weighted by its own noise
+  /// (PoseBetweenNoise::kWhiteAndDrift: each factor has its own covariance).
   struct BetweenNoise {
     double position_std_m = 0.0;
     double rotation_std_rad = 0.0;

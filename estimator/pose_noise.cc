@@ -1,5 +1,7 @@
 #include "estimator/pose_noise.h"
 
+#include <Eigen/Cholesky>
+
 #include "core/lie.h"
 
 namespace tofu::estimator {
@@ -48,6 +50,14 @@ Eigen::Matrix<double, 6, 6> PoseBetweenCovariance(const Eigen::Isometry3d& T_As_
       drift.rotation_random_walk_rad_per_sqrtm * drift.rotation_random_walk_rad_per_sqrtm *
       distance_m;
   return 0.5 * (covariance + covariance.transpose());
+}
+
+Eigen::Matrix<double, 6, 6> ObservedSqrtInformation(const Eigen::Matrix<double, 6, 6>& covariance,
+                                                    const Eigen::Matrix<double, 6, 6>& projector) {
+  using Matrix6 = Eigen::Matrix<double, 6, 6>;
+  const Matrix6 kept = projector * covariance * projector + (Matrix6::Identity() - projector);
+  const Matrix6 information = kept.ldlt().solve(Matrix6::Identity());
+  return Eigen::LLT<Matrix6>(information).matrixU() * projector;
 }
 
 }  // namespace tofu::estimator

@@ -1,10 +1,13 @@
 #pragma once
 // The noise of a pose stream's between factor from the stream's own error model (issue 34,
-// item 4): a white error on every pose plus a random walk in the distance travelled, the
-// model of a drifting odometry (a VIO, a LiDAR odometry; sim/odometry_frame.h):
-//   T̂_As,k = T_As,k ⊞ (w_k + o_k),   w_k ~ N(0, W_k) white,   o_k+1 − o_k ~ N(0, Q d_k),
-// with the perturbation [δθ_s; δp_A] of core::PoseMeasurement (δθ a right perturbation in
-// s, δp in A) and d_k the distance travelled between the two poses.
+// item 4). A drifting odometry (a VIO, a LiDAR odometry; sim/odometry_frame.h) reports
+//   R̂_As,k = R_err,k R_As,k Exp(w_θ,k),   p̂_As,k = p_As,k + o_k + w_p,k:
+// a white error w_k = [w_θ; w_p] ~ N(0, W_k) in core::PoseMeasurement's perturbation
+// [δθ_s; δp_A] (δθ right in s, δp in A), and a drift of its frame, R_err and o_k, whose
+// increment between two poses d metres apart is isotropic, σ_θ² d and σ_p² d per axis
+// (the frame's common error cancels in their relative motion, and an isotropic increment
+// has the same covariance in I_i and I_j; the lever arm's share of the rotation increment,
+// below 0.1 mm at 10 cm and 1 mrad, is left out).
 //
 // Consecutive displacements of one stream share a pose's white error: the factor from
 // keyframe i to j and the one from j to l both hold w_j, with opposite signs. Fused as
@@ -39,7 +42,7 @@ struct PoseDriftRates {
 };
 
 /// Jacobian of the relative motion of I between two poses of a sensor s mounted at T_Is,
-///   T_IJ = T_Is (T_As,iᵀ T_As,j) T_Isᵀ,
+///   T_IJ = T_Is (T_As,i⁻¹ T_As,j) T_Is⁻¹,
 /// in PoseBetweenFactor's residual order [δp_IJ (in I_i); δθ_IJ (right, in I_j)], with
 /// respect to the two poses' perturbations [δθ_i; δp_i; δθ_j; δp_j] (core::PoseMeasurement's
 /// order: δθ right in s, δp in A). First order in the perturbations.
@@ -60,5 +63,13 @@ Eigen::Matrix<double, 6, 6> PoseBetweenCovariance(const Eigen::Isometry3d& T_As_
                                                   const Eigen::Matrix<double, 6, 6>& white_j,
                                                   const Eigen::Isometry3d& T_Is,
                                                   const PoseDriftRates& drift, double distance_m);
+
+/// Square-root information of the directions a symmetric projector P keeps of a residual
+/// with covariance Σ: their marginal information (P Σ P)⁺, as U P with Uᵀ U =
+/// (P Σ P + I − P)⁻¹. Multiplying the square root of Σ⁻¹ by P instead would fuse the
+/// conditional information, over-confident wherever Σ couples kept and dropped directions
+/// (a LiDAR odometry's degenerate axis, left out, and its observed ones).
+Eigen::Matrix<double, 6, 6> ObservedSqrtInformation(const Eigen::Matrix<double, 6, 6>& covariance,
+                                                    const Eigen::Matrix<double, 6, 6>& projector);
 
 }  // namespace tofu::estimator

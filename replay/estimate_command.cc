@@ -65,6 +65,15 @@ estimator::MultiGraphEstimatorOptions WithEstimatorOverrides(
 std::vector<estimator::SensorSpec> WithBetweenFactorOverrides(
     std::vector<estimator::SensorSpec> specs, const EstimateCommandOptions& options) {
   for (estimator::SensorSpec& spec : specs) {
+    const bool overridden = options.between_position_std_m || options.between_rotation_std_rad ||
+                            options.between_position_in_reference;
+    if (overridden && spec.pose_between_noise == estimator::PoseBetweenNoise::kWhiteAndDrift) {
+      throw core::InputError(
+          {}, "--between-position-std, --between-rotation-std, --position-in-reference",
+          "the run's scenario weights '" + spec.name +
+              "' by its own noise (estimation.pose_between_noise: white_and_drift), which "
+              "constant between stds do not apply to; expected none of these options");
+    }
     if (options.between_position_std_m) spec.between_position_std_m = *options.between_position_std_m;
     if (options.between_rotation_std_rad) spec.between_rotation_std_rad = *options.between_rotation_std_rad;
     if (options.between_position_std_m || options.between_rotation_std_rad) {

@@ -1079,6 +1079,25 @@ TEST(LocalSmoother, WildPoseLeavesWindowAndSmootherRecovers) {
   EXPECT_LE(run.bad_solve_times.size(), 2u) << "the wild factor was removed with the bad solve";
 }
 
+// A stated white covariance read back from text may be indefinite by a rounding: clamped
+// and fused, not dropped.
+TEST(LocalSmoother, APoseNoiseIndefiniteByARoundingIsFused) {
+  const WorldConfig config = NoisyWorld(62, 0.5);
+  const World world = MakeWorld(config);
+  LocalSmoother smoother(Options(0.5, true, config.imu_noise, true));
+  Feeder feeder(world);
+  feeder.Run(smoother, MakeInitial(world, false, 0));
+  PoseNoise noise;
+  noise.white_covariance = 1e-6 * Eigen::Matrix<double, 6, 6>::Identity();
+  noise.white_covariance(1, 1) = -1e-18;
+  noise.min_position_std_m = 5e-4;
+  noise.min_rotation_std_rad = 1e-3;
+  const core::Time t = world.poses.back().t_ns;
+  EXPECT_NE(smoother.AddPose(1, t, world.poses.back().T_As, kT_Is,
+                             Eigen::Matrix<double, 6, 6>::Identity(), std::nullopt, noise),
+            MeasurementUse::kRejected);
+}
+
 TEST(LocalSmoother, RejectsNonFinitePoseInput) {
   const WorldConfig config = NoisyWorld(61, 0.5);
   const World world = MakeWorld(config);
@@ -1107,6 +1126,27 @@ TEST(LocalSmoother, RejectsNonFinitePoseInput) {
             MeasurementUse::kRejected);
   EXPECT_EQ(smoother.AddPosition(1, t, Eigen::Vector3d(nan, 0, 0), Eigen::Matrix3d::Identity(),
                                  Eigen::Vector3d::Zero(), Eigen::Matrix3d::Identity(), 0.01),
+            MeasurementUse::kRejected);
+  // A pose's own noise: not finite, clearly indefinite, without floors, or beside R_LA.
+  PoseNoise noise;
+  noise.white_covariance = 1e-6 * Eigen::Matrix<double, 6, 6>::Identity();
+  noise.min_position_std_m = 5e-4;
+  noise.min_rotation_std_rad = 1e-3;
+  const Eigen::Matrix<double, 6, 6> I6 = Eigen::Matrix<double, 6, 6>::Identity();
+  PoseNoise bad = noise;
+  bad.white_covariance(2, 2) = nan;
+  EXPECT_EQ(smoother.AddPose(1, t, world.poses.back().T_As, kT_Is, I6, std::nullopt, bad),
+            MeasurementUse::kRejected);
+  bad = noise;
+  bad.white_covariance(2, 2) = -1e-6;
+  EXPECT_EQ(smoother.AddPose(1, t, world.poses.back().T_As, kT_Is, I6, std::nullopt, bad),
+            MeasurementUse::kRejected);
+  bad = noise;
+  bad.min_rotation_std_rad = 0.0;
+  EXPECT_EQ(smoother.AddPose(1, t, world.poses.back().T_As, kT_Is, I6, std::nullopt, bad),
+            MeasurementUse::kRejected);
+  EXPECT_EQ(smoother.AddPose(1, t, world.poses.back().T_As, kT_Is, I6, Eigen::Matrix3d::Identity(),
+                             noise),
             MeasurementUse::kRejected);
   EXPECT_FALSE(smoother.Update());
   EXPECT_EQ(smoother.stats().keyframes, keyframes);

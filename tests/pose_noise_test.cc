@@ -9,6 +9,7 @@
 #include <vector>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/QR>
 
 #include "core/lie.h"
 #include "core/random.h"
@@ -143,6 +144,31 @@ TEST(PoseBetweenCovariance, BoundsAChainsJointCovarianceWhereExactMarginalsDoNot
     // ... the bound dominates the joint covariance, the marginals do not.
     EXPECT_GE(min_eigenvalue(bound - truth), -1e-12 * scale) << "trial " << trial;
     EXPECT_LT(min_eigenvalue(marginals - truth), -1e-3 * scale) << "trial " << trial;
+  }
+}
+
+// The directions a projector keeps get their marginal information (P Σ P)⁺; the
+// conditional information P Σ⁻¹ P, what multiplying Σ⁻¹'s square root by P gives, exceeds
+// it where Σ couples kept and dropped directions. With P = I both are Σ⁻¹.
+TEST(ObservedSqrtInformation, KeepsTheMarginalInformationOfTheKeptDirections) {
+  core::RandomStream rng(34, "pose_noise_test");
+  for (int trial = 0; trial < 20; ++trial) {
+    const Matrix6 covariance = RandomWhite(rng, 1e-2, 2e-2) + 1e-6 * Matrix6::Identity();
+    Eigen::Matrix<double, 6, 4> basis;
+    for (int c = 0; c < 4; ++c) basis.col(c) = Eigen::Matrix<double, 6, 1>::NullaryExpr([&] { return rng.Normal(); });
+    const Eigen::HouseholderQR<Eigen::Matrix<double, 6, 4>> qr(basis);
+    const Eigen::Matrix<double, 6, 4> Q = qr.householderQ() * Eigen::Matrix<double, 6, 4>::Identity();
+    const Matrix6 P = Q * Q.transpose();
+    const Matrix6 S = ObservedSqrtInformation(covariance, P);
+    // (P Σ P)⁺ on the kept subspace: Q (Qᵀ Σ Q)⁻¹ Qᵀ.
+    const Matrix6 marginal = Q * (Q.transpose() * covariance * Q).inverse() * Q.transpose();
+    EXPECT_LT((S.transpose() * S - marginal).norm(), 1e-9 * marginal.norm()) << "trial " << trial;
+    const Matrix6 conditional = P * covariance.inverse() * P;
+    EXPECT_GT(Eigen::SelfAdjointEigenSolver<Matrix6>(conditional - marginal).eigenvalues().maxCoeff(),
+              1e-6 * marginal.norm())
+        << "trial " << trial;
+    const Matrix6 all = ObservedSqrtInformation(covariance, Matrix6::Identity());
+    EXPECT_LT((all.transpose() * all - covariance.inverse()).norm(), 1e-9 * covariance.inverse().norm());
   }
 }
 
