@@ -428,12 +428,10 @@ struct LocalSmoother::Impl {
     const Eigen::Isometry3d T_IJ = m.T_Is * (chain.T_As.inverse() * m.T_As) * m.T_Is.inverse();
     Eigen::Matrix<double, 6, 6> sqrt_information = m.sqrt_information;
     if (m.pose_noise) {
-      // The distance the mount travelled, from the states (the newest one predicted by the
-      // IMU), not from this measurement (PoseBetweenCovariance).
-      const NavState a = chain.keyframe->state();
-      const NavState b = kf->state();
-      const Eigen::Vector3d p_Is = m.T_Is.translation();
-      const double distance_m = ((b.p_LI + b.q_LI * p_Is) - (a.p_LI + a.q_LI * p_Is)).norm();
+      // The distance the mount travelled, from the states, not from this measurement
+      // (PoseBetweenCovariance).
+      const double distance_m =
+          MountDisplacementL(*chain.keyframe, *kf, m.T_Is.translation()).norm();
       // A chain begun by a pose without its own noise (none of a sensor's are) would take
       // this pose's for both ends.
       const Eigen::Matrix<double, 6, 6>& white_i =
@@ -520,13 +518,20 @@ struct LocalSmoother::Impl {
     unconfirmed_between.push_back(factor);
   }
 
+  // The displacement of the mount point p_Is in L between two keyframes' states (the newer
+  // one predicted by the IMU until a solve has it).
+  static Eigen::Vector3d MountDisplacementL(const Keyframe& a, const Keyframe& b,
+                                            const Eigen::Vector3d& p_Is) {
+    const NavState s_a = a.state();
+    const NavState s_b = b.state();
+    return (s_b.p_LI + s_b.q_LI * p_Is) - (s_a.p_LI + s_a.q_LI * p_Is);
+  }
+
   // The displacement since the chain's previous position against the states' (both in the
   // window; the new keyframe predicted by the IMU), normalised by both positions' noise.
   bool FrameJumped(const Chain& chain, const Keyframe* kf, const PendingMeasurement& m) const {
-    const NavState a = chain.keyframe->state();
-    const NavState b = kf->state();
     const Eigen::Vector3d measured = m.R_LA * (m.p_As - chain.p_As);
-    const Eigen::Vector3d predicted = (b.p_LI + b.q_LI * m.p_Is) - (a.p_LI + a.q_LI * m.p_Is);
+    const Eigen::Vector3d predicted = MountDisplacementL(*chain.keyframe, *kf, m.p_Is);
     Eigen::Matrix3d covariance =
         m.R_LA * (m.covariance_A + chain.covariance_A) * m.R_LA.transpose();
     covariance += Eigen::Matrix3d::Identity() * (2.0 * m.min_std_m * m.min_std_m);

@@ -118,6 +118,21 @@ ConsistencyConfig ReadConsistency(const YamlValue& value) {
   return config;
 }
 
+// The value of the word `value` holds among `choices`; otherwise an error listing them
+// ("a, b or c").
+template <typename T>
+T ChoiceOf(const YamlValue& value, std::initializer_list<std::pair<std::string_view, T>> choices) {
+  const std::string word = value.String();
+  std::string expected;
+  std::size_t i = 0;
+  for (const auto& [name, choice] : choices) {
+    if (word == name) return choice;
+    expected += (i == 0 ? "" : i + 1 == choices.size() ? " or " : ", ") + std::string(name);
+    ++i;
+  }
+  value.FailExpected(expected);
+}
+
 // `check_methods`: false for a block read on a client's side, which does not know the
 // scenario's clients (its methods are not what it runs).
 EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<SensorConfig>& sensors,
@@ -132,31 +147,19 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   ReadNumber(map, "alignment_level_prior_deg", NumberRule::Between(0.0, 10.0, "deg"),
              &config.alignment_level_prior_deg);
   if (const auto factors = map.Optional("position_factors")) {
-    const std::string kind = factors->String();
-    if (kind == "between") {
-      config.position_factors = estimator::PositionFactors::kBetween;
-    } else if (kind == "absolute") {
-      config.position_factors = estimator::PositionFactors::kAbsolute;
-    } else if (kind == "offset") {
-      config.position_factors = estimator::PositionFactors::kOffset;
-    } else {
-      factors->FailExpected("between, absolute or offset");
-    }
+    config.position_factors =
+        ChoiceOf<estimator::PositionFactors>(*factors, {{"between", estimator::PositionFactors::kBetween},
+                            {"absolute", estimator::PositionFactors::kAbsolute},
+                            {"offset", estimator::PositionFactors::kOffset}});
   }
   if (const auto noise = map.Optional("pose_between_noise")) {
-    const std::string kind = noise->String();
-    if (kind == "constant") {
-      config.pose_between_noise = estimator::PoseBetweenNoise::kConstant;
-    } else if (kind == "white_and_drift") {
-      config.pose_between_noise = estimator::PoseBetweenNoise::kWhiteAndDrift;
-    } else {
-      noise->FailExpected("constant or white_and_drift");
-    }
+    config.pose_between_noise =
+        ChoiceOf<estimator::PoseBetweenNoise>(*noise, {{"constant", estimator::PoseBetweenNoise::kConstant},
+                          {"white_and_drift", estimator::PoseBetweenNoise::kWhiteAndDrift}});
   }
   if (const auto degenerate = map.Optional("degenerate_directions")) {
-    const std::string kind = degenerate->String();
-    if (kind != "fused" && kind != "left_out") degenerate->FailExpected("fused or left_out");
-    config.leave_out_degenerate_directions = kind == "left_out";
+    config.leave_out_degenerate_directions =
+        ChoiceOf<bool>(*degenerate, {{"fused", false}, {"left_out", true}});
   }
   std::vector<std::string> sensor_names;
   bool has_imu = false;
@@ -386,14 +389,11 @@ ControlConfig ReadControl(const YamlValue& value, const Scenario& scenario) {
       config.controller = name;
     }
   }
-  std::optional<YamlValue> source;
-  if ((source = map.Optional("state_source"))) {
-    const std::string name = source->String();
-    if (name == "estimate") {
-      config.state_source = ControlConfig::StateSource::kEstimate;
-    } else if (name != "ground_truth") {
-      source->FailExpected("ground_truth or estimate");
-    }
+  const std::optional<YamlValue> source = map.Optional("state_source");
+  if (source) {
+    config.state_source =
+        ChoiceOf<ControlConfig::StateSource>(*source, {{"ground_truth", ControlConfig::StateSource::kGroundTruth},
+                           {"estimate", ControlConfig::StateSource::kEstimate}});
   }
   const bool estimate = config.state_source == ControlConfig::StateSource::kEstimate;
   if (const auto methods = map.Optional("methods")) {
@@ -410,9 +410,7 @@ RenderRequest ReadRender(const YamlValue& value) {
   RenderRequest r;
   YamlMap map = value.Map({"when", "size", "fps", "camera", "clip_half_s", "error_bound_m"});
   if (const auto when = map.Optional("when")) {
-    const std::string w = when->String();
-    if (w != "failure" && w != "always") when->FailExpected("failure or always");
-    r.always = w == "always";
+    r.always = ChoiceOf<bool>(*when, {{"failure", false}, {"always", true}});
   }
   if (const auto size = map.Optional("size")) {
     const std::vector<double> wh = size->Numbers(2, NumberRule::Between(16.0, 7680.0, "px"));

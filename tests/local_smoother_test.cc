@@ -768,17 +768,31 @@ struct PositionRun {
   LocalSmootherStats stats;
 };
 
-// The newest keyframe's position error after the solve at t_ns: its largest after 0.5 s,
-// its last, and its NEES every 0.5 s.
-void RecordNewest(const LocalSmoother& smoother, core::Time t_ns, PositionRun* run) {
-  const KeyframeState newest = *smoother.NewestKeyframe();
-  const Eigen::Vector3d error = newest.state.p_LI - Trajectory::State(newest.t_ns).p_LI;
-  if (t_ns >= 500'000'000) run->max_error_m = std::max(run->max_error_m, error.norm());
-  run->final_error_m = error.norm();
-  if (t_ns % 500'000'000 == 0) {
-    const auto P = smoother.NewestCovariance();
-    if (P) run->nees_position.push_back(error.dot(P->topLeftCorner<3, 3>().ldlt().solve(error)));
+// Flies `smoother` through `world` from `init`: per IMU sample, add_sensor(t) for each
+// 30 Hz sensor time up to it, then a solve. Records the newest keyframe's position error
+// (its largest after 0.5 s, its last) and its NEES every 0.5 s.
+PositionRun Fly(const World& world, const Initial& init, LocalSmoother& smoother,
+                const std::function<void(core::Time)>& add_sensor) {
+  PositionRun run;
+  smoother.AddImu(world.imu[0].t_ns, world.imu[0].accel, world.imu[0].gyro);
+  smoother.Initialize(world.imu[0].t_ns, init.state, init.bias, init.prior);
+  core::Time next_sensor_ns = 0;
+  for (std::size_t k = 1; k < world.imu.size(); ++k) {
+    const ImuSample& m = world.imu[k];
+    smoother.AddImu(m.t_ns, m.accel, m.gyro);
+    for (; next_sensor_ns <= m.t_ns; next_sensor_ns += kPosePeriodNs) add_sensor(next_sensor_ns);
+    smoother.Update();
+    const KeyframeState newest = *smoother.NewestKeyframe();
+    const Eigen::Vector3d error = newest.state.p_LI - Trajectory::State(newest.t_ns).p_LI;
+    if (m.t_ns >= 500'000'000) run.max_error_m = std::max(run.max_error_m, error.norm());
+    run.final_error_m = error.norm();
+    if (m.t_ns % 500'000'000 == 0) {
+      const auto P = smoother.NewestCovariance();
+      if (P) run.nees_position.push_back(error.dot(P->topLeftCorner<3, 3>().ldlt().solve(error)));
+    }
   }
+  run.stats = smoother.stats();
+  return run;
 }
 
 PositionRun RunWhitePositions(std::uint64_t seed, bool with_offset, double duration_s,
@@ -795,35 +809,21 @@ PositionRun RunWhitePositions(std::uint64_t seed, bool with_offset, double durat
   const Eigen::Vector3d p_Is = kT_Is.translation();
   const Eigen::Matrix3d R_LA = kT_AL.linear().transpose();
   const Eigen::Matrix3d covariance_A = Eigen::Matrix3d::Identity() * kPositionStd * kPositionStd;
-  PositionRun run;
-  smoother.AddImu(world.imu[0].t_ns, world.imu[0].accel, world.imu[0].gyro);
-  smoother.Initialize(world.imu[0].t_ns, init.state, init.bias, init.prior);
-  core::Time next_position_ns = 0;
   bool shifted = false;
-  for (std::size_t k = 1; k < world.imu.size(); ++k) {
-    const ImuSample& m = world.imu[k];
-    smoother.AddImu(m.t_ns, m.accel, m.gyro);
-    while (next_position_ns <= m.t_ns) {
-      const core::Time t = next_position_ns;
-      next_position_ns += kPosePeriodNs;
-      Eigen::Vector3d p_As = kT_AL * (Trajectory::Pose(t) * p_Is) + noise.Vector(kPositionStd);
-      if (shift_at_ns && t < *shift_at_ns && t >= *shift_at_ns - dropout_before_shift_ns) continue;
-      if (shift_at_ns && t >= *shift_at_ns) {
-        if (!shifted && end_chain_at_shift) smoother.EndChain(0);
-        shifted = true;
-        p_As += shift_A;
-      }
-      if (with_offset) {
-        smoother.AddPositionWithOffset(0, t, p_As, covariance_A, p_Is, R_LA, 0.0);
-      } else {
-        smoother.AddPosition(0, t, p_As, covariance_A, p_Is, R_LA, 0.0);
-      }
+  return Fly(world, init, smoother, [&](core::Time t) {
+    Eigen::Vector3d p_As = kT_AL * (Trajectory::Pose(t) * p_Is) + noise.Vector(kPositionStd);
+    if (shift_at_ns && t < *shift_at_ns && t >= *shift_at_ns - dropout_before_shift_ns) return;
+    if (shift_at_ns && t >= *shift_at_ns) {
+      if (!shifted && end_chain_at_shift) smoother.EndChain(0);
+      shifted = true;
+      p_As += shift_A;
     }
-    smoother.Update();
-    RecordNewest(smoother, m.t_ns, &run);
-  }
-  run.stats = smoother.stats();
-  return run;
+    if (with_offset) {
+      smoother.AddPositionWithOffset(0, t, p_As, covariance_A, p_Is, R_LA, 0.0);
+    } else {
+      smoother.AddPosition(0, t, p_As, covariance_A, p_Is, R_LA, 0.0);
+    }
+  });
 }
 
 double Mean(const std::vector<double>& v) {
@@ -937,40 +937,26 @@ PositionRun RunDriftingPoses(std::uint64_t seed, bool own_noise, double duration
       Eigen::Vector3d::Constant(std::sqrt(2.0) * kWhiteRotationStd);
   const Eigen::Matrix<double, 6, 6> constant_sqrt_information =
       constant_std.cwiseInverse().asDiagonal();
-  PositionRun run;
-  smoother.AddImu(world.imu[0].t_ns, world.imu[0].accel, world.imu[0].gyro);
-  smoother.Initialize(world.imu[0].t_ns, init.state, init.bias, init.prior);
   Eigen::Matrix3d R_err = Eigen::Matrix3d::Identity();
   Eigen::Vector3d p_drifted = (kT_AL * Trajectory::Pose(0) * kT_Is).translation();
   Eigen::Vector3d p_previous = p_drifted;
-  core::Time next_pose_ns = 0;
-  for (std::size_t k = 1; k < world.imu.size(); ++k) {
-    const ImuSample& m = world.imu[k];
-    smoother.AddImu(m.t_ns, m.accel, m.gyro);
-    while (next_pose_ns <= m.t_ns) {
-      const core::Time t = next_pose_ns;
-      next_pose_ns += kPosePeriodNs;
-      const Eigen::Isometry3d truth = kT_AL * Trajectory::Pose(t) * kT_Is;
-      const double step_m = (truth.translation() - p_previous).norm();
-      R_err = core::ExpSO3(kRotationWalk * std::sqrt(step_m) * noise.Vector(1.0)) * R_err;
-      p_drifted += R_err * (truth.translation() - p_previous) +
-                   kPositionWalk * std::sqrt(step_m) * noise.Vector(1.0);
-      p_previous = truth.translation();
-      Eigen::Isometry3d measured = Eigen::Isometry3d::Identity();
-      measured.linear() = R_err * truth.linear() * core::ExpSO3(noise.Vector(kWhiteRotationStd));
-      measured.translation() = p_drifted + noise.Vector(kWhitePositionStd);
-      if (own_noise) {
-        smoother.AddPose(0, t, measured, kT_Is, Eigen::Matrix<double, 6, 6>::Identity(),
-                         std::nullopt, own);
-      } else {
-        smoother.AddPose(0, t, measured, kT_Is, constant_sqrt_information);
-      }
+  return Fly(world, init, smoother, [&](core::Time t) {
+    const Eigen::Isometry3d truth = kT_AL * Trajectory::Pose(t) * kT_Is;
+    const double step_m = (truth.translation() - p_previous).norm();
+    R_err = core::ExpSO3(kRotationWalk * std::sqrt(step_m) * noise.Vector(1.0)) * R_err;
+    p_drifted += R_err * (truth.translation() - p_previous) +
+                 kPositionWalk * std::sqrt(step_m) * noise.Vector(1.0);
+    p_previous = truth.translation();
+    Eigen::Isometry3d measured = Eigen::Isometry3d::Identity();
+    measured.linear() = R_err * truth.linear() * core::ExpSO3(noise.Vector(kWhiteRotationStd));
+    measured.translation() = p_drifted + noise.Vector(kWhitePositionStd);
+    if (own_noise) {
+      smoother.AddPose(0, t, measured, kT_Is, Eigen::Matrix<double, 6, 6>::Identity(),
+                       std::nullopt, own);
+    } else {
+      smoother.AddPose(0, t, measured, kT_Is, constant_sqrt_information);
     }
-    smoother.Update();
-    RecordNewest(smoother, m.t_ns, &run);
-  }
-  run.stats = smoother.stats();
-  return run;
+  });
 }
 
 // 20 seeds of 6 s with a pose stream drifting 5 cm/√m (a starved VIO's rate) and a 2 mm,
