@@ -50,8 +50,11 @@ enum ExitCode : int {
   kExitOk = 0,
   kExitExpectationFailed = 1,
   kExitBadInput = 2,
-  kExitSimulationError = 3,
+  kExitSimulationError = 3,  ///< the simulation itself failed (or tofu did)
   kExitIoError = 4,
+  /// A user's estimator or controller failed (docs/INTERFACE.md); the simulation and the
+  /// other methods were sound and are scored.
+  kExitClientFailed = 5,
 };
 
 }  // namespace tofu::core

@@ -1,7 +1,10 @@
 #include "core/measurement.h"
 
+#include "core/digest.h"
+
 #include <cstddef>
 #include <type_traits>
+
 
 namespace tofu::core {
 
@@ -25,6 +28,36 @@ std::string_view MeasurementKindName(MeasurementKind kind) {
 
 MeasurementKind MeasurementKindOf(const Measurement& measurement) {
   return static_cast<MeasurementKind>(measurement.index());
+}
+
+namespace {
+
+template <typename Derived>
+void HashValues(const Eigen::DenseBase<Derived>& values, Fnv1a64Hasher& hasher) {
+  for (Eigen::Index i = 0; i < values.size(); ++i) hasher.Add(static_cast<double>(values(i)));
+}
+
+}  // namespace
+
+void HashMeasurement(const Measurement& measurement, Fnv1a64Hasher& hasher) {
+  hasher.Add(uint64_t{measurement.index()});
+  if (const auto* imu = std::get_if<ImuMeasurement>(&measurement)) {
+    HashValues(imu->acc_I_mps2, hasher);
+    HashValues(imu->gyro_I_radps, hasher);
+  } else if (const auto* pose = std::get_if<PoseMeasurement>(&measurement)) {
+    HashValues(pose->p_Ss, hasher);
+    HashValues(pose->q_Ss.coeffs(), hasher);
+    HashValues(pose->covariance, hasher);
+    hasher.Add(uint64_t{pose->has_twist});
+    if (pose->has_twist) {
+      HashValues(pose->v_s_s_mps, hasher);
+      HashValues(pose->omega_s_s_radps, hasher);
+      HashValues(pose->twist_covariance, hasher);
+    }
+  } else if (const auto* position = std::get_if<PositionMeasurement>(&measurement)) {
+    HashValues(position->p_Ss, hasher);
+    HashValues(position->covariance, hasher);
+  }
 }
 
 }  // namespace tofu::core

@@ -24,6 +24,7 @@
 #include "core/cores.h"
 #include "core/error.h"
 #include "core/file_io.h"
+#include "core/version.h"
 #include "harness/check_methods.h"
 #include "harness/check_shards.h"
 #include "harness/yaml_reader.h"
@@ -110,6 +111,8 @@ void RecordExit(int status, SeedRun& run) {
       run.error = "bad input (exit 2)";
     } else if (run.exit_code == core::kExitSimulationError) {
       run.error = "simulation failed (exit 3)";
+    } else if (run.exit_code == core::kExitClientFailed) {
+      // The run is sound: the failed client is named from its summary (ReadSummary).
     } else if (run.exit_code == core::kExitIoError) {
       run.error = "its output could not be written (exit 4)";
     } else if (run.exit_code > 128 && run.exit_code < 128 + NSIG) {
@@ -136,6 +139,7 @@ const char* Verdict(const SeedRun& run) {
   if (run.exit_code == core::kExitExpectationFailed) return "expectation failed";
   if (run.exit_code == core::kExitBadInput) return "bad input";
   if (run.exit_code == core::kExitIoError) return "output not written";
+  if (run.exit_code == core::kExitClientFailed) return "a client failed";
   return "simulation failed";
 }
 
@@ -215,7 +219,7 @@ void RunPool(const std::string& binary, std::vector<Job>& queue, int jobs, bool 
 void ReadSummary(SeedRun& run) {
   const fs::path path = fs::path(run.run_dir) / "summary.json";
   if (run.exit_code == core::kExitOk || run.exit_code == core::kExitExpectationFailed ||
-      run.exit_code == core::kExitSimulationError) {
+      run.exit_code == core::kExitSimulationError || run.exit_code == core::kExitClientFailed) {
     std::ifstream in(path);
     if (in) {
       try {
@@ -231,8 +235,15 @@ void ReadSummary(SeedRun& run) {
       run.error = fmt::format("no {}", path.string());
     }
   }
+  if (run.error.empty() && run.exit_code == core::kExitClientFailed) {
+    const auto failure = run.summary.find("failure");
+    run.client_failure = failure != run.summary.end() && failure->is_string()
+                             ? failure->get<std::string>()
+                             : std::string("a client failed (exit 5), and its summary does not say which");
+  }
   if (run.error.empty()) return;
-  if (run.exit_code == core::kExitOk || run.exit_code == core::kExitExpectationFailed) {
+  if (run.exit_code == core::kExitOk || run.exit_code == core::kExitExpectationFailed ||
+      run.exit_code == core::kExitClientFailed) {
     run.exit_code = core::kExitSimulationError;  // no usable summary: the run did not work
   }
   // Say why: the simulation's own failure text, else what the run printed last.
@@ -258,6 +269,10 @@ std::string SeedValues(const AggregatedExpectation& a, std::string_view separato
   std::string text;
   for (const SeedOutcome& s : a.seeds) {
     if (!text.empty()) text += separator;
+    if (!s.not_measurable.empty()) {
+      text += fmt::format("seed {}: not measurable, {} (not held)", s.seed, s.not_measurable);
+      continue;
+    }
     text += fmt::format("seed {}: {} ({})", s.seed, FormatValue(s.value),
                         s.held ? "held" : "not held");
   }
@@ -276,9 +291,20 @@ void PrintTable(const std::vector<ScenarioCheck>& checks) {
   std::vector<Row> rows;
   for (const ScenarioCheck& c : checks) {
     const std::string seeds = fmt::format("{}/{}", c.seeds_passed, c.runs.size());
-    const std::string result = !c.runs_ok ? "ERROR" : c.passed ? "pass" : "FAIL";
+    // A failed client is its own row's verdict; the other rows say the scenario's.
+    const bool expectations_held =
+        std::all_of(c.expectations.begin(), c.expectations.end(),
+                    [](const AggregatedExpectation& a) { return a.passed; });
+    const std::string result = !c.runs_ok ? "ERROR" : expectations_held ? "pass" : "FAIL";
+    const auto failed = [&](int failed_seeds, const std::string& failure) {
+      return fmt::format("FAILED in {}/{} seeds: {}", failed_seeds, c.runs.size(), failure);
+    };
     if (c.methods.empty()) rows.push_back({c.name, seeds, "-", "-", "-", result});
     for (const MethodStats& m : c.methods) {
+      if (m.failed_seeds > 0) {
+        rows.push_back({c.name, seeds, m.method, "FAILED", "-", failed(m.failed_seeds, m.failure)});
+        continue;
+      }
       rows.push_back({c.name, seeds, m.method,
                       m.ate_mean_m ? fmt::format("{:.4f}", *m.ate_mean_m) : std::string("-"),
                       m.has_detections ? fmt::format("{}/{}", m.faults_detected, m.faults)
@@ -287,6 +313,11 @@ void PrintTable(const std::vector<ScenarioCheck>& checks) {
     }
     // Closed-loop flights: the true tracking RMSE in the ATE column, and the collisions.
     for (const ClosedLoopStats& f : c.closed_loop) {
+      if (f.failed_seeds > 0) {
+        rows.push_back({c.name, seeds, "flown on " + f.method, "FAILED", "-",
+                        failed(f.failed_seeds, f.failure)});
+        continue;
+      }
       rows.push_back({c.name, seeds, "flown on " + f.method,
                       f.tracking_rmse_mean_m ? fmt::format("trk {:.4f}", *f.tracking_rmse_mean_m)
                                              : std::string("-"),
@@ -319,6 +350,15 @@ void PrintFailures(const std::vector<ScenarioCheck>& checks) {
       header = true;
       fmt::print("  {}: {}: {} at {}\n    {}\n", c.name, ExpectationLabel(a.expectation),
                  AggregateMessage(a), Where(a.expectation), SeedValues(a, "; "));
+    }
+  }
+  header = false;
+  for (const ScenarioCheck& c : checks) {
+    for (const SeedRun& r : c.runs) {
+      if (r.client_failure.empty()) continue;
+      if (!header) fmt::print("failed clients:\n");
+      header = true;
+      fmt::print("  {} seed {}: {}\n    log: {}\n", c.name, r.seed, r.client_failure, r.log_path);
     }
   }
   header = false;
@@ -506,10 +546,23 @@ std::vector<SeedOutcome> SeedOutcomes(const std::vector<SeedRun>& runs, size_t i
       if (value != entry->end() && value->is_number()) o.value = value->get<double>();
       const auto passed = entry->find("passed");
       o.held = passed != entry->end() && passed->is_boolean() && passed->get<bool>();
+      const auto why = entry->find("not_measurable");
+      if (why != entry->end() && why->is_string()) o.not_measurable = why->get<std::string>();
     }
     outcomes.push_back(o);
   }
   return outcomes;
+}
+
+// Counts a method's or flight's failure in one seed (its summary entry's `failure`).
+void NoteFailure(const nlohmann::json& entry, int& failed_seeds, std::string& first) {
+  const auto failure = entry.find("failure");
+  if (failure == entry.end() || !failure->is_string()) return;
+  ++failed_seeds;
+  if (first.empty()) {
+    const std::string text = failure->get<std::string>();
+    first = text.substr(0, text.find('\n'));
+  }
 }
 
 // The estimation methods over the seeds (mean ATE, faults detected), by method name.
@@ -525,6 +578,7 @@ std::vector<MethodStats> MethodStatsOverSeeds(const std::vector<SeedRun>& runs) 
       MethodStats& stats = methods[name];
       stats.method = name;
       if (!m.is_object()) continue;
+      NoteFailure(m, stats.failed_seeds, stats.failure);
       if (const auto ate = m.find("ate_m"); ate != m.end() && ate->is_number()) {
         ate_sum[name] += ate->get<double>();
         ++stats.seeds_with_ate;
@@ -562,6 +616,7 @@ std::vector<ClosedLoopStats> ClosedLoopStatsOverSeeds(const std::vector<SeedRun>
       stats.method = name;
       ++stats.seeds;
       if (!f.is_object()) continue;
+      NoteFailure(f, stats.failed_seeds, stats.failure);
       if (const auto t = f.find("tracking_rmse_m"); t != f.end() && t->is_number()) {
         tracking_sum[name].first += t->get<double>();
         ++tracking_sum[name].second;
@@ -598,11 +653,12 @@ ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRu
   for (const SeedRun& r : c.runs) {
     if (r.error.empty() && r.exit_code == core::kExitOk) ++c.seeds_passed;
     if (!r.error.empty()) c.runs_ok = false;
+    if (!r.client_failure.empty()) c.clients_ok = false;
   }
   c.methods = MethodStatsOverSeeds(c.runs);
   c.closed_loop = ClosedLoopStatsOverSeeds(c.runs);
 
-  c.passed = c.runs_ok && !c.runs.empty() &&
+  c.passed = c.runs_ok && c.clients_ok && !c.runs.empty() &&
              std::all_of(c.expectations.begin(), c.expectations.end(),
                          [](const AggregatedExpectation& a) { return a.passed; });
   return c;
@@ -671,6 +727,53 @@ std::string RunTestCase(const ScenarioCheck& c, double time_s, int& failures) {
       "      <system-out>{}</system-out>\n    </testcase>\n",
       XmlAttribute(fmt::format("{} of {} runs failed", broken.size(), c.runs.size())),
       XmlText(run_errors), XmlText(FailureSystemOut(c, broken)));
+}
+
+// One test case per method or closed-loop flight that failed in some seed: the client's
+// failure is its own, whatever the expectations say. Counts failures into `failures`.
+std::string ClientTestCases(const ScenarioCheck& c, int& failures) {
+  std::string cases;
+  const auto add = [&](const std::string& name, int failed_seeds, const std::string& failure,
+                       const std::string& key) {
+    std::string seeds;
+    std::string detail;
+    for (const SeedRun& r : c.runs) {
+      const auto* entry = r.summary.is_object() && r.summary.contains(key) &&
+                                  r.summary[key].is_object() && r.summary[key].contains(name)
+                              ? &r.summary[key][name]
+                              : nullptr;
+      if (entry == nullptr || !entry->is_object() || !entry->contains("failure") ||
+          !(*entry)["failure"].is_string()) {
+        continue;
+      }
+      seeds += fmt::format("{}{}", seeds.empty() ? "" : ", ", r.seed);
+      detail += fmt::format("seed {}: {}\nlog: {}\n", r.seed, (*entry)["failure"].get<std::string>(),
+                            r.log_path);
+    }
+    ++failures;
+    const std::string label = key == "methods" ? "method " + name : "closed-loop flight on " + name;
+    cases += fmt::format(
+        "    <testcase name=\"{}\" classname=\"{}\" file=\"{}\" time=\"0\">\n"
+        "      <failure message=\"{}\" type=\"client\">{}</failure>\n    </testcase>\n",
+        XmlAttribute(label), XmlAttribute(c.name), XmlAttribute(c.source_file),
+        XmlAttribute(fmt::format("{} failed in {} of {} seeds ({}): {}", label, failed_seeds,
+                                 c.runs.size(), seeds, failure)),
+        XmlText(detail));
+  };
+  for (const MethodStats& m : c.methods) {
+    if (m.failed_seeds > 0) add(m.method, m.failed_seeds, m.failure, "methods");
+  }
+  for (const ClosedLoopStats& f : c.closed_loop) {
+    if (f.failed_seeds > 0) add(f.method, f.failed_seeds, f.failure, "closed_loop");
+  }
+  return cases;
+}
+
+int ClientTestCaseCount(const ScenarioCheck& c) {
+  int n = 0;
+  for (const MethodStats& m : c.methods) n += m.failed_seeds > 0 ? 1 : 0;
+  for (const ClosedLoopStats& f : c.closed_loop) n += f.failed_seeds > 0 ? 1 : 0;
+  return n;
 }
 
 // One test case per expectation, aggregated over the seeds. Names are unique within a
@@ -748,9 +851,10 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
     for (const SeedRun& r : c.runs) time += r.wall_time_s;
     int failures = 0;
     std::string cases = RunTestCase(c, time, failures);
+    cases += ClientTestCases(c, failures);
     cases += ExpectationTestCases(c, failures);
 
-    const int tests = 1 + static_cast<int>(c.expectations.size());
+    const int tests = 1 + ClientTestCaseCount(c) + static_cast<int>(c.expectations.size());
     std::string seeds;
     for (const SeedRun& r : c.runs) seeds += fmt::format("{}{}", seeds.empty() ? "" : ",", r.seed);
     suites += fmt::format(
@@ -875,6 +979,7 @@ struct CheckFailures {
   bool bad_input = false;
   bool io_failed = false;
   bool simulation_failed = false;
+  bool client_failed = false;
   bool expectation_failed = false;
 };
 
@@ -894,18 +999,54 @@ std::vector<ScenarioCheck> CheckScenarios(const std::vector<Scenario>& scenarios
       failures.bad_input = failures.bad_input || r.exit_code == core::kExitBadInput;
       failures.io_failed = failures.io_failed || r.exit_code == core::kExitIoError;
       failures.simulation_failed = failures.simulation_failed || !r.error.empty();
+      failures.client_failed = failures.client_failed || !r.client_failure.empty();
     }
     failures.expectation_failed = failures.expectation_failed || !c.passed;
   }
   return checks;
 }
 
+// <out>/check.json: the grid and every run's exit status, with the tofu that ran them:
+// what `tofu compare` reads a check directory by (campaign/cell_record.h).
+void WriteCheckRecord(const fs::path& out, const CheckGrid& grid,
+                      const std::vector<ScenarioCheck>& checks) {
+  nlohmann::json scenarios = nlohmann::json::array();
+  for (const CheckGrid::Entry& e : grid.scenarios) {
+    scenarios.push_back({{"name", e.name}, {"fnv1a64", e.fnv1a64}, {"first_seed", e.first_seed}});
+  }
+  nlohmann::json runs = nlohmann::json::array();
+  for (const ScenarioCheck& c : checks) {
+    for (const SeedRun& r : c.runs) {
+      runs.push_back({{"scenario", c.name},
+                      {"seed", r.seed},
+                      {"exit_code", r.exit_code},
+                      {"error", r.error},
+                      {"client_failure", r.client_failure},
+                      {"wall_time_s", r.wall_time_s}});
+    }
+  }
+  const nlohmann::json record = {{"format", "tofu check"},
+                                 {"version", 1},
+                                 {"tofu_version", core::TofuVersion()},
+                                 {"tofu_commit", core::TofuCommit()},
+                                 {"seeds", grid.seeds},
+                                 {"scenarios", scenarios},
+                                 {"runs", runs}};
+  WriteFileAtomically(out / "check.json", record.dump(1) + "\n", "--out");
+}
+
 // After the runs (or the merge): the table, the JUnit and the method tables of the whole
-// grid, and the check's exit code.
+// grid, the check's record, and the check's exit code.
 int ReportCheck(const CheckCommandOptions& options, const std::vector<Scenario>& scenarios,
-                std::vector<Job>& queue, const fs::path& out) {
+                const CheckGrid& grid, std::vector<Job>& queue, const fs::path& out) {
   CheckFailures failures;
   const std::vector<ScenarioCheck> checks = CheckScenarios(scenarios, queue, failures);
+  try {
+    WriteCheckRecord(out, grid, checks);
+  } catch (const core::IoError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return core::kExitIoError;
+  }
 
   if (!options.quiet) PrintTable(checks);
   PrintFailures(checks);
@@ -930,6 +1071,7 @@ int ReportCheck(const CheckCommandOptions& options, const std::vector<Scenario>&
   if (failures.bad_input) return core::kExitBadInput;
   if (failures.io_failed) return core::kExitIoError;
   if (failures.simulation_failed) return core::kExitSimulationError;
+  if (failures.client_failed) return core::kExitClientFailed;
   return failures.expectation_failed ? core::kExitExpectationFailed : core::kExitOk;
 }
 
@@ -956,7 +1098,7 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   std::vector<Job> queue = PlanRuns(scenarios, grid, options.shard, out);
   if (!options.merge_dirs.empty()) {
     if (!TakeShardRuns(options, grid, queue, out)) return core::kExitBadInput;
-    return ReportCheck(options, scenarios, queue, out);
+    return ReportCheck(options, scenarios, grid, queue, out);
   }
   PrepareRunFolders(grid, options.shard, out);
   const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
@@ -973,7 +1115,7 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   }
   RunPool(binary, queue, jobs, options.quiet);
   if (!options.shard.origin.empty()) return FinishShard(options, grid, queue, out);
-  return ReportCheck(options, scenarios, queue, out);
+  return ReportCheck(options, scenarios, grid, queue, out);
 }
 
 }  // namespace tofu::harness

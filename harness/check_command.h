@@ -44,7 +44,9 @@ struct CheckCommandOptions {
 /// Runs the check and returns the exit code: kExitOk when every expectation held over
 /// the seeds, kExitExpectationFailed when one did not, kExitBadInput on bad input (the
 /// message names file:line:column and key; nothing is run or written) or when a run
-/// reported bad input, kExitSimulationError when a simulation failed. A shard returns
+/// reported bad input, kExitSimulationError when a simulation failed, kExitClientFailed
+/// when a user's estimator or controller failed in a run (and nothing worse happened). A
+/// shard returns
 /// kExitOk once its runs have ended and its record is written, whatever their verdicts
 /// (an expectation's pass_fraction needs every seed: the merge decides). A merge
 /// (`merge_dirs`) runs nothing and returns what one machine's check of the same grid
@@ -67,6 +69,9 @@ struct SeedRun {
   std::string log_path;  ///< the run's stdout and stderr
   int exit_code = -1;    ///< tofu run's exit status (core::ExitCode)
   std::string error;     ///< why the run failed or has no usable summary; empty if fine
+  /// A run that exited kExitClientFailed: the summary's `failure` (a user's estimator or
+  /// controller failed; the run itself is sound and scored). Empty otherwise.
+  std::string client_failure;
   double wall_time_s = 0.0;
   nlohmann::json summary;  ///< summary.json; null when missing or unreadable
 };
@@ -76,6 +81,8 @@ struct SeedOutcome {
   uint64_t seed = 0;
   std::optional<double> value;  ///< nullopt: undefined, or the run has no summary
   bool held = false;
+  /// The summary's `not_measurable`: the method or flight the metric names failed.
+  std::string not_measurable;
 };
 
 /// One expectation over the seeds.
@@ -99,6 +106,8 @@ struct MethodStats {
   int faults = 0;                    ///< sum of `faults`
   int faults_detected = 0;           ///< sum of `faults_detected`
   bool has_detections = false;       ///< some seed reported `faults`
+  int failed_seeds = 0;              ///< seeds in which the method failed
+  std::string failure;               ///< the first failed seed's `failure`, first line
 };
 
 /// A closed-loop flight's figures from summary.json `closed_loop`, over the seeds.
@@ -108,6 +117,8 @@ struct ClosedLoopStats {
   std::optional<double> tracking_rmse_mean_m;  ///< mean over the seeds that have it
   int collisions = 0;                          ///< sum over the seeds
   int failsafe_events = 0;                     ///< sum over the seeds
+  int failed_seeds = 0;                        ///< seeds in which the flight failed
+  std::string failure;                         ///< the first failed seed's `failure`, first line
 };
 
 /// One scenario of a check, over its seeds.
@@ -121,7 +132,8 @@ struct ScenarioCheck {
   std::vector<ClosedLoopStats> closed_loop;
   int seeds_passed = 0;   ///< runs that exited 0 (every expectation held in that seed)
   bool runs_ok = true;    ///< no run exited with bad input or a failed simulation
-  bool passed = false;    ///< runs_ok and every aggregated expectation passed
+  bool clients_ok = true; ///< no run's estimator or controller client failed
+  bool passed = false;    ///< runs_ok, clients_ok and every aggregated expectation passed
 };
 
 /// Aggregates the runs of one scenario (their summaries read already). Expectations are

@@ -198,6 +198,12 @@ ScenarioMethodTable AggregateScenarioMethods(const std::string& scenario,
       if (methods == nullptr) continue;
       const auto method = methods->find(name);
       if (method == methods->end()) continue;
+      if (const auto failure = method->find("failure"); failure != method->end() && failure->is_string()) {
+        if (row.failed_seeds++ == 0) {
+          const std::string text = failure->get<std::string>();
+          row.failure = text.substr(0, text.find('\n'));
+        }
+      }
       for (const std::string& metric : kMethodTableMetrics) {
         if (const auto v = MetricValue(*method, r.summary, metric)) values[metric].push_back(*v);
       }
@@ -242,6 +248,10 @@ std::string MethodsCsv(const std::vector<ScenarioMethodTable>& tables) {
         out += fmt::format("{},{},{},{},{},{}\n", CsvField(t.scenario), CsvField(row.method),
                            m.metric, m.seeds, CsvNumber(m.median), CsvNumber(m.worst));
       }
+      if (row.failed_seeds > 0) {
+        out += fmt::format("{},{},failed_seeds,{},{},{}\n", CsvField(t.scenario),
+                           CsvField(row.method), t.seeds, row.failed_seeds, row.failed_seeds);
+      }
     }
   }
   return out;
@@ -265,7 +275,11 @@ std::string MethodsMarkdown(const std::vector<ScenarioMethodTable>& tables) {
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
     for (const MethodTableRow& row : t.methods) {
       out += fmt::format(
-          "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n", MdText(row.method),
+          "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+          row.failed_seeds == 0
+              ? MdText(row.method)
+              : fmt::format("{} **FAILED in {} of {} seeds: {}**", MdText(row.method),
+                            row.failed_seeds, t.seeds, MdText(row.failure)),
           MdCell(row.Find("ate_m"), t.seeds, true, true),
           MdCell(row.Find(kAteOverOracle), t.seeds, true, true),
           MdCell(row.Find("rotation_rmse_deg"), t.seeds, true, false),

@@ -31,6 +31,10 @@ struct MethodMetricSummary {
 struct MethodTableRow {
   std::string method;
   std::vector<MethodMetricSummary> metrics;
+  /// Seeds in which the method (a user's client) failed: none of its figures counts there
+  /// (summary.json has them null), and the row says so with the first seed's `failure`.
+  int failed_seeds = 0;
+  std::string failure;
   /// The entry of `metric`, nullptr when there is none.
   const MethodMetricSummary* Find(const std::string& metric) const;
 };
@@ -66,7 +70,8 @@ std::vector<ScenarioMethodTable> AggregateMethodTables(const std::vector<Scenari
 
 /// methods.csv: the header line "#scenario,method,metric,seeds,median,worst" (the form of
 /// every tofu CSV), then a row per scenario, method and metric in table order (every
-/// metric, also those no seed has: seeds 0); units are in the metric names (_m, _deg, _s;
+/// metric, also those no seed has: seeds 0), and for a method that failed in some seed a
+/// row "failed_seeds" (seeds: the runs; median and worst: the seeds it failed in); units are in the metric names (_m, _deg, _s;
 /// the others have none). A value is the shortest decimal text that reads back exactly,
 /// "inf" for +inf, empty for none.
 std::string MethodsCsv(const std::vector<ScenarioMethodTable>& tables);

@@ -10,6 +10,7 @@
 
 #include <fmt/format.h>
 
+#include "core/hash.h"
 #include "core/units.h"
 #include "harness/metrics.h"
 
@@ -142,7 +143,8 @@ const MethodEvaluation* FindMethod(const RunRecord& record, const std::string& m
 std::optional<double> MethodMetricValue(const RunRecord& record, const std::string& pattern,
                                         const MetricArguments& args) {
   const MethodEvaluation* m = FindMethod(record, args.method);
-  if (m == nullptr) return std::nullopt;
+  // A failed client's figures cover part of the flight at most: none of them is a value.
+  if (m == nullptr || m->failure) return std::nullopt;
   if (pattern == "methods.<method>.ate_m") return m->ate_m;
   if (pattern == "methods.<method>.ate_max_m") return m->ate_max_m;
   if (pattern == "methods.<method>.rotation_rmse_deg") return m->rotation_rmse_deg;
@@ -162,6 +164,32 @@ std::optional<double> MethodMetricValue(const RunRecord& record, const std::stri
   if (pattern == "methods.<method>.false_exclusion_fraction") return m->false_exclusion_fraction();
   if (pattern == "methods.<method>.max_readmission_delay_s") return m->max_readmission_delay_s();
   return std::nullopt;
+}
+
+// A failed method's or flight's figures: every figure null beside its `failure`, what was
+// measured up to the failure kept apart under `partial` (it would read as a healthy value).
+// The digests that say whether two runs' methods saw the same samples (core/digest.h).
+nlohmann::json DigestsJson(const RunRecord& record) {
+  return {{"samples", record.samples_digest ? nlohmann::json(core::HexDigest(*record.samples_digest))
+                                            : nlohmann::json(nullptr)},
+          {"random_streams", core::HexDigest(record.random_streams_digest)}};
+}
+
+nlohmann::json FailedFiguresJson(nlohmann::json figures, const std::string& failure) {
+  nlohmann::json failed = nlohmann::json::object();
+  nlohmann::json partial = nlohmann::json::object();
+  for (auto& [key, value] : figures.items()) {
+    // What the figures are of, not figures: kept.
+    if (key == "ate_alignment" || key == "corridor_m" || key == "digests") {
+      failed[key] = value;
+      continue;
+    }
+    failed[key] = nullptr;
+    partial[key] = std::move(value);
+  }
+  failed["failure"] = failure;
+  failed["partial"] = std::move(partial);
+  return failed;
 }
 
 nlohmann::json MethodsJson(const RunRecord& record) {
@@ -204,7 +232,7 @@ nlohmann::json MethodsJson(const RunRecord& record) {
       }
       j["detections"] = detections;
     }
-    if (m.failure) j["failure"] = *m.failure;
+    if (m.failure) j = FailedFiguresJson(std::move(j), *m.failure);
     methods[m.method] = j;
   }
   return methods;
@@ -221,7 +249,7 @@ std::optional<double> ClosedLoopMetricValue(const RunRecord& record, const std::
                                             const MetricArguments& args,
                                             const std::optional<std::pair<double, double>>& window_s) {
   const RunRecord* flight = FindClosedLoopFlight(record, args.method);
-  if (flight == nullptr) return std::nullopt;
+  if (flight == nullptr || ClosedLoopFlightFailure(*flight)) return std::nullopt;
   if (window_s) {
     // Tracking over part of the flight (e.g. while an absolute sensor is in view).
     const auto position = [](const TrackingSample& s) { return s.position_error_m; };
@@ -306,13 +334,12 @@ std::vector<std::string> ClientFailures(const RunRecord& record) {
   return failures;
 }
 
-// A closed-loop flight's failure: the simulation's, else its flying method's.
-nlohmann::json FlightFailureJson(const RunRecord& flight) {
-  if (flight.failure) return *flight.failure;
+std::optional<std::string> ClosedLoopFlightFailure(const RunRecord& flight) {
+  if (flight.failure) return flight.failure;
   for (const MethodEvaluation& m : flight.methods) {
-    if (m.failure) return *m.failure;
+    if (m.failure) return m.failure;
   }
-  return nullptr;
+  return std::nullopt;
 }
 
 nlohmann::json ClosedLoopJson(const RunRecord& flight) {
@@ -324,7 +351,7 @@ nlohmann::json ClosedLoopJson(const RunRecord& flight) {
                         {"detail", e.detail}});
     }
   }
-  return {{"tracking_rmse_m", OptionalNumber(m.tracking_rmse_m)},
+  nlohmann::json j = {{"tracking_rmse_m", OptionalNumber(m.tracking_rmse_m)},
           {"tracking_max_m", OptionalNumber(m.tracking_max_m)},
           {"estimate_ate_m", OptionalNumber(m.estimate_ate_m)},
           {"collisions", m.collisions},
@@ -334,8 +361,15 @@ nlohmann::json ClosedLoopJson(const RunRecord& flight) {
           {"diverged", m.diverged},
           {"handover_s", OptionalNumber(m.handover_s)},
           {"corridor_m", flight.closed_loop ? flight.closed_loop->control.corridor_m : 0.0},
-          {"failure", FlightFailureJson(flight)},
-          {"events", events}};
+          {"digests", DigestsJson(flight)}};
+  if (const std::optional<std::string> failure = ClosedLoopFlightFailure(flight)) {
+    j = FailedFiguresJson(std::move(j), *failure);
+  } else {
+    j["failure"] = nullptr;
+  }
+  // What the pilot did is an account of the flight, not a figure: kept as it is.
+  j["events"] = std::move(events);
+  return j;
 }
 
 std::optional<double> MetricValue(const RunRecord& record, const std::string& metric,
@@ -457,8 +491,33 @@ nlohmann::json SensorsJson(const RunRecord& record, double run_s) {
 
 // The expectation's metric (relative to its `relative_to` metric, if any) and whether it
 // is within [min, max].
+// Why `metric` has no value to judge in `record`: the simulation failed, or the metric is
+// a failed method's or closed-loop flight's. nullopt when it is measurable.
+std::optional<std::string> NotMeasurable(const RunRecord& record, const std::string& metric) {
+  if (record.failure) return "the simulation failed: " + *record.failure;
+  const auto match = MatchMetric(metric);
+  if (!match || match->second.method.empty()) return std::nullopt;
+  const std::string& method = match->second.method;
+  if (metric.starts_with("closed_loop.")) {
+    const RunRecord* flight = FindClosedLoopFlight(record, method);
+    const std::optional<std::string> failure =
+        flight != nullptr ? ClosedLoopFlightFailure(*flight) : std::nullopt;
+    if (failure) return fmt::format("the closed-loop flight on {} failed: {}", method, *failure);
+    return std::nullopt;
+  }
+  const MethodEvaluation* m = FindMethod(record, method);
+  if (m != nullptr && m->failure) return fmt::format("method {} failed: {}", method, *m->failure);
+  return std::nullopt;
+}
+
 ExpectationResult CheckExpectation(const RunRecord& record, const Expectation& e) {
-  ExpectationResult r{e, MetricValue(record, e.metric, e.window_s), false};
+  ExpectationResult r{e, MetricValue(record, e.metric, e.window_s), false, std::nullopt};
+  r.not_measurable = NotMeasurable(record, e.metric);
+  if (!r.not_measurable && e.relative_to) r.not_measurable = NotMeasurable(record, *e.relative_to);
+  if (r.not_measurable) {
+    r.value = std::nullopt;
+    return r;
+  }
   if (e.relative_to) {
     const std::optional<double> base = MetricValue(record, *e.relative_to, e.window_s);
     r.value = r.value && base && *base > 0.0 ? std::optional<double>(*r.value / *base)
@@ -476,6 +535,7 @@ nlohmann::json ExpectationJson(const Expectation& e, const ExpectationResult& r)
                        {"value", OptionalNumber(r.value)},
                        {"passed", r.passed},
                        {"where", e.location.file + ":" + std::to_string(e.location.line)}};
+  if (r.not_measurable) je["not_measurable"] = *r.not_measurable;
   if (e.window_s) je["window_s"] = {e.window_s->first, e.window_s->second};
   if (e.relative_to) je["relative_to"] = *e.relative_to;
   return je;
@@ -495,7 +555,7 @@ Evaluation Evaluate(const RunRecord& record) {
   j["physics_steps"] = record.physics_steps;
   j["simulated_s"] = core::TimeToSeconds(record.physics_steps *
                                          core::PeriodFromRate(sc.physics.rate_hz));
-  j["failure"] = record.failure ? nlohmann::json(*record.failure) : nlohmann::json(nullptr);
+  j["digests"] = DigestsJson(record);
 
   nlohmann::json metrics = nlohmann::json::object();
   for (const MetricInfo& info : MetricCatalog()) {
@@ -528,6 +588,18 @@ Evaluation Evaluate(const RunRecord& record) {
   }
   eval.client_failures = ClientFailures(record);
   all_passed = all_passed && eval.client_failures.empty();
+  // One place for what failed: the simulation, else the first client (each failed method
+  // and flight says its own beside its figures).
+  if (record.failure) {
+    j["failure"] = *record.failure;
+    j["failure_kind"] = "simulation";
+  } else if (!eval.client_failures.empty()) {
+    j["failure"] = eval.client_failures.front();
+    j["failure_kind"] = "client";
+  } else {
+    j["failure"] = nullptr;
+    j["failure_kind"] = nullptr;
+  }
   nlohmann::json expectations = nlohmann::json::array();
   for (const Expectation& e : sc.expect) {
     const ExpectationResult r = CheckExpectation(record, e);

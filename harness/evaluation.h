@@ -19,6 +19,9 @@ struct ExpectationResult {
   Expectation expectation;
   std::optional<double> value;  ///< nullopt: undefined (e.g. no samples in the window)
   bool passed = false;
+  /// Why the metric has no value to judge: the method or closed-loop flight it names
+  /// failed, or the simulation did. Such an expectation fails.
+  std::optional<std::string> not_measurable;
 };
 
 struct Evaluation {
@@ -52,6 +55,9 @@ struct ClosedLoopMetrics {
   std::optional<double> handover_s;
 };
 ClosedLoopMetrics ComputeClosedLoopMetrics(const RunRecord& flight);
+/// Why a closed-loop flight failed: the simulation's failure, else its flying method's
+/// (a client that failed during or at the end of the flight); nullopt for a sound flight.
+std::optional<std::string> ClosedLoopFlightFailure(const RunRecord& flight);
 /// The metrics and the pilot's events as summary.json holds them.
 nlohmann::json ClosedLoopJson(const RunRecord& flight);
 

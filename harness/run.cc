@@ -15,6 +15,7 @@
 #include <thread>
 #include <variant>
 
+#include "core/digest.h"
 #include "core/error.h"
 #include "core/lie.h"
 #include "core/random.h"
@@ -150,9 +151,14 @@ class Flight {
  public:
   Flight(const Scenario& scenario, const SimulateOptions& options, RunRecord& record)
       : scenario_(scenario), options_(options), record_(record) {
-    BuildWorld();
-    BuildSensors();
-    BuildConsumers();
+    core::RandomStreamLedger random_streams;
+    {
+      const core::RandomStreamLedger::Scope scope(random_streams);
+      BuildWorld();
+      BuildSensors();
+      BuildConsumers();
+    }
+    record_.random_streams_digest = random_streams.Digest();
     wall_start_ = std::chrono::steady_clock::now();  // the flight's wall time, not the set-up's
   }
 
@@ -208,6 +214,7 @@ class Flight {
       Release(0, true);
       record_.in_loop = in_loop_->Finish();
     }
+    if (!in_loop_->empty()) record_.samples_digest = samples_digest_.value();
     if (pilot_) record_.closed_loop->events = pilot_->events();
     if (ended_after_collision_) record_.closed_loop->events.push_back(*ended_after_collision_);
     // Scheduled faults as labels, merged with the condition transitions by time.
@@ -502,6 +509,9 @@ class Flight {
     const auto feed = [&](bool clean) {
       return [&, clean](const ArrivedSample& a) {
         if (a.sample->arrival_ns < released_until_ns_) ++record_.late_samples;
+        samples_digest_.Add(record_.sensors[a.stream].name).Add(uint64_t{clean});
+        samples_digest_.Add(static_cast<uint64_t>(a.sample->t_ns)).Add(static_cast<uint64_t>(a.sample->arrival_ns));
+        core::HashMeasurement(a.sample->measured, samples_digest_);
         in_loop_->Feed(clean, record_.sensors, a);
       };
     };
@@ -574,6 +584,7 @@ class Flight {
   std::optional<ArrivalQueue> delivered_queue_;
   std::optional<ArrivalQueue> clean_queue_;
   core::Time released_until_ns_ = std::numeric_limits<core::Time>::min();
+  core::Fnv1a64Hasher samples_digest_;
 
   // Clocks and what the steps watch.
   core::Time dt_ns_ = 0;

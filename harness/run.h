@@ -107,6 +107,12 @@ struct RunRecord {
   /// Samples released to the in-loop consumers after a later-arriving one (a model whose
   /// sample arrives before the step it was produced in); 0 in a correct run.
   std::size_t late_samples = 0;
+  /// What makes two runs comparable sample by sample (core/digest.h): a digest of the
+  /// samples the in-loop methods were given, in the order given (each with its stream and
+  /// whether it came from the clean stream; nullopt when no method ran), and of the random
+  /// streams the flight drew from (common random numbers when equal).
+  std::optional<uint64_t> samples_digest;
+  uint64_t random_streams_digest = 0;
   /// With scenario.estimation: each method's scores (filled when the run directory is
   /// written, by EvaluateEstimation).
   std::vector<MethodEvaluation> methods;

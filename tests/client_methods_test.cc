@@ -7,7 +7,12 @@
 //  - a bad client (cannot start, exits early, hangs, malformed, NaN, time backwards, wrong
 //    seq, another version, its own error) fails its method with the method, message and
 //    field named and its last stderr lines in the run log, every other method is still
-//    scored, the run exits 3 and no client process is left, also on SIGTERM.
+//    scored, the run exits 5 (a client failed; 3 is the simulation's own failure) and no
+//    client process is left, also on SIGTERM;
+//  - a failed client is scored as a failure: its figures in summary.json are null (what it
+//    measured up to the failure kept apart under `partial`), an expectation on it fails as
+//    not measurable, the summary's top-level `failure` names it, and `tofu check` marks that
+//    method alone (its table row, a JUnit test case) and exits 5.
 
 #include <signal.h>
 #include <sys/wait.h>
@@ -81,7 +86,8 @@ struct Result {
 
 Result RunTofu(const std::string& args, const fs::path& cwd) {
   const std::string command = "cd " + test::Quote(cwd.string()) + " && " +
-                              test::Quote(TOFU_BINARY) + " " + args + " >/dev/null 2>" +
+                              test::Quote(TOFU_BINARY) + " " + args + " >" +
+                              test::Quote((cwd / "stdout.txt").string()) + " 2>" +
                               test::Quote((cwd / "stderr.txt").string());
   const int status = std::system(command.c_str());
   return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, test::ReadFile(cwd / "stderr.txt")};
@@ -175,7 +181,7 @@ struct BadCase {
 
 class BadClient : public ::testing::TestWithParam<BadCase> {};
 
-TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsThreeAndLeavesNoProcess) {
+TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsFiveAndLeavesNoProcess) {
   const BadCase& c = GetParam();
   const fs::path work = test::PerTestDirectory("bad_client_" + c.name + "_");
   fs::create_directories(work);
@@ -187,9 +193,12 @@ TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsThreeAndLeavesNoProcess) {
   }
   const std::string clients =
       "external:\n  bad: {command: " + command + c.options + "}\n";
-  test::WriteFile(work / "s.yaml", Scenario(clients, R"([consensus, "external:bad"])"));
+  test::WriteFile(work / "s.yaml",
+                  Scenario(clients, R"([consensus, "external:bad"])") +
+                      "expect:\n  - {metric: methods.external:bad.ate_m, max: 1000}\n"
+                      "  - {metric: methods.consensus.ate_m, max: 1000}\n");
   const Result run = RunTofu("run s.yaml --out R --quiet", work);
-  EXPECT_EQ(run.exit_code, 3) << run.err;
+  EXPECT_EQ(run.exit_code, 5) << run.err;
   EXPECT_CONTAINS(run.err, "external:bad");
   EXPECT_CONTAINS(run.err, c.expected_message);
   if (!c.script.empty()) {
@@ -201,6 +210,18 @@ TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsThreeAndLeavesNoProcess) {
   EXPECT_FALSE(summary["methods"]["consensus"].contains("failure"));
   ASSERT_TRUE(summary["methods"]["external:bad"].contains("failure"));
   EXPECT_CONTAINS(summary["methods"]["external:bad"]["failure"].get<std::string>(), c.expected_message);
+  // No figure of the failed method looks healthy, and an expectation on it fails.
+  EXPECT_TRUE(summary["methods"]["external:bad"]["ate_m"].is_null());
+  EXPECT_TRUE(summary["methods"]["external:bad"]["valid_fraction"].is_null());
+  EXPECT_TRUE(summary["methods"]["external:bad"]["partial"].is_object());
+  EXPECT_EQ(summary["failure_kind"], "client");
+  EXPECT_CONTAINS(summary["failure"].get<std::string>(), "external:bad");
+  ASSERT_EQ(summary["expectations"].size(), 2u);
+  EXPECT_FALSE(summary["expectations"][0]["passed"].get<bool>());
+  EXPECT_CONTAINS(summary["expectations"][0]["not_measurable"].get<std::string>(),
+                  "method external:bad failed");
+  EXPECT_TRUE(summary["expectations"][1]["passed"].get<bool>());
+  EXPECT_FALSE(summary["passed"].get<bool>());
   EXPECT_FALSE(ProcessAlive(work / "pid.txt")) << "the client is still running";
   fs::remove_all(work);
 }
@@ -239,7 +260,8 @@ INSTANTIATE_TEST_SUITE_P(
     [](const ::testing::TestParamInfo<BadCase>& param) { return param.param.name; });
 
 // A closed-loop flight whose estimator fails only at the end (exits 1 after finished):
-// the flight is scored, the failure is the run's (exit 3), in its closed_loop entry.
+// its figures are null (kept under `partial`), the failure is the run's (exit 5), in its
+// closed_loop entry; an expectation on the flight fails.
 TEST(ClientMethods, AClientFailingAfterAClosedLoopFlightFailsTheRun) {
   const fs::path work = test::PerTestDirectory("client_closed_loop_finish_");
   fs::create_directories(work);
@@ -254,15 +276,47 @@ TEST(ClientMethods, AClientFailingAfterAClosedLoopFlightFailsTheRun) {
   test::WriteFile(work / "s.yaml",
                   Scenario("external:\n  bad: {command: [/usr/bin/python3, bad.py]}\n",
                            R"([consensus, "external:bad"])",
-                           "control:\n  state_source: estimate\n  methods: [\"external:bad\"]\n"));
+                           "control:\n  state_source: estimate\n  methods: [\"external:bad\"]\n"
+                           "expect:\n  - {metric: closed_loop.external:bad.collisions, max: 0}\n"));
   const Result run = RunTofu("run s.yaml --out R --quiet", work);
-  EXPECT_EQ(run.exit_code, 3) << run.err;
+  EXPECT_EQ(run.exit_code, 5) << run.err;
   EXPECT_CONTAINS(run.err, "closed-loop flight on external:bad");
   EXPECT_CONTAINS(run.err, "exited with status 1");
   const auto summary = nlohmann::json::parse(test::ReadFile(work / "R" / "summary.json"));
   EXPECT_TRUE(summary["closed_loop"]["external:bad"]["failure"].is_string());
-  EXPECT_TRUE(summary["closed_loop"]["external:bad"]["tracking_rmse_m"].is_number());
+  EXPECT_TRUE(summary["closed_loop"]["external:bad"]["tracking_rmse_m"].is_null());
+  EXPECT_TRUE(summary["closed_loop"]["external:bad"]["partial"]["tracking_rmse_m"].is_number());
+  EXPECT_FALSE(summary["expectations"][0]["passed"].get<bool>());
+  EXPECT_CONTAINS(summary["expectations"][0]["not_measurable"].get<std::string>(),
+                  "closed-loop flight on external:bad failed");
   EXPECT_FALSE(summary["passed"].get<bool>());
+  fs::remove_all(work);
+}
+
+// `tofu check` over a run whose client exits early: only that method is marked failed, in
+// the table, the method table and a JUnit test case of its own; the check exits 5 and
+// names the cause, not "simulation failed".
+TEST(ClientMethods, ACheckMarksTheFailedClientAloneAndExitsFive) {
+  const fs::path work = test::PerTestDirectory("client_check_");
+  fs::create_directories(work);
+  test::WriteFile(work / "bad.py", MisbehavingClient("            sys.exit(5)", 500));
+  test::WriteFile(work / "s.yaml",
+                  Scenario("external:\n  bad: {command: [/usr/bin/python3, bad.py]}\n",
+                           R"([consensus, "external:bad"])") +
+                      "expect:\n  - {metric: methods.consensus.ate_m, max: 1000}\n");
+  const Result check = RunTofu("check s.yaml --out C --junit junit.xml", work);
+  EXPECT_EQ(check.exit_code, 5) << check.err;
+  const std::string table = test::ReadFile(work / "stdout.txt");
+  EXPECT_CONTAINS(table, "FAILED in 1/1 seeds: external:bad");
+  EXPECT_CONTAINS(table, "failed clients:");
+  const std::string junit = test::ReadFile(work / "junit.xml");
+  EXPECT_CONTAINS(junit, "name=\"method external:bad\"");
+  EXPECT_CONTAINS(junit, "type=\"client\"");
+  EXPECT_EQ(junit.find("simulation failed"), std::string::npos) << junit;
+  EXPECT_CONTAINS(test::ReadFile(work / "C" / "methods.md"), "external:bad **FAILED in 1 of 1 seeds");
+  const auto record = nlohmann::json::parse(test::ReadFile(work / "C" / "check.json"));
+  EXPECT_EQ(record["runs"][0]["exit_code"], 5);
+  EXPECT_CONTAINS(record["runs"][0]["client_failure"].get<std::string>(), "external:bad");
   fs::remove_all(work);
 }
 

@@ -2,12 +2,13 @@
 # DESIGN.md's layer table, checked: each layer's files may include the project layers and
 # the heavy third-party libraries of its own row and nothing else of them. The table below
 # is that table; a change to it is a change to DESIGN.md first.
-#   project layers: core sim estimator interface replay harness renders report corpus apps,
+#   project layers: core sim estimator interface replay harness renders report corpus campaign
+#   apps,
 #   and tofu/ (the installed api, include/tofu)
 #   guarded third-party headers: mujoco/ (MuJoCo), ceres/ (Ceres)
 set -u
 root="${1:?usage: layering_check.sh SOURCE_DIR}"
-layers=(core sim estimator interface replay harness renders report corpus apps tofu mujoco ceres)
+layers=(core sim estimator interface replay harness renders report corpus campaign apps tofu mujoco ceres)
 declare -A may_include=(
   [core]="core"
   [sim]="core sim mujoco"
@@ -18,7 +19,8 @@ declare -A may_include=(
   [renders]="core sim replay renders mujoco"
   [report]="core sim replay harness renders report mujoco"
   [corpus]="core sim replay harness corpus"
-  [apps]="core sim estimator interface replay harness renders report corpus apps tofu"
+  [campaign]="core replay campaign"
+  [apps]="core sim estimator interface replay harness renders report corpus campaign apps tofu"
   [include]="tofu"
 )
 declare -A why=(
@@ -31,6 +33,7 @@ declare -A why=(
   [renders]="renders read the run directory (replay's schema), never the scenario loader"
   [report]="reports read finished runs; the CLI calls them"
   [corpus]="corpora are built from harness runs"
+  [campaign]="campaigns read many flights' typed records, never fly one themselves"
   [apps]="the CLI is the top"
   [include]="the public api is header-only and free of tofu's internals and Eigen"
 )

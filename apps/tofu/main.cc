@@ -26,6 +26,7 @@
 #include "core/units.h"
 #include "core/version.h"
 #include "tofu/api.h"
+#include "campaign/compare_command.h"
 #include "corpus/corpus_command.h"
 #include "harness/check_command.h"
 #include "harness/evaluation.h"
@@ -113,6 +114,8 @@ std::string FormatValue(const std::optional<double>& v) {
   return v ? fmt::format("{:.4g}", *v) : std::string("n/a");
 }
 
+std::string FirstLine(const std::string& text) { return text.substr(0, text.find('\n')); }
+
 void PrintReport(const tofu::harness::RunRecord& record,
                  const tofu::harness::Evaluation& evaluation, const std::string& out_dir) {
   fmt::print("run directory: {}\n", out_dir);
@@ -131,6 +134,11 @@ void PrintReport(const tofu::harness::RunRecord& record,
     fmt::print("{:<24} {:>9} {:>9} {:>7} {:>10} {:>9} {:>9}\n", "method", "ATE [m]", "rot [deg]",
                "NEES", "detected", "switches", "x RT");
     for (const tofu::harness::MethodEvaluation& m : record.methods) {
+      if (m.failure) {
+        // A failed method's partial figures would look healthy: its row says why instead.
+        fmt::print("{:<24} FAILED: {}\n", m.method, FirstLine(*m.failure));
+        continue;
+      }
       const std::string detected =
           m.consensus ? fmt::format("{}/{}", m.detections.size() - m.missed_faults(),
                                     m.detections.size())
@@ -148,6 +156,10 @@ void PrintReport(const tofu::harness::RunRecord& record,
                "trk [m]", "max [m]", "est [m]", "hits", "dist [m]", "fail", "handover",
                "upd p99 ms", "x RT");
     for (const tofu::harness::RunRecord& flight : record.closed_loop_flights) {
+      if (const std::optional<std::string> failure = tofu::harness::ClosedLoopFlightFailure(flight)) {
+        fmt::print("{:<20} FAILED: {}\n", flight.closed_loop->method, FirstLine(*failure));
+        continue;
+      }
       const tofu::harness::ClosedLoopMetrics m = tofu::harness::ComputeClosedLoopMetrics(flight);
       std::vector<double> solve_ms;
       if (!flight.in_loop.empty()) {
@@ -183,7 +195,9 @@ void PrintReport(const tofu::harness::RunRecord& record,
       }
       fmt::print("{:<{}} {:>10} {:>10} {:>10}  {}\n", metric, width, FormatValue(r.value),
                  FormatValue(r.expectation.min), FormatValue(r.expectation.max),
-                 r.passed ? "pass" : "FAIL");
+                 r.passed                ? std::string("pass")
+                 : r.not_measurable ? "FAIL (not measurable: " + FirstLine(*r.not_measurable) + ")"
+                                    : std::string("FAIL"));
     }
   }
   fmt::print("{}\n", evaluation.passed ? "PASSED" : "FAILED");
@@ -308,10 +322,10 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   for (const std::string& failure : evaluation.client_failures) {
     fmt::print(stderr, "tofu: CLIENT FAILED: {}\n", failure);
   }
-  const int status = record.failure || !evaluation.client_failures.empty()
-                         ? tofu::core::kExitSimulationError
-                     : evaluation.passed ? tofu::core::kExitOk
-                                         : tofu::core::kExitExpectationFailed;
+  const int status = record.failure                        ? tofu::core::kExitSimulationError
+                     : !evaluation.client_failures.empty() ? tofu::core::kExitClientFailed
+                     : evaluation.passed                   ? tofu::core::kExitOk
+                                                           : tofu::core::kExitExpectationFailed;
   // `render:` the failure events, after the run directory is complete.
   if (scenario.render && (scenario.render->always || status != tofu::core::kExitOk)) {
     return RenderScenarioEvents(*scenario.render, out, quiet, status);
@@ -472,6 +486,54 @@ Command AddMetricsCommand(CLI::App& parent) {
             }
             return static_cast<int>(tofu::core::kExitOk);
           }};
+}
+
+Command AddCompareCommand(CLI::App& parent) {
+  auto o = std::make_shared<tofu::campaign::CompareCommandOptions>();
+  CLI::App* compare = parent.add_subcommand(
+      "compare",
+      "Better or worse, and by how much: paired statistics between two checks (or baselines) "
+      "of the same scenarios and seeds, or between two methods of one check");
+  compare->add_option("inputs", o->inputs,
+                      "BASE NEW: check directories (tofu check --out) or baseline files "
+                      "(tofu baseline); with --methods, one check directory")
+      ->required();
+  compare->add_option("--methods", o->methods, "BASE_METHOD NEW_METHOD within one check")
+      ->expected(2);
+  compare->add_option("--markdown", o->markdown_path, "Write the summary as markdown (a pull-request comment)");
+  compare->add_option("--json", o->json_path, "Write every cell's statistics and seeds as JSON");
+  compare->add_option("--min-effect", o->min_effects,
+                      "NAME=VALUE: the smallest change that counts for a metric pattern "
+                      "(methods.<method>.ate_m=0.1: 10 %) or a concrete metric; repeatable");
+  compare->add_option("--fdr", o->fdr, "False-discovery rate of the improved/regressed verdicts")
+      ->capture_default_str();
+  compare->add_option("--fdr-procedure", o->fdr_procedure,
+                      "bh (Benjamini-Hochberg: positively dependent tests) or by "
+                      "(Benjamini-Yekutieli: any dependence)")
+      ->capture_default_str();
+  compare->add_flag("--unpaired", o->unpaired,
+                    "Compare the seed sets as independent samples (other seeds on each side)");
+  compare->add_flag("--quiet", o->quiet, "No table");
+  compare->footer("Exit 0: nothing regressed; 1: a cell regressed; 2: the inputs cannot be compared "
+                  "(another grid, scenario file, seed set, tofu or metric version), nothing written.");
+  return {compare, false, [o] { return tofu::campaign::RunCompareCommand(*o); }};
+}
+
+Command AddBaselineCommand(CLI::App& parent) {
+  struct Options {
+    std::string check_dir;
+    std::string out;
+    bool quiet = false;
+  };
+  auto o = std::make_shared<Options>();
+  CLI::App* baseline = parent.add_subcommand(
+      "baseline", "Write a check's cells (metrics, digests, scenario hashes, versions) as a "
+                  "baseline file for tofu compare");
+  baseline->add_option("check", o->check_dir, "A check directory (tofu check --out)")->required();
+  baseline->add_option("--out", o->out, "The baseline file")->required();
+  baseline->add_flag("--quiet", o->quiet, "Print nothing");
+  return {baseline, false,
+          [o] { return tofu::campaign::RunBaselineCommand(o->check_dir, o->out, o->quiet); }};
 }
 
 // `tofu check ... --report DIR`: the check, then the HTML report of this check's runs.
@@ -776,6 +838,8 @@ int main(int argc, char** argv) {
   commands.push_back(AddValidateCommand(app));
   commands.push_back(AddMetricsCommand(app));
   commands.push_back(AddCheckCommand(app));
+  commands.push_back(AddCompareCommand(app));
+  commands.push_back(AddBaselineCommand(app));
   commands.push_back(AddConsistencyCommand(app));
   commands.push_back(AddEstimateCommand(app));
   commands.push_back(AddRenderCommand(app));
