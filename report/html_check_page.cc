@@ -99,9 +99,12 @@ CheckScenario ReadCheckScenario(const fs::path& check_dir, const std::string& na
       }
       r.scenario = ReadScenarioFile(fs::path(r.run.run_dir) / "scenario.yaml");
       const std::string failure = StringField(r.run.summary, "failure");
-      // As `tofu run` exits: 3 when the simulation failed, else 1 when an expectation (or
-      // a closed-loop flight) failed.
-      if (!failure.empty()) {
+      // As `tofu run` exits: 3 when the simulation failed, 5 when a user's client did, else
+      // 1 when an expectation (or a closed-loop flight) failed.
+      if (!failure.empty() && StringField(r.run.summary, "failure_kind") == "client") {
+        r.run.exit_code = core::kExitClientFailed;
+        r.run.client_failure = failure;
+      } else if (!failure.empty()) {
         r.run.exit_code = core::kExitSimulationError;
         r.run.error = "simulation failed: " + failure;
       } else {

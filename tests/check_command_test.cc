@@ -473,7 +473,7 @@ harness::Expectation MaxExpectation(double max, double pass_fraction) {
 }
 
 TEST(CheckAggregation, ExpectationPassesWhenItHeldInEnoughSeeds) {
-  const std::vector<SeedOutcome> two_of_three = {{1, 0.1, true}, {2, 0.3, false}, {3, 0.2, true}};
+  const std::vector<SeedOutcome> two_of_three = {{1, 0.1, true, ""}, {2, 0.3, false, ""}, {3, 0.2, true, ""}};
   const auto a = AggregateExpectation(MaxExpectation(0.25, 0.6), two_of_three);
   EXPECT_EQ(a.held, 2);
   EXPECT_EQ(a.required, 2);

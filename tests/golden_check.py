@@ -35,7 +35,11 @@ against the previous binary's run with those keys removed, nothing else differed
 when the LiDAR odometry's twist covariance started to state its scan's degeneracy (issue 34
 item 3: the lio/lidar CSVs of wall_contact_inspection and wall_sensors, whose LiDAR
 odometry is degenerate, differ only in the velocity block of cov_twist; every estimate is
-unchanged, the paper's metric reading no covariance).
+unchanged, the paper's metric reading no covariance), and when every summary.json gained
+`digests` (the samples the methods saw and the random streams, issue 52) and
+`failure_kind` (issue 55): only the 16 summary.json files differed, each equal to the
+golden one once those keys are removed (checked by re-serialising; every other file
+byte-identical).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)
