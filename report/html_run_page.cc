@@ -388,6 +388,8 @@ std::string RunPageHtml(const RunInputs& in, const PageContext& ctx) {
   const std::string name =
       !in.data.scenario_name.empty() ? in.data.scenario_name : StringField(s, "scenario");
   const std::string failure = StringField(s, "failure");
+  // summary.json's one place for what failed: the simulation, or a user's client.
+  const bool client_failed = StringField(s, "failure_kind") == "client";
   const bool passed = s.value("passed", false);
   const auto seed = OptionalNumber(s, "seed");
   std::string page = PageHead(fmt::format("{} — tofu run report", name));
@@ -420,14 +422,15 @@ std::string RunPageHtml(const RunInputs& in, const PageContext& ctx) {
       "<header class=\"top {}\">{}<h1>{} {}</h1>\n{}<div class=\"facts\">{}</div>\n"
       "<div class=\"sub\">tofu run directory {}</div>\n</header>\n<main>\n",
       passed ? "pass" : "fail", nav.empty() ? "" : "<nav>" + nav + "</nav>", E(name),
-      Badge(passed, "PASSED", failure.empty() ? "FAILED" : "SIMULATION FAILED"),
+      Badge(passed, "PASSED",
+            failure.empty() ? "FAILED" : client_failed ? "CLIENT FAILED" : "SIMULATION FAILED"),
       description.empty() ? "" : "<div class=\"description\">" + E(description) + "</div>\n",
       fact_line, E(fs::absolute(in.dir).lexically_normal().string()));
 
   std::string scenario;
   if (!failure.empty()) {
-    scenario += fmt::format("<p class=\"failure\"><strong>Simulation failed:</strong> {}</p>\n",
-                            E(failure));
+    scenario += fmt::format("<p class=\"failure\"><strong>{} failed:</strong> {}</p>\n",
+                            client_failed ? "A client" : "Simulation", E(failure));
   }
   scenario += fmt::format(
       "<details><summary>scenario.yaml (resolved: every default filled "
