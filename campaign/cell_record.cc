@@ -9,6 +9,7 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "core/version.h"
+#include "replay/json_field.h"
 
 namespace tofu::campaign {
 namespace {
@@ -94,13 +95,7 @@ json ReadJsonFile(const fs::path& file) {
 
 template <typename T>
 T Field(const json& object, const char* key, const fs::path& file, const char* expected) {
-  const auto it = object.find(key);
-  try {
-    if (it != object.end()) return it->get<T>();
-  } catch (const json::exception&) {
-    // Said below, with the expected form.
-  }
-  throw InputError({file.string()}, key, fmt::format("expected {}", expected));
+  return replay::JsonField<T>(object, key, file, expected);
 }
 
 std::map<std::string, int> CurrentMetricVersions() {

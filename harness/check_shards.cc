@@ -13,6 +13,7 @@
 #include "core/file_io.h"
 #include "core/hash.h"
 #include "replay/file_io.h"
+#include "replay/json_field.h"
 #include "replay/interrupt.h"
 
 namespace tofu::harness {
@@ -67,13 +68,7 @@ std::vector<uint64_t> CellsOf(const CheckGrid& grid, const Shard& shard) {
 // wrong type.
 template <typename T>
 T Field(const json& object, const char* key, const fs::path& file, const char* expected) {
-  const auto it = object.find(key);
-  try {
-    if (it != object.end()) return it->get<T>();
-  } catch (const json::exception&) {
-    // Said below, with the expected form.
-  }
-  throw InputError({file.string()}, key, fmt::format("expected {} ({})", expected, kRecordForm));
+  return replay::JsonField<T>(object, key, file, fmt::format("{} ({})", expected, kRecordForm));
 }
 
 // The record's runs by cell; each must be a cell of `grid` that the record's shard owns.
