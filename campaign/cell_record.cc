@@ -98,13 +98,13 @@ T Field(const json& object, const char* key, const fs::path& file, const char* e
   return replay::JsonField<T>(object, key, file, expected);
 }
 
+}  // namespace
+
 std::map<std::string, int> CurrentMetricVersions() {
   std::map<std::string, int> versions;
   for (const ComparedMetric& m : ComparedMetrics()) versions[m.Pattern()] = m.version;
   return versions;
 }
-
-}  // namespace
 
 CellRecord CellFromSummary(const std::string& scenario, uint64_t seed,
                            const std::string& scenario_hash, int exit_code,

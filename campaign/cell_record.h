@@ -49,6 +49,10 @@ struct CampaignRecord {
   std::vector<CellRecord> cells;  ///< by scenario (in check order), then seed
 };
 
+/// Each comparable metric's definition version in this tofu, by pattern
+/// ("methods.<method>.ate_m"): what a campaign flown now records.
+std::map<std::string, int> CurrentMetricVersions();
+
 /// The typed record of one run: its summary.json (null when the run has none) read through
 /// the table of comparable metrics.
 CellRecord CellFromSummary(const std::string& scenario, uint64_t seed,

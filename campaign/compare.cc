@@ -563,6 +563,15 @@ std::string NText(const CellComparison& c) {
 
 }  // namespace
 
+std::string CellFigures(const CellComparison& cell) {
+  const std::string n = cell.pairing == Pairing::kUnpaired
+                            ? fmt::format("{} + {} seeds", cell.base_count, cell.new_count)
+                            : fmt::format("{} pairs", cell.pairs);
+  return fmt::format("{} {} over {} ({}), minimal {}, {}", cell.new_name, EffectText(cell), n,
+                     PairingName(cell.pairing), MinimalText(cell),
+                     cell.note.empty() ? fmt::format("p adj {:.3g}", cell.p_adjusted) : cell.note);
+}
+
 std::string ComparisonTable(const Comparison& comparison) {
   struct Row {
     std::string cells[9];

@@ -103,6 +103,10 @@ Comparison CompareCampaigns(const CampaignRecord& base, const CampaignRecord& no
 Comparison CompareMethods(const CampaignRecord& campaign, const std::string& base_method,
                           const std::string& new_method, const CompareOptions& options);
 
+/// One cell's figures on one line, for a failure message: "methods.consensus.ate_m x1.231
+/// [1.150, 1.304] over 8 pairs (identical samples), minimal 5 %, p adj 0.0039".
+std::string CellFigures(const CellComparison& cell);
+
 /// The terminal table: regressions first, then improvements, inconclusive, unchanged.
 std::string ComparisonTable(const Comparison& comparison);
 /// The same as markdown, for a pull-request comment: a summary line and the table of

@@ -144,9 +144,9 @@ void WriteCheckPages(CheckScenario& sc, const fs::path& staging) {
       r.run.error = std::string("unreadable run directory: ") + e.what();
     }
   }
-  std::vector<harness::SeedRun> runs;
+  std::vector<campaign::SeedRun> runs;
   for (const CheckRun& r : sc.runs) runs.push_back(r.run);
-  sc.check = harness::EvaluateScenarioCheck(ScenarioOfRuns(sc.name, sc.runs), std::move(runs));
+  sc.check = campaign::EvaluateScenarioCheck(ScenarioOfRuns(sc.name, sc.runs), std::move(runs));
 }
 
 namespace {
@@ -177,7 +177,7 @@ std::string SeedLink(const CheckScenario& sc, const CheckRun& r) {
   return fmt::format("seed {}", r.run.seed);
 }
 
-std::string ScenarioResult(const harness::ScenarioCheck& c) {
+std::string ScenarioResult(const campaign::ScenarioCheck& c) {
   if (!c.runs_ok) return "<span class=\"badge fail\">ERROR</span>";
   return Badge(c.passed, "pass", "FAIL");
 }
@@ -185,18 +185,18 @@ std::string ScenarioResult(const harness::ScenarioCheck& c) {
 std::string CheckSummaryTable(const std::vector<CheckScenario>& scenarios) {
   std::string rows;
   for (const CheckScenario& sc : scenarios) {
-    const harness::ScenarioCheck& c = sc.check;
+    const campaign::ScenarioCheck& c = sc.check;
     int held = 0;
     for (const auto& a : c.expectations) held += a.passed ? 1 : 0;
     std::string methods;
-    for (const harness::MethodStats& m : c.methods) {
+    for (const campaign::MethodStats& m : c.methods) {
       methods += fmt::format(
           "<div><code>{}</code> {}{}</div>", E(m.method),
           m.ate_mean_m ? Number(*m.ate_mean_m) + " m" : "–",
           m.has_detections ? fmt::format(", {}/{} faults detected", m.faults_detected, m.faults)
                            : "");
     }
-    for (const harness::ClosedLoopStats& f : c.closed_loop) {
+    for (const campaign::ClosedLoopStats& f : c.closed_loop) {
       methods += fmt::format("<div>flown on <code>{}</code>: trk {}, {} hits</div>", E(f.method),
                              f.tracking_rmse_mean_m ? Number(*f.tracking_rmse_mean_m) + " m" : "–",
                              f.collisions);
@@ -225,7 +225,7 @@ std::string CheckSummaryTable(const std::vector<CheckScenario>& scenarios) {
 
 // The matrix's first row: how each seed's run went.
 std::string RunRow(const CheckScenario& sc) {
-  const harness::ScenarioCheck& c = sc.check;
+  const campaign::ScenarioCheck& c = sc.check;
   std::string cells;
   for (const CheckRun& r : sc.runs) {
     // A run that worked but failed an expectation is no error of the run: neutral here,
@@ -242,9 +242,9 @@ std::string RunRow(const CheckScenario& sc) {
 }
 
 // A row of the matrix: the expectation's value in each seed, and its verdict over them.
-std::string ExpectationRow(const harness::AggregatedExpectation& a) {
+std::string ExpectationRow(const campaign::AggregatedExpectation& a) {
   std::string cells;
-  for (const harness::SeedOutcome& o : a.seeds) {
+  for (const campaign::SeedOutcome& o : a.seeds) {
     cells += fmt::format("<td class=\"cell num {}\">{} {}</td>", o.held ? "pass" : "fail",
                          o.value ? Number(*o.value) : "n/a", o.held ? "✔" : "✘");
   }
@@ -252,7 +252,7 @@ std::string ExpectationRow(const harness::AggregatedExpectation& a) {
       "<tr class=\"{}\"><td><code>{}</code><div class=\"where\">{}</div></td><td "
       "class=\"num\">{}/{}</td>{}"
       "<td class=\"result\">{}</td></tr>\n",
-      a.passed ? "pass" : "fail", E(harness::ExpectationLabel(a.expectation)),
+      a.passed ? "pass" : "fail", E(campaign::ExpectationLabel(a.expectation)),
       E(fmt::format("{}:{}", a.expectation.location.file, a.expectation.location.line)),
       a.required, a.seeds.size(), cells,
       a.passed ? fmt::format("held {}/{}", a.held, a.seeds.size())
@@ -264,7 +264,7 @@ std::string ExpectationMatrix(const CheckScenario& sc) {
   std::string head;
   for (const CheckRun& r : sc.runs) head += fmt::format("<th>{}</th>", SeedLink(sc, r));
   std::string rows = RunRow(sc);
-  for (const harness::AggregatedExpectation& a : sc.check.expectations) rows += ExpectationRow(a);
+  for (const campaign::AggregatedExpectation& a : sc.check.expectations) rows += ExpectationRow(a);
   return fmt::format(
       "<table "
       "class=\"matrix\">\n<thead><tr><th>expectation</th><th>needs</th>{}<th>result</th></tr></"
@@ -276,10 +276,10 @@ std::string ExpectationMatrix(const CheckScenario& sc) {
 // Methods per seed (ATE) and closed-loop flights per seed (tracking RMSE); none without
 // either.
 std::string MethodsPerSeedTable(const CheckScenario& sc) {
-  const harness::ScenarioCheck& c = sc.check;
+  const campaign::ScenarioCheck& c = sc.check;
   if (c.methods.empty() && c.closed_loop.empty()) return "";
   std::string mrows;
-  for (const harness::MethodStats& m : c.methods) {
+  for (const campaign::MethodStats& m : c.methods) {
     std::string cells;
     for (const CheckRun& r : sc.runs) {
       const json methods = r.run.summary.is_object()
@@ -293,7 +293,7 @@ std::string MethodsPerSeedTable(const CheckScenario& sc) {
         E(m.method), cells, m.ate_mean_m ? Number(*m.ate_mean_m) : "–",
         m.has_detections ? fmt::format("{}/{}", m.faults_detected, m.faults) : "–");
   }
-  for (const harness::ClosedLoopStats& f : c.closed_loop) {
+  for (const campaign::ClosedLoopStats& f : c.closed_loop) {
     std::string cells;
     for (const CheckRun& r : sc.runs) {
       const json flights = r.run.summary.is_object()
@@ -337,7 +337,7 @@ std::string RunFailureNotes(const CheckScenario& sc) {
 }
 
 std::string ScenarioDetail(const CheckScenario& sc) {
-  const harness::ScenarioCheck& c = sc.check;
+  const campaign::ScenarioCheck& c = sc.check;
   std::string out =
       fmt::format("<section class=\"scenario\" id=\"scenario-{}\">\n<h2><code>{}</code> {}</h2>\n",
                   E(sc.name), E(sc.name), ScenarioResult(c));

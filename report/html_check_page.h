@@ -7,13 +7,13 @@
 #include <string>
 #include <vector>
 
-#include "harness/check_command.h"
+#include "campaign/check_command.h"
 #include "report/html_inputs.h"
 
 namespace tofu::report::html {
 
 struct CheckRun {
-  harness::SeedRun run;
+  campaign::SeedRun run;
   std::optional<ScenarioFile> scenario;  ///< its scenario.yaml (pass_fraction), when readable
   bool has_page = false;                 ///< its page was written
   std::string read_error;                ///< why the run has no page
@@ -23,7 +23,7 @@ struct CheckRun {
 struct CheckScenario {
   std::string name;
   std::vector<CheckRun> runs;
-  harness::ScenarioCheck check;
+  campaign::ScenarioCheck check;
 };
 
 /// The runs of one scenario folder, their summaries read (a check may hold thousands of

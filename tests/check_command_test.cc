@@ -26,7 +26,7 @@
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
-#include "harness/check_command.h"
+#include "campaign/check_command.h"
 #include "harness/scenario.h"
 #include "harness/yaml_reader.h"
 #include "tests/test_support.h"
@@ -38,12 +38,12 @@ namespace fs = std::filesystem;
 using test::ReadFile;
 using test::WriteFile;
 using test::Quote;
-using harness::AggregateExpectation;
-using harness::CheckJUnitXml;
-using harness::EvaluateScenarioCheck;
-using harness::RequiredPasses;
-using harness::SeedOutcome;
-using harness::SeedRun;
+using campaign::AggregateExpectation;
+using campaign::CheckJUnitXml;
+using campaign::EvaluateScenarioCheck;
+using campaign::RequiredPasses;
+using campaign::SeedOutcome;
+using campaign::SeedRun;
 
 
 // A 3 s hover in the indoor arena with light gusts (so that seeds differ) and the given
@@ -390,7 +390,7 @@ fs::path FakeTofu(const fs::path& dir, const std::string& body) {
 TEST_F(CheckCommandTest, FailedSimulationExitsThreeAndFailsTheRunCase) {
   const fs::path file = scenarios_ / "crash.yaml";
   WriteFile(file, HoverScenario("crash", {"{metric: collisions.count, max: 0}"}));
-  harness::CheckCommandOptions options;
+  campaign::CheckCommandOptions options;
   options.inputs = {file.string()};
   options.seeds = 2;
   options.out_dir = out_.string();
@@ -403,7 +403,7 @@ TEST_F(CheckCommandTest, FailedSimulationExitsThreeAndFailsTheRunCase) {
                                  "fi\n"
                                  "kill -KILL $$\n")
                             .string();
-  EXPECT_EQ(harness::RunCheckCommand(options), 3);
+  EXPECT_EQ(campaign::RunCheckCommand(options), 3);
   const pugi::xml_document doc = JUnit();
   const pugi::xml_node run = Suite(doc, "crash").find_child_by_attribute("testcase", "name", "run");
   ASSERT_TRUE(run.child("failure"));
@@ -421,7 +421,7 @@ TEST_F(CheckCommandTest, FailedSimulationExitsThreeAndFailsTheRunCase) {
 TEST_F(CheckCommandTest, RendersOfFailingRunsAreAttached) {
   const fs::path file = scenarios_ / "rendered.yaml";
   WriteFile(file, HoverScenario("rendered", {"{metric: collisions.count, max: 0}"}));
-  harness::CheckCommandOptions options;
+  campaign::CheckCommandOptions options;
   options.inputs = {file.string()};
   options.out_dir = out_.string();
   options.junit_path = junit_.string();
@@ -435,7 +435,7 @@ TEST_F(CheckCommandTest, RendersOfFailingRunsAreAttached) {
       "echo '{\"expectations\": [{\"metric\": \"collisions.count\", \"value\": 1, "
       "\"passed\": false}], \"passed\": false}' > \"$out/summary.json\"\n"
       "exit 1\n").string();
-  EXPECT_EQ(harness::RunCheckCommand(options), 1);
+  EXPECT_EQ(campaign::RunCheckCommand(options), 1);
   const pugi::xml_document doc = JUnit();
   const pugi::xml_node failed =
       Suite(doc, "rendered").find_child_by_attribute("testcase", "name", "collisions.count <= 0");
@@ -509,7 +509,7 @@ TEST(CheckAggregation, ScenarioCheckReadsSummariesAndMethods) {
                              {"naive", {{"ate_m", nullptr}}}};
   std::vector<SeedRun> runs = {FakeRun(1, 0, 0.1, true, m1), FakeRun(2, 1, 0.3, false, m2),
                                FakeRun(3, 0, 0.2, true)};
-  const harness::ScenarioCheck c = EvaluateScenarioCheck(scenario, runs);
+  const campaign::ScenarioCheck c = EvaluateScenarioCheck(scenario, runs);
   ASSERT_EQ(c.expectations.size(), 1u);
   EXPECT_EQ(c.expectations[0].held, 2);
   EXPECT_TRUE(c.expectations[0].passed);
@@ -529,7 +529,7 @@ TEST(CheckAggregation, ScenarioCheckReadsSummariesAndMethods) {
   runs[2].exit_code = core::kExitSimulationError;
   runs[2].error = "simulation failed (exit 3)";
   runs[2].summary = nullptr;
-  const harness::ScenarioCheck failed = EvaluateScenarioCheck(scenario, runs);
+  const campaign::ScenarioCheck failed = EvaluateScenarioCheck(scenario, runs);
   EXPECT_EQ(failed.expectations[0].held, 1);
   EXPECT_FALSE(failed.runs_ok);
   EXPECT_FALSE(failed.passed);
@@ -550,7 +550,7 @@ TEST(CheckAggregation, ClosedLoopFlightsAreAggregatedOverTheSeeds) {
   runs[1].summary["closed_loop"] = {
       {"consensus", {{"tracking_rmse_m", 0.04}, {"collisions", 0}, {"failsafe_events", 1}}},
       {"naive", {{"tracking_rmse_m", nullptr}, {"collisions", 2}, {"failsafe_events", 0}}}};
-  const harness::ScenarioCheck c = EvaluateScenarioCheck(scenario, runs);
+  const campaign::ScenarioCheck c = EvaluateScenarioCheck(scenario, runs);
   ASSERT_EQ(c.closed_loop.size(), 2u);
   EXPECT_EQ(c.closed_loop[0].method, "consensus");
   EXPECT_NEAR(*c.closed_loop[0].tracking_rmse_mean_m, 0.03, 1e-12);
@@ -599,8 +599,8 @@ TEST(CheckJUnit, EscapesTextAndAttachesRendersOfFailedSeeds) {
   EXPECT_DOUBLE_EQ(suite.attribute("time").as_double(), 1.5);
 
   // Characters XML cannot hold do not break the document.
-  EXPECT_EQ(harness::XmlEscape("a\x01<b>\n", true), "a?&lt;b&gt;&#10;");
-  EXPECT_EQ(harness::XmlEscape("'\"&\t\n", false), "&apos;&quot;&amp;\t\n");
+  EXPECT_EQ(campaign::XmlEscape("a\x01<b>\n", true), "a?&lt;b&gt;&#10;");
+  EXPECT_EQ(campaign::XmlEscape("'\"&\t\n", false), "&apos;&quot;&amp;\t\n");
   fs::remove_all(root);
 }
 

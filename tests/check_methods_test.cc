@@ -1,4 +1,4 @@
-// `tofu check`'s method table (harness/check_methods.h) on hand-made summaries: median
+// `tofu check`'s method table (campaign/check_methods.h) on hand-made summaries: median
 // (of an even count too) and worst per metric, nulls skipped, the ATE over the oracle's per
 // seed, the method order of the scenario, the +inf of missed faults and of sensors never
 // re-admitted (null in summary.json), and the exact CSV and markdown text; then the files
@@ -16,8 +16,8 @@
 
 #include <nlohmann/json.hpp>
 
-#include "harness/check_command.h"
-#include "harness/check_methods.h"
+#include "campaign/check_command.h"
+#include "campaign/check_methods.h"
 #include "harness/scenario.h"
 #include "tests/test_support.h"
 
@@ -25,15 +25,15 @@ namespace tofu {
 namespace {
 
 namespace fs = std::filesystem;
-using harness::AggregateMethodTables;
-using harness::AggregateScenarioMethods;
-using harness::MethodMetricSummary;
-using harness::MethodsCsv;
-using harness::MethodsMarkdown;
-using harness::MethodTableRow;
-using harness::ScenarioCheck;
-using harness::ScenarioMethodTable;
-using harness::SeedRun;
+using campaign::AggregateMethodTables;
+using campaign::AggregateScenarioMethods;
+using campaign::MethodMetricSummary;
+using campaign::MethodsCsv;
+using campaign::MethodsMarkdown;
+using campaign::MethodTableRow;
+using campaign::ScenarioCheck;
+using campaign::ScenarioMethodTable;
+using campaign::SeedRun;
 using nlohmann::json;
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
@@ -94,9 +94,9 @@ TEST(CheckMethods, MedianOfAnEvenCountAndWorstOverTheSeeds) {
   EXPECT_DOUBLE_EQ(*v.median, 0.975);
   EXPECT_DOUBLE_EQ(*v.worst, 0.9) << "valid_fraction: the worst seed is the smallest";
   // Every metric listed, in table order; no oracle, no ratio.
-  ASSERT_EQ(Row(t, "naive").metrics.size(), harness::kMethodTableMetrics.size());
-  for (size_t i = 0; i < harness::kMethodTableMetrics.size(); ++i) {
-    EXPECT_EQ(Row(t, "naive").metrics[i].metric, harness::kMethodTableMetrics[i]);
+  ASSERT_EQ(Row(t, "naive").metrics.size(), campaign::kMethodTableMetrics.size());
+  for (size_t i = 0; i < campaign::kMethodTableMetrics.size(); ++i) {
+    EXPECT_EQ(Row(t, "naive").metrics[i].metric, campaign::kMethodTableMetrics[i]);
   }
   EXPECT_EQ(Row(t, "naive").Find("ate_over_oracle"), nullptr);
 }
@@ -333,7 +333,7 @@ TEST(CheckMethods, WritesTheTableAndFigureOnlyWithAnEstimationBlock) {
                 FakeRun(2, {{"naive", {{"ate_m", 0.7}}}, {"oracle", {{"ate_m", 0.2}}}})};
   test::WriteFile(dir / "methods.png", "a figure of an earlier check");
 
-  const auto md = harness::WriteCheckMethods(dir, {scenario}, {check});
+  const auto md = campaign::WriteCheckMethods(dir, {scenario}, {check});
   ASSERT_TRUE(md.has_value());
   EXPECT_EQ(*md, dir / "methods.md");
   EXPECT_EQ(test::ReadFile(dir / "methods.md"), MethodsMarkdown(AggregateMethodTables({scenario}, {check})));
@@ -352,7 +352,7 @@ TEST(CheckMethods, WritesTheTableAndFigureOnlyWithAnEstimationBlock) {
   // A check without any estimation block writes none and removes what an earlier one left.
   harness::Scenario plain;
   plain.name = "plain";
-  EXPECT_FALSE(harness::WriteCheckMethods(dir, {plain}, {ScenarioCheck{}}).has_value());
+  EXPECT_FALSE(campaign::WriteCheckMethods(dir, {plain}, {ScenarioCheck{}}).has_value());
   EXPECT_FALSE(fs::exists(dir / "methods.md"));
   EXPECT_FALSE(fs::exists(dir / "methods.csv"));
   EXPECT_FALSE(fs::exists(dir / "methods.png"));

@@ -172,6 +172,44 @@ bool ProcessAlive(const fs::path& pid_file) {
   return ::kill(pid, 0) == 0 || errno != ESRCH;
 }
 
+// Two client methods of one check compared seed by seed (tofu compare --methods): the
+// plug-in and the process client both host consensus and saw the same samples, so they are
+// unchanged; a process client hosting naive fusion is the regression.
+TEST(ClientMethods, CompareTellsTwoClientMethodsApartOnTheSameSamples) {
+  const fs::path work = test::PerTestDirectory("client_compare_");
+  fs::create_directories(work);
+  std::string clients = HostClients();
+  const std::string host = (BuildDir() / "tofu-estimator-host").string();
+  clients.replace(clients.find("plugins:"), 0,
+                  "  host_naive: {command: [\"" + host + "\"], config: {method: naive}}\n");
+  test::WriteFile(work / "s.yaml",
+                  Scenario(clients, R"([consensus, "external:host", "external:host_naive", )"
+                                    R"("plugin:builtin"])"));
+  const Result check = RunTofu("check s.yaml --seeds 8 --jobs 2 --out A --quiet", work);
+  ASSERT_EQ(check.exit_code, 0) << check.err;
+
+  const Result same =
+      RunTofu("compare A --methods plugin:builtin external:host --json same.json", work);
+  EXPECT_EQ(same.exit_code, 0) << same.err;
+  const auto s = nlohmann::json::parse(test::ReadFile(work / "same.json"));
+  ASSERT_FALSE(s["cells"].empty());
+  for (const auto& cell : s["cells"]) {
+    EXPECT_EQ(cell["verdict"], "unchanged") << cell.dump();
+    EXPECT_EQ(cell["pairing"], "identical samples") << cell.dump();
+  }
+
+  const Result worse =
+      RunTofu("compare A --methods external:host external:host_naive --json worse.json", work);
+  EXPECT_EQ(worse.exit_code, 1) << worse.err;
+  const auto w = nlohmann::json::parse(test::ReadFile(work / "worse.json"));
+  bool ate_regressed = false;
+  for (const auto& cell : w["cells"]) {
+    if (cell["metric"] == "methods.<method>.ate_m") ate_regressed = cell["verdict"] == "regressed";
+  }
+  EXPECT_TRUE(ate_regressed) << w.dump(1);
+  fs::remove_all(work);
+}
+
 struct BadCase {
   std::string name;
   std::string script;           // the client's code ("" = a command that cannot start)

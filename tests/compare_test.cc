@@ -284,6 +284,40 @@ TEST(CompareCommand, AChecksOwnRunsAreUnchangedAndNaiveFusionIsWorseThanConsensu
   EXPECT_EQ(other.exit_code, 2) << other.out;
   EXPECT_NE(other.out.find("re-record the baseline"), std::string::npos) << other.out;
   EXPECT_FALSE(fs::exists(work / "y.json"));
+
+  // tofu check --baseline: the same tofu on the same seeds is unchanged, and its JUnit
+  // holds a passing case "compared with the baseline".
+  const Result same_check = Tofu("check s.yaml --seeds 8 --jobs 2 --out B --quiet --baseline "
+                                 "base.json --junit B/junit.xml", work);
+  EXPECT_EQ(same_check.exit_code, 0) << same_check.out;
+  const std::string junit = test::ReadFile(work / "B" / "junit.xml");
+  EXPECT_NE(junit.find("<testcase name=\"compared with the baseline\" classname=\"compare_short\" "
+                       "file=\"s.yaml\" time=\"0\"/>"),
+            std::string::npos) << junit;
+  EXPECT_TRUE(fs::exists(work / "B" / "compare.md"));
+  // A baseline whose consensus was 30 % better: the check regressed, its JUnit case fails
+  // with the figures, the check exits 1.
+  auto better = nlohmann::json::parse(test::ReadFile(work / "base.json"));
+  for (auto& cell : better["cells"]) {
+    auto& ate_m = cell["values"]["methods.consensus.ate_m"];
+    ate_m = ate_m.get<double>() * 0.7;
+  }
+  test::WriteFile(work / "better.json", better.dump(1));
+  const Result regressed = Tofu("check s.yaml --seeds 8 --jobs 2 --out C --quiet --baseline "
+                                "better.json --junit C/junit.xml", work);
+  EXPECT_EQ(regressed.exit_code, 1) << regressed.out;
+  EXPECT_NE(regressed.out.find("REGRESSED compare_short: methods.consensus.ate_m x1.429"),
+            std::string::npos) << regressed.out;
+  const std::string failed_junit = test::ReadFile(work / "C" / "junit.xml");
+  EXPECT_NE(failed_junit.find("<failure message=\"1 cell regressed against the baseline: "
+                              "methods.consensus.ate_m x1.429"),
+            std::string::npos) << failed_junit;
+  EXPECT_NE(failed_junit.find("type=\"regression\""), std::string::npos);
+  // Another grid (6 seeds of a baseline of 8): bad input before anything runs.
+  const Result other_grid = Tofu("check s.yaml --seeds 6 --out D --quiet --baseline base.json", work);
+  EXPECT_EQ(other_grid.exit_code, 2) << other_grid.out;
+  EXPECT_NE(other_grid.out.find("compare_short"), std::string::npos) << other_grid.out;
+  EXPECT_FALSE(fs::exists(work / "D"));
   fs::remove_all(work);
 }
 

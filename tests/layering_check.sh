@@ -17,9 +17,9 @@ declare -A may_include=(
   [replay]="core estimator interface replay tofu"
   [harness]="core sim estimator interface replay harness tofu mujoco"
   [renders]="core sim replay renders mujoco"
-  [report]="core sim replay harness renders report mujoco"
+  [report]="core sim replay harness renders report campaign mujoco"
   [corpus]="core sim replay harness corpus"
-  [campaign]="core replay campaign"
+  [campaign]="core replay harness campaign"
   [apps]="core sim estimator interface replay harness renders report corpus campaign apps tofu"
   [include]="tofu"
 )
@@ -33,7 +33,7 @@ declare -A why=(
   [renders]="renders read the run directory (replay's schema), never the scenario loader"
   [report]="reports read finished runs; the CLI calls them"
   [corpus]="corpora are built from harness runs"
-  [campaign]="campaigns read many flights' typed records, never fly one themselves"
+  [campaign]="campaigns fly many runs as tofu run processes and read their typed records; they never fly one in-process"
   [apps]="the CLI is the top"
   [include]="the public api is header-only and free of tofu's internals and Eigen"
 )

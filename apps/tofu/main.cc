@@ -28,7 +28,7 @@
 #include "tofu/api.h"
 #include "campaign/compare_command.h"
 #include "corpus/corpus_command.h"
-#include "harness/check_command.h"
+#include "campaign/check_command.h"
 #include "harness/evaluation.h"
 #include "harness/metrics.h"
 #include "harness/run.h"
@@ -537,15 +537,15 @@ Command AddBaselineCommand(CLI::App& parent) {
 }
 
 // `tofu check ... --report DIR`: the check, then the HTML report of this check's runs.
-int CheckWithReport(const tofu::harness::CheckCommandOptions& options,
+int CheckWithReport(const tofu::campaign::CheckCommandOptions& options,
                     const std::string& report_dir) {
   // A bad --report is bad input found before anything runs, like every other option.
   tofu::report::CheckReportOutputDirectory(report_dir);
-  const int status = tofu::harness::RunCheckCommand(options);
+  const int status = tofu::campaign::RunCheckCommand(options);
   // The report covers this check's scenarios only (the directory may hold older ones).
   std::vector<std::string> names;
   try {
-    for (const std::string& path : tofu::harness::ExpandScenarioInputs(
+    for (const std::string& path : tofu::campaign::ExpandScenarioInputs(
              options.inputs.empty() ? std::vector<std::string>{"scenarios"} : options.inputs)) {
       names.push_back(tofu::harness::LoadScenario(path).name);
     }
@@ -570,7 +570,7 @@ int CheckWithReport(const tofu::harness::CheckCommandOptions& options,
 
 Command AddCheckCommand(CLI::App& parent) {
   struct Options {
-    tofu::harness::CheckCommandOptions check;
+    tofu::campaign::CheckCommandOptions check;
     std::optional<std::string> report;
     std::optional<std::string> shard;
     std::optional<std::uint64_t> shard_count;
@@ -608,6 +608,11 @@ Command AddCheckCommand(CLI::App& parent) {
                     "DIR...: run nothing; merge the --out directories of shards 0..N-1 of this "
                     "same check (same scenarios and --seeds) into --out and write the JUnit, "
                     "table, method tables and report one machine would, with its exit code");
+  check->add_option("--baseline", o->check.baseline_path,
+                    "FILE|DIR: compare with a baseline (tofu baseline's file, or a check "
+                    "directory) of the same scenarios and seeds; a regressed cell fails its "
+                    "scenario's JUnit case \"compared with the baseline\" and the check (exit 1); "
+                    "<out>/compare.md and compare.json hold the comparison");
   check->footer(
       "Across machines (README, `tofu check`): run `tofu check SCENARIOS --seeds S --out "
       "DIR_I --shard I/N` for I = 0..N-1 (or as a Slurm array / Kubernetes Indexed Job: "
@@ -628,7 +633,7 @@ Command AddCheckCommand(CLI::App& parent) {
                               o->check.shard.index, o->check.shard.count, o->check.shard.origin));
             }
             if (o->report) return CheckWithReport(o->check, *o->report);
-            return tofu::harness::RunCheckCommand(o->check);
+            return tofu::campaign::RunCheckCommand(o->check);
           }};
 }
 

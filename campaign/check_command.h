@@ -18,7 +18,7 @@
 #include "harness/scenario.h"
 #include "harness/shard.h"
 
-namespace tofu::harness {
+namespace tofu::campaign {
 
 /// What `tofu check` was asked for, as typed on the command line (validated by
 /// RunCheckCommand).
@@ -36,17 +36,23 @@ struct CheckCommandOptions {
   /// This process's part of the scenario x seed grid (check_shards.h); an empty origin:
   /// the whole grid. A shard writes its runs and its record, and no JUnit, table or
   /// method table: the merge does, over all shards.
-  Shard shard;
+  harness::Shard shard;
   /// Instead of running: the shards' --out directories to merge (`--merge DIR...`).
   std::vector<std::string> merge_dirs;
+  /// A baseline (`tofu baseline` file or check directory) to compare the check with
+  /// (campaign/compare.h): read and matched to the grid before anything runs; afterwards
+  /// a regressed cell fails its scenario's JUnit test case "compared with the baseline",
+  /// and <out>/compare.md and compare.json hold the comparison.
+  std::optional<std::string> baseline_path;
 };
 
 /// Runs the check and returns the exit code: kExitOk when every expectation held over
 /// the seeds, kExitExpectationFailed when one did not, kExitBadInput on bad input (the
 /// message names file:line:column and key; nothing is run or written) or when a run
 /// reported bad input, kExitSimulationError when a simulation failed, kExitClientFailed
-/// when a user's estimator or controller failed in a run (and nothing worse happened). A
-/// shard returns
+/// when a user's estimator or controller failed in a run (and nothing worse happened);
+/// with a baseline, kExitExpectationFailed also when a cell regressed, and kExitBadInput
+/// (before anything runs) when the baseline is not of this grid. A shard returns
 /// kExitOk once its runs have ended and its record is written, whatever their verdicts
 /// (an expectation's pass_fraction needs every seed: the merge decides). A merge
 /// (`merge_dirs`) runs nothing and returns what one machine's check of the same grid
@@ -87,7 +93,7 @@ struct SeedOutcome {
 
 /// One expectation over the seeds.
 struct AggregatedExpectation {
-  Expectation expectation;
+  harness::Expectation expectation;
   std::vector<SeedOutcome> seeds;
   int held = 0;      ///< seeds in which it held
   int required = 0;  ///< RequiredPasses(pass_fraction, seeds.size())
@@ -95,7 +101,7 @@ struct AggregatedExpectation {
 };
 
 /// Counts the seeds in which `expectation` held and decides with its pass_fraction.
-AggregatedExpectation AggregateExpectation(const Expectation& expectation,
+AggregatedExpectation AggregateExpectation(const harness::Expectation& expectation,
                                            std::vector<SeedOutcome> seeds);
 
 /// An estimator method's figures from summary.json `methods`, over the seeds.
@@ -134,15 +140,18 @@ struct ScenarioCheck {
   bool runs_ok = true;    ///< no run exited with bad input or a failed simulation
   bool clients_ok = true; ///< no run's estimator or controller client failed
   bool passed = false;    ///< runs_ok, clients_ok and every aggregated expectation passed
+  /// Compared with a baseline (CheckCommandOptions::baseline_path): one line of figures per
+  /// regressed cell (empty: nothing regressed). Unset without a baseline.
+  std::optional<std::vector<std::string>> baseline_regressions;
 };
 
 /// Aggregates the runs of one scenario (their summaries read already). Expectations are
 /// matched to the summary's `expectations` array by position and metric name.
-ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRun> runs);
+ScenarioCheck EvaluateScenarioCheck(const harness::Scenario& scenario, std::vector<SeedRun> runs);
 
 /// "tracking.position_max_m [2, 10] s <= 0.01": an expectation's metric, window and
 /// bounds; the name of its JUnit test case.
-std::string ExpectationLabel(const Expectation& expectation);
+std::string ExpectationLabel(const harness::Expectation& expectation);
 
 /// Text with the five XML special characters escaped and the characters XML 1.0 cannot
 /// hold replaced by '?'; tabs and line breaks are kept (as character references when
@@ -150,9 +159,10 @@ std::string ExpectationLabel(const Expectation& expectation);
 std::string XmlEscape(std::string_view text, bool attribute);
 
 /// The JUnit XML document: one <testsuite> per scenario, one <testcase> per expectation
-/// aggregated over the seeds plus one named "run" for the runs themselves; failing test
+/// aggregated over the seeds plus one named "run" for the runs themselves (and one per
+/// failed client, and "compared with the baseline" when there is one); failing test
 /// cases list each seed's value and the renders (*.png, *.mp4 under <run>/renders/) as
 /// [[ATTACHMENT|/absolute/path]] in <system-out>.
 std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks);
 
-}  // namespace tofu::harness
+}  // namespace tofu::campaign

@@ -17,11 +17,11 @@
 #include <string>
 #include <vector>
 
-#include "harness/check_command.h"
+#include "campaign/check_command.h"
 #include "harness/scenario.h"
 #include "harness/shard.h"
 
-namespace tofu::harness {
+namespace tofu::campaign {
 
 /// What one machine would run: two checks with equal grids give the same JUnit, method
 /// tables and report (wall clock aside).
@@ -43,10 +43,10 @@ struct CheckGrid {
 
 /// The grid of `scenarios` (loaded from their files, in check order) over `seeds`. Throws
 /// core::InputError when a scenario file cannot be read again.
-CheckGrid MakeCheckGrid(const std::vector<Scenario>& scenarios, int seeds);
+CheckGrid MakeCheckGrid(const std::vector<harness::Scenario>& scenarios, int seeds);
 
 /// "check_shard_0001_of_0004.json": a shard's record, in its --out.
-std::string ShardRecordName(const Shard& shard);
+std::string ShardRecordName(const harness::Shard& shard);
 
 /// What the pool learnt of a run that its directory does not say.
 struct RecordedRun {
@@ -57,13 +57,13 @@ struct RecordedRun {
 
 /// Writes <out>/ShardRecordName(shard) atomically: `grid` and `runs` (by cell; exactly
 /// the shard's cells). Throws core::IoError when it cannot be written.
-void WriteShardRecord(const std::filesystem::path& out, const Shard& shard, const CheckGrid& grid,
+void WriteShardRecord(const std::filesystem::path& out, const harness::Shard& shard, const CheckGrid& grid,
                       const std::map<uint64_t, RecordedRun>& runs);
 
 /// Before a shard runs: removes its own record (it describes an earlier attempt; only a
 /// shard that finishes has one) and the records of other shard counts (another
 /// partition, never part of this check). Without a shard (one machine): every record.
-void RemoveShardRecords(const std::filesystem::path& out, const Shard& shard);
+void RemoveShardRecords(const std::filesystem::path& out, const harness::Shard& shard);
 
 /// Removes from a scenario's folder of a check the runs (seed_<s>/, seed_<s>.log) of the
 /// seeds `stale` selects, and their staging directories that killed runs left
@@ -86,4 +86,4 @@ std::map<uint64_t, RecordedRun> MergeShards(const std::vector<std::string>& dirs
                                             const CheckGrid& grid,
                                             const std::filesystem::path& out);
 
-}  // namespace tofu::harness
+}  // namespace tofu::campaign

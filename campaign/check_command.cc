@@ -1,4 +1,4 @@
-#include "harness/check_command.h"
+#include "campaign/check_command.h"
 
 #include <fcntl.h>
 #include <spawn.h>
@@ -25,15 +25,17 @@
 #include "core/error.h"
 #include "core/file_io.h"
 #include "core/version.h"
-#include "harness/check_methods.h"
-#include "harness/check_shards.h"
+#include "campaign/cell_record.h"
+#include "campaign/check_methods.h"
+#include "campaign/check_shards.h"
+#include "campaign/compare.h"
 #include "harness/yaml_reader.h"
 #include "replay/file_io.h"
 #include "replay/interrupt.h"
 
 extern char** environ;
 
-namespace tofu::harness {
+namespace tofu::campaign {
 
 using replay::InterruptSignal;
 using replay::InterruptSignalName;
@@ -261,7 +263,7 @@ std::string FormatValue(const std::optional<double>& v) {
   return v ? fmt::format("{:.4g}", *v) : std::string("n/a");
 }
 
-std::string Where(const Expectation& e) {
+std::string Where(const harness::Expectation& e) {
   return fmt::format("{}:{}", e.location.file, e.location.line);
 }
 
@@ -436,6 +438,15 @@ void ValidateOptions(const CheckCommandOptions& options) {
                                  "(tofu check ... --merge DIR...), which has every seed",
                                  options.shard.index, options.shard.count, options.shard.origin));
   }
+  if (sharded && options.baseline_path) {
+    throw InputError({}, "--baseline",
+                     fmt::format("shard {}/{} (from {}) compares nothing: give --baseline to the "
+                                 "merge (tofu check ... --merge DIR...), which has every seed",
+                                 options.shard.index, options.shard.count, options.shard.origin));
+  }
+  if (options.baseline_path && options.baseline_path->empty()) {
+    throw InputError({"--baseline"}, "", "expected a baseline file or a check directory, got ''");
+  }
   if (options.junit_path) {
     if (options.junit_path->empty()) throw InputError({"--junit"}, "", "expected a file, got ''");
     if (fs::is_directory(*options.junit_path, ec)) {
@@ -446,14 +457,14 @@ void ValidateOptions(const CheckCommandOptions& options) {
 
 // Loads every scenario; prints every problem (not only the first) and returns false if
 // there was one.
-bool LoadAll(const std::vector<std::string>& paths, std::vector<Scenario>& scenarios) {
+bool LoadAll(const std::vector<std::string>& paths, std::vector<harness::Scenario>& scenarios) {
   bool ok = true;
   std::map<std::string, std::string> file_of_name;
   for (const std::string& path : paths) {
     try {
-      Scenario scenario = LoadScenario(path);
+      harness::Scenario scenario = harness::LoadScenario(path);
       // What `tofu validate` checks: the models too, so a run never fails on them.
-      CheckScenarioModels(scenario);
+      harness::CheckScenarioModels(scenario);
       // Run directories are named after scenarios: two files may not share a name.
       const auto [it, inserted] = file_of_name.emplace(scenario.name, path);
       if (!inserted) {
@@ -514,7 +525,7 @@ int RequiredPasses(double pass_fraction, int seeds) {
   return std::clamp(required, 1, std::max(seeds, 1));
 }
 
-AggregatedExpectation AggregateExpectation(const Expectation& expectation,
+AggregatedExpectation AggregateExpectation(const harness::Expectation& expectation,
                                            std::vector<SeedOutcome> seeds) {
   AggregatedExpectation a;
   a.expectation = expectation;
@@ -530,7 +541,7 @@ namespace {
 
 // Each seed's outcome of expectation `index` of the scenario (`e`), from its summary.json.
 std::vector<SeedOutcome> SeedOutcomes(const std::vector<SeedRun>& runs, size_t index,
-                                      const Expectation& e) {
+                                      const harness::Expectation& e) {
   std::vector<SeedOutcome> outcomes;
   for (const SeedRun& r : runs) {
     SeedOutcome o;
@@ -640,14 +651,14 @@ std::vector<ClosedLoopStats> ClosedLoopStatsOverSeeds(const std::vector<SeedRun>
 
 }  // namespace
 
-ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRun> runs) {
+ScenarioCheck EvaluateScenarioCheck(const harness::Scenario& scenario, std::vector<SeedRun> runs) {
   ScenarioCheck c;
   c.name = scenario.name;
   c.source_file = scenario.source_file;
   c.runs = std::move(runs);
 
   for (size_t i = 0; i < scenario.expect.size(); ++i) {
-    const Expectation& e = scenario.expect[i];
+    const harness::Expectation& e = scenario.expect[i];
     c.expectations.push_back(AggregateExpectation(e, SeedOutcomes(c.runs, i, e)));
   }
   for (const SeedRun& r : c.runs) {
@@ -664,7 +675,7 @@ ScenarioCheck EvaluateScenarioCheck(const Scenario& scenario, std::vector<SeedRu
   return c;
 }
 
-std::string ExpectationLabel(const Expectation& e) {
+std::string ExpectationLabel(const harness::Expectation& e) {
   std::string label = e.metric;
   if (e.relative_to) label += " / " + *e.relative_to;
   if (e.window_s) {
@@ -769,6 +780,28 @@ std::string ClientTestCases(const ScenarioCheck& c, int& failures) {
   return cases;
 }
 
+// Compared with a baseline: fails when a cell of the scenario regressed, with each
+// regressed cell's figures. Counts a failure into `failures`.
+std::string BaselineTestCase(const ScenarioCheck& c, int& failures) {
+  if (!c.baseline_regressions) return {};
+  std::string testcase =
+      fmt::format("    <testcase name=\"compared with the baseline\" classname=\"{}\" file=\"{}\" "
+                  "time=\"0\"",
+                  XmlAttribute(c.name), XmlAttribute(c.source_file));
+  const std::vector<std::string>& regressed = *c.baseline_regressions;
+  if (regressed.empty()) return testcase + "/>\n";
+  ++failures;
+  std::string lines;
+  for (const std::string& r : regressed) lines += r + "\n";
+  return testcase + fmt::format(
+      ">\n      <failure message=\"{}\" type=\"regression\">{}</failure>\n    </testcase>\n",
+      XmlAttribute(fmt::format("{} regressed against the baseline: {}", regressed.size() == 1
+                                                                         ? "1 cell"
+                                                                         : fmt::format("{} cells", regressed.size()),
+                               regressed.front())),
+      XmlText(lines));
+}
+
 int ClientTestCaseCount(const ScenarioCheck& c) {
   int n = 0;
   for (const MethodStats& m : c.methods) n += m.failed_seeds > 0 ? 1 : 0;
@@ -852,9 +885,11 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
     int failures = 0;
     std::string cases = RunTestCase(c, time, failures);
     cases += ClientTestCases(c, failures);
+    cases += BaselineTestCase(c, failures);
     cases += ExpectationTestCases(c, failures);
 
-    const int tests = 1 + ClientTestCaseCount(c) + static_cast<int>(c.expectations.size());
+    const int tests = 1 + ClientTestCaseCount(c) + (c.baseline_regressions ? 1 : 0) +
+                      static_cast<int>(c.expectations.size());
     std::string seeds;
     for (const SeedRun& r : c.runs) seeds += fmt::format("{}{}", seeds.empty() ? "" : ",", r.seed);
     suites += fmt::format(
@@ -884,8 +919,8 @@ namespace {
 
 // The runs of the grid that `shard` owns (all of it without one), longest simulated
 // scenarios first. Nothing is touched on disk.
-std::vector<Job> PlanRuns(const std::vector<Scenario>& scenarios, const CheckGrid& grid,
-                          const Shard& shard, const fs::path& out) {
+std::vector<Job> PlanRuns(const std::vector<harness::Scenario>& scenarios, const CheckGrid& grid,
+                          const harness::Shard& shard, const fs::path& out) {
   std::vector<Job> queue;
   for (uint64_t cell = 0; cell < grid.Cells(); ++cell) {
     if (!shard.Owns(cell)) continue;
@@ -911,7 +946,7 @@ std::vector<Job> PlanRuns(const std::vector<Scenario>& scenarios, const CheckGri
 // are not taken for this check's), a shard's own seeds only (other shards may be writing
 // beside it; the merge removes the rest). Shard records that would describe other runs
 // go too.
-void PrepareRunFolders(const CheckGrid& grid, const Shard& shard, const fs::path& out) {
+void PrepareRunFolders(const CheckGrid& grid, const harness::Shard& shard, const fs::path& out) {
   for (size_t i = 0; i < grid.scenarios.size(); ++i) {
     const CheckGrid::Entry& e = grid.scenarios[i];
     const uint64_t first_cell = i * static_cast<uint64_t>(grid.seeds);
@@ -984,7 +1019,7 @@ struct CheckFailures {
 };
 
 // Aggregate per scenario, in input order, runs in seed order.
-std::vector<ScenarioCheck> CheckScenarios(const std::vector<Scenario>& scenarios,
+std::vector<ScenarioCheck> CheckScenarios(const std::vector<harness::Scenario>& scenarios,
                                           std::vector<Job>& queue, CheckFailures& failures) {
   std::vector<std::vector<SeedRun>> runs(scenarios.size());
   for (Job& job : queue) {
@@ -1035,20 +1070,89 @@ void WriteCheckRecord(const fs::path& out, const CheckGrid& grid,
   WriteFileAtomically(out / "check.json", record.dump(1) + "\n", "--out");
 }
 
+// The campaign the grid will be: its cells with no values yet, for matching a baseline
+// to the grid before anything runs.
+CampaignRecord PlannedCampaign(const CheckGrid& grid, const fs::path& out) {
+  CampaignRecord planned;
+  planned.source = out;
+  planned.tofu_version = core::TofuVersion();
+  planned.tofu_commit = core::TofuCommit();
+  planned.metric_versions = CurrentMetricVersions();
+  for (uint64_t cell = 0; cell < grid.Cells(); ++cell) {
+    CellRecord record;
+    record.scenario = grid.ScenarioOf(cell).name;
+    record.seed = grid.SeedOf(cell);
+    record.scenario_hash = grid.ScenarioOf(cell).fnv1a64;
+    planned.cells.push_back(std::move(record));
+  }
+  return planned;
+}
+
+// The baseline of --baseline, matched to the grid: another grid, scenario file, tofu or
+// metric definition is bad input before anything runs.
+CampaignRecord ReadMatchingBaseline(const std::string& path, const CheckGrid& grid,
+                                    const fs::path& out) {
+  CampaignRecord baseline = ReadCampaign(path);
+  CompareCampaigns(baseline, PlannedCampaign(grid, out), CompareOptions{});
+  return baseline;
+}
+
+// The check against its baseline: <out>/compare.md and compare.json, and each scenario's
+// regressed cells. Returns false (printed) when the finished check cannot be compared.
+bool CompareWithBaseline(const CampaignRecord& baseline, const fs::path& out,
+                         std::vector<ScenarioCheck>& checks, bool quiet, bool& regressed) {
+  Comparison comparison;
+  try {
+    comparison = CompareCampaigns(baseline, ReadCheckDirectory(out), CompareOptions{});
+  } catch (const InputError& e) {
+    fmt::print(stderr, "tofu: error: --baseline: {}\n", e.what());
+    return false;
+  }
+  WriteFileAtomically(out / "compare.md", ComparisonMarkdown(comparison), "--out");
+  WriteFileAtomically(out / "compare.json", ComparisonJson(comparison).dump(1) + "\n", "--out");
+  for (ScenarioCheck& c : checks) c.baseline_regressions.emplace();
+  for (const CellComparison& cell : comparison.cells) {
+    if (cell.verdict != Verdict::kRegressed) continue;
+    regressed = true;
+    for (ScenarioCheck& c : checks) {
+      if (c.name == cell.scenario) c.baseline_regressions->push_back(CellFigures(cell));
+    }
+  }
+  if (!quiet || regressed) {
+    fmt::print("compared with the baseline {}: {} cells, {} regressed, {} improved, {} "
+               "inconclusive, {} unchanged (tofu compare; {})\n",
+               baseline.source.string(), comparison.cells.size(),
+               comparison.Count(Verdict::kRegressed), comparison.Count(Verdict::kImproved),
+               comparison.Count(Verdict::kInconclusive), comparison.Count(Verdict::kUnchanged),
+               (out / "compare.md").string());
+    for (const ScenarioCheck& c : checks) {
+      for (const std::string& line : *c.baseline_regressions) {
+        fmt::print("  REGRESSED {}: {}\n", c.name, line);
+      }
+    }
+  }
+  return true;
+}
+
 // After the runs (or the merge): the table, the JUnit and the method tables of the whole
-// grid, the check's record, and the check's exit code.
-int ReportCheck(const CheckCommandOptions& options, const std::vector<Scenario>& scenarios,
-                const CheckGrid& grid, std::vector<Job>& queue, const fs::path& out) {
+// grid, the check's record, the comparison with the baseline, and the check's exit code.
+int ReportCheck(const CheckCommandOptions& options, const std::vector<harness::Scenario>& scenarios,
+                const CheckGrid& grid, std::vector<Job>& queue, const fs::path& out,
+                const std::optional<CampaignRecord>& baseline) {
   CheckFailures failures;
-  const std::vector<ScenarioCheck> checks = CheckScenarios(scenarios, queue, failures);
+  std::vector<ScenarioCheck> checks = CheckScenarios(scenarios, queue, failures);
+  bool regressed = false;
   try {
     WriteCheckRecord(out, grid, checks);
+    if (!options.quiet) PrintTable(checks);
+    if (baseline && !CompareWithBaseline(*baseline, out, checks, options.quiet, regressed)) {
+      failures.bad_input = true;
+    }
   } catch (const core::IoError& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return core::kExitIoError;
   }
 
-  if (!options.quiet) PrintTable(checks);
   PrintFailures(checks);
   if (options.junit_path) {
     try {
@@ -1072,7 +1176,7 @@ int ReportCheck(const CheckCommandOptions& options, const std::vector<Scenario>&
   if (failures.io_failed) return core::kExitIoError;
   if (failures.simulation_failed) return core::kExitSimulationError;
   if (failures.client_failed) return core::kExitClientFailed;
-  return failures.expectation_failed ? core::kExitExpectationFailed : core::kExitOk;
+  return failures.expectation_failed || regressed ? core::kExitExpectationFailed : core::kExitOk;
 }
 
 }  // namespace
@@ -1080,8 +1184,10 @@ int ReportCheck(const CheckCommandOptions& options, const std::vector<Scenario>&
 int RunCheckCommand(const CheckCommandOptions& options) {
   // Everything that can be wrong with the input is found before anything runs or is
   // written.
-  std::vector<Scenario> scenarios;
+  std::vector<harness::Scenario> scenarios;
   CheckGrid grid;
+  std::optional<CampaignRecord> baseline;
+  const fs::path out = fs::absolute(options.out_dir).lexically_normal();
   try {
     ValidateOptions(options);
     const std::vector<std::string> paths =
@@ -1089,16 +1195,16 @@ int RunCheckCommand(const CheckCommandOptions& options) {
                                                     : options.inputs);
     if (!LoadAll(paths, scenarios)) return core::kExitBadInput;
     grid = MakeCheckGrid(scenarios, options.seeds);
+    if (options.baseline_path) baseline = ReadMatchingBaseline(*options.baseline_path, grid, out);
   } catch (const InputError& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return core::kExitBadInput;
   }
 
-  const fs::path out = fs::absolute(options.out_dir).lexically_normal();
   std::vector<Job> queue = PlanRuns(scenarios, grid, options.shard, out);
   if (!options.merge_dirs.empty()) {
     if (!TakeShardRuns(options, grid, queue, out)) return core::kExitBadInput;
-    return ReportCheck(options, scenarios, grid, queue, out);
+    return ReportCheck(options, scenarios, grid, queue, out, baseline);
   }
   PrepareRunFolders(grid, options.shard, out);
   const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
@@ -1115,7 +1221,7 @@ int RunCheckCommand(const CheckCommandOptions& options) {
   }
   RunPool(binary, queue, jobs, options.quiet);
   if (!options.shard.origin.empty()) return FinishShard(options, grid, queue, out);
-  return ReportCheck(options, scenarios, grid, queue, out);
+  return ReportCheck(options, scenarios, grid, queue, out, baseline);
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::campaign

@@ -1,4 +1,4 @@
-#include "harness/check_methods.h"
+#include "campaign/check_methods.h"
 
 #include <algorithm>
 #include <cmath>
@@ -13,7 +13,7 @@
 #include "harness/yaml_reader.h"
 #include "replay/file_io.h"
 
-namespace tofu::harness {
+namespace tofu::campaign {
 
 using replay::StagingPath;
 using replay::WriteFileAtomically;
@@ -225,11 +225,11 @@ ScenarioMethodTable AggregateScenarioMethods(const std::string& scenario,
   return table;
 }
 
-std::vector<ScenarioMethodTable> AggregateMethodTables(const std::vector<Scenario>& scenarios,
+std::vector<ScenarioMethodTable> AggregateMethodTables(const std::vector<harness::Scenario>& scenarios,
                                                        const std::vector<ScenarioCheck>& checks) {
   std::vector<ScenarioMethodTable> tables;
   for (size_t i = 0; i < scenarios.size() && i < checks.size(); ++i) {
-    const Scenario& s = scenarios[i];
+    const harness::Scenario& s = scenarios[i];
     ScenarioMethodTable table = AggregateScenarioMethods(
         s.name, s.estimation ? s.estimation->methods : std::vector<std::string>{},
         checks[i].runs);
@@ -295,7 +295,7 @@ std::string MethodsMarkdown(const std::vector<ScenarioMethodTable>& tables) {
 }
 
 std::optional<fs::path> WriteCheckMethods(const fs::path& out_dir,
-                                          const std::vector<Scenario>& scenarios,
+                                          const std::vector<harness::Scenario>& scenarios,
                                           const std::vector<ScenarioCheck>& checks) {
   const fs::path csv = out_dir / "methods.csv";
   const fs::path md = out_dir / "methods.md";
@@ -304,7 +304,7 @@ std::optional<fs::path> WriteCheckMethods(const fs::path& out_dir,
   std::error_code ignored;
   fs::remove(png, ignored);
   const bool estimation = std::any_of(scenarios.begin(), scenarios.end(),
-                                      [](const Scenario& s) { return s.estimation.has_value(); });
+                                      [](const harness::Scenario& s) { return s.estimation.has_value(); });
   if (!estimation) {
     fs::remove(csv, ignored);
     fs::remove(md, ignored);
@@ -320,7 +320,7 @@ std::optional<fs::path> WriteCheckMethods(const fs::path& out_dir,
   bool drawn = false;
   try {
     drawn = fs::exists(script) &&
-            RunQuietly({script.string(), out_dir.string(), "--out", staging.string()}) == 0;
+            harness::RunQuietly({script.string(), out_dir.string(), "--out", staging.string()}) == 0;
   } catch (...) {  // interrupted (interrupt.h): the script was stopped mid-drawing
     fs::remove(staging, ignored);
     throw;
@@ -337,4 +337,4 @@ std::optional<fs::path> WriteCheckMethods(const fs::path& out_dir,
   return md;
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::campaign

@@ -10,10 +10,10 @@
 #include <string>
 #include <vector>
 
-#include "harness/check_command.h"
+#include "campaign/check_command.h"
 #include "harness/scenario.h"
 
-namespace tofu::harness {
+namespace tofu::campaign {
 
 /// One metric of one method over the seeds.
 struct MethodMetricSummary {
@@ -65,7 +65,7 @@ ScenarioMethodTable AggregateScenarioMethods(const std::string& scenario,
 /// The tables of a check: `checks[i]` holds the runs of `scenarios[i]` (same order and
 /// size). Scenarios with no method (no estimation block and none in the summaries) are
 /// left out.
-std::vector<ScenarioMethodTable> AggregateMethodTables(const std::vector<Scenario>& scenarios,
+std::vector<ScenarioMethodTable> AggregateMethodTables(const std::vector<harness::Scenario>& scenarios,
                                                        const std::vector<ScenarioCheck>& checks);
 
 /// methods.csv: the header line "#scenario,method,metric,seeds,median,worst" (the form of
@@ -87,7 +87,7 @@ std::string MethodsMarkdown(const std::vector<ScenarioMethodTable>& tables);
 /// may have left in <out_dir> (they would describe other runs) and returns nullopt.
 /// Throws core::IoError when a file cannot be written.
 std::optional<std::filesystem::path> WriteCheckMethods(const std::filesystem::path& out_dir,
-                                                       const std::vector<Scenario>& scenarios,
+                                                       const std::vector<harness::Scenario>& scenarios,
                                                        const std::vector<ScenarioCheck>& checks);
 
-}  // namespace tofu::harness
+}  // namespace tofu::campaign

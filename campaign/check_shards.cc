@@ -1,4 +1,4 @@
-#include "harness/check_shards.h"
+#include "campaign/check_shards.h"
 
 #include <algorithm>
 #include <optional>
@@ -16,7 +16,7 @@
 #include "replay/json_field.h"
 #include "replay/interrupt.h"
 
-namespace tofu::harness {
+namespace tofu::campaign {
 namespace {
 
 namespace fs = std::filesystem;
@@ -33,7 +33,7 @@ constexpr const char* kRecordForm =
 struct ShardRecord {
   fs::path file;
   fs::path dir;
-  Shard shard;
+  harness::Shard shard;
   int seeds = 0;
   std::vector<CheckGrid::Entry> scenarios;
   std::map<uint64_t, RecordedRun> runs;  // by cell
@@ -56,7 +56,7 @@ std::string RunList(const CheckGrid& grid, const std::vector<uint64_t>& cells) {
   return list;
 }
 
-std::vector<uint64_t> CellsOf(const CheckGrid& grid, const Shard& shard) {
+std::vector<uint64_t> CellsOf(const CheckGrid& grid, const harness::Shard& shard) {
   std::vector<uint64_t> cells;
   for (uint64_t c = 0; c < grid.Cells(); ++c) {
     if (shard.Owns(c)) cells.push_back(c);
@@ -234,7 +234,7 @@ void RequireEveryRun(const std::vector<ShardRecord>& records, const CheckGrid& g
   for (const ShardRecord& r : records) by_index[r.shard.index] = &r;
   std::string problems;
   for (uint64_t index = 0; index < count; ++index) {
-    const Shard shard(index, count);
+    const harness::Shard shard(index, count);
     const auto it = by_index.find(index);
     std::vector<uint64_t> missing;
     for (const uint64_t cell : CellsOf(grid, shard)) {
@@ -280,21 +280,21 @@ fs::path CheckGrid::RunDirectory(const fs::path& out, uint64_t cell) const {
   return out / ScenarioOf(cell).name / fmt::format("seed_{}", SeedOf(cell));
 }
 
-CheckGrid MakeCheckGrid(const std::vector<Scenario>& scenarios, int seeds) {
+CheckGrid MakeCheckGrid(const std::vector<harness::Scenario>& scenarios, int seeds) {
   CheckGrid grid;
   grid.seeds = seeds;
-  for (const Scenario& s : scenarios) {
+  for (const harness::Scenario& s : scenarios) {
     const std::string text = core::ReadWholeFile(s.source_file, "scenario file");
     grid.scenarios.push_back({s.name, s.seed, fmt::format("{:016x}", core::Fnv1a64(text))});
   }
   return grid;
 }
 
-std::string ShardRecordName(const Shard& shard) {
-  return "check_" + ShardStem(shard) + ".json";
+std::string ShardRecordName(const harness::Shard& shard) {
+  return "check_" + harness::ShardStem(shard) + ".json";
 }
 
-void WriteShardRecord(const fs::path& out, const Shard& shard, const CheckGrid& grid,
+void WriteShardRecord(const fs::path& out, const harness::Shard& shard, const CheckGrid& grid,
                       const std::map<uint64_t, RecordedRun>& runs) {
   // In reading order, for the person who opens it.
   using ordered = nlohmann::ordered_json;
@@ -316,7 +316,7 @@ void WriteShardRecord(const fs::path& out, const Shard& shard, const CheckGrid& 
   replay::WriteFileAtomically(out / ShardRecordName(shard), doc.dump(2) + "\n", "--out");
 }
 
-void RemoveShardRecords(const fs::path& out, const Shard& shard) {
+void RemoveShardRecords(const fs::path& out, const harness::Shard& shard) {
   std::error_code ec;
   const std::string own = ShardRecordName(shard);
   const std::string same_count = fmt::format("_of_{:04d}.json", shard.count);
@@ -409,4 +409,4 @@ std::map<uint64_t, RecordedRun> MergeShards(const std::vector<std::string>& dirs
   return runs;
 }
 
-}  // namespace tofu::harness
+}  // namespace tofu::campaign
