@@ -1,5 +1,10 @@
 #include "report/html_check_page.h"
 
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
@@ -348,6 +353,146 @@ std::string ScenarioDetail(const CheckScenario& sc) {
   return out + "</section>\n";
 }
 
+
+// ---- the comparison with a baseline (<check>/compare.json of tofu check --baseline) ----
+
+// A cell's per-seed pairs as a slope chart: the base on the left, the new on the right,
+// one line per seed; a log axis for an error's scale (a ratio metric). Events (0/1) as the
+// counts on each side.
+std::string SlopeChart(const json& cell) {
+  const bool ratio = cell.value("kind", "") == "ratio";
+  std::vector<std::pair<double, double>> pairs;
+  std::vector<double> all;
+  for (const json& s : cell.value("seeds", json::array())) {
+    if (!s.is_object() || !s["base"].is_number() || !s["new"].is_number()) continue;
+    const double b = s["base"].get<double>(), n = s["new"].get<double>();
+    if (ratio && (b <= 0.0 || n <= 0.0)) continue;
+    pairs.emplace_back(b, n);
+    all.push_back(b);
+    all.push_back(n);
+  }
+  if (pairs.empty()) return "<span class=\"muted\">no pairs</span>";
+  const auto scale = [&](double v) { return ratio ? std::log(v) : v; };
+  double lo = scale(*std::min_element(all.begin(), all.end()));
+  double hi = scale(*std::max_element(all.begin(), all.end()));
+  if (hi - lo < 1e-12) {
+    lo -= 1.0;
+    hi += 1.0;
+  }
+  constexpr double kWidth = 180, kHeight = 96, kLeft = 40, kRight = 140, kTop = 8, kBottom = 84;
+  const auto y = [&](double v) { return kBottom - (scale(v) - lo) / (hi - lo) * (kBottom - kTop); };
+  const std::string verdict = cell.value("verdict", "");
+  const char* color = verdict == "regressed" ? "#cf222e" : verdict == "improved" ? "#1a7f37"
+                      : verdict == "unchanged" ? "#0969da" : "#6e7781";
+  std::string svg = fmt::format(
+      "<svg class=\"slope\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\" role=\"img\">"
+      "<line x1=\"{}\" y1=\"{}\" x2=\"{}\" y2=\"{}\" stroke=\"#d0d7de\"/>"
+      "<line x1=\"{}\" y1=\"{}\" x2=\"{}\" y2=\"{}\" stroke=\"#d0d7de\"/>",
+      kWidth, kHeight, kWidth, kHeight, kLeft, kTop, kLeft, kBottom, kRight, kTop, kRight, kBottom);
+  for (const auto& [b, n] : pairs) {
+    svg += fmt::format(
+        "<line x1=\"{}\" y1=\"{:.1f}\" x2=\"{}\" y2=\"{:.1f}\" stroke=\"{}\" stroke-opacity=\"0.7\"/>"
+        "<circle cx=\"{}\" cy=\"{:.1f}\" r=\"2.2\" fill=\"{}\"/><circle cx=\"{}\" cy=\"{:.1f}\" "
+        "r=\"2.2\" fill=\"{}\"/>",
+        kLeft, y(b), kRight, y(n), color, kLeft, y(b), color, kRight, y(n), color);
+  }
+  const double top = ratio ? std::exp(hi) : hi, bottom = ratio ? std::exp(lo) : lo;
+  svg += fmt::format(
+      "<text x=\"{}\" y=\"{}\" font-size=\"9\" text-anchor=\"end\">{:.3g}</text>"
+      "<text x=\"{}\" y=\"{}\" font-size=\"9\" text-anchor=\"end\">{:.3g}</text>"
+      "<text x=\"{}\" y=\"{}\" font-size=\"9\" text-anchor=\"middle\">base</text>"
+      "<text x=\"{}\" y=\"{}\" font-size=\"9\" text-anchor=\"middle\">new</text></svg>",
+      kLeft - 4, kTop + 6, top, kLeft - 4, kBottom, bottom, kLeft, kHeight - 1, kRight, kHeight - 1);
+  return svg;
+}
+
+std::string EffectOf(const json& cell) {
+  const std::string kind = cell.value("kind", "");
+  if (kind == "event") {
+    return fmt::format("{} &rarr; {} of {} seeds", cell.value("base_events", 0),
+                       cell.value("new_events", 0), cell.value("new_count", 0));
+  }
+  if (!cell["effect"].is_number() || !cell["interval"].is_array()) return "-";
+  const double effect = cell["effect"].get<double>();
+  const double low = cell["interval"][0].get<double>(), high = cell["interval"][1].get<double>();
+  if (kind == "ratio") return fmt::format("&times;{:.3f} [{:.3f}, {:.3f}]", effect, low, high);
+  return fmt::format("{:+.4g} [{:+.4g}, {:+.4g}] {}", effect, low, high, E(cell.value("unit", "")));
+}
+
+// Reads <check>/compare.json; null when the check was not compared with a baseline.
+json ReadComparison(const fs::path& check_dir) {
+  const fs::path file = check_dir / "compare.json";
+  if (!fs::exists(file)) return nullptr;
+  std::ifstream in(file);
+  std::stringstream text;
+  text << in.rdbuf();
+  json comparison = json::parse(text.str(), nullptr, false);
+  if (!comparison.is_object() || comparison.value("format", "") != "tofu compare" ||
+      !comparison.contains("cells") || !comparison["cells"].is_array()) {
+    throw InputError({file.string()}, "format",
+                     "expected the JSON of tofu compare (\"format\": \"tofu compare\", cells)");
+  }
+  return comparison;
+}
+
+int Regressed(const json& comparison) {
+  if (comparison.is_null()) return 0;
+  int n = 0;
+  for (const json& c : comparison["cells"]) n += c.value("verdict", "") == "regressed" ? 1 : 0;
+  return n;
+}
+
+// The section: the summary, then every cell that is not unchanged (regressed first) with
+// its per-seed pairs drawn; when every cell is unchanged, the ATE cells' pairs.
+std::string ComparisonSection(const json& comparison) {
+  if (comparison.is_null()) return {};
+  std::vector<const json*> shown;
+  const auto rank = [](const json* c) {
+    const std::string v = c->value("verdict", "");
+    return v == "regressed" ? 0 : v == "improved" ? 1 : v == "inconclusive" ? 2 : 3;
+  };
+  for (const json& c : comparison["cells"]) {
+    if (c.value("verdict", "") != "unchanged") shown.push_back(&c);
+  }
+  const bool all_unchanged = shown.empty();
+  if (all_unchanged) {
+    for (const json& c : comparison["cells"]) {
+      if (c.value("metric", "") == "methods.<method>.ate_m") shown.push_back(&c);
+    }
+  }
+  std::stable_sort(shown.begin(), shown.end(),
+                   [&](const json* a, const json* b) { return rank(a) < rank(b); });
+  const json& counts = comparison["counts"];
+  std::string body = fmt::format(
+      "<p>Base <code>{}</code> &rarr; new <code>{}</code>: {} cells, <strong>{} regressed</strong>, "
+      "{} improved, {} inconclusive, {} unchanged (false-discovery rate {} by {}). {}</p>\n",
+      E(comparison.value("base", "")), E(comparison.value("new", "")), comparison["cells"].size(),
+      counts.value("regressed", 0), counts.value("improved", 0), counts.value("inconclusive", 0),
+      counts.value("unchanged", 0), comparison.value("fdr", 0.0),
+      E(comparison.value("fdr_procedure", "")),
+      all_unchanged ? "Every cell is unchanged; the pairs of each method's ATE are drawn."
+                    : "Every cell that is not unchanged, with each seed's pair drawn.");
+  body += "<table><tr><th>verdict</th><th>scenario</th><th>method</th><th>metric</th>"
+          "<th>pairing</th><th>effect [CI]</th><th>p adj</th><th>seeds</th></tr>\n";
+  for (const json* c : shown) {
+    const std::string verdict = c->value("verdict", "");
+    const std::string metric = c->value("metric", "");
+    const bool expectation = metric == "run.expectation.<label>";
+    body += fmt::format(
+        "<tr class=\"{}\"><td class=\"result\">{}</td><td><code>{}</code></td><td>{}</td>"
+        "<td>{}</td><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td></tr>\n",
+        verdict == "regressed" ? "fail" : verdict == "improved" ? "pass" : "", E(verdict),
+        E(c->value("scenario", "")), expectation ? "-" : E(c->value("subject", "")),
+        expectation ? "expectation " + E(c->value("subject", "")) : E(metric), E(c->value("pairing", "")),
+        EffectOf(*c),
+        c->value("note", "").empty() ? fmt::format("{:.3g}", c->value("p_adjusted", 1.0))
+                                     : E(c->value("note", "")),
+        SlopeChart(*c));
+  }
+  body += "</table>\n";
+  return Section("baseline", "Compared with the baseline", body);
+}
+
 }  // namespace
 
 std::string CheckPageHtml(const fs::path& check_dir, const std::vector<CheckScenario>& scenarios) {
@@ -357,20 +502,27 @@ std::string CheckPageHtml(const fs::path& check_dir, const std::vector<CheckScen
     runs_passed += static_cast<size_t>(sc.check.seeds_passed);
     scenarios_passed += sc.check.passed ? 1 : 0;
   }
-  const bool passed = scenarios_passed == scenarios.size();
+  const json comparison = ReadComparison(check_dir);
+  const int regressed = Regressed(comparison);
+  const bool passed = scenarios_passed == scenarios.size() && regressed == 0;
   std::string page = PageHead("tofu check report");
   page += fmt::format(
       "<header class=\"top {}\"><h1>tofu check {}</h1>\n<div class=\"sub\">{} of {} scenarios "
       "passed · "
-      "{} of {} runs passed every expectation · {}</div>\n</header>\n<main>\n",
+      "{} of {} runs passed every expectation{} · {}</div>\n</header>\n<main>\n",
       passed ? "pass" : "fail", Badge(passed), scenarios_passed, scenarios.size(), runs_passed,
-      runs, E(fs::absolute(check_dir).lexically_normal().string()));
+      runs,
+      comparison.is_null() ? std::string()
+                           : fmt::format(" · {} {} against the baseline", regressed,
+                                         regressed == 1 ? "cell regressed" : "cells regressed"),
+      E(fs::absolute(check_dir).lexically_normal().string()));
   page +=
       Section("overview", "Scenarios",
               "<p>One row per scenario over its seeds (an expectation passes when it held in at "
               "least <code>ceil(pass_fraction &times; seeds)</code> of them). Each seed links to "
               "its run's page.</p>\n" +
                   CheckSummaryTable(scenarios));
+  page += ComparisonSection(comparison);
   for (const CheckScenario& sc : scenarios) page += ScenarioDetail(sc);
   page += "</main>\n" + PageFoot(false);
   return page;

@@ -313,6 +313,13 @@ TEST(CompareCommand, AChecksOwnRunsAreUnchangedAndNaiveFusionIsWorseThanConsensu
                               "methods.consensus.ate_m x1.429"),
             std::string::npos) << failed_junit;
   EXPECT_NE(failed_junit.find("type=\"regression\""), std::string::npos);
+  // Its report fails too, and draws the regressed cell's pairs.
+  ASSERT_EQ(Tofu("report C --out C_report", work).exit_code, 0);
+  const std::string page = test::ReadFile(work / "C_report" / "index.html");
+  EXPECT_NE(page.find("1 cell regressed against the baseline"), std::string::npos);
+  EXPECT_NE(page.find("<h1>tofu check <span class=\"badge fail\">"), std::string::npos);
+  EXPECT_NE(page.find("Compared with the baseline"), std::string::npos);
+  EXPECT_NE(page.find("<svg class=\"slope\""), std::string::npos);
   // Another grid (6 seeds of a baseline of 8): bad input before anything runs.
   const Result other_grid = Tofu("check s.yaml --seeds 6 --out D --quiet --baseline base.json", work);
   EXPECT_EQ(other_grid.exit_code, 2) << other_grid.out;
