@@ -222,6 +222,43 @@ ChildProcess::ChildProcess(const std::vector<std::string>& argv,
         dir.empty() ? "" : " (working directory " + dir + ")"));
   }
   for (const int fd : {stdin_fd_, stdout_fd_, stderr_fd_}) SetNonBlocking(fd);
+  StartWatchdog(max_fd);
+}
+
+// The client's group outlives a SIGKILLed tofu: PR_SET_PDEATHSIG reaches the client alone,
+// not what it started. A watchdog process (forked from tofu, in tofu's group, deaf to the
+// terminal's signals) blocks reading a pipe whose only write end tofu holds; the end closes
+// when tofu ends, however it ends, and the watchdog then kills the client's whole group.
+// Without a watchdog (fork failed) the client still has PR_SET_PDEATHSIG.
+void ChildProcess::StartWatchdog(int max_fd) {
+  int guard[2];
+  if (::pipe2(guard, O_CLOEXEC) != 0) return;
+  const pid_t group = pid_;
+  const pid_t watchdog = ::fork();
+  if (watchdog == 0) {
+    // Async-signal-safe calls only: tofu may have other threads.
+    for (const int signal : {SIGINT, SIGTERM, SIGHUP, SIGQUIT, SIGPIPE}) ::signal(signal, SIG_IGN);
+    // Every descriptor but the guard's read end, other clients' guards included: one kept
+    // open here would keep that client's watchdog from ever seeing its end.
+    for (int fd = 0; fd < max_fd; ++fd) {
+      if (fd != guard[0]) ::close(fd);
+    }
+    char byte = 0;
+    for (;;) {
+      const ssize_t n = ::read(guard[0], &byte, 1);
+      if (n > 0 || (n < 0 && errno == EINTR)) continue;
+      break;  // EOF: tofu has ended (or let go of the client)
+    }
+    ::kill(-group, SIGKILL);
+    ::_exit(0);
+  }
+  ::close(guard[0]);
+  if (watchdog < 0) {
+    ::close(guard[1]);
+    return;
+  }
+  watchdog_pid_ = watchdog;
+  watchdog_fd_ = guard[1];
 }
 
 ChildProcess::~ChildProcess() { Kill(); }
@@ -404,6 +441,13 @@ void ChildProcess::Kill() {
   } while (reaped < 0 && errno == EINTR);
   if (reaped == pid_ && !exit_status_) exit_status_ = status;
   reaped_ = true;
+  // The watchdog's end: it kills a group that is gone already, and exits.
+  CloseFd(&watchdog_fd_);
+  if (watchdog_pid_ > 0) {
+    while (::waitpid(watchdog_pid_, &status, 0) < 0 && errno == EINTR) {
+    }
+    watchdog_pid_ = -1;
+  }
   // The last lines it wrote (a traceback) are in the pipe; EOF once the group is gone.
   DrainStderr(Clock::now() + std::chrono::milliseconds(100));
   CloseFd(&stdout_fd_);

@@ -8,7 +8,8 @@
 //    seq, another version, its own error) fails its method with the method, message and
 //    field named and its last stderr lines in the run log, every other method is still
 //    scored, the run exits 5 (a client failed; 3 is the simulation's own failure) and no
-//    client process is left, also on SIGTERM;
+//    client process is left, also on SIGTERM, nor any process a client started when tofu
+//    is killed with SIGKILL;
 //  - a failed client is scored as a failure: its figures in summary.json are null (what it
 //    measured up to the failure kept apart under `partial`), an expectation on it fails as
 //    not measurable, the summary's top-level `failure` names it, and `tofu check` marks that
@@ -392,6 +393,53 @@ TEST(ClientMethods, SigtermDuringARunLeavesNoClientProcess) {
   EXPECT_TRUE(test::WaitUntil([&] { return !ProcessAlive(work / "pid.txt"); },
                               std::chrono::seconds(5)))
       << "the client outlived tofu";
+  fs::remove_all(work);
+}
+
+// Whether `pid` is a live process: a zombie (exited, not yet reaped by whoever adopted
+// it) is not.
+bool ProcessRunning(int pid) {
+  std::string stat;
+  try {
+    stat = test::ReadFile(fs::path("/proc") / std::to_string(pid) / "stat");
+  } catch (const std::exception&) {
+    return false;
+  }
+  const size_t paren = stat.rfind(')');
+  if (stat.empty() || paren == std::string::npos || paren + 2 >= stat.size()) return false;
+  const char state = stat[paren + 2];
+  return state != 'Z' && state != 'X';
+}
+
+// SIGKILL: no destructor runs in tofu. The client's own child (a grandchild of tofu, which
+// PR_SET_PDEATHSIG alone does not reach) must end with the client's whole group.
+TEST(ClientMethods, SigkillOfTofuLeavesNoClientProcessNorItsChildren) {
+  const fs::path work = test::PerTestDirectory("client_sigkill_");
+  fs::create_directories(work);
+  WriteSlowClientScenario(work, "'pid.txt'");
+  std::string script = test::ReadFile(work / "slow.py");
+  script.insert(script.find("def send"),
+                "import subprocess\n"
+                "child = subprocess.Popen(['sleep', '300'])\n"
+                "open('child_pid.txt', 'w').write(str(child.pid))\n");
+  test::WriteFile(work / "slow.py", script);
+  test::ChildProcess tofu({TOFU_BINARY, "run", "s.yaml", "--out", "R", "--quiet"}, work,
+                          work / "log.txt");
+  ASSERT_TRUE(test::WaitUntil(
+      [&] { return fs::exists(work / "pid.txt") && fs::exists(work / "child_pid.txt"); },
+      std::chrono::seconds(30)));
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  const int client = std::stoi(test::ReadFile(work / "pid.txt"));
+  const int grandchild = std::stoi(test::ReadFile(work / "child_pid.txt"));
+  ASSERT_TRUE(ProcessRunning(client));
+  ASSERT_TRUE(ProcessRunning(grandchild));
+  ::kill(tofu.pid(), SIGKILL);
+  ASSERT_TRUE(tofu.Wait(std::chrono::seconds(30)).has_value());
+  EXPECT_TRUE(test::WaitUntil([&] { return !ProcessRunning(client); }, std::chrono::seconds(5)))
+      << "the client outlived tofu";
+  EXPECT_TRUE(test::WaitUntil([&] { return !ProcessRunning(grandchild); }, std::chrono::seconds(5)))
+      << "the client's own child outlived tofu";
+  if (ProcessRunning(grandchild)) ::kill(grandchild, SIGKILL);
   fs::remove_all(work);
 }
 
