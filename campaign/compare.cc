@@ -368,13 +368,20 @@ std::string ConcreteName(const ComparedMetric& metric, const std::string& subjec
 Pairing WeakestPairing(const Observations& o, const ComparedMetric& metric,
                        const std::string& base_method, const std::string& new_method) {
   if (!o.paired) return Pairing::kUnpaired;
+  // Judged over the seeds whose runs both left a summary: a run that failed has no
+  // digests, and no values either (its failure is an event, compared seed by seed). With
+  // no such seed the pairing is not verified: unpaired.
   Pairing weakest = Pairing::kIdenticalSamples;
+  bool verified = false;
   for (size_t i = 0; i < o.base.size(); ++i) {
-    const Pairing p = PairingOf(DigestsFor(*o.base[i].second, metric, base_method),
-                                DigestsFor(*o.now[i].second, metric, new_method));
+    const CellRecord& base = *o.base[i].second;
+    const CellRecord& now = *o.now[i].second;
+    if (!base.error.empty() || !now.error.empty()) continue;
+    verified = true;
+    const Pairing p = PairingOf(DigestsFor(base, metric, base_method), DigestsFor(now, metric, new_method));
     weakest = std::max(weakest, p);
   }
-  return weakest;
+  return verified ? weakest : Pairing::kUnpaired;
 }
 
 void RequireKnownEffects(const CompareOptions& options) {

@@ -163,6 +163,26 @@ TEST(Compare, PairedEventsUseMcNemarAndNeverDropAFailure) {
   EXPECT_EQ(Cell(c, "s0", "methods.<method>.ate_m").verdict, Verdict::kInconclusive);
 }
 
+// One failed run (no summary, so no digests and no values) leaves the other seeds paired:
+// its failure is a paired event, the metric is tested over the seeds that have both.
+TEST(Compare, AFailedRunDoesNotUnpairTheOtherSeeds) {
+  const CampaignRecord base = Synthetic(1, 8, 1.0, 0.3, 0.0, 1, 1);
+  CampaignRecord now = Synthetic(1, 8, 1.0, 0.3, 0.0, 1, 1);
+  CellRecord& failed = now.cells[3];
+  failed.error = "exit 3: the simulation failed";
+  failed.exit_code = 3;
+  failed.values.clear();
+  failed.digests = {};
+  failed.events = {{"run.failed", true}};
+  const Comparison c = CompareCampaigns(base, now, {});
+  const CellComparison& ate = Cell(c, "s0", "methods.<method>.ate_m");
+  EXPECT_EQ(ate.pairing, Pairing::kIdenticalSamples);
+  EXPECT_EQ(ate.pairs, 7);
+  const CellComparison& run = Cell(c, "s0", "run.failed");
+  EXPECT_EQ(run.new_only, 1);
+  EXPECT_EQ(run.base_only, 0);
+}
+
 TEST(Compare, RefusesWhatCannotBeComparedNamingTheCell) {
   const CampaignRecord a = Synthetic(2, 3, 1.0, 0.3, 0.0, 1, 1);
   const auto refused = [&](CampaignRecord b, const std::string& fragment) {
