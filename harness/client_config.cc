@@ -8,6 +8,9 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "interface/child_process.h"
+#include "interface/client.h"
+
 namespace tofu::harness {
 namespace {
 
@@ -210,6 +213,28 @@ const ClientSpec* FindClient(const std::vector<ClientSpec>& clients, const std::
     if (c.Name() == name) return &c;
   }
   return nullptr;
+}
+
+void CheckClientsResolve(const std::vector<replay::ClientSpec>& clients,
+                         const std::function<core::SourceLocation(const std::string&)>& where) {
+  for (const replay::ClientSpec& client : clients) {
+    if (client.kind == replay::ClientSpec::Kind::kProcess) {
+      const std::string key = "external." + client.key;
+      try {
+        interface::ResolveCommand(client.command, client.working_dir);
+      } catch (const std::runtime_error& e) {
+        throw core::InputError(where(key), key + ".command",
+                               fmt::format("{} cannot start: {}", client.Name(), e.what()));
+      }
+    } else {
+      const std::string key = "plugins." + client.key;
+      try {
+        interface::PluginLibrary::Open(client.library);
+      } catch (const std::exception& e) {
+        throw core::InputError(where(key), key + ".library", e.what());
+      }
+    }
+  }
 }
 
 }  // namespace tofu::harness

@@ -17,12 +17,14 @@
 // scenario's directory when read, so the resolved scenario (a run directory's
 // scenario.yaml) names the same files from anywhere.
 
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include <yaml-cpp/yaml.h>
 
+#include "core/error.h"
 #include "harness/yaml_reader.h"
 #include "replay/estimation_config.h"
 
@@ -36,6 +38,15 @@ std::vector<replay::ClientSpec> ReadClients(const std::optional<YamlValue>& exte
 
 /// Writes them back (nothing when there is none), paths absolute.
 void EmitClients(YAML::Emitter& out, const std::vector<replay::ClientSpec>& clients);
+
+/// What can be known of the clients before anything flies, without starting one: each
+/// process client's command resolves to an executable file in an existing working
+/// directory (interface::ResolveCommand), each plug-in library loads and speaks this
+/// tofu's API version (interface::PluginLibrary::Open, then unloaded). Throws
+/// core::InputError at `where("external.<key>")` / `where("plugins.<key>")` naming the
+/// client and the problem.
+void CheckClientsResolve(const std::vector<replay::ClientSpec>& clients,
+                         const std::function<core::SourceLocation(const std::string&)>& where);
 
 /// A client name ("external:<key>", "plugin:<key>") among `clients`, or nullptr.
 const replay::ClientSpec* FindClient(const std::vector<replay::ClientSpec>& clients,

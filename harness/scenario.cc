@@ -1078,6 +1078,13 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   }
   scenario.clients =
       ReadClients(map.Optional("external"), map.Optional("plugins"), file_label);
+  for (const char* block : {"external", "plugins"}) {
+    if (const auto clients = map.Optional(block)) {
+      for (const auto& [key, entry] : clients->Entries()) {
+        scenario.key_locations[std::string(block) + "." + key] = entry.key_location();
+      }
+    }
+  }
   if (const auto estimation = map.Optional("estimation")) {
     scenario.estimation = ReadEstimation(*estimation, scenario.sensors, scenario.clients);
     // What a client's setup carries: the block as the resolved scenario writes it.
@@ -1170,6 +1177,7 @@ void CheckScenarioModels(const Scenario& scenario, const std::string& models_dir
                                          camera, scenario.world, fmt::join(cameras, ", ")));
     }
   }
+  CheckClientsResolve(scenario.clients, where);
 }
 
 Scenario LoadScenario(const std::string& path) {

@@ -147,9 +147,12 @@ replay::EstimationConfig ParseEstimationBlock(const std::string& yaml_text,
 /// model files exist and MuJoCo loads them, the robot has the tool_tip site the harness
 /// needs, the trajectory can be built in that world (an approach segment finds its
 /// surface), every sensor's model can be set up on this robot in this world (its mount
-/// site, the total station's tripod) and render.camera is chase, overview or a camera of
-/// the world. Throws core::InputError naming the scenario file, the key and the problem
-/// (exit 2). One model load: about 10-50 ms. `models_dir` empty: sim::DefaultModelsDir().
+/// site, the total station's tripod), render.camera is chase, overview or a camera of
+/// the world, and every user's client can start: its command resolves to an executable
+/// file, its plug-in library loads and speaks this API version (CheckClientsResolve; no
+/// client is started). Throws core::InputError naming the scenario file, the key and the
+/// problem (exit 2). One model load: about 10-50 ms. `models_dir` empty:
+/// sim::DefaultModelsDir().
 void CheckScenarioModels(const Scenario& scenario, const std::string& models_dir = "");
 
 /// The scenario as YAML with every default filled in; loading it back yields an equal

@@ -91,6 +91,45 @@ int WaitStatusOf(const siginfo_t& info) {
 
 }  // namespace
 
+std::string ResolveCommand(const std::vector<std::string>& argv,
+                           const std::filesystem::path& working_dir) {
+  if (argv.empty() || argv[0].empty()) throw std::runtime_error("the command is empty");
+  std::error_code ec;
+  if (!working_dir.empty() && !std::filesystem::is_directory(working_dir, ec)) {
+    throw std::runtime_error(fmt::format("cannot enter the working directory {}: {}",
+                                         working_dir.string(), std::strerror(ENOENT)));
+  }
+  if (argv[0].find('/') == std::string::npos) {
+    const std::string program = FindOnPath(argv[0]);
+    if (program.empty()) {
+      throw std::runtime_error(
+          fmt::format("`{}`: command not found (no executable of that name on PATH)", argv[0]));
+    }
+    return program;
+  }
+  const std::filesystem::path file =
+      argv[0][0] == '/' || working_dir.empty() ? std::filesystem::path(argv[0]) : working_dir / argv[0];
+  const std::string where =
+      working_dir.empty() ? std::string() : " (working directory " + working_dir.string() + ")";
+  struct stat info;
+  if (::stat(file.c_str(), &info) != 0) {
+    throw std::runtime_error(
+        fmt::format("`{}`: cannot execute: {}{}", argv[0], std::strerror(errno), where));
+  }
+  if (!S_ISREG(info.st_mode)) {
+    throw std::runtime_error(
+        fmt::format("`{}`: cannot execute: {}{}", argv[0],
+                    std::strerror(S_ISDIR(info.st_mode) ? EISDIR : EACCES), where));
+  }
+  if (::access(file.c_str(), X_OK) != 0) {
+    throw std::runtime_error(fmt::format(
+        "`{}`: cannot execute: {}{} (chmod +x it, or name its interpreter first: [/usr/bin/python3, "
+        "{}])",
+        argv[0], std::strerror(errno), where, argv[0]));
+  }
+  return argv[0];
+}
+
 void SetInterruptCheck(std::function<void()> check, int wake_fd) {
   InterruptCheck() = std::move(check);
   g_wake_fd = InterruptCheck() ? wake_fd : -1;
@@ -123,15 +162,7 @@ long WriteWithoutSigpipe(int fd, const void* data, std::size_t size) {
 // order matters (no descriptor leaked, no child left behind).
 ChildProcess::ChildProcess(const std::vector<std::string>& argv,
                            const std::filesystem::path& working_dir) {
-  if (argv.empty() || argv[0].empty()) throw std::runtime_error("the command is empty");
-  std::string program = argv[0];
-  if (program.find('/') == std::string::npos) {
-    program = FindOnPath(argv[0]);
-    if (program.empty()) {
-      throw std::runtime_error(
-          fmt::format("`{}`: command not found (no executable of that name on PATH)", argv[0]));
-    }
-  }
+  const std::string program = ResolveCommand(argv, working_dir);
   std::vector<char*> args;
   for (const std::string& arg : argv) args.push_back(const_cast<char*>(arg.c_str()));
   args.push_back(nullptr);

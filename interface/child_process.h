@@ -39,6 +39,14 @@ void SetInterruptCheck(std::function<void()> check, int wake_fd = -1);
 /// process's signal dispositions are never touched. Returns what write(2) returns.
 long WriteWithoutSigpipe(int fd, const void* data, std::size_t size);
 
+/// The program `argv` would run in `working_dir` (empty: tofu's own), without starting it:
+/// argv[0] without a '/' looked up on PATH, with a '/' relative to `working_dir`; it must be
+/// a regular, executable file and the working directory must exist. Throws
+/// std::runtime_error naming argv[0] and the reason (`tofu validate` finds a bad command
+/// before anything flies; ChildProcess throws the same).
+std::string ResolveCommand(const std::vector<std::string>& argv,
+                           const std::filesystem::path& working_dir);
+
 class ChildProcess {
  public:
   using Clock = std::chrono::steady_clock;

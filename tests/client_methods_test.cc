@@ -224,12 +224,8 @@ TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsFiveAndLeavesNoProcess) {
   const BadCase& c = GetParam();
   const fs::path work = test::PerTestDirectory("bad_client_" + c.name + "_");
   fs::create_directories(work);
-  std::string command = "[/usr/bin/python3, bad.py]";
-  if (c.script.empty()) {
-    command = "[./no_such_program]";
-  } else {
-    test::WriteFile(work / "bad.py", c.script);
-  }
+  const std::string command = "[/usr/bin/python3, bad.py]";
+  test::WriteFile(work / "bad.py", c.script);
   const std::string clients =
       "external:\n  bad: {command: " + command + c.options + "}\n";
   test::WriteFile(work / "s.yaml",
@@ -240,9 +236,7 @@ TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsFiveAndLeavesNoProcess) {
   EXPECT_EQ(run.exit_code, 5) << run.err;
   EXPECT_CONTAINS(run.err, "external:bad");
   EXPECT_CONTAINS(run.err, c.expected_message);
-  if (!c.script.empty()) {
-    EXPECT_CONTAINS(run.err, "bad client about to misbehave");
-  }
+  EXPECT_CONTAINS(run.err, "bad client about to misbehave");
   ASSERT_TRUE(fs::exists(work / "R" / "summary.json")) << run.err;
   const auto summary = nlohmann::json::parse(test::ReadFile(work / "R" / "summary.json"));
   EXPECT_TRUE(summary["methods"]["consensus"]["ate_m"].is_number());
@@ -265,10 +259,52 @@ TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsFiveAndLeavesNoProcess) {
   fs::remove_all(work);
 }
 
+// A client that cannot start is found before anything flies: tofu validate, run and
+// check refuse it (exit 2) naming the scenario's key and the problem, start no client and
+// write nothing.
+TEST(ClientMethods, ValidateRefusesEveryClientThatCannotStartBeforeAnythingFlies) {
+  const fs::path work = test::PerTestDirectory("client_validate_");
+  fs::create_directories(work);
+  test::WriteFile(work / "not_executable.py", "print('hi')\n");
+  struct Case {
+    std::string clients;
+    std::string method;
+    std::string expected;
+  };
+  const std::vector<Case> cases = {
+      {"external:\n  bad: {command: [no_such_program_of_tofu]}\n", "external:bad",
+       "`no_such_program_of_tofu`: command not found"},
+      {"external:\n  bad: {command: [./no_such_client.py]}\n", "external:bad",
+       "`./no_such_client.py`: cannot execute: No such file or directory"},
+      {"external:\n  bad: {command: [./not_executable.py]}\n", "external:bad",
+       "cannot execute: Permission denied"},
+      {"external:\n  bad: {command: [/usr/bin/python3, c.py], working_dir: no_such_dir}\n",
+       "external:bad", "cannot enter the working directory"},
+      {"plugins:\n  bad: {library: no_such_plugin.so}\n", "plugin:bad", "cannot load it"},
+      {std::string("plugins:\n  bad: {library: \"") + TOFU_TEST_PLUGIN_WRONG_VERSION + "\"}\n",
+       "plugin:bad", "this tofu speaks version"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.expected);
+    test::WriteFile(work / "s.yaml",
+                    Scenario(c.clients, "[consensus, \"" + c.method + "\"]"));
+    for (const std::string command : {"validate s.yaml", "run s.yaml --out R --quiet",
+                                      "check s.yaml --out C --quiet"}) {
+      const Result r = RunTofu(command, work);
+      EXPECT_EQ(r.exit_code, 2) << command << ": " << r.err;
+      EXPECT_CONTAINS(r.err, "s.yaml:");
+      EXPECT_CONTAINS(r.err, c.method.starts_with("plugin") ? "plugins.bad" : "external.bad");
+      EXPECT_CONTAINS(r.err, c.expected);
+    }
+    EXPECT_FALSE(fs::exists(work / "R"));
+    EXPECT_FALSE(fs::exists(work / "C"));
+  }
+  fs::remove_all(work);
+}
+
 INSTANTIATE_TEST_SUITE_P(
     Cases, BadClient,
     ::testing::Values(
-        BadCase{"cannot_start", "", "no_such_program"},
         BadCase{"exits_early", MisbehavingClient("            sys.exit(5)", 500), "exit"},
         BadCase{"hangs", MisbehavingClient("            import time; time.sleep(60)", 500), "timeout",
                 ", timeout_s: 0.5"},
