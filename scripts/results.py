@@ -792,6 +792,173 @@ def extract_suite(r):
     return v
 
 
+# ---- tofu compare, calibrated (issue 52, item 5) ----------------------------------------
+# On the suite's own check (the suite source's command, reused with --reuse): a check
+# against itself; three splits of its ten seeds into disjoint halves compared as
+# independent samples (A/A, every cell a null); an injected regression; a method known to
+# be worse; and the seeds a 10 % ATE regression needs at 80 % power, paired and unpaired.
+CALIBRATION_SPLITS = {"1-5 vs 6-10": ([1, 2, 3, 4, 5], [6, 7, 8, 9, 10]),
+                      "odd vs even": ([1, 3, 5, 7, 9], [2, 4, 6, 8, 10]),
+                      "1,2,5,6,9 vs 3,4,7,8,10": ([1, 2, 5, 6, 9], [3, 4, 7, 8, 10])}
+CALIBRATION_FDR = 0.05  # tofu compare's default --fdr
+INJECTED_FACTOR = 1.2   # consensus ATE x this in every seed of one scenario at a time
+POWER_EFFECT = 1.10     # the regression to detect: ATE x 1.10
+POWER_MINIMAL = 0.05    # ATE's minimal effect (campaign/compared_metrics.cc)
+POWER_TRIALS = 2000
+POWER_SEEDS = list(range(3, 41))
+
+
+def _suite_check(r):
+    # The suite source's command itself: with --reuse both read one check.
+    r.tofu_cmd("suite", "check", "scenarios/suite", "--seeds", 10, "--jobs", r.jobs, "--quiet",
+               "--out", r.out("suite"), ok=(0, 1, 3))
+
+
+def _baseline_subset(baseline, seeds, path):
+    subset = dict(baseline)
+    subset["cells"] = [c for c in baseline["cells"] if c["seed"] in seeds]
+    path.write_text(json.dumps(subset, indent=1) + "\n")
+
+
+def run_compare_calibration(r):
+    _suite_check(r)
+    out = r.out("compare_calibration")
+    out.mkdir(parents=True, exist_ok=True)
+    whole = out / "suite.json"
+    r.tofu_cmd("compare_calibration/baseline", "baseline", r.out("suite"), "--out", whole, "--quiet")
+    r.tofu_cmd("compare_calibration/same", "compare", r.out("suite"), r.out("suite"), "--quiet",
+               "--json", out / "same.json", ok=(0, 1))
+    baseline = load_json(whole)
+    for i, (name, (a, b)) in enumerate(CALIBRATION_SPLITS.items()):
+        _baseline_subset(baseline, a, out / f"split{i}_a.json")
+        _baseline_subset(baseline, b, out / f"split{i}_b.json")
+        r.tofu_cmd(f"compare_calibration/split{i}", "compare", out / f"split{i}_a.json",
+                   out / f"split{i}_b.json", "--unpaired", "--quiet", "--json",
+                   out / f"split{i}.json", ok=(0, 1))
+    for scenario in _suite_scenarios(r.root):
+        injected = json.loads(json.dumps(baseline))
+        for cell in injected["cells"]:
+            if cell["scenario"] == scenario and "methods.consensus.ate_m" in cell["values"]:
+                cell["values"]["methods.consensus.ate_m"] *= INJECTED_FACTOR
+        (out / f"injected_{scenario}.json").write_text(json.dumps(injected, indent=1) + "\n")
+        r.tofu_cmd(f"compare_calibration/injected_{scenario}", "compare", whole,
+                   out / f"injected_{scenario}.json", "--quiet", "--json",
+                   out / f"injected_{scenario}.out.json", ok=(0, 1))
+    r.tofu_cmd("compare_calibration/naive", "compare", r.out("suite"), "--methods", "consensus",
+               "naive", "--quiet", "--json", out / "naive.json", ok=(0, 1))
+
+
+def _verdicts(cells):
+    counts = {v: 0 for v in ("regressed", "improved", "inconclusive", "unchanged")}
+    for c in cells:
+        counts[c["verdict"]] += 1
+    return counts
+
+
+def _power(sigma_between, sigma_within, paired, n, rng):
+    """Share of POWER_TRIALS comparisons of n seeds (per side) that find an ATE x POWER_EFFECT
+    regression with tofu compare's verdict rule for one cell: the exact test shifted by
+    the minimal effect, two-sided p (twice the one-sided) <= CALIBRATION_FDR."""
+    import numpy
+    from scipy import stats
+    shift = math.log(POWER_EFFECT) - math.log1p(POWER_MINIMAL)
+    found = 0
+    for _ in range(POWER_TRIALS):
+        if paired:
+            if sigma_within == 0.0:  # every pair moves alike: the signed-rank floor
+                p = 0.5 ** n
+            else:
+                d = rng.normal(shift, sigma_within, n)
+                p = stats.wilcoxon(d, alternative="greater", method="exact").pvalue
+        else:
+            base = rng.normal(0.0, sigma_between, n)
+            new = rng.normal(shift, math.hypot(sigma_between, sigma_within), n)
+            p = stats.mannwhitneyu(new, base, alternative="greater", method="exact").pvalue
+        found += 2 * p <= CALIBRATION_FDR
+    return found / POWER_TRIALS
+
+
+def _seeds_for_power(sigma_between, sigma_within, paired, seed):
+    import numpy
+    rng = numpy.random.default_rng(seed)
+    for n in POWER_SEEDS:
+        if _power(sigma_between, sigma_within, paired, n, rng) >= 0.8:
+            return n
+    return None
+
+
+def extract_compare_calibration(r):
+    out = r.out("compare_calibration")
+    v = {}
+    same = load_json(out / "same.json")["cells"]
+    counts = _verdicts(same)
+    v["calibration.same.cells"] = str(len(same))
+    for verdict, n in counts.items():
+        v[f"calibration.same.{verdict}"] = str(n)
+    total_tested = total_false = 0
+    for i, name in enumerate(CALIBRATION_SPLITS):
+        cells = load_json(out / f"split{i}.json")["cells"]
+        counts = _verdicts(cells)
+        false = counts["regressed"] + counts["improved"]
+        tested = sum(1 for c in cells if not c.get("note"))
+        total_tested += tested
+        total_false += false
+        v[f"calibration.split{i}.name"] = name
+        v[f"calibration.split{i}.cells"] = str(len(cells))
+        v[f"calibration.split{i}.tested"] = str(tested)
+        for verdict, n in counts.items():
+            v[f"calibration.split{i}.{verdict}"] = str(n)
+        v[f"calibration.split{i}.false_rate"] = percent(false / len(cells), 2)
+    v["calibration.splits.tested"] = str(total_tested)
+    v["calibration.splits.false"] = str(total_false)
+    v["calibration.level"] = percent(CALIBRATION_FDR, 0)
+    found = elsewhere = 0
+    scenarios = _suite_scenarios(r.root)
+    for scenario in scenarios:
+        for c in load_json(out / f"injected_{scenario}.out.json")["cells"]:
+            target = c["scenario"] == scenario and c["metric"] == "methods.<method>.ate_m" and \
+                c["subject"] == "consensus"
+            if target:
+                found += c["verdict"] == "regressed"
+            elif c["verdict"] != "unchanged":
+                elsewhere += 1
+    v["calibration.injected.factor"] = f"{INJECTED_FACTOR:g}"
+    v["calibration.injected.found"] = f"{found}/{len(scenarios)}"
+    v["calibration.injected.elsewhere"] = str(elsewhere)
+    naive = [c for c in load_json(out / "naive.json")["cells"] if c["metric"] == "methods.<method>.ate_m"]
+    v["calibration.naive.regressed"] = f"{sum(c['verdict'] == 'regressed' for c in naive)}/{len(naive)}"
+    v["calibration.naive.effects"] = span([c["effect"] for c in naive], lambda x: f"×{sig(x, 3)}")
+
+    # The spreads a power analysis needs, measured per suite scenario on its ten seeds:
+    # between seeds, of log consensus ATE (what an unpaired comparison must see through),
+    # and within a seed, of log(consistent_set ATE / consensus ATE), two variants of one
+    # estimator on identical samples (what a paired comparison sees).
+    baseline = load_json(out / "suite.json")
+    paired_n, unpaired_n = [], []
+    for k, scenario in enumerate(scenarios):
+        cells = [c for c in baseline["cells"] if c["scenario"] == scenario]
+        logs = [math.log(c["values"]["methods.consensus.ate_m"]) for c in cells
+                if "methods.consensus.ate_m" in c["values"]]
+        ratios = [math.log(c["values"]["methods.consensus:consistent_set.ate_m"] /
+                           c["values"]["methods.consensus.ate_m"]) for c in cells
+                  if "methods.consensus:consistent_set.ate_m" in c["values"]
+                  and "methods.consensus.ate_m" in c["values"]]
+        sigma_between = statistics.stdev(logs)
+        sigma_within = statistics.stdev(ratios) if len(ratios) > 1 else 0.0
+        key = f"calibration.power.{scenario}."
+        v[key + "sigma_between"] = fixed(sigma_between, 3)
+        v[key + "sigma_within"] = fixed(sigma_within, 3)
+        p = _seeds_for_power(sigma_between, sigma_within, True, 52 + k)
+        u = _seeds_for_power(sigma_between, sigma_within, False, 52 + k)
+        v[key + "paired"] = "> 40" if p is None else str(p)
+        v[key + "unpaired"] = "> 40" if u is None else str(u)
+        paired_n.append(math.inf if p is None else p)
+        unpaired_n.append(math.inf if u is None else u)
+    v["calibration.power.paired_median"] = sig(statistics.median(paired_n), 2)
+    v["calibration.power.unpaired_median"] = sig(statistics.median(unpaired_n), 2)
+    return v
+
+
 NIS_SEEDS = list(range(1, 11))
 NIS_THRESHOLD = 3.0  # chosen before the runs: healthy pairs sit at 0.5-2 (one seed looked at)
 # cm: the paper's metric, as the scenario says; nis: the normalised one; nis_left_out: nis
@@ -1162,6 +1329,14 @@ SOURCES = {
                 "extract": extract_clients},
     "suite": {"describe": "`tofu check scenarios/suite --seeds 10`", "seeds": SUITE_SEEDS,
               "run": _check_source("suite", "scenarios/suite", 10), "extract": extract_suite},
+    "compare_calibration": {"describe": "`tofu compare` on the suite's check (`tofu check scenarios/suite "
+                                       "--seeds 10`, the suite source's command): against itself; "
+                                       "three disjoint 5-seed halves, --unpaired; consensus ATE x"
+                                       f"{INJECTED_FACTOR:g} injected per scenario; --methods consensus "
+                                       "naive; and the seeds for 80 % power at ATE x1.10, paired and "
+                                       "unpaired, simulated with the spreads measured on the suite",
+                            "seeds": SUITE_SEEDS, "run": run_compare_calibration,
+                            "extract": extract_compare_calibration},
     "consensus_nis": {"describe": "`tofu check` of the suite's scenarios with methods [consensus, "
                                   "oracle], as written (cm), with `consensus: {metric: nis, "
                                   f"threshold: {NIS_THRESHOLD:g}}}` (nis) and with that and "
@@ -1660,6 +1835,31 @@ def table_clients_controller(V):
                      "estimate error", "collisions"], rows)
 
 
+def table_compare_calibration(V):
+    rows = [["A/A: the check against itself (identical samples)", V("calibration.same.cells"), "-",
+             V("calibration.same.regressed"), V("calibration.same.improved"),
+             V("calibration.same.inconclusive"), V("calibration.same.unchanged"), "0.00 %"]]
+    for i in range(len(CALIBRATION_SPLITS)):
+        k = f"calibration.split{i}."
+        rows.append([f"A/A: seeds {V(k + 'name')}, --unpaired", V(k + "cells"), V(k + "tested"),
+                     V(k + "regressed"), V(k + "improved"), V(k + "inconclusive"), V(k + "unchanged"),
+                     V(k + "false_rate")])
+    return md_table(["comparison", "cells", "tested", "regressed", "improved", "inconclusive",
+                     "unchanged", "false verdicts"], rows)
+
+
+def table_compare_power(V):
+    rows = []
+    for scenario in _suite_scenarios(SCRIPT_ROOT):
+        k = f"calibration.power.{scenario}."
+        rows.append([scenario, V(k + "sigma_between"), V(k + "sigma_within"), V(k + "paired"),
+                     V(k + "unpaired")])
+    rows.append(["median", "", "", V("calibration.power.paired_median"),
+                 V("calibration.power.unpaired_median")])
+    return md_table(["scenario", "σ between seeds (log ATE)", "σ within a seed (log ratio)",
+                     "seeds, paired", "seeds per side, unpaired"], rows)
+
+
 TABLES = {
     "clients_ekf": table_clients_ekf,
     "clients_plugin": table_clients_plugin,
@@ -1682,6 +1882,8 @@ TABLES = {
     "mission_frame_window_6_10": lambda V: _mission_frame(V, "closed_loop_window", CLOSED_LOOP_SEEDS[5:]),
     "suite": table_suite,
     "suite_failures": table_suite_failures,
+    "compare_calibration": table_compare_calibration,
+    "compare_power": table_compare_power,
     "consensus_nis": table_consensus_nis,
     "level_alignment": table_level_alignment,
     "bias_test": table_bias_test,
