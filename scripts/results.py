@@ -802,10 +802,15 @@ CALIBRATION_SPLITS = {"1-5 vs 6-10": ([1, 2, 3, 4, 5], [6, 7, 8, 9, 10]),
                       "1,2,5,6,9 vs 3,4,7,8,10": ([1, 2, 5, 6, 9], [3, 4, 7, 8, 10])}
 CALIBRATION_FDR = 0.05  # tofu compare's default --fdr
 INJECTED_FACTOR = 1.2   # consensus ATE x this in every seed of one scenario at a time
+DEGRADED_STD_M = 0.012  # consensus re-estimated with the pose sensors' between-position std
+                        # x1.2 (default 0.01 m, no suite scenario sets it): a real degradation
 POWER_EFFECT = 1.10     # the regression to detect: ATE x 1.10
 POWER_MINIMAL = 0.05    # ATE's minimal effect (campaign/compared_metrics.cc)
 POWER_TRIALS = 2000
-POWER_SEEDS = list(range(3, 41))
+# Seed counts tried, smallest first: exact tests up to 40 seeds, the normal approximation
+# (scipy's asymptotic mode, tie-free draws) beyond.
+POWER_SEEDS = list(range(3, 41)) + [50, 60, 80, 100, 130, 160, 200]
+POWER_EXACT_MAX = 40
 
 
 def _suite_check(r):
@@ -846,6 +851,24 @@ def run_compare_calibration(r):
                    out / f"injected_{scenario}.out.json", ok=(0, 1))
     r.tofu_cmd("compare_calibration/naive", "compare", r.out("suite"), "--methods", "consensus",
                "naive", "--quiet", "--json", out / "naive.json", ok=(0, 1))
+    r.script_cmd("compare_calibration/plot", "scripts/plot_compare.py", out / "naive.json", "--out",
+                 r.root / "docs/images/compare_suite.png")
+    # The degradation, on the very same samples: `tofu estimate` of each run's streams.
+    degraded = json.loads(json.dumps(baseline))
+    for cell in degraded["cells"]:
+        scenario, seed = cell["scenario"], cell["seed"]
+        where = out / "degraded" / scenario / f"seed_{seed}"
+        r.tofu_cmd(f"compare_calibration/degraded/{scenario}_{seed}", "estimate",
+                   r.out("suite", scenario, f"seed_{seed}"), "--method", "consensus",
+                   "--between-position-std", DEGRADED_STD_M, "--out", where, "--quiet")
+        ate = load_json(where / "estimate_consensus.json")["ate"]
+        for key, field in (("ate_m", "position_rmse_m"), ("rotation_rmse_deg", "rotation_rmse_deg"),
+                           ("rpe_m", "rpe_translation_rmse_m"),
+                           ("position_step_max_m", "position_step_max_m")):
+            cell["values"][f"methods.consensus.{key}"] = ate[field]
+    (out / "degraded.json").write_text(json.dumps(degraded, indent=1) + "\n")
+    r.tofu_cmd("compare_calibration/degraded", "compare", whole, out / "degraded.json", "--quiet",
+               "--json", out / "degraded.out.json", ok=(0, 1))
 
 
 def _verdicts(cells):
@@ -855,27 +878,74 @@ def _verdicts(cells):
     return counts
 
 
+def _exact_upper_critical(counts, alpha):
+    """The smallest statistic value c with P(S >= c) <= alpha under the null whose counts
+    (over the statistic's values 0, 1, ...) are given."""
+    total = sum(counts)
+    tail = 0
+    for value in range(len(counts) - 1, -1, -1):
+        if (tail + counts[value]) / total > alpha:
+            return value + 1
+        tail += counts[value]
+    return 0
+
+
+def _signed_rank_counts(n):
+    """Null counts of the signed-rank statistic W+ over n untied pairs: the number of
+    subsets of the ranks 1..n with each sum."""
+    counts = [1] + [0] * (n * (n + 1) // 2)
+    for rank in range(1, n + 1):
+        for s in range(len(counts) - 1, rank - 1, -1):
+            counts[s] += counts[s - rank]
+    return counts
+
+
+def _rank_sum_counts(m, n):
+    """Null counts of the Mann-Whitney statistic U (pairs where the first sample is larger)
+    for untied samples of sizes m and n."""
+    # f[j][u]: arrangements of i items of the first sample and j of the second with U = u,
+    # built up over i (the classic recursion f(i, j, u) = f(i-1, j, u-j) + f(i, j-1, u)).
+    f = [[1] + [0] * (m * n) for _ in range(n + 1)]
+    for _ in range(1, m + 1):
+        g = [[0] * (m * n + 1) for _ in range(n + 1)]
+        for j in range(n + 1):
+            for u in range(m * n + 1):
+                g[j][u] = (f[j][u - j] if u >= j else 0) + (g[j - 1][u] if j > 0 else 0)
+        f = g
+    return f[n]
+
+
 def _power(sigma_between, sigma_within, paired, n, rng):
     """Share of POWER_TRIALS comparisons of n seeds (per side) that find an ATE x POWER_EFFECT
-    regression with tofu compare's verdict rule for one cell: the exact test shifted by
-    the minimal effect, two-sided p (twice the one-sided) <= CALIBRATION_FDR."""
+    regression with tofu compare's verdict rule for one cell: the rank test shifted by the
+    minimal effect, two-sided p (twice the one-sided) <= CALIBRATION_FDR. Draws are
+    continuous (no ties), so the exact tests reduce to critical values of their null
+    distributions (counted here; the normal approximation beyond POWER_EXACT_MAX seeds)."""
     import numpy
-    from scipy import stats
+    alpha = CALIBRATION_FDR / 2
     shift = math.log(POWER_EFFECT) - math.log1p(POWER_MINIMAL)
-    found = 0
-    for _ in range(POWER_TRIALS):
-        if paired:
-            if sigma_within == 0.0:  # every pair moves alike: the signed-rank floor
-                p = 0.5 ** n
-            else:
-                d = rng.normal(shift, sigma_within, n)
-                p = stats.wilcoxon(d, alternative="greater", method="exact").pvalue
+    z = 1.959963984540054  # the normal quantile of 1 - alpha
+    if paired:
+        if sigma_within == 0.0:  # every pair moves alike: the signed-rank floor
+            return 1.0 if 0.5 ** n <= alpha else 0.0
+        d = rng.normal(shift, sigma_within, (POWER_TRIALS, n))
+        ranks = numpy.argsort(numpy.argsort(numpy.abs(d), axis=1), axis=1) + 1
+        w = (ranks * (d > 0)).sum(axis=1)
+        if n <= POWER_EXACT_MAX:
+            critical = _exact_upper_critical(_signed_rank_counts(n), alpha)
         else:
-            base = rng.normal(0.0, sigma_between, n)
-            new = rng.normal(shift, math.hypot(sigma_between, sigma_within), n)
-            p = stats.mannwhitneyu(new, base, alternative="greater", method="exact").pvalue
-        found += 2 * p <= CALIBRATION_FDR
-    return found / POWER_TRIALS
+            mean, sd = n * (n + 1) / 4, math.sqrt(n * (n + 1) * (2 * n + 1) / 24)
+            critical = mean + z * sd
+        return float((w >= critical).mean())
+    base = rng.normal(0.0, sigma_between, (POWER_TRIALS, n))
+    new = rng.normal(shift, math.hypot(sigma_between, sigma_within), (POWER_TRIALS, n))
+    u = (new[:, :, None] > base[:, None, :]).sum(axis=(1, 2))
+    if n <= POWER_EXACT_MAX:
+        critical = _exact_upper_critical(_rank_sum_counts(n, n), alpha)
+    else:
+        mean, sd = n * n / 2, math.sqrt(n * n * (2 * n + 1) / 12)
+        critical = mean + z * sd
+    return float((u >= critical).mean())
 
 
 def _seeds_for_power(sigma_between, sigma_within, paired, seed):
@@ -929,33 +999,49 @@ def extract_compare_calibration(r):
     v["calibration.naive.regressed"] = f"{sum(c['verdict'] == 'regressed' for c in naive)}/{len(naive)}"
     v["calibration.naive.effects"] = span([c["effect"] for c in naive], lambda x: f"×{sig(x, 3)}")
 
+    degraded_cells = [c for c in load_json(out / "degraded.out.json")["cells"]
+                      if c["metric"] == "methods.<method>.ate_m" and c["subject"] == "consensus"]
+    v["calibration.degraded.std"] = f"{DEGRADED_STD_M:g}"
+    v["calibration.degraded.found"] = (f"{sum(c['verdict'] == 'regressed' for c in degraded_cells)}"
+                                       f"/{len(degraded_cells)}")
+    v["calibration.degraded.effects"] = span([c["effect"] for c in degraded_cells],
+                                             lambda x: f"×{sig(x, 3)}")
+    v["calibration.degraded.other"] = str(sum(
+        1 for c in load_json(out / "degraded.out.json")["cells"]
+        if c["subject"] != "consensus" and c["verdict"] != "unchanged"))
+
     # The spreads a power analysis needs, measured per suite scenario on its ten seeds:
     # between seeds, of log consensus ATE (what an unpaired comparison must see through),
-    # and within a seed, of log(consistent_set ATE / consensus ATE), two variants of one
-    # estimator on identical samples (what a paired comparison sees).
+    # and within a seed, of log(degraded ATE / ATE), the degradation above on identical
+    # samples (what a paired comparison sees), its median taken out.
     baseline = load_json(out / "suite.json")
+    degraded = load_json(out / "degraded.json")
     paired_n, unpaired_n = [], []
     for k, scenario in enumerate(scenarios):
         cells = [c for c in baseline["cells"] if c["scenario"] == scenario]
+        worse = {c["seed"]: c for c in degraded["cells"] if c["scenario"] == scenario}
         logs = [math.log(c["values"]["methods.consensus.ate_m"]) for c in cells
                 if "methods.consensus.ate_m" in c["values"]]
-        ratios = [math.log(c["values"]["methods.consensus:consistent_set.ate_m"] /
+        ratios = [math.log(worse[c["seed"]]["values"]["methods.consensus.ate_m"] /
                            c["values"]["methods.consensus.ate_m"]) for c in cells
-                  if "methods.consensus:consistent_set.ate_m" in c["values"]
-                  and "methods.consensus.ate_m" in c["values"]]
+                  if "methods.consensus.ate_m" in c["values"]]
         sigma_between = statistics.stdev(logs)
         sigma_within = statistics.stdev(ratios) if len(ratios) > 1 else 0.0
         key = f"calibration.power.{scenario}."
         v[key + "sigma_between"] = fixed(sigma_between, 3)
         v[key + "sigma_within"] = fixed(sigma_within, 3)
+        verdict = next(c["verdict"] for c in degraded_cells if c["scenario"] == scenario)
+        v[key + "degraded_effect"] = f"×{sig(math.exp(statistics.median(ratios)), 3)} ({verdict})"
         p = _seeds_for_power(sigma_between, sigma_within, True, 52 + k)
         u = _seeds_for_power(sigma_between, sigma_within, False, 52 + k)
-        v[key + "paired"] = "> 40" if p is None else str(p)
-        v[key + "unpaired"] = "> 40" if u is None else str(u)
+        v[key + "paired"] = f"> {POWER_SEEDS[-1]}" if p is None else str(p)
+        v[key + "unpaired"] = f"> {POWER_SEEDS[-1]}" if u is None else str(u)
         paired_n.append(math.inf if p is None else p)
         unpaired_n.append(math.inf if u is None else u)
-    v["calibration.power.paired_median"] = sig(statistics.median(paired_n), 2)
-    v["calibration.power.unpaired_median"] = sig(statistics.median(unpaired_n), 2)
+    def n_text(n):
+        return f"> {POWER_SEEDS[-1]}" if math.isinf(n) else sig(n, 2)
+    v["calibration.power.paired_median"] = n_text(statistics.median(paired_n))
+    v["calibration.power.unpaired_median"] = n_text(statistics.median(unpaired_n))
     return v
 
 
@@ -1333,8 +1419,10 @@ SOURCES = {
                                        "--seeds 10`, the suite source's command): against itself; "
                                        "three disjoint 5-seed halves, --unpaired; consensus ATE x"
                                        f"{INJECTED_FACTOR:g} injected per scenario; --methods consensus "
-                                       "naive; and the seeds for 80 % power at ATE x1.10, paired and "
-                                       "unpaired, simulated with the spreads measured on the suite",
+                                       "naive; consensus re-estimated (`tofu estimate`) on every run "
+                                       f"with --between-position-std {DEGRADED_STD_M:g} (x1.2); and the "
+                                       "seeds for 80 % power at ATE x1.10, paired and unpaired, "
+                                       "simulated with the spreads measured on the suite",
                             "seeds": SUITE_SEEDS, "run": run_compare_calibration,
                             "extract": extract_compare_calibration},
     "consensus_nis": {"describe": "`tofu check` of the suite's scenarios with methods [consensus, "
@@ -1852,12 +1940,12 @@ def table_compare_power(V):
     rows = []
     for scenario in _suite_scenarios(SCRIPT_ROOT):
         k = f"calibration.power.{scenario}."
-        rows.append([scenario, V(k + "sigma_between"), V(k + "sigma_within"), V(k + "paired"),
-                     V(k + "unpaired")])
-    rows.append(["median", "", "", V("calibration.power.paired_median"),
+        rows.append([scenario, V(k + "sigma_between"), V(k + "degraded_effect"), V(k + "sigma_within"),
+                     V(k + "paired"), V(k + "unpaired")])
+    rows.append(["median", "", "", "", V("calibration.power.paired_median"),
                  V("calibration.power.unpaired_median")])
-    return md_table(["scenario", "σ between seeds (log ATE)", "σ within a seed (log ratio)",
-                     "seeds, paired", "seeds per side, unpaired"], rows)
+    return md_table(["scenario", "σ between seeds (log ATE)", "degraded ATE: median ratio (verdict)",
+                     "σ within a seed (log ratio)", "seeds, paired", "seeds per side, unpaired"], rows)
 
 
 TABLES = {
