@@ -5,9 +5,11 @@
 //
 //   build/bench/bench_compare --benchmark_repetitions=3
 //
-// BM_CompareCheckDirectories reads two real check directories instead (TOFU_BENCH_CHECK
-// set to a `tofu check --out` directory; compared with itself), as `tofu compare A B`
-// does: skipped without it.
+// BM_CompareCheckDirectories reads check directories instead, as `tofu compare A B` does:
+// from a real check (TOFU_BENCH_CHECK set to a `tofu check --out` directory, e.g. the
+// suite's of scripts/results.py, runs/results/suite) it makes a check directory of 19
+// scenarios x 10 seeds by cycling the real scenarios' summary.json files under new names,
+// and compares it with itself. Skipped without TOFU_BENCH_CHECK.
 
 #include <unistd.h>
 
@@ -20,6 +22,7 @@
 
 #include <benchmark/benchmark.h>
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 
 #include "campaign/cell_record.h"
 #include "campaign/compare.h"
@@ -110,18 +113,52 @@ void BM_CompareBaselines(benchmark::State& state) {
 }
 BENCHMARK(BM_CompareBaselines)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// A real check directory compared with itself, every summary.json read twice.
+// The grid's check directory made of a real check's summaries: scenario i of kScenarios
+// is the real check's scenario i % (its count), seeds 1..kSeeds (cycled over its seeds).
+fs::path MakeCheckDirectory(const fs::path& real) {
+  const auto record = nlohmann::json::parse(std::ifstream(real / "check.json"));
+  const auto& scenarios = record.at("scenarios");
+  const int real_seeds = record.at("seeds").get<int>();
+  const fs::path dir = fs::temp_directory_path() / fmt::format("bench_compare_check_{}", ::getpid());
+  fs::remove_all(dir);
+  nlohmann::json names = nlohmann::json::array(), runs = nlohmann::json::array();
+  for (int s = 0; s < kScenarios; ++s) {
+    const auto& source = scenarios.at(static_cast<size_t>(s) % scenarios.size());
+    const std::string name = fmt::format("scenario_{:02}", s);
+    names.push_back({{"name", name}, {"fnv1a64", fmt::format("{:016x}", s)}, {"first_seed", 1}});
+    for (int k = 1; k <= kSeeds; ++k) {
+      const int real_seed = source.at("first_seed").get<int>() + (k - 1) % real_seeds;
+      const fs::path to = dir / name / fmt::format("seed_{}", k);
+      fs::create_directories(to);
+      fs::copy_file(real / source.at("name").get<std::string>() / fmt::format("seed_{}", real_seed) /
+                        "summary.json",
+                    to / "summary.json");
+      runs.push_back({{"scenario", name}, {"seed", k}, {"exit_code", 0}, {"error", ""},
+                      {"client_failure", ""}, {"wall_time_s", 1.0}});
+    }
+  }
+  nlohmann::json check = record;
+  check["seeds"] = kSeeds;
+  check["scenarios"] = names;
+  check["runs"] = runs;
+  std::ofstream(dir / "check.json") << check.dump(1);
+  return dir;
+}
+
+// That check directory compared with itself, every summary.json read twice.
 void BM_CompareCheckDirectories(benchmark::State& state) {
-  const char* dir = std::getenv("TOFU_BENCH_CHECK");
-  if (dir == nullptr) {
+  const char* real = std::getenv("TOFU_BENCH_CHECK");
+  if (real == nullptr) {
     state.SkipWithError("set TOFU_BENCH_CHECK to a tofu check --out directory");
     return;
   }
+  const fs::path dir = MakeCheckDirectory(real);
   for (auto _ : state) {
     const CampaignRecord base = tofu::campaign::ReadCheckDirectory(dir);
     const CampaignRecord now = tofu::campaign::ReadCheckDirectory(dir);
     Compare(base, now, state);
   }
+  fs::remove_all(dir);
 }
 BENCHMARK(BM_CompareCheckDirectories)->Unit(benchmark::kMillisecond)->UseRealTime();
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <numeric>
 #include <random>
 #include <stdexcept>
@@ -96,6 +97,11 @@ Interval BootstrapMedianInterval(const std::vector<double>& values, double level
                                  uint64_t seed) {
   if (values.empty()) throw std::invalid_argument("bootstrap of no values");
   RequireBootstrapArguments(level, resamples);
+  // Every resample of equal values has their median: the interval without resampling (a
+  // paired cell of an unchanged method, the common case of a comparison in CI).
+  if (std::adjacent_find(values.begin(), values.end(), std::not_equal_to<>()) == values.end()) {
+    return {values.front(), values.front()};
+  }
   std::mt19937_64 engine(seed);
   std::vector<double> medians(resamples);
   std::vector<double> buffer;
@@ -108,6 +114,10 @@ Interval BootstrapMedianDifferenceInterval(const std::vector<double>& x,
                                            int resamples, uint64_t seed) {
   if (x.empty() || y.empty()) throw std::invalid_argument("bootstrap of no values");
   RequireBootstrapArguments(level, resamples);
+  const auto constant = [](const std::vector<double>& v) {
+    return std::adjacent_find(v.begin(), v.end(), std::not_equal_to<>()) == v.end();
+  };
+  if (constant(x) && constant(y)) return {y.front() - x.front(), y.front() - x.front()};
   std::mt19937_64 engine(seed);
   std::vector<double> differences(resamples);
   std::vector<double> buffer;
