@@ -169,8 +169,12 @@ CampaignRecord ReadCheckDirectory(const fs::path& dir) {
   campaign.metric_versions = CurrentMetricVersions();
   std::map<std::string, std::string> hash_of;
   for (const json& s : Field<json>(record, "scenarios", file, "an array of scenarios")) {
-    hash_of[Field<std::string>(s, "name", file, "a scenario name")] =
-        Field<std::string>(s, "fnv1a64", file, "a hex hash");
+    const auto name = Field<std::string>(s, "name", file, "a scenario name");
+    hash_of[name] = Field<std::string>(s, "fnv1a64", file, "a hex hash");
+    if (s.contains("minimal_effects")) {
+      campaign.minimal_effects[name] = Field<std::map<std::string, double>>(
+          s, "minimal_effects", file, "an object of numbers");
+    }
   }
   for (const json& r : Field<json>(record, "runs", file, "an array of runs")) {
     const auto scenario = Field<std::string>(r, "scenario", file, "a scenario name");
@@ -203,12 +207,13 @@ std::string BaselineJson(const CampaignRecord& campaign) {
                      {"values", c.values},
                      {"events", c.events}});
   }
-  const json baseline = {{"format", kBaselineFormat},
-                         {"version", kBaselineVersion},
-                         {"tofu_version", campaign.tofu_version},
-                         {"tofu_commit", campaign.tofu_commit},
-                         {"metric_versions", campaign.metric_versions},
-                         {"cells", cells}};
+  json baseline = {{"format", kBaselineFormat},
+                   {"version", kBaselineVersion},
+                   {"tofu_version", campaign.tofu_version},
+                   {"tofu_commit", campaign.tofu_commit},
+                   {"metric_versions", campaign.metric_versions},
+                   {"cells", cells}};
+  if (!campaign.minimal_effects.empty()) baseline["minimal_effects"] = campaign.minimal_effects;
   return baseline.dump(1) + "\n";
 }
 
@@ -227,6 +232,10 @@ CampaignRecord ReadBaselineFile(const fs::path& file) {
   campaign.tofu_commit = Field<std::string>(b, "tofu_commit", file, "a commit");
   campaign.metric_versions =
       Field<std::map<std::string, int>>(b, "metric_versions", file, "an object of versions");
+  if (b.contains("minimal_effects")) {
+    campaign.minimal_effects = Field<std::map<std::string, std::map<std::string, double>>>(
+        b, "minimal_effects", file, "an object of scenarios' minimal effects");
+  }
   for (const json& c : Field<json>(b, "cells", file, "an array of cells")) {
     CellRecord cell;
     cell.scenario = Field<std::string>(c, "scenario", file, "a scenario name");

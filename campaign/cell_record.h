@@ -46,6 +46,9 @@ struct CampaignRecord {
   std::string tofu_commit;
   /// Definition version of each comparable metric when the cells were scored.
   std::map<std::string, int> metric_versions;
+  /// Each scenario's own minimal effects (its `compare: {minimal_effects: ...}`), by
+  /// scenario; scenarios without any are absent.
+  std::map<std::string, std::map<std::string, double>> minimal_effects;
   std::vector<CellRecord> cells;  ///< by scenario (in check order), then seed
 };
 

@@ -465,6 +465,7 @@ bool LoadAll(const std::vector<std::string>& paths, std::vector<harness::Scenari
       harness::Scenario scenario = harness::LoadScenario(path);
       // What `tofu validate` checks: the models too, so a run never fails on them.
       harness::CheckScenarioModels(scenario);
+      CheckScenarioMinimalEffects(scenario);
       // Run directories are named after scenarios: two files may not share a name.
       const auto [it, inserted] = file_of_name.emplace(scenario.name, path);
       if (!inserted) {
@@ -1044,10 +1045,16 @@ std::vector<ScenarioCheck> CheckScenarios(const std::vector<harness::Scenario>& 
 // <out>/check.json: the grid and every run's exit status, with the tofu that ran them:
 // what `tofu compare` reads a check directory by (campaign/cell_record.h).
 void WriteCheckRecord(const fs::path& out, const CheckGrid& grid,
+                      const std::vector<harness::Scenario>& loaded,
                       const std::vector<ScenarioCheck>& checks) {
   nlohmann::json scenarios = nlohmann::json::array();
-  for (const CheckGrid::Entry& e : grid.scenarios) {
-    scenarios.push_back({{"name", e.name}, {"fnv1a64", e.fnv1a64}, {"first_seed", e.first_seed}});
+  for (size_t i = 0; i < grid.scenarios.size(); ++i) {
+    const CheckGrid::Entry& e = grid.scenarios[i];
+    nlohmann::json entry = {{"name", e.name}, {"fnv1a64", e.fnv1a64}, {"first_seed", e.first_seed}};
+    if (!loaded[i].compare_minimal_effects.empty()) {
+      entry["minimal_effects"] = loaded[i].compare_minimal_effects;
+    }
+    scenarios.push_back(std::move(entry));
   }
   nlohmann::json runs = nlohmann::json::array();
   for (const ScenarioCheck& c : checks) {
@@ -1143,7 +1150,7 @@ int ReportCheck(const CheckCommandOptions& options, const std::vector<harness::S
   std::vector<ScenarioCheck> checks = CheckScenarios(scenarios, queue, failures);
   bool regressed = false;
   try {
-    WriteCheckRecord(out, grid, checks);
+    WriteCheckRecord(out, grid, scenarios, checks);
     if (!options.quiet) PrintTable(checks);
     if (baseline && !CompareWithBaseline(*baseline, out, checks, options.quiet, regressed)) {
       failures.bad_input = true;
@@ -1180,6 +1187,17 @@ int ReportCheck(const CheckCommandOptions& options, const std::vector<harness::S
 }
 
 }  // namespace
+
+void CheckScenarioMinimalEffects(const harness::Scenario& scenario) {
+  RequireKnownMinimalEffects(
+      scenario.compare_minimal_effects,
+      [&](const std::string& name) {
+        const auto it = scenario.key_locations.find("compare.minimal_effects." + name);
+        return it != scenario.key_locations.end() ? it->second
+                                                  : core::SourceLocation{scenario.source_file, 0, 0};
+      },
+      "compare.minimal_effects.");
+}
 
 int RunCheckCommand(const CheckCommandOptions& options) {
   // Everything that can be wrong with the input is found before anything runs or is

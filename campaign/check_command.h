@@ -59,6 +59,12 @@ struct CheckCommandOptions {
 /// would have; missing, repeated or foreign shards are bad input (nothing written).
 int RunCheckCommand(const CheckCommandOptions& options);
 
+/// Refuses a scenario's `compare: {minimal_effects: ...}` naming a metric tofu compare does
+/// not have (campaign/compared_metrics.h) or a negative value: core::InputError at its
+/// file:line. `tofu validate`, `run` and `check` call it with the other checks of a loaded
+/// scenario.
+void CheckScenarioMinimalEffects(const harness::Scenario& scenario);
+
 /// The scenario files named by `inputs`, in order (directories expanded to their sorted
 /// *.yaml files; the same file named twice is kept once). Throws core::InputError for a
 /// path that does not exist or a directory without scenarios.

@@ -87,16 +87,23 @@ void RequireComparable(const CampaignRecord& base, const CampaignRecord& now, co
   }
 }
 
-double MinimalEffect(const CompareOptions& options, const ComparedMetric& metric,
-                     const std::string& concrete) {
-  if (const auto it = options.minimal_effects.find(concrete); it != options.minimal_effects.end()) {
-    return it->second;
-  }
-  if (const auto it = options.minimal_effects.find(metric.Pattern());
-      it != options.minimal_effects.end()) {
-    return it->second;
+// The command line's (concrete name, then pattern), then the scenario's (likewise), then
+// the table's.
+double MinimalEffect(const CompareOptions& options, const std::map<std::string, double>& scenario,
+                     const ComparedMetric& metric, const std::string& concrete) {
+  for (const std::map<std::string, double>* effects : {&options.minimal_effects, &scenario}) {
+    for (const std::string& name : {concrete, metric.Pattern()}) {
+      if (const auto it = effects->find(name); it != effects->end()) return it->second;
+    }
   }
   return metric.minimal_effect;
+}
+
+const std::map<std::string, double>& ScenarioEffects(const CampaignRecord& campaign,
+                                                     const std::string& scenario) {
+  static const std::map<std::string, double> kNone;
+  const auto it = campaign.minimal_effects.find(scenario);
+  return it == campaign.minimal_effects.end() ? kNone : it->second;
 }
 
 const FlightDigests& DigestsFor(const CellRecord& cell, const ComparedMetric& metric,
@@ -322,7 +329,8 @@ void Decide(Comparison& comparison) {
 
 // The cells of one scenario and metric entry over the subjects (methods or labels) the
 // two sides have, seed-matched or not.
-void AddCells(Comparison& comparison, const std::string& scenario, const ComparedMetric& metric,
+void AddCells(Comparison& comparison, const std::string& scenario,
+              const std::map<std::string, double>& scenario_effects, const ComparedMetric& metric,
               const std::vector<std::pair<std::string, std::string>>& names,
               const std::string& subject, const Observations& o, Pairing pairing) {
   const auto& [base_name, new_name] = names.front();
@@ -332,7 +340,7 @@ void AddCells(Comparison& comparison, const std::string& scenario, const Compare
   c.base_name = base_name;
   c.new_name = new_name;
   c.subject = subject;
-  c.minimal_effect = MinimalEffect(comparison.options, metric, base_name);
+  c.minimal_effect = MinimalEffect(comparison.options, scenario_effects, metric, base_name);
   c.pairing = pairing;
   if (metric.kind == EffectKind::kEvent) {
     TestEvent(c, o);
@@ -385,18 +393,33 @@ Pairing WeakestPairing(const Observations& o, const ComparedMetric& metric,
 }
 
 void RequireKnownEffects(const CompareOptions& options) {
-  for (const auto& [name, value] : options.minimal_effects) {
-    if (!FindComparedMetric(name) && !MatchComparedMetric(name)) {
-      throw InputError({"--min-effect"}, name,
-                       "is not a comparable metric (`tofu compare --list-metrics` lists them)");
-    }
-    if (!(value >= 0.0) || !std::isfinite(value)) {
-      throw InputError({"--min-effect"}, name, fmt::format("expected a number >= 0, got {}", value));
-    }
-  }
+  RequireKnownMinimalEffects(options.minimal_effects,
+                             [](const std::string&) { return core::SourceLocation{"--min-effect", 0, 0}; },
+                             "");
 }
 
 }  // namespace
+
+void RequireKnownMinimalEffects(const std::map<std::string, double>& effects,
+                                const std::function<core::SourceLocation(const std::string&)>& where,
+                                const std::string& key_prefix) {
+  for (const auto& [name, value] : effects) {
+    if (!FindComparedMetric(name) && !MatchComparedMetric(name)) {
+      std::string patterns;
+      for (const ComparedMetric& m : ComparedMetrics()) {
+        if (m.kind != EffectKind::kEvent) patterns += (patterns.empty() ? "" : ", ") + m.Pattern();
+      }
+      throw InputError(where(name), key_prefix + name,
+                       fmt::format("is not a comparable metric; expected one of {} (or a "
+                                   "method's own, such as methods.consensus.ate_m)",
+                                   patterns));
+    }
+    if (!(value >= 0.0) || !std::isfinite(value)) {
+      throw InputError(where(name), key_prefix + name,
+                       fmt::format("expected a number >= 0, got {}", value));
+    }
+  }
+}
 
 const char* VerdictName(Verdict verdict) {
   switch (verdict) {
@@ -447,7 +470,8 @@ Comparison CompareCampaigns(const CampaignRecord& base, const CampaignRecord& no
         // Seeds that no longer pair are independent samples: tested as such.
         Observations used = o;
         if (pairing == Pairing::kUnpaired) used.paired = false;
-        AddCells(comparison, scenario, metric, {{name, name}}, subject, used, pairing);
+        AddCells(comparison, scenario, ScenarioEffects(now, scenario), metric, {{name, name}},
+                 subject, used, pairing);
       }
     }
   }
@@ -493,7 +517,8 @@ Comparison CompareMethods(const CampaignRecord& campaign, const std::string& bas
       const Pairing pairing = WeakestPairing(o, metric, base_method, new_method);
       Observations used = o;
       if (pairing == Pairing::kUnpaired) used.paired = false;
-      AddCells(comparison, scenario, metric, {{base_name, new_name}},
+      AddCells(comparison, scenario, ScenarioEffects(campaign, scenario), metric,
+               {{base_name, new_name}},
                base_method + " -> " + new_method, used, pairing);
     }
   }

@@ -8,6 +8,7 @@
 // (Benjamini-Hochberg by default). Whether the seeds pair is read from the cells' digests,
 // not assumed (docs/DESIGN.md "Comparing two campaigns").
 
+#include <functional>
 #include <map>
 #include <optional>
 #include <string>
@@ -16,6 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "campaign/cell_record.h"
+#include "core/error.h"
 #include "campaign/compared_metrics.h"
 #include "campaign/statistics.h"
 
@@ -32,7 +34,8 @@ struct CompareOptions {
   /// Compare the seed sets as independent samples (they need not be the same seeds).
   bool unpaired = false;
   /// Minimal effects by metric pattern ("methods.<method>.ate_m") or concrete name
-  /// ("methods.consensus.ate_m"), over the table's defaults; the concrete name wins.
+  /// ("methods.consensus.ate_m"), over the scenarios' own (`compare: {minimal_effects}`,
+  /// CampaignRecord::minimal_effects) and the table's defaults; the concrete name wins.
   std::map<std::string, double> minimal_effects;
 };
 
@@ -106,6 +109,14 @@ Comparison CompareMethods(const CampaignRecord& campaign, const std::string& bas
 /// One cell's figures on one line, for a failure message: "methods.consensus.ate_m x1.231
 /// [1.150, 1.304] over 8 pairs (identical samples), minimal 5 %, p adj 0.0039".
 std::string CellFigures(const CellComparison& cell);
+
+/// Refuses a minimal effect for a metric the table does not have (a pattern such as
+/// "methods.<method>.ate_m" or a concrete name), or one that is negative or not finite:
+/// core::InputError at where(name), key `key_prefix + name`. For --min-effect and a
+/// scenario's `compare: {minimal_effects: ...}`.
+void RequireKnownMinimalEffects(const std::map<std::string, double>& effects,
+                                const std::function<core::SourceLocation(const std::string&)>& where,
+                                const std::string& key_prefix);
 
 /// The terminal table: regressions first, then improvements, inconclusive, unchanged.
 std::string ComparisonTable(const Comparison& comparison);

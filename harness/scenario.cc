@@ -1033,7 +1033,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   YamlMap map = root.Map({"name", "description", "world", "robot", "duration_s", "seed", "physics",
                           "controller", "wind", "output", "trajectory", "initial_offset",
                           "sensors", "faults", "consistency", "external", "plugins",
-                          "estimation", "control", "mission", "render", "expect"});
+                          "estimation", "control", "mission", "render", "compare", "expect"});
   Scenario scenario;
   scenario.source_file = file_label;
   scenario.name = map.Required("name").Identifier();
@@ -1078,6 +1078,16 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   }
   scenario.clients =
       ReadClients(map.Optional("external"), map.Optional("plugins"), file_label);
+  if (const auto compare = map.Optional("compare")) {
+    YamlMap compare_map = compare->Map({"minimal_effects"});
+    if (const auto effects = compare_map.Optional("minimal_effects")) {
+      for (const auto& [metric, value] : effects->StringEntries()) {
+        scenario.compare_minimal_effects[metric] = value.Number(NumberRule::NonNegative(""));
+        scenario.key_locations["compare.minimal_effects." + metric] = value.key_location();
+      }
+    }
+    compare_map.Finish();
+  }
   for (const char* block : {"external", "plugins"}) {
     if (const auto clients = map.Optional(block)) {
       for (const auto& [key, entry] : clients->Entries()) {
@@ -1237,6 +1247,14 @@ std::string ResolvedScenarioYaml(const Scenario& scenario) {
   if (scenario.control) EmitControl(out, *scenario.control);
   EmitMission(out, scenario.mission);
   if (scenario.render) EmitRender(out, *scenario.render);
+  if (!scenario.compare_minimal_effects.empty()) {
+    out << YAML::Key << "compare" << YAML::Value << YAML::BeginMap << YAML::Key
+        << "minimal_effects" << YAML::Value << YAML::BeginMap;
+    for (const auto& [metric, effect] : scenario.compare_minimal_effects) {
+      EmitNumber(out, metric, effect);
+    }
+    out << YAML::EndMap << YAML::EndMap;
+  }
   EmitExpectations(out, scenario.expect);
   out << YAML::EndMap;
   assert(out.good());

@@ -114,6 +114,12 @@ struct Scenario {
   std::optional<ControlConfig> control;
   MissionConfig mission;
   std::optional<RenderRequest> render;
+  /// `compare: {minimal_effects: {<metric>: <effect>}}`: this scenario's minimal effects
+  /// for `tofu compare` (campaign/compared_metrics.h: a pattern such as
+  /// "methods.<method>.ate_m" or a concrete name such as "methods.consensus.ate_m"; the
+  /// names are checked by the campaign layer, campaign::CheckScenarioMinimalEffects). Their
+  /// key locations: "compare.minimal_effects.<metric>".
+  std::map<std::string, double> compare_minimal_effects;
   std::vector<Expectation> expect;
   /// Where keys were written, for the errors found after parsing (CheckScenarioModels):
   /// "world", "robot", "trajectory", "sensors.<name>", "render.camera". Missing when the

@@ -343,14 +343,28 @@ YamlValue YamlValue::Without(std::string_view key) const {
 }
 
 std::vector<std::pair<std::string, YamlValue>> YamlValue::Entries() const {
+  return EntriesNamedBy([](const YamlValue& key) { return key.Identifier(); },
+                        "a map of names to maps");
+}
+
+std::vector<std::pair<std::string, YamlValue>> YamlValue::StringEntries() const {
+  return EntriesNamedBy([](const YamlValue& key) {
+    std::string name = key.String();
+    if (name.empty()) key.FailExpected("a non-empty key");
+    return name;
+  }, "a map");
+}
+
+std::vector<std::pair<std::string, YamlValue>> YamlValue::EntriesNamedBy(
+    std::string (*name_of)(const YamlValue& key), const char* expected) const {
   std::vector<std::pair<std::string, YamlValue>> entries;
   if (!node_.IsDefined() || node_.IsNull()) return entries;
-  if (!node_.IsMap()) FailExpected("a map of names to maps");
+  if (!node_.IsMap()) FailExpected(expected);
   std::vector<YAML::Mark> key_marks;
   for (auto it = node_.begin(); it != node_.end(); ++it) {
     const YAML::Node key = it->first;
     const YamlValue key_value = Child(key, path_, key.Mark());
-    const std::string name = key_value.Identifier();
+    const std::string name = name_of(key_value);
     const YamlValue value = Child(it->second, ChildPath(path_, name), key.Mark());
     for (size_t i = 0; i < entries.size(); ++i) {
       if (entries[i].first == name) {

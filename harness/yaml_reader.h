@@ -89,6 +89,9 @@ class YamlValue {
   /// This value as a map whose keys are free names ([a-z0-9_]+, e.g. sensor names), in
   /// document order; a null value is an empty map. Duplicate keys are errors.
   std::vector<std::pair<std::string, YamlValue>> Entries() const;
+  /// The same with keys that are any non-empty strings (metric names such as
+  /// "methods.<method>.ate_m").
+  std::vector<std::pair<std::string, YamlValue>> StringEntries() const;
   /// This value as a list (a null value is an empty list); with non_empty an empty list
   /// is an error.
   std::vector<YamlValue> List(bool non_empty) const;
@@ -98,6 +101,8 @@ class YamlValue {
 
  private:
   YamlValue Child(const YAML::Node& node, std::string path, YAML::Mark key_mark) const;
+  std::vector<std::pair<std::string, YamlValue>> EntriesNamedBy(
+      std::string (*name_of)(const YamlValue& key), const char* expected) const;
   core::SourceLocation LocationOf(const YAML::Mark& mark) const;
 
   YAML::Node node_;

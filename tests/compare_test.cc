@@ -98,6 +98,23 @@ TEST(Compare, AnInjectedRegressionIsFoundWhereItIsAndNowhereElse) {
   EXPECT_EQ(Cell(back, "s2", "methods.<method>.ate_m").verdict, Verdict::kImproved);
 }
 
+// A scenario's own minimal effect (its `compare: {minimal_effects}`) wins over the table's,
+// and the command line's over both.
+TEST(Compare, AScenarioSetsItsOwnMinimalEffectAndTheCommandLineWins) {
+  const CampaignRecord base = Synthetic(2, 10, 1.0, 0.3, 0.0, 1, 1);
+  CampaignRecord now = Synthetic(2, 10, 1.2, 0.3, 0.0, 1, 1);
+  now.minimal_effects["s1"] = {{"methods.<method>.ate_m", 0.5}};
+  const Comparison own = CompareCampaigns(base, now, {});
+  EXPECT_EQ(Cell(own, "s0", "methods.<method>.ate_m").verdict, Verdict::kRegressed);
+  EXPECT_DOUBLE_EQ(Cell(own, "s1", "methods.<method>.ate_m").minimal_effect, 0.5);
+  EXPECT_NE(Cell(own, "s1", "methods.<method>.ate_m").verdict, Verdict::kRegressed);
+  CompareOptions options;
+  options.minimal_effects["methods.m.ate_m"] = 0.05;
+  const Comparison overridden = CompareCampaigns(base, now, options);
+  EXPECT_DOUBLE_EQ(Cell(overridden, "s1", "methods.<method>.ate_m").minimal_effect, 0.05);
+  EXPECT_EQ(Cell(overridden, "s1", "methods.<method>.ate_m").verdict, Verdict::kRegressed);
+}
+
 TEST(Compare, AChangeBelowTheMinimalEffectIsNotAVerdict) {
   CampaignRecord base = Synthetic(1, 10, 1.0, 0.3, 0.001, 1, 21);
   CampaignRecord now = Synthetic(1, 10, 1.0, 0.3, 0.001, 1, 22);
@@ -340,6 +357,27 @@ TEST(CompareCommand, AChecksOwnRunsAreUnchangedAndNaiveFusionIsWorseThanConsensu
   EXPECT_NE(page.find("<h1>tofu check <span class=\"badge fail\">"), std::string::npos);
   EXPECT_NE(page.find("Compared with the baseline"), std::string::npos);
   EXPECT_NE(page.find("<svg class=\"slope\""), std::string::npos);
+  // A scenario's own minimal effects travel through check.json and the baseline file, and
+  // one naming no comparable metric is refused by validate, run and check.
+  std::string lenient = kScenario;
+  lenient += "compare:\n  minimal_effects: {methods.<method>.ate_m: 0.5}\n";
+  test::WriteFile(work / "lenient.yaml", lenient);
+  ASSERT_EQ(Tofu("check lenient.yaml --seeds 8 --jobs 2 --out L --quiet", work).exit_code, 0);
+  ASSERT_EQ(Tofu("baseline L --out lenient.json", work).exit_code, 0);
+  const auto lenient_baseline = nlohmann::json::parse(test::ReadFile(work / "lenient.json"));
+  EXPECT_EQ(lenient_baseline["minimal_effects"]["compare_short"]["methods.<method>.ate_m"], 0.5);
+  std::string wrong = kScenario;
+  wrong += "compare:\n  minimal_effects: {methods.<method>.no_such_m: 0.5}\n";
+  test::WriteFile(work / "wrong.yaml", wrong);
+  for (const std::string command : {"validate wrong.yaml", "run wrong.yaml --out W --quiet",
+                                    "check wrong.yaml --out W --quiet"}) {
+    const Result r = Tofu(command, work);
+    EXPECT_EQ(r.exit_code, 2) << command << ": " << r.out;
+    EXPECT_NE(r.out.find("wrong.yaml:"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("compare.minimal_effects.methods.<method>.no_such_m"), std::string::npos)
+        << r.out;
+  }
+  EXPECT_FALSE(fs::exists(work / "W"));
   // Another grid (6 seeds of a baseline of 8): bad input before anything runs.
   const Result other_grid = Tofu("check s.yaml --seeds 6 --out D --quiet --baseline base.json", work);
   EXPECT_EQ(other_grid.exit_code, 2) << other_grid.out;

@@ -259,6 +259,7 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   // Before the flight: a run never ends by refusing its directory, or its models.
   tofu::harness::CheckOutputDirectory(out, force);
   tofu::harness::CheckScenarioModels(scenario);
+  tofu::campaign::CheckScenarioMinimalEffects(scenario);
   // What killed runs to the same directory left (interrupt.h: a live run's is kept).
   for (const std::filesystem::path& stale : tofu::replay::SweepStaleStaging(out)) {
     fmt::print(stderr, "tofu: removed {}, left by an earlier run that was killed\n",
@@ -340,6 +341,7 @@ int ValidateCommand(const std::vector<std::string>& paths) {
       // Every check that does not need the simulation: the file, then its models.
       const tofu::harness::Scenario scenario = tofu::harness::LoadScenario(path);
       tofu::harness::CheckScenarioModels(scenario);
+      tofu::campaign::CheckScenarioMinimalEffects(scenario);
       fmt::print("{}: ok ({}, {} segments, {} expectations)\n", path, scenario.name,
                  scenario.trajectory.segments.size(), scenario.expect.size());
     } catch (const tofu::core::InputError& e) {
