@@ -121,7 +121,14 @@ std::string ReadConfig(YamlMap& map) {
   const auto config = map.Optional("config");
   if (!config) return "{}";
   if (!config->node().IsMap() && !config->IsNull()) config->FailExpected("a map (any keys)");
-  return config->IsNull() ? "{}" : YamlToJson(config->node()).dump();
+  if (config->IsNull()) return "{}";
+  try {
+    return YamlToJson(config->node()).dump();
+  } catch (const nlohmann::json::type_error&) {
+    // The client's config travels as JSON text, which holds UTF-8 only (type_error 316).
+    config->Fail("a key or string of it is not valid UTF-8 text (the config reaches the client "
+                 "as JSON, which holds UTF-8 only)");
+  }
 }
 
 ClientSpec ReadProcessClient(const std::string& key, const YamlValue& value, const fs::path& base) {

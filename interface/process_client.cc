@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <stdexcept>
@@ -267,10 +268,17 @@ struct ProcessEstimator::Impl {
     }
   }
 
+  // A failing answer leaves nothing of itself in `out`: the answers before it are the
+  // client's partial output, whole messages only.
   void Accept(const Message& message, std::vector<api::Estimate>* out) {
     const std::size_t first = out->size();
-    connection.Decode([&] { DecodeEstimates(message, answered, out); });
-    CheckTimes(*out, first, "estimates", answered);
+    try {
+      connection.Decode([&] { DecodeEstimates(message, answered, out); });
+      CheckTimes(*out, first, "estimates", answered);
+    } catch (...) {
+      out->erase(out->begin() + static_cast<std::ptrdiff_t>(first), out->end());
+      throw;
+    }
     ++answered;
   }
 

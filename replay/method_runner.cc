@@ -126,10 +126,13 @@ struct MethodRunner::Impl {
     }
   }
 
-  // The estimates collected in `estimates` into the result (checked for a client).
+  // The estimates collected in `estimates` into the result (checked for a client). Those
+  // of the call in which a client failed are kept too: tofu reads a client's answers in
+  // order and fails it only once none is left before the failing one (its exit, its
+  // malformed message, its timeout), so what it answered before failing is the same on
+  // every run, however far tofu's pipelining had got.
   void Record() {
     for (api::Estimate& e : estimates) {
-      if (result.failure) break;
       if (builtin == nullptr) {
         if (const std::string problem = ClientEstimateProblem(e, last_estimate_ns); !problem.empty()) {
           Fail(fmt::format("{}: estimate at t_ns {}: {}", method.name, e.t_ns, problem),

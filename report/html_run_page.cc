@@ -61,6 +61,16 @@ std::string MethodsTable(const json& summary) {
     if (const auto f = OptionalNumber(m, "faults")) {
       detected = fmt::format("{}/{}", Field(m, "faults_detected"), Number(*f));
     }
+    // A method whose client failed has no figures (null in summary.json): its row says so,
+    // with the cause, rather than a row of dashes that reads as "nothing measured".
+    const std::string failure = StringField(m, "failure");
+    if (!failure.empty()) {
+      rows += fmt::format(
+          "<tr class=\"fail\"><td><code>{}</code></td><td class=\"result\" colspan=\"10\">"
+          "FAILED: {}</td></tr>\n",
+          E(name), E(failure.substr(0, failure.find('\n'))));
+      continue;
+    }
     rows += fmt::format(
         "<tr><td><code>{}</code></td><td class=\"num\">{}</td><td class=\"num\">{}</td>"
         "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>"

@@ -18,6 +18,7 @@
 #include <signal.h>
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <filesystem>
@@ -256,6 +257,67 @@ TEST_P(BadClient, FailsItsMethodScoresTheOthersExitsFiveAndLeavesNoProcess) {
   EXPECT_TRUE(summary["expectations"][1]["passed"].get<bool>());
   EXPECT_FALSE(summary["passed"].get<bool>());
   EXPECT_FALSE(ProcessAlive(work / "pid.txt")) << "the client is still running";
+  // The report says so too: the badge, and the method's row with its cause, not figures.
+  ASSERT_EQ(RunTofu("report R --out Rep", work).exit_code, 0);
+  const std::string page = test::ReadFile(work / "Rep" / "index.html");
+  EXPECT_CONTAINS(page, "CLIENT FAILED");
+  EXPECT_CONTAINS(page, "<tr class=\"fail\"><td><code>external:bad</code></td><td class=\"result\" "
+                        "colspan=\"10\">FAILED: ");
+  fs::remove_all(work);
+}
+
+// What a failed client answered before failing is kept, all of it, and is the same on
+// every run: tofu reads answers in batches while up to 256 measurements are in flight, and
+// the batch that holds the failing message holds answers before it too. The client here
+// writes its answers in bursts of 50 and a malformed line at seq 1500; it counts the
+// estimates it gave before that line, and the partial estimate file has exactly those,
+// byte-identical over three runs.
+TEST(ClientMethods, AFailedClientsPartialOutputIsAllItAnsweredAndTheSameOnEveryRun) {
+  const fs::path work = test::PerTestDirectory("client_partial_");
+  fs::create_directories(work);
+  test::WriteFile(work / "bad.py", R"(import json, sys
+given = 0
+def send(m, flush=True):
+    sys.stdout.write(json.dumps(m) + '\n')
+    if flush: sys.stdout.flush()
+for line in sys.stdin:
+    m = json.loads(line)
+    t = m['type']
+    if t == 'hello': send({'type': 'hello', 'version': 2})
+    elif t == 'setup': send({'type': 'ready'})
+    elif t == 'measurement':
+        seq = m['seq']
+        if seq == 1500:
+            open('given.txt', 'w').write(str(given))
+            sys.stdout.write('{not json\n'); sys.stdout.flush()
+            continue
+        est = {'t_ns': m['t_ns'], 'valid': True, 'p_LI_m': [0, 0, 0], 'q_LI_wxyz': [1, 0, 0, 0],
+               'v_L_mps': [0, 0, 0], 'omega_I_radps': [0, 0, 0]}
+        answer = [est] if m['kind'] == 'imu' else []
+        given += len(answer)
+        send({'type': 'estimates', 'seq': seq, 'estimates': answer}, flush=seq % 50 == 49)
+    elif t == 'finish':
+        send({'type': 'finished'}); break
+)");
+  test::WriteFile(work / "s.yaml", Scenario("external:\n  bad: {command: [/usr/bin/python3, bad.py]}\n",
+                                            R"([consensus, "external:bad"])"));
+  std::vector<std::string> estimates, partials;
+  for (const std::string out : {"R1", "R2", "R3"}) {
+    const Result run = RunTofu("run s.yaml --out " + out + " --quiet", work);
+    ASSERT_EQ(run.exit_code, 5) << run.err;
+    EXPECT_CONTAINS(run.err, "seq=1500");
+    estimates.push_back(test::ReadFile(work / out / "estimate_external_bad.csv"));
+    const auto summary = nlohmann::json::parse(test::ReadFile(work / out / "summary.json"));
+    partials.push_back(summary["methods"]["external:bad"]["partial"].dump());
+  }
+  const long given = std::stol(test::ReadFile(work / "given.txt"));
+  ASSERT_GT(given, 100);
+  // The estimate file: a header line, then one line per estimate.
+  EXPECT_EQ(std::count(estimates[0].begin(), estimates[0].end(), '\n'), given + 1);
+  for (size_t i = 1; i < estimates.size(); ++i) {
+    EXPECT_TRUE(estimates[i] == estimates[0]) << "run " << i + 1 << "'s partial estimates differ";
+    EXPECT_EQ(partials[i], partials[0]);
+  }
   fs::remove_all(work);
 }
 

@@ -21,6 +21,7 @@
 #include <filesystem>
 #include <functional>
 #include <string>
+#include <tuple>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -265,6 +266,22 @@ TEST(FuzzRegressions, CalibrationSensorNameThatIsAListIsAnInputError) {
   EXPECT_EQ(outcome.file, "fuzz_run/calibration.yaml");
   EXPECT_EQ(outcome.line, 3);
   EXPECT_CONTAINS(outcome.text, "sensors");
+}
+
+// Finding (harness/client_config.cc, ReadConfig): a client's `config:` map with a key
+// that is not valid UTF-8 reached nlohmann's dump(), whose type_error.316 ("invalid UTF-8
+// byte") ended `tofu run` and `tofu corpus` with exit 3 and no file or line. The config
+// travels to the client as JSON (UTF-8 only): an input error at the config's line.
+TEST(FuzzRegressions, ClientConfigKeyThatIsNotUtf8IsAnInputError) {
+  for (const auto& [target, file, line] :
+       {std::tuple<std::string, std::string, int>{"fuzz_scenario", "fuzz_scenario.yaml", 13},
+        std::tuple<std::string, std::string, int>{"fuzz_corpus_spec", "fuzz_corpus.yaml", 31}}) {
+    const Outcome outcome = Replay(target, "config_key_not_utf8.yaml");
+    ASSERT_EQ(outcome.kind, Outcome::kInputError) << target << ": " << outcome.Describe();
+    EXPECT_EQ(outcome.file, file);
+    EXPECT_EQ(outcome.line, line) << outcome.Describe();
+    EXPECT_CONTAINS(outcome.text, "not valid UTF-8");
+  }
 }
 
 // The resolved YAML of the scenario tests/data/fuzz_regressions/fuzz_scenario/<name>
