@@ -171,8 +171,11 @@ ClientSpec ReadPluginClient(const std::string& key, const YamlValue& value, cons
 std::vector<ClientSpec> ReadClients(const std::optional<YamlValue>& external,
                                     const std::optional<YamlValue>& plugins,
                                     const std::string& scenario_file) {
+  // The scenario's directory, absolute: a file named without one ("s.yaml") is in the
+  // working directory, and the resolved scenario of a run directory must name it.
   std::error_code ec;
-  const fs::path base = fs::absolute(fs::path(scenario_file).parent_path(), ec);
+  const fs::path parent = fs::path(scenario_file).parent_path();
+  const fs::path base = fs::absolute(parent.empty() ? fs::path(".") : parent, ec).lexically_normal();
   std::vector<ClientSpec> clients;
   if (external) {
     for (const auto& [key, value] : external->Entries()) {

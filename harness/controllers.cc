@@ -105,7 +105,8 @@ std::unique_ptr<api::Controller> StartController(const replay::ClientSpec* clien
     controller->Start(setup);
     return controller;
   } catch (const interface::ClientError& e) {
-    throw core::SimulationError(e.what());
+    throw core::SimulationError(
+        interface::ClientFailureWithStderr(e.what(), client->Name(), e.stderr_tail()));
   } catch (const std::exception& e) {
     throw core::SimulationError(fmt::format("controller {}: {}", client->Name(), e.what()));
   }
@@ -120,7 +121,7 @@ sim::AllocationResult ComputeActuation(api::Controller& controller, const std::s
   try {
     command = controller.Compute(ToApiControlState(state, from_estimate), ToApiReference(reference));
   } catch (const interface::ClientError& e) {
-    throw core::SimulationError(e.what());
+    throw core::SimulationError(interface::ClientFailureWithStderr(e.what(), name, e.stderr_tail()));
   } catch (const std::exception& e) {
     throw core::SimulationError(fmt::format("controller {}: {}", name, e.what()));
   }

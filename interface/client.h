@@ -30,6 +30,11 @@ class ClientError : public std::runtime_error {
   std::vector<std::string> stderr_tail_;
 };
 
+/// A client's failure as tofu tells it: `what`, then the last lines of its standard error
+/// (at most 20), indented under "last lines of <name>'s standard error:".
+std::string ClientFailureWithStderr(const std::string& what, const std::string& name,
+                                    const std::vector<std::string>& stderr_tail);
+
 /// A scenario's `external:` entry.
 struct ProcessClientConfig {
   std::string name;                  ///< "external:<key>": in messages and errors

@@ -228,6 +228,16 @@ class Connection {
 
 }  // namespace
 
+std::string ClientFailureWithStderr(const std::string& what, const std::string& name,
+                                    const std::vector<std::string>& stderr_tail) {
+  std::string text = what;
+  if (!stderr_tail.empty()) {
+    text += fmt::format("\n  last lines of {}'s standard error:", name);
+    for (const std::string& line : stderr_tail) text += "\n    " + line;
+  }
+  return text;
+}
+
 // ---------------------------------------------------------------------------------------
 // ProcessEstimator
 

@@ -349,12 +349,8 @@ std::vector<PoseSample> OutputTrajectory(const ReplayResult& result) {
 
 std::string ClientFailureText(const ReplayResult& result) {
   if (!result.failure) return {};
-  std::string text = *result.failure;
-  if (!result.failure_stderr_tail.empty()) {
-    text += fmt::format("\n  last lines of {}'s standard error:", result.method.name);
-    for (const std::string& line : result.failure_stderr_tail) text += "\n    " + line;
-  }
-  return text;
+  return interface::ClientFailureWithStderr(*result.failure, result.method.name,
+                                            result.failure_stderr_tail);
 }
 
 std::optional<std::string> NothingToFuse(const ReplayResult& result,

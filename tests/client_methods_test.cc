@@ -321,6 +321,56 @@ for line in sys.stdin:
   fs::remove_all(work);
 }
 
+// A client command relative to the scenario's directory, the scenario named without a
+// directory ("s.yaml"): the run directory's resolved scenario names the directory, so
+// `tofu estimate --method external:NAME` on the run, from elsewhere, starts the client.
+TEST(ClientMethods, EstimateOnARunFindsARelativeClientCommand) {
+  const fs::path work = test::PerTestDirectory("client_relative_");
+  fs::create_directories(work / "sub");
+  fs::create_directories(work / "elsewhere");
+  fs::copy_file(BuildDir() / "tofu-estimator-host", work / "sub" / "host");
+  test::WriteFile(work / "s.yaml",
+                  Scenario("external:\n  h: {command: [./sub/host], config: {method: consensus}}\n",
+                           R"([consensus, "external:h"])"));
+  const Result run = RunTofu("run s.yaml --out R --quiet", work);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const Result estimate =
+      RunTofu("estimate ../R --method external:h --out ../E --quiet", work / "elsewhere");
+  EXPECT_EQ(estimate.exit_code, 0) << estimate.err;
+  EXPECT_TRUE(fs::exists(work / "E" / "estimate_external_h.csv"));
+  fs::remove_all(work);
+}
+
+// A controller client that fails: the error names it and shows the last 20 lines of its
+// standard error, as a failed estimator's does (not only the last one).
+TEST(ClientMethods, AFailedControllerShowsItsLastTwentyLinesOfStandardError) {
+  const fs::path work = test::PerTestDirectory("client_controller_fails_");
+  fs::create_directories(work);
+  test::WriteFile(work / "bad.py", R"(import json, sys
+def send(m):
+    sys.stdout.write(json.dumps(m) + '\n'); sys.stdout.flush()
+for line in sys.stdin:
+    m = json.loads(line)
+    if m['type'] == 'hello': send({'type': 'hello', 'version': 2})
+    elif m['type'] == 'setup': send({'type': 'ready'})
+    elif m['type'] == 'control':
+        for i in range(25): sys.stderr.write('controller line %d\n' % i)
+        sys.stderr.flush()
+        sys.exit(4)
+)");
+  test::WriteFile(work / "s.yaml",
+                  Scenario("external:\n  bad: {command: [/usr/bin/python3, bad.py]}\n", "[consensus]",
+                           "control:\n  controller: \"external:bad\"\n"));
+  const Result run = RunTofu("run s.yaml --out R --quiet", work);
+  EXPECT_NE(run.exit_code, 0) << run.err;
+  EXPECT_CONTAINS(run.err, "external:bad");
+  EXPECT_CONTAINS(run.err, "last lines of external:bad's standard error:");
+  EXPECT_CONTAINS(run.err, "controller line 5\n");
+  EXPECT_CONTAINS(run.err, "controller line 24");
+  EXPECT_EQ(run.err.find("controller line 4\n"), std::string::npos) << run.err;
+  fs::remove_all(work);
+}
+
 // A client that cannot start is found before anything flies: tofu validate, run and
 // check refuse it (exit 2) naming the scenario's key and the problem, start no client and
 // write nothing.

@@ -58,10 +58,29 @@ sensors:
   EXPECT_EQ(scenario.estimation->methods[1], "external:python_ekf");
 }
 
+// "tofu compare": a scenario's own minimal effects, parsed (the names are checked against
+// compare's metric table by the campaign layer, compare_test).
+TEST(Readme, CompareExampleIsValid) {
+  const std::vector<std::string> blocks = ReadmeYamlBlocks();
+  ASSERT_GT(blocks.size(), 1u);
+  const std::string yaml = R"(name: readme_compare
+world: indoor_arena
+duration_s: 10
+trajectory:
+  start: {position_m: [0, 0, 1.5]}
+  segments:
+    - hover: {duration_s: 1}
+)" + blocks[1];
+  Scenario scenario;
+  ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
+  EXPECT_EQ(scenario.compare_minimal_effects.at("methods.<method>.ate_m"), 0.10);
+  EXPECT_EQ(scenario.compare_minimal_effects.at("methods.consensus.max_detection_delay_s"), 0.5);
+}
+
 TEST(Readme, ScenarioExampleIsValid) {
   const std::vector<std::string> blocks = ReadmeYamlBlocks();
   ASSERT_FALSE(blocks.empty()) << "README.md has no ```yaml block";
-  const std::string& yaml = blocks[1];
+  const std::string& yaml = blocks[2];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   EXPECT_EQ(scenario.name, "approach_wall");
@@ -80,7 +99,7 @@ trajectory:
   start: {position_m: [-9, 0, 3]}
   segments:
     - hover: {duration_s: 1}
-)" + blocks[2];
+)" + blocks[3];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   EXPECT_EQ(scenario.sensors.size(), 5u);
@@ -103,7 +122,7 @@ sensors:
   vio: {}
   lio: {type: lidar_odometry}
   leica: {type: total_station}
-)" + blocks[3];
+)" + blocks[4];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.estimation.has_value());
@@ -129,7 +148,7 @@ sensors:
   leica: {type: total_station}
 estimation:
   methods: [consensus, naive]
-)" + blocks[4];
+)" + blocks[5];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.control.has_value());
@@ -150,7 +169,7 @@ trajectory:
   start: {position_m: [0, 0, 1.5]}
   segments:
     - hover: {duration_s: 1}
-)" + blocks[5];
+)" + blocks[6];
   Scenario scenario;
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.render.has_value());

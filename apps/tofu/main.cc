@@ -323,6 +323,9 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   for (const std::string& failure : evaluation.client_failures) {
     fmt::print(stderr, "tofu: CLIENT FAILED: {}\n", failure);
   }
+  // So is the simulation's own failure (the report above says it when not quiet): a flying
+  // controller client's, with its last lines of standard error, lands here.
+  if (quiet && record.failure) fmt::print(stderr, "tofu: SIMULATION FAILED: {}\n", *record.failure);
   const int status = record.failure                        ? tofu::core::kExitSimulationError
                      : !evaluation.client_failures.empty() ? tofu::core::kExitClientFailed
                      : evaluation.passed                   ? tofu::core::kExitOk
