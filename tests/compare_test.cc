@@ -136,7 +136,8 @@ TEST(Compare, PairingMakesASmallChangeVisibleThatUnpairedSeedsCannot) {
   CompareOptions unpaired;
   unpaired.unpaired = true;
   CampaignRecord other = Synthetic(1, 8, 1.1, 0.3, 0.01, 2, 32, 101);  // other seeds
-  const CellComparison& cell = Cell(CompareCampaigns(base, other, unpaired), "s0", "methods.<method>.ate_m");
+  const Comparison apart = CompareCampaigns(base, other, unpaired);
+  const CellComparison& cell = Cell(apart, "s0", "methods.<method>.ate_m");
   EXPECT_EQ(cell.pairing, Pairing::kUnpaired);
   EXPECT_EQ(cell.verdict, Verdict::kInconclusive);
 }
