@@ -23,7 +23,9 @@ markers that do not render:
                                             (a paragraph citing docs/RESULTS.md) is unmarked
 Options: --tofu PATH (default build/tofu), --jobs N (tofu check --jobs, default 1),
 --runs DIR (outputs, default runs/results), --reuse (take a command's outputs from a
-previous run into the same --runs when its <name>.run.json records the same command),
+previous run into the same --runs when its <name>.run.json records the same command and a
+commit whose product code is this tofu's: outputs of a build of uncommitted changes, or of
+a commit whose code differs, are made again; the stamp names the commit reused),
 --root DIR (the repository whose docs are read and written; default this script's),
 --euroc DIR (the EuRoC excerpt; default ../shared/data/euroc_v1_02 beside the repository).
 Exit codes: 0 ok, 1 --check found a difference, 2 bad input or a failed command.
@@ -116,8 +118,9 @@ class Runner:
     """Runs a source's commands in the repository root, records each command's wall time
     in <runs>/<name>.run.json (reused with --reuse when the command is the same)."""
 
-    def __init__(self, args, root):
+    def __init__(self, args, root, commit):
         self.tofu = str(pathlib.Path(args.tofu).resolve()) if os.sep in args.tofu else args.tofu
+        self.commit = commit  # of the tofu that runs the commands (`tofu --version`)
         self.jobs = args.jobs
         self.runs = (root / args.runs).resolve()
         self.reuse = args.reuse
@@ -145,11 +148,15 @@ class Runner:
         if self.reuse and record.exists():
             previous = json.loads(record.read_text())
             if previous.get("command", [])[1:] == command[1:] and previous.get("exit_code") in ok:
-                self.commands.append({"command": " ".join(shown), "seconds": previous["seconds"],
-                                      "exit_code": previous["exit_code"],
-                                      "started": previous.get("started"), "reused": True})
-                self.seconds += previous["seconds"]
-                return
+                why_not = reuse_refusal(self.root, previous.get("commit"), self.commit)
+                if why_not is None:
+                    self.commands.append({"command": " ".join(shown), "seconds": previous["seconds"],
+                                          "exit_code": previous["exit_code"],
+                                          "started": previous.get("started"), "reused": True,
+                                          "commit": previous["commit"]})
+                    self.seconds += previous["seconds"]
+                    return
+                print(f"results: {name}: not reused: {why_not}", flush=True)
         record.parent.mkdir(parents=True, exist_ok=True)
         log = self.runs / f"{name}.log"
         start = time.monotonic()
@@ -158,11 +165,11 @@ class Runner:
             code = subprocess.call(command, cwd=self.root, stdout=out, stderr=subprocess.STDOUT)
         seconds = round(time.monotonic() - start, 1)
         record.write_text(json.dumps({"command": command, "exit_code": code, "seconds": seconds,
-                                      "started": started}, indent=1) + "\n")
+                                      "started": started, "commit": self.commit}, indent=1) + "\n")
         if code not in ok:
             raise ResultsError(f"`{' '.join(shown)}` exited {code} (log: {log})")
         self.commands.append({"command": " ".join(shown), "seconds": seconds, "exit_code": code,
-                              "started": started})
+                              "started": started, "commit": self.commit})
         self.seconds += seconds
 
     def _relative(self, argument):
@@ -177,6 +184,33 @@ class Runner:
 
     def out(self, *parts):
         return self.runs.joinpath(*parts)
+
+
+# What a result depends on: everything but the documents, tests, benchmarks, fuzzing and
+# deployment examples (git pathspecs, from the repository's root).
+PRODUCT_PATHSPEC = [".", ":!docs", ":!README.md", ":!tests", ":!bench", ":!fuzz", ":!deploy",
+                    ":!.ci", ":!scripts/results.py"]
+
+
+def reuse_refusal(root, made_by, running):
+    """Why the outputs a command made with the tofu of commit `made_by` cannot stand for
+    what the tofu of commit `running` would make (None: they can): no commit recorded, a
+    build from uncommitted changes, or product code that differs between the two (a
+    `-dirty` running commit is compared as the working tree)."""
+    if not made_by:
+        return "its record names no commit (made before results.py recorded one)"
+    if made_by.endswith("-dirty") or made_by == "unknown":
+        return f"made by a build of uncommitted changes ({made_by}): its code cannot be compared"
+    if made_by == running:
+        return None
+    against = [] if running.endswith("-dirty") else [running.removesuffix("-dirty")]
+    diff = subprocess.run(["git", "diff", "--quiet", made_by, *against, "--", *PRODUCT_PATHSPEC],
+                          cwd=root, capture_output=True)
+    if diff.returncode == 0:
+        return None
+    if diff.returncode == 1:
+        return f"made by {made_by}, and product code changed since (git diff {made_by} -- {' '.join(PRODUCT_PATHSPEC)})"
+    return f"made by {made_by}, which git cannot compare here ({diff.stderr.decode().strip()})"
 
 
 def tofu_version(tofu, root):
@@ -1996,7 +2030,11 @@ def stamp_line(data, sources):
     for name in sorted(sources):
         st = data["sources"][name]["stamp"]
         seeds = f", {st['seeds']}" if st.get("seeds") else ""
-        parts.append(f"`{name}` ({st['commit']}{seeds}, {st['date']}, {st['machine']})")
+        # Outputs reused from another commit (with the same product code) say so.
+        made = sorted({c["commit"] for c in st.get("commands", [])
+                       if c.get("reused") and c.get("commit") and c["commit"] != st["commit"]})
+        reused = f", outputs of {', '.join(made)} reused" if made else ""
+        parts.append(f"`{name}` ({st['commit']}{reused}{seeds}, {st['date']}, {st['machine']})")
     return ("*Generated by `scripts/results.py` from " + "; ".join(parts) +
             ": docs/results/results.json.*")
 
@@ -2172,7 +2210,7 @@ def main():
                 str(pathlib.Path(args.tofu).resolve()) if os.sep in args.tofu else args.tofu, root)
             for name in args.only or list(SOURCES):
                 source = SOURCES[name]
-                r = Runner(runner_args, root)
+                r = Runner(runner_args, root, commit)
                 print(f"results: {name}: {source['describe']}", flush=True)
                 source["run"](r)
                 values = source["extract"](r)
