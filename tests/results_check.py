@@ -8,7 +8,8 @@ that --check passes on the copies as they are, then fails, naming the file, the 
 the key, when: a marked inline number is edited; a cell of a generated table is edited; a
 number the README states as measured loses its marker; a marker names a key that
 results.json does not hold; a value's closing marker is deleted. And that --render puts
-the generated number back.
+the generated number back, and that --reuse refuses outputs made by a build of
+uncommitted changes, by an unknown commit or with no commit recorded.
 """
 import pathlib
 import re
@@ -122,6 +123,21 @@ def main():
 
     line = edit("README.md", drop_close)
     expect("a deleted closing marker", 1, f"README.md:{line}: a value marker without")
+
+    # --reuse: outputs stand for the running tofu's only when made by a commit with its
+    # product code (issue 56, item 4).
+    sys.path.insert(0, str(script.parent))
+    import results  # noqa: E402
+    head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=source,
+                          capture_output=True, text=True).stdout.strip()
+    if head:
+        for made_by, reusable in ((head, True), (None, False), (head + "-dirty", False),
+                                  ("0000000000ff", False)):
+            why_not = results.reuse_refusal(source, made_by, head)
+            if (why_not is None) != reusable:
+                failures.append(f"reuse of outputs made by {made_by} under {head}: "
+                                f"{'refused: ' + why_not if why_not else 'accepted'}, expected "
+                                f"{'accepted' if reusable else 'refused'}")
 
     if failures:
         print("\n".join(failures), file=sys.stderr)
