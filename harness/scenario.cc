@@ -202,10 +202,19 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
       }
       c.metric = *parsed;
     }
-    ReadNumber(cmap, "threshold", NumberRule::Between(1e-6, 100.0, "m/s for cm, unitless for nis"),
-               &c.threshold);
+    // Each metric has its own scale (cm: a velocity distance in m/s; nis: a normalised,
+    // unitless one), so the default threshold, the paper's 0.1 m/s, is cm's alone: nis
+    // needs its own, written.
+    const bool nis = c.metric == estimator::ConsistencyMetric::kNis;
+    if (nis && !cmap.Has("threshold")) {
+      cmap.self().FailAtKey(
+          "metric: nis needs its own threshold (unitless; the default 0.1 is cm's, in m/s): "
+          "add threshold, e.g. `threshold: 3` (docs/RESULTS.md, consensus with metric: nis)");
+    }
+    const char* unit = nis ? "" : "m/s";
+    ReadNumber(cmap, "threshold", NumberRule::Between(1e-6, 100.0, unit), &c.threshold);
     if (const auto leave = cmap.Optional("leave_threshold")) {
-      c.leave_threshold = leave->Number(NumberRule::Between(1e-6, 100.0, "m/s"));
+      c.leave_threshold = leave->Number(NumberRule::Between(1e-6, 100.0, unit));
       if (*c.leave_threshold < c.threshold) {
         leave->Fail(fmt::format("expected leave_threshold >= threshold ({}), got {}",
                                 FormatDouble(c.threshold), FormatDouble(*c.leave_threshold)));
