@@ -96,8 +96,9 @@ std::string ResolveCommand(const std::vector<std::string>& argv,
   if (argv.empty() || argv[0].empty()) throw std::runtime_error("the command is empty");
   std::error_code ec;
   if (!working_dir.empty() && !std::filesystem::is_directory(working_dir, ec)) {
+    const int error = std::filesystem::exists(working_dir, ec) ? ENOTDIR : ENOENT;
     throw std::runtime_error(fmt::format("cannot enter the working directory {}: {}",
-                                         working_dir.string(), std::strerror(ENOENT)));
+                                         working_dir.string(), std::strerror(error)));
   }
   if (argv[0].find('/') == std::string::npos) {
     const std::string program = FindOnPath(argv[0]);
@@ -257,31 +258,36 @@ ChildProcess::ChildProcess(const std::vector<std::string>& argv,
 }
 
 // The client's group outlives a SIGKILLed tofu: PR_SET_PDEATHSIG reaches the client alone,
-// not what it started. A watchdog process (forked from tofu, in tofu's group, deaf to the
-// terminal's signals) blocks reading a pipe whose only write end tofu holds; the end closes
-// when tofu ends, however it ends, and the watchdog then kills the client's whole group.
-// Without a watchdog (fork failed) the client still has PR_SET_PDEATHSIG.
+// not what it started. A watchdog joins the client's group and blocks reading a pipe whose
+// only write end tofu holds; the end closes when tofu ends, however it ends, and the
+// watchdog then kills its group, the client's, itself included. It is /bin/sh (`read`,
+// then `kill -9 0`) rather than a bare fork of tofu, which would keep a copy-on-write image
+// of tofu's whole memory for as long as the client lives; in the client's group, it
+// outlives a signal to tofu's group (a CI's timeout) and keeps the group's id in use, so
+// the id cannot pass to another group before it is killed. Without a watchdog (no fork,
+// no /bin/sh) the client still has PR_SET_PDEATHSIG.
 void ChildProcess::StartWatchdog(int max_fd) {
   int guard[2];
   if (::pipe2(guard, O_CLOEXEC) != 0) return;
+  guard[0] = AboveStdio(guard[0]);
+  guard[1] = AboveStdio(guard[1]);
   const pid_t group = pid_;
+  static char sh[] = "sh", dash_c[] = "-c", script[] = "read line; kill -9 0";
+  char* const argv[] = {sh, dash_c, script, nullptr};
+  char* const envp[] = {nullptr};
   const pid_t watchdog = ::fork();
   if (watchdog == 0) {
-    // Async-signal-safe calls only: tofu may have other threads.
+    // Async-signal-safe calls only, until exec: tofu may have other threads. Ignored
+    // signals stay ignored across exec: the terminal's reach tofu, not the watchdog.
     for (const int signal : {SIGINT, SIGTERM, SIGHUP, SIGQUIT, SIGPIPE}) ::signal(signal, SIG_IGN);
-    // Every descriptor but the guard's read end, other clients' guards included: one kept
-    // open here would keep that client's watchdog from ever seeing its end.
-    for (int fd = 0; fd < max_fd; ++fd) {
-      if (fd != guard[0]) ::close(fd);
-    }
-    char byte = 0;
-    for (;;) {
-      const ssize_t n = ::read(guard[0], &byte, 1);
-      if (n > 0 || (n < 0 && errno == EINTR)) continue;
-      break;  // EOF: tofu has ended (or let go of the client)
-    }
-    ::kill(-group, SIGKILL);
-    ::_exit(0);
+    // Outside the client's group `kill -9 0` would hit tofu's own: no watchdog then.
+    if (::setpgid(0, group) != 0) ::_exit(127);
+    if (::dup2(guard[0], STDIN_FILENO) < 0) ::_exit(127);
+    // Every other descriptor, other clients' guards included: one kept open here would
+    // keep that client's watchdog from ever seeing its end.
+    for (int fd = STDIN_FILENO + 1; fd < max_fd; ++fd) ::close(fd);
+    ::execve("/bin/sh", argv, envp);
+    ::_exit(127);
   }
   ::close(guard[0]);
   if (watchdog < 0) {
@@ -464,21 +470,23 @@ void ChildProcess::Kill() {
       std::this_thread::sleep_for(std::chrono::milliseconds(2));
     }
   }
-  signal_group(SIGKILL);  // whatever of the group is left, the client itself if it hung on
+  signal_group(SIGKILL);  // whatever of the group is left (the watchdog too), the client
+                          // itself if it hung on
   int status = 0;
-  pid_t reaped = 0;
-  do {
-    reaped = ::waitpid(pid_, &status, 0);
-  } while (reaped < 0 && errno == EINTR);
-  if (reaped == pid_ && !exit_status_) exit_status_ = status;
-  reaped_ = true;
-  // The watchdog's end: it kills a group that is gone already, and exits.
+  // The watchdog's end (it is gone, or kills what is left of the group and exits), reaped
+  // before the client: until then the client's pid, the group's id, stays taken.
   CloseFd(&watchdog_fd_);
   if (watchdog_pid_ > 0) {
     while (::waitpid(watchdog_pid_, &status, 0) < 0 && errno == EINTR) {
     }
     watchdog_pid_ = -1;
   }
+  pid_t reaped = 0;
+  do {
+    reaped = ::waitpid(pid_, &status, 0);
+  } while (reaped < 0 && errno == EINTR);
+  if (reaped == pid_ && !exit_status_) exit_status_ = status;
+  reaped_ = true;
   // The last lines it wrote (a traceback) are in the pipe; EOF once the group is gone.
   DrainStderr(Clock::now() + std::chrono::milliseconds(100));
   CloseFd(&stdout_fd_);

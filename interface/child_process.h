@@ -1,9 +1,9 @@
 #pragma once
 // A client process with pipes on its standard streams, for the process protocol
 // (docs/INTERFACE.md). It runs in a process group of its own (so that Kill() reaches
-// whatever it started), gets SIGKILL if tofu dies (PR_SET_PDEATHSIG), and a watchdog
-// process kills its whole group when tofu ends in any way, SIGKILL included; it inherits
-// no descriptor besides its three streams. The I/O is poll()-based and never blocks on one
+// whatever it started), gets SIGKILL if tofu dies (PR_SET_PDEATHSIG), and a watchdog in
+// its group (/bin/sh) kills the whole group when tofu ends in any way, SIGKILL included;
+// it inherits no descriptor besides its three streams. The I/O is poll()-based and never blocks on one
 // direction: tofu writes its messages while it reads the answers, so a client that writes
 // answers before reading on can never deadlock against tofu writing measurements. The
 // client's standard error is drained all along into a ring of its last 20 lines.
