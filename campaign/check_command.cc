@@ -784,11 +784,17 @@ std::string ClientTestCases(const ScenarioCheck& c, int& failures) {
 // Compared with a baseline: fails when a cell of the scenario regressed, with each
 // regressed cell's figures. Counts a failure into `failures`.
 std::string BaselineTestCase(const ScenarioCheck& c, int& failures) {
-  if (!c.baseline_regressions) return {};
+  if (!c.baseline_regressions && c.baseline_error.empty()) return {};
   std::string testcase =
       fmt::format("    <testcase name=\"compared with the baseline\" classname=\"{}\" file=\"{}\" "
                   "time=\"0\"",
                   XmlAttribute(c.name), XmlAttribute(c.source_file));
+  if (!c.baseline_error.empty()) {
+    ++failures;
+    return testcase + fmt::format(
+        ">\n      <failure message=\"{}\" type=\"baseline\"/>\n    </testcase>\n",
+        XmlAttribute("not compared with the baseline: " + c.baseline_error));
+  }
   const std::vector<std::string>& regressed = *c.baseline_regressions;
   if (regressed.empty()) return testcase + "/>\n";
   ++failures;
@@ -889,7 +895,8 @@ std::string CheckJUnitXml(const std::vector<ScenarioCheck>& checks) {
     cases += BaselineTestCase(c, failures);
     cases += ExpectationTestCases(c, failures);
 
-    const int tests = 1 + ClientTestCaseCount(c) + (c.baseline_regressions ? 1 : 0) +
+    const int tests = 1 + ClientTestCaseCount(c) +
+                      (c.baseline_regressions || !c.baseline_error.empty() ? 1 : 0) +
                       static_cast<int>(c.expectations.size());
     std::string seeds;
     for (const SeedRun& r : c.runs) seeds += fmt::format("{}{}", seeds.empty() ? "" : ",", r.seed);
@@ -1113,6 +1120,7 @@ bool CompareWithBaseline(const CampaignRecord& baseline, const fs::path& out,
     comparison = CompareCampaigns(baseline, ReadCheckDirectory(out), CompareOptions{});
   } catch (const InputError& e) {
     fmt::print(stderr, "tofu: error: --baseline: {}\n", e.what());
+    for (ScenarioCheck& c : checks) c.baseline_error = e.what();
     return false;
   }
   WriteFileAtomically(out / "compare.md", ComparisonMarkdown(comparison), "--out");
@@ -1149,6 +1157,10 @@ int ReportCheck(const CheckCommandOptions& options, const std::vector<harness::S
   CheckFailures failures;
   std::vector<ScenarioCheck> checks = CheckScenarios(scenarios, queue, failures);
   bool regressed = false;
+  // An earlier check's comparison is never taken for this one's.
+  std::error_code ignored;
+  fs::remove(out / "compare.md", ignored);
+  fs::remove(out / "compare.json", ignored);
   try {
     WriteCheckRecord(out, grid, scenarios, checks);
     if (!options.quiet) PrintTable(checks);

@@ -149,6 +149,9 @@ struct ScenarioCheck {
   /// Compared with a baseline (CheckCommandOptions::baseline_path): one line of figures per
   /// regressed cell (empty: nothing regressed). Unset without a baseline.
   std::optional<std::vector<std::string>> baseline_regressions;
+  /// Asked to compare with a baseline, the comparison could not be made after the runs:
+  /// why (its JUnit case fails with it). Empty otherwise.
+  std::string baseline_error;
 };
 
 /// Aggregates the runs of one scenario (their summaries read already). Expectations are

@@ -404,7 +404,15 @@ void RequireKnownMinimalEffects(const std::map<std::string, double>& effects,
                                 const std::function<core::SourceLocation(const std::string&)>& where,
                                 const std::string& key_prefix) {
   for (const auto& [name, value] : effects) {
-    if (!FindComparedMetric(name) && !MatchComparedMetric(name)) {
+    const ComparedMetric* pattern = FindComparedMetric(name);
+    const std::optional<ConcreteMetric> concrete = pattern ? std::nullopt : MatchComparedMetric(name);
+    const ComparedMetric* metric = pattern ? pattern : concrete ? concrete->metric : nullptr;
+    if (metric != nullptr && metric->kind == EffectKind::kEvent) {
+      throw InputError(where(name), key_prefix + name,
+                       "is a yes/no outcome: it has no size, so no minimal effect (every "
+                       "change of it is tested)");
+    }
+    if (metric == nullptr) {
       std::string patterns;
       for (const ComparedMetric& m : ComparedMetrics()) {
         if (m.kind != EffectKind::kEvent) patterns += (patterns.empty() ? "" : ", ") + m.Pattern();

@@ -34,8 +34,10 @@ struct CompareOptions {
   /// Compare the seed sets as independent samples (they need not be the same seeds).
   bool unpaired = false;
   /// Minimal effects by metric pattern ("methods.<method>.ate_m") or concrete name
-  /// ("methods.consensus.ate_m"), over the scenarios' own (`compare: {minimal_effects}`,
-  /// CampaignRecord::minimal_effects) and the table's defaults; the concrete name wins.
+  /// ("methods.consensus.ate_m"): a fraction for a ratio metric (0.05: 5 %), the metric's
+  /// own unit for a difference. They win over the scenarios' own (`compare:
+  /// {minimal_effects}`, CampaignRecord::minimal_effects), and those over the table's
+  /// defaults; within each, a concrete name over a pattern.
   std::map<std::string, double> minimal_effects;
 };
 

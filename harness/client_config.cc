@@ -175,7 +175,11 @@ std::vector<ClientSpec> ReadClients(const std::optional<YamlValue>& external,
   // working directory, and the resolved scenario of a run directory must name it.
   std::error_code ec;
   const fs::path parent = fs::path(scenario_file).parent_path();
-  const fs::path base = fs::absolute(parent.empty() ? fs::path(".") : parent, ec).lexically_normal();
+  const fs::path base = (parent.empty() ? fs::current_path(ec) : fs::absolute(parent, ec)).lexically_normal();
+  if (ec) {
+    throw core::InputError({scenario_file, 0, 0}, "external",
+                           fmt::format("cannot resolve the scenario's directory: {}", ec.message()));
+  }
   std::vector<ClientSpec> clients;
   if (external) {
     for (const auto& [key, value] : external->Entries()) {

@@ -364,8 +364,11 @@ std::string SlopeChart(const json& cell) {
   std::vector<std::pair<double, double>> pairs;
   std::vector<double> all;
   for (const json& s : cell.value("seeds", json::array())) {
-    if (!s.is_object() || !s["base"].is_number() || !s["new"].is_number()) continue;
-    const double b = s["base"].get<double>(), n = s["new"].get<double>();
+    if (!s.is_object() || !s.value("base", json()).is_number() ||
+        !s.value("new", json()).is_number()) {
+      continue;
+    }
+    const double b = s.at("base").get<double>(), n = s.at("new").get<double>();
     if (ratio && (b <= 0.0 || n <= 0.0)) continue;
     pairs.emplace_back(b, n);
     all.push_back(b);
@@ -412,9 +415,13 @@ std::string EffectOf(const json& cell) {
     return fmt::format("{} &rarr; {} of {} seeds", cell.value("base_events", 0),
                        cell.value("new_events", 0), cell.value("new_count", 0));
   }
-  if (!cell["effect"].is_number() || !cell["interval"].is_array()) return "-";
-  const double effect = cell["effect"].get<double>();
-  const double low = cell["interval"][0].get<double>(), high = cell["interval"][1].get<double>();
+  const json interval = cell.value("interval", json());
+  if (!cell.value("effect", json()).is_number() || !interval.is_array() || interval.size() != 2 ||
+      !interval[0].is_number() || !interval[1].is_number()) {
+    return "-";
+  }
+  const double effect = cell.at("effect").get<double>();
+  const double low = interval[0].get<double>(), high = interval[1].get<double>();
   if (kind == "ratio") return fmt::format("&times;{:.3f} [{:.3f}, {:.3f}]", effect, low, high);
   return fmt::format("{:+.4g} [{:+.4g}, {:+.4g}] {}", effect, low, high, E(cell.value("unit", "")));
 }
@@ -428,7 +435,7 @@ json ReadComparison(const fs::path& check_dir) {
   text << in.rdbuf();
   json comparison = json::parse(text.str(), nullptr, false);
   if (!comparison.is_object() || comparison.value("format", "") != "tofu compare" ||
-      !comparison.contains("cells") || !comparison["cells"].is_array()) {
+      !comparison.contains("cells") || !comparison.at("cells").is_array()) {
     throw InputError({file.string()}, "format",
                      "expected the JSON of tofu compare (\"format\": \"tofu compare\", cells)");
   }
@@ -438,7 +445,7 @@ json ReadComparison(const fs::path& check_dir) {
 int Regressed(const json& comparison) {
   if (comparison.is_null()) return 0;
   int n = 0;
-  for (const json& c : comparison["cells"]) n += c.value("verdict", "") == "regressed" ? 1 : 0;
+  for (const json& c : comparison.at("cells")) n += c.value("verdict", "") == "regressed" ? 1 : 0;
   return n;
 }
 
@@ -451,22 +458,22 @@ std::string ComparisonSection(const json& comparison) {
     const std::string v = c->value("verdict", "");
     return v == "regressed" ? 0 : v == "improved" ? 1 : v == "inconclusive" ? 2 : 3;
   };
-  for (const json& c : comparison["cells"]) {
+  for (const json& c : comparison.at("cells")) {
     if (c.value("verdict", "") != "unchanged") shown.push_back(&c);
   }
   const bool all_unchanged = shown.empty();
   if (all_unchanged) {
-    for (const json& c : comparison["cells"]) {
+    for (const json& c : comparison.at("cells")) {
       if (c.value("metric", "") == "methods.<method>.ate_m") shown.push_back(&c);
     }
   }
   std::stable_sort(shown.begin(), shown.end(),
                    [&](const json* a, const json* b) { return rank(a) < rank(b); });
-  const json& counts = comparison["counts"];
+  const json counts = comparison.value("counts", json::object());
   std::string body = fmt::format(
       "<p>Base <code>{}</code> &rarr; new <code>{}</code>: {} cells, <strong>{} regressed</strong>, "
       "{} improved, {} inconclusive, {} unchanged (false-discovery rate {} by {}). {}</p>\n",
-      E(comparison.value("base", "")), E(comparison.value("new", "")), comparison["cells"].size(),
+      E(comparison.value("base", "")), E(comparison.value("new", "")), comparison.at("cells").size(),
       counts.value("regressed", 0), counts.value("improved", 0), counts.value("inconclusive", 0),
       counts.value("unchanged", 0), comparison.value("fdr", 0.0),
       E(comparison.value("fdr_procedure", "")),

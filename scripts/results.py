@@ -826,7 +826,7 @@ def extract_suite(r):
     return v
 
 
-# ---- tofu compare, calibrated (issue 52, item 5) ----------------------------------------
+# ---- tofu compare, calibrated ------------------------------------------------------------
 # On the suite's own check (the suite source's command, reused with --reuse): a check
 # against itself; three splits of its ten seeds into disjoint halves compared as
 # independent samples (A/A, every cell a null); an injected regression; a method known to
@@ -834,12 +834,12 @@ def extract_suite(r):
 CALIBRATION_SPLITS = {"1-5 vs 6-10": ([1, 2, 3, 4, 5], [6, 7, 8, 9, 10]),
                       "odd vs even": ([1, 3, 5, 7, 9], [2, 4, 6, 8, 10]),
                       "1,2,5,6,9 vs 3,4,7,8,10": ([1, 2, 5, 6, 9], [3, 4, 7, 8, 10])}
-CALIBRATION_FDR = 0.05  # tofu compare's default --fdr
+CALIBRATION_FDR = 0.05  # tofu compare's default --fdr; for one cell alone, its test's level
 INJECTED_FACTOR = 1.2   # consensus ATE x this in every seed of one scenario at a time
 DEGRADED_STD_M = 0.012  # consensus re-estimated with the pose sensors' between-position std
                         # x1.2 (default 0.01 m, no suite scenario sets it): a real degradation
-POWER_EFFECT = 1.10     # the regression to detect: ATE x 1.10
-POWER_MINIMAL = 0.05    # ATE's minimal effect (campaign/compared_metrics.cc)
+POWER_RATIO = 1.10      # the regression to detect: ATE x 1.10 (a ratio)
+POWER_MINIMAL_FRACTION = 0.05  # ATE's minimal effect, 5 % (campaign/compared_metrics.cc)
 POWER_TRIALS = 2000
 # Seed counts tried, smallest first: exact tests up to 40 seeds, the normal approximation
 # (scipy's asymptotic mode, tie-free draws) beyond.
@@ -950,14 +950,14 @@ def _rank_sum_counts(m, n):
 
 
 def _power(sigma_between, sigma_within, paired, n, rng):
-    """Share of POWER_TRIALS comparisons of n seeds (per side) that find an ATE x POWER_EFFECT
+    """Share of POWER_TRIALS comparisons of n seeds (per side) that find an ATE x POWER_RATIO
     regression with tofu compare's verdict rule for one cell: the rank test shifted by the
     minimal effect, two-sided p (twice the one-sided) <= CALIBRATION_FDR. Draws are
     continuous (no ties), so the exact tests reduce to critical values of their null
     distributions (counted here; the normal approximation beyond POWER_EXACT_MAX seeds)."""
     import numpy
     alpha = CALIBRATION_FDR / 2
-    shift = math.log(POWER_EFFECT) - math.log1p(POWER_MINIMAL)
+    shift = math.log(POWER_RATIO) - math.log1p(POWER_MINIMAL_FRACTION)
     z = 1.959963984540054  # the normal quantile of 1 - alpha
     if paired:
         if sigma_within == 0.0:  # every pair moves alike: the signed-rank floor
@@ -1012,7 +1012,7 @@ def extract_compare_calibration(r):
         v[f"calibration.split{i}.tested"] = str(tested)
         for verdict, n in counts.items():
             v[f"calibration.split{i}.{verdict}"] = str(n)
-        v[f"calibration.split{i}.false_rate"] = percent(false / len(cells), 2)
+        v[f"calibration.split{i}.false_rate"] = percent(false / tested, 2) if tested else "-"
     v["calibration.splits.tested"] = str(total_tested)
     v["calibration.splits.false"] = str(total_false)
     v["calibration.level"] = percent(CALIBRATION_FDR, 0)
@@ -1967,7 +1967,7 @@ def table_compare_calibration(V):
                      V(k + "regressed"), V(k + "improved"), V(k + "inconclusive"), V(k + "unchanged"),
                      V(k + "false_rate")])
     return md_table(["comparison", "cells", "tested", "regressed", "improved", "inconclusive",
-                     "unchanged", "false verdicts"], rows)
+                     "unchanged", "false verdicts (of tested)"], rows)
 
 
 def table_compare_power(V):

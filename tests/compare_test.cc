@@ -231,6 +231,10 @@ TEST(Compare, RefusesWhatCannotBeComparedNamingTheCell) {
   CompareOptions options;
   options.minimal_effects["methods.<method>.no_such_metric"] = 0.1;
   EXPECT_THROW(CompareCampaigns(a, a, options), core::InputError);
+  // A yes/no outcome has no size: no minimal effect for it.
+  CompareOptions event;
+  event.minimal_effects["methods.m.failed"] = 0.1;
+  EXPECT_THROW(CompareCampaigns(a, a, event), core::InputError);
 }
 
 // ---- the command on real checks ----
