@@ -18,8 +18,6 @@ namespace fs = std::filesystem;
 using core::InputError;
 using nlohmann::json;
 
-constexpr const char* kCheckRecord = "check.json";
-constexpr const char* kCheckFormat = "tofu check";
 constexpr const char* kBaselineFormat = "tofu baseline";
 constexpr int kBaselineVersion = 1;
 
@@ -83,7 +81,14 @@ void ReadFlight(const std::string& name, const json& f, CellRecord& cell) {
   cell.flight_digests[name] = DigestsOf(f);
 }
 
-json ReadJsonFile(const fs::path& file) {
+template <typename T>
+T Field(const json& object, const char* key, const fs::path& file, const char* expected) {
+  return replay::JsonField<T>(object, key, file, expected);
+}
+
+}  // namespace
+
+json ReadJsonRecord(const fs::path& file) {
   std::ifstream in(file);
   if (!in) throw InputError({file.string()}, "", "cannot be read");
   try {
@@ -92,13 +97,6 @@ json ReadJsonFile(const fs::path& file) {
     throw InputError({file.string()}, "", fmt::format("is not JSON: {}", e.what()));
   }
 }
-
-template <typename T>
-T Field(const json& object, const char* key, const fs::path& file, const char* expected) {
-  return replay::JsonField<T>(object, key, file, expected);
-}
-
-}  // namespace
 
 std::map<std::string, int> CurrentMetricVersions() {
   std::map<std::string, int> versions;
@@ -151,16 +149,16 @@ CellRecord CellFromSummary(const std::string& scenario, uint64_t seed,
 }
 
 CampaignRecord ReadCheckDirectory(const fs::path& dir) {
-  const fs::path file = dir / kCheckRecord;
+  const fs::path file = dir / kCheckRecordFile;
   if (!fs::exists(file)) {
     throw InputError({dir.string()}, "",
                      fmt::format("is not a check directory: it has no {} (what `tofu check "
                                  "--out DIR` writes when its runs are done)",
-                                 kCheckRecord));
+                                 kCheckRecordFile));
   }
-  const json record = ReadJsonFile(file);
-  if (!record.is_object() || record.value("format", "") != kCheckFormat) {
-    throw InputError({file.string()}, "format", fmt::format("expected \"{}\"", kCheckFormat));
+  const json record = ReadJsonRecord(file);
+  if (!record.is_object() || record.value("format", "") != kCheckRecordFormat) {
+    throw InputError({file.string()}, "format", fmt::format("expected \"{}\"", kCheckRecordFormat));
   }
   CampaignRecord campaign;
   campaign.source = dir;
@@ -183,7 +181,7 @@ CampaignRecord ReadCheckDirectory(const fs::path& dir) {
     const auto error = Field<std::string>(r, "error", file, "a string");
     json summary = nullptr;
     const fs::path summary_file = dir / scenario / fmt::format("seed_{}", seed) / "summary.json";
-    if (fs::exists(summary_file)) summary = ReadJsonFile(summary_file);
+    if (fs::exists(summary_file)) summary = ReadJsonRecord(summary_file);
     campaign.cells.push_back(
         CellFromSummary(scenario, seed, hash_of[scenario], exit_code, error, summary));
   }
@@ -218,7 +216,7 @@ std::string BaselineJson(const CampaignRecord& campaign) {
 }
 
 CampaignRecord ReadBaselineFile(const fs::path& file) {
-  const json b = ReadJsonFile(file);
+  const json b = ReadJsonRecord(file);
   if (!b.is_object() || b.value("format", "") != kBaselineFormat) {
     throw InputError({file.string()}, "format", fmt::format("expected \"{}\"", kBaselineFormat));
   }

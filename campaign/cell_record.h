@@ -15,6 +15,11 @@
 
 namespace tofu::campaign {
 
+/// A check directory's record of its grid and runs (`tofu check --out DIR`): its file name
+/// and its "format".
+inline constexpr const char* kCheckRecordFile = "check.json";
+inline constexpr const char* kCheckRecordFormat = "tofu check";
+
 /// Digests of one flight (core/digest.h), hex; empty when the run recorded none.
 struct FlightDigests {
   std::string samples;
@@ -55,6 +60,10 @@ struct CampaignRecord {
 /// Each comparable metric's definition version in this tofu, by pattern
 /// ("methods.<method>.ate_m"): what a campaign flown now records.
 std::map<std::string, int> CurrentMetricVersions();
+
+/// A JSON file of a campaign (check.json, summary.json, a baseline, compare.json), parsed.
+/// Throws core::InputError naming the file: unreadable, or not JSON.
+nlohmann::json ReadJsonRecord(const std::filesystem::path& file);
 
 /// The typed record of one run: its summary.json (null when the run has none) read through
 /// the table of comparable metrics.

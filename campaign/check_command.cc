@@ -1074,14 +1074,14 @@ void WriteCheckRecord(const fs::path& out, const CheckGrid& grid,
                       {"wall_time_s", r.wall_time_s}});
     }
   }
-  const nlohmann::json record = {{"format", "tofu check"},
+  const nlohmann::json record = {{"format", kCheckRecordFormat},
                                  {"version", 1},
                                  {"tofu_version", core::TofuVersion()},
                                  {"tofu_commit", core::TofuCommit()},
                                  {"seeds", grid.seeds},
                                  {"scenarios", scenarios},
                                  {"runs", runs}};
-  WriteFileAtomically(out / "check.json", record.dump(1) + "\n", "--out");
+  WriteFileAtomically(out / kCheckRecordFile, record.dump(1) + "\n", "--out");
 }
 
 // The campaign the grid will be: its cells with no values yet, for matching a baseline
@@ -1123,8 +1123,8 @@ bool CompareWithBaseline(const CampaignRecord& baseline, const fs::path& out,
     for (ScenarioCheck& c : checks) c.baseline_error = e.what();
     return false;
   }
-  WriteFileAtomically(out / "compare.md", ComparisonMarkdown(comparison), "--out");
-  WriteFileAtomically(out / "compare.json", ComparisonJson(comparison).dump(1) + "\n", "--out");
+  WriteFileAtomically(out / kCompareMarkdownFile, ComparisonMarkdown(comparison), "--out");
+  WriteFileAtomically(out / kCompareJsonFile, ComparisonJson(comparison).dump(1) + "\n", "--out");
   for (ScenarioCheck& c : checks) c.baseline_regressions.emplace();
   for (const CellComparison& cell : comparison.cells) {
     if (cell.verdict != Verdict::kRegressed) continue;
@@ -1139,7 +1139,7 @@ bool CompareWithBaseline(const CampaignRecord& baseline, const fs::path& out,
                baseline.source.string(), comparison.cells.size(),
                comparison.Count(Verdict::kRegressed), comparison.Count(Verdict::kImproved),
                comparison.Count(Verdict::kInconclusive), comparison.Count(Verdict::kUnchanged),
-               (out / "compare.md").string());
+               (out / kCompareMarkdownFile).string());
     for (const ScenarioCheck& c : checks) {
       for (const std::string& line : *c.baseline_regressions) {
         fmt::print("  REGRESSED {}: {}\n", c.name, line);
@@ -1159,8 +1159,8 @@ int ReportCheck(const CheckCommandOptions& options, const std::vector<harness::S
   bool regressed = false;
   // An earlier check's comparison is never taken for this one's.
   std::error_code ignored;
-  fs::remove(out / "compare.md", ignored);
-  fs::remove(out / "compare.json", ignored);
+  fs::remove(out / kCompareMarkdownFile, ignored);
+  fs::remove(out / kCompareJsonFile, ignored);
   try {
     WriteCheckRecord(out, grid, scenarios, checks);
     if (!options.quiet) PrintTable(checks);

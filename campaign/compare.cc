@@ -708,7 +708,7 @@ nlohmann::json ComparisonJson(const Comparison& comparison) {
                         {"seeds", seeds}};
     cells.push_back(std::move(j));
   }
-  return {{"format", "tofu compare"},
+  return {{"format", kCompareJsonFormat},
           {"version", 1},
           {"base", comparison.base_label},
           {"new", comparison.new_label},

@@ -25,6 +25,12 @@ namespace tofu::campaign {
 
 enum class FdrProcedure { kBenjaminiHochberg, kBenjaminiYekutieli };
 
+/// What `tofu check --baseline` writes into its --out (and `tofu report` reads): the
+/// comparison as markdown and as ComparisonJson.
+inline constexpr const char* kCompareMarkdownFile = "compare.md";
+inline constexpr const char* kCompareJsonFile = "compare.json";
+inline constexpr const char* kCompareJsonFormat = "tofu compare";  ///< ComparisonJson's "format"
+
 struct CompareOptions {
   double fdr = 0.05;  ///< false-discovery rate of the improved/regressed verdicts; the
                       ///< level of the equivalence test behind "unchanged"

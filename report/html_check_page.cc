@@ -2,12 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
-#include <sstream>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "campaign/cell_record.h"
+#include "campaign/compare.h"
 #include "core/error.h"
 #include "renders/run_data.h"
 #include "report/html_page.h"
@@ -428,13 +428,10 @@ std::string EffectOf(const json& cell) {
 
 // Reads <check>/compare.json; null when the check was not compared with a baseline.
 json ReadComparison(const fs::path& check_dir) {
-  const fs::path file = check_dir / "compare.json";
+  const fs::path file = check_dir / campaign::kCompareJsonFile;
   if (!fs::exists(file)) return nullptr;
-  std::ifstream in(file);
-  std::stringstream text;
-  text << in.rdbuf();
-  json comparison = json::parse(text.str(), nullptr, false);
-  if (!comparison.is_object() || comparison.value("format", "") != "tofu compare" ||
+  const json comparison = campaign::ReadJsonRecord(file);
+  if (!comparison.is_object() || comparison.value("format", "") != campaign::kCompareJsonFormat ||
       !comparison.contains("cells") || !comparison.at("cells").is_array()) {
     throw InputError({file.string()}, "format",
                      "expected the JSON of tofu compare (\"format\": \"tofu compare\", cells)");
