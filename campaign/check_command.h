@@ -17,6 +17,7 @@
 
 #include "harness/scenario.h"
 #include "harness/shard.h"
+#include "campaign/run_pool.h"
 
 namespace tofu::campaign {
 
@@ -74,19 +75,6 @@ std::vector<std::string> ExpandScenarioInputs(const std::vector<std::string>& in
 /// ceil(pass_fraction * seeds), robust to rounding (0.7 * 10 needs 7, not 8), >= 1.
 int RequiredPasses(double pass_fraction, int seeds);
 
-/// One `tofu run` of a check: a scenario at one seed.
-struct SeedRun {
-  uint64_t seed = 0;
-  std::string run_dir;   ///< absolute
-  std::string log_path;  ///< the run's stdout and stderr
-  int exit_code = -1;    ///< tofu run's exit status (core::ExitCode)
-  std::string error;     ///< why the run failed or has no usable summary; empty if fine
-  /// A run that exited kExitClientFailed: the summary's `failure` (a user's estimator or
-  /// controller failed; the run itself is sound and scored). Empty otherwise.
-  std::string client_failure;
-  double wall_time_s = 0.0;
-  nlohmann::json summary;  ///< summary.json; null when missing or unreadable
-};
 
 /// How one expectation fared in one seed.
 struct SeedOutcome {

@@ -193,6 +193,24 @@ double MannWhitneyP(const std::vector<double>& x, const std::vector<double>& y,
   return Tail(sums, observed, alternative);
 }
 
+Interval ClopperPearsonInterval(int successes, int trials, double level) {
+  if (trials < 1 || successes < 0 || successes > trials || !(level > 0.0 && level < 1.0)) {
+    throw std::invalid_argument("ClopperPearsonInterval: needs 0 <= successes <= trials, trials >= 1, 0 < level < 1");
+  }
+  using boost::math::binomial_distribution;
+  const double alpha = (1.0 - level) / 2.0;
+  const auto n = static_cast<double>(trials);
+  const auto k = static_cast<double>(successes);
+  Interval interval;
+  interval.low = successes == 0 ? 0.0
+                                : binomial_distribution<double>::find_lower_bound_on_p(
+                                      n, k, alpha, binomial_distribution<double>::clopper_pearson_exact_interval);
+  interval.high = successes == trials ? 1.0
+                                      : binomial_distribution<double>::find_upper_bound_on_p(
+                                            n, k, alpha, binomial_distribution<double>::clopper_pearson_exact_interval);
+  return interval;
+}
+
 double McNemarExactP(int base_only, int new_only, Alternative alternative) {
   if (base_only < 0 || new_only < 0) throw std::invalid_argument("McNemar: negative count");
   const int n = base_only + new_only;

@@ -30,6 +30,11 @@ struct Interval {
 Interval BootstrapMedianInterval(const std::vector<double>& values, double level, int resamples,
                                  uint64_t seed);
 
+/// Clopper-Pearson's exact interval of a binomial proportion at `level` from `successes`
+/// of `trials` (Boost.Math's beta quantiles): a failure rate over confirmation seeds.
+/// Requires 0 <= successes <= trials, trials >= 1, 0 < level < 1.
+Interval ClopperPearsonInterval(int successes, int trials, double level);
+
 /// The same for median(y) - median(x) of two independent samples, each resampled on its
 /// own.
 Interval BootstrapMedianDifferenceInterval(const std::vector<double>& x,

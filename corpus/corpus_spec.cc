@@ -26,7 +26,8 @@ using harness::YamlValue;
 
 using core::kPi;
 
-// [lo, hi] or a single number (a constant), each in `rule`; lo <= hi.
+}  // namespace
+
 Range ReadRange(const YamlValue& value, const NumberRule& rule) {
   if (value.node().IsScalar()) {
     const double v = value.Number(rule);
@@ -37,6 +38,8 @@ Range ReadRange(const YamlValue& value, const NumberRule& rule) {
                                           FormatDouble(v[0]), FormatDouble(v[1])));
   return {v[0], v[1]};
 }
+
+namespace {
 
 Eigen::Vector2d ReadXY(const YamlValue& value) {
   const std::vector<double> v = value.Numbers(2, NumberRule::Any("m"));
@@ -73,8 +76,7 @@ std::size_t DrawIndex(core::RandomStream& random, std::size_t n) {
 Eigen::Vector3d DrawDirection(core::RandomStream& random) {
   const double z = random.Uniform(-1.0, 1.0);
   const double phi = random.Uniform(0.0, 2.0 * kPi);
-  const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
-  return {r * std::cos(phi), r * std::sin(phi), z};
+  return UnitDirection(z, phi);
 }
 
 std::string Vec(const Eigen::Vector3d& v) {
@@ -85,30 +87,42 @@ std::string Vec(const Eigen::Vector3d& v) {
 // the plan records exactly what the scenario says.
 double Round4(double v) { return std::round(v * 1e4) / 1e4 + 0.0; }  // + 0.0: no "-0"
 
-// The kind-specific keys of a fault of `magnitude` (sim/faults.h for their meaning).
-std::string FaultParameters(sim::FaultKind kind, double magnitude, core::RandomStream& random) {
-  const Eigen::Vector3d d = DrawDirection(random);
-  switch (kind) {
+}  // namespace
+
+Eigen::Vector3d UnitDirection(double z, double phi_rad) {
+  const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
+  return {r * std::cos(phi_rad), r * std::sin(phi_rad), z};
+}
+
+std::string FaultYaml(const PlannedFault& fault, const Eigen::Vector3d& direction) {
+  const Eigen::Vector3d d = direction;
+  const double magnitude = fault.magnitude;
+  const std::string head = fmt::format("{{sensor: {}, kind: {}, start_s: {}, end_s: {}", fault.sensor,
+                                       sim::FaultKindName(fault.kind), FormatDouble(fault.start_s),
+                                       FormatDouble(fault.end_s));
+  switch (fault.kind) {
     case sim::FaultKind::kDivergence:
-      return fmt::format(", axis: {}, initial_velocity_mps: {}, time_constant_s: 8", Vec(d.unaryExpr(&Round4)),
-                         FormatDouble(magnitude));
+      return head + fmt::format(", axis: {}, initial_velocity_mps: {}, time_constant_s: 8}}",
+                                Vec(d.unaryExpr(&Round4)), FormatDouble(magnitude));
     case sim::FaultKind::kJump:
-      return fmt::format(", translation_m: {}", Vec((magnitude * d).unaryExpr(&Round4)));
+      return head + fmt::format(", translation_m: {}}}", Vec((magnitude * d).unaryExpr(&Round4)));
     case sim::FaultKind::kNonGaussianNoise:
-      return fmt::format(", white_std_m: {}, brown_std_m_per_sqrt_s: {}", FormatDouble(magnitude),
-                         FormatDouble(Round4(magnitude / 3.0)));
+      return head + fmt::format(", white_std_m: {}, brown_std_m_per_sqrt_s: {}}}", FormatDouble(magnitude),
+                                FormatDouble(Round4(magnitude / 3.0)));
     case sim::FaultKind::kOutliers:
-      return fmt::format(", rate_hz: 1, scale_m: {}", FormatDouble(magnitude));
+      return head + fmt::format(", rate_hz: 1, scale_m: {}}}", FormatDouble(magnitude));
     case sim::FaultKind::kDelay:
-      return fmt::format(", delay_s: {}", FormatDouble(magnitude));
+      return head + fmt::format(", delay_s: {}}}", FormatDouble(magnitude));
     case sim::FaultKind::kMisalignment:
-      return fmt::format(", rpy_deg: {}", Vec((magnitude * d).unaryExpr(&Round4)));
+      return head + fmt::format(", rpy_deg: {}}}", Vec((magnitude * d).unaryExpr(&Round4)));
     case sim::FaultKind::kDropout:
     case sim::FaultKind::kFreeze:
-      return "";
+      break;
   }
-  return "";
+  return head + "}";
 }
+
+namespace {
 
 // A circle's centripetal acceleration v^2 / r stays within this limit [m/s^2], the
 // episodes' max_acceleration_mps2.
@@ -181,9 +195,7 @@ std::string PlanFaults(const CorpusSpec& spec, core::RandomStream& random, Episo
     fault.start_s = Round4(std::min(Draw(random, spec.fault_onset_s), spec.duration_s - 1.0));
     fault.end_s = Round4(std::min(fault.start_s + Draw(random, spec.fault_duration_s), spec.duration_s));
     fault.magnitude = Round4(Draw(random, choice.magnitude));
-    faults_yaml += fmt::format("  - {{sensor: {}, kind: {}, start_s: {}, end_s: {}{}}}\n", fault.sensor,
-                               sim::FaultKindName(fault.kind), FormatDouble(fault.start_s),
-                               FormatDouble(fault.end_s), FaultParameters(fault.kind, fault.magnitude, random));
+    faults_yaml += "  - " + FaultYaml(fault, DrawDirection(random)) + "\n";
     plan.faults.push_back(fault);
   }
   return faults_yaml;
@@ -250,7 +262,8 @@ void ReadTrajectoryRanges(const YamlValue& value, CorpusSpec& spec) {
   t.Finish();
 }
 
-// An item of `faults.kinds:`; its sensors must be among the spec's `sensor_names`.
+}  // namespace
+
 FaultChoice ReadFaultChoice(const YamlValue& item, const std::vector<std::string>& sensor_names) {
   YamlMap k = item.Map({"kind", "sensors", "weight", "magnitude"});
   FaultChoice choice;
@@ -280,6 +293,8 @@ FaultChoice ReadFaultChoice(const YamlValue& item, const std::vector<std::string
   k.Finish();
   return choice;
 }
+
+namespace {
 
 // `faults:` how many per episode, when, how long, and of which kinds. After `sensors:`
 // and `duration_s`, which it is checked against.

@@ -14,6 +14,7 @@
 
 #include <Eigen/Core>
 
+#include "harness/yaml_reader.h"
 #include "sim/faults.h"
 
 namespace tofu::corpus {
@@ -104,6 +105,22 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
 
 /// Episode `index` of the spec: a function of (spec, index) only.
 EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index);
+
+// The space's vocabulary, shared with `tofu search` (campaign/search_spec.h).
+
+/// [lo, hi] or a single number (a constant), each in `rule`; lo <= hi.
+Range ReadRange(const harness::YamlValue& value, const core::NumberRule& rule);
+/// An item of a `faults.kinds:` list ({kind, sensors, weight, magnitude}); its sensors must
+/// be among `sensor_names`; a sized kind needs a magnitude, dropout and freeze have none.
+FaultChoice ReadFaultChoice(const harness::YamlValue& item,
+                            const std::vector<std::string>& sensor_names);
+/// The unit vector of height z in [-1, 1] and azimuth phi: uniform on the sphere for
+/// uniform (z, phi).
+Eigen::Vector3d UnitDirection(double z, double phi_rad);
+/// A fault of a scenario's `faults:` list as a YAML flow map: the magnitude turned into
+/// the kind's own keys (docs/CORPUS.md), along `direction` for the kinds that have one
+/// (divergence axis, jump translation, misalignment rotation).
+std::string FaultYaml(const PlannedFault& fault, const Eigen::Vector3d& direction);
 
 /// "figure_eight", ...: the trajectory families a spec may name.
 const std::vector<std::string>& TrajectoryFamilies();

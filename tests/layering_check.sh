@@ -19,7 +19,7 @@ declare -A may_include=(
   [renders]="core sim replay renders mujoco"
   [report]="core sim replay harness renders report campaign mujoco"
   [corpus]="core sim replay harness corpus"
-  [campaign]="core replay harness campaign"
+  [campaign]="core replay harness corpus campaign"
   [apps]="core sim estimator interface replay harness renders report corpus campaign apps tofu"
   [include]="tofu"
 )

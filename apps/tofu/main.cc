@@ -27,6 +27,7 @@
 #include "core/version.h"
 #include "tofu/api.h"
 #include "campaign/compare_command.h"
+#include "campaign/search_command.h"
 #include "corpus/corpus_command.h"
 #include "campaign/check_command.h"
 #include "harness/evaluation.h"
@@ -524,6 +525,28 @@ Command AddCompareCommand(CLI::App& parent) {
   return {compare, false, [o] { return tofu::campaign::RunCompareCommand(*o); }};
 }
 
+Command AddSearchCommand(CLI::App& parent) {
+  auto o = std::make_shared<tofu::campaign::SearchCommandOptions>();
+  CLI::App* search = parent.add_subcommand(
+      "search",
+      "Find where it breaks: search a spec's space of faults and settings for flights that fail "
+      "the base scenario's expectations; confirm, shrink and keep them as tests");
+  search->add_option("spec", o->spec_path, "Search spec YAML (searches/*.yaml, docs/SEARCH.md)")->required();
+  search->add_option("--out", o->out_dir, "Output directory; a search killed there resumes with the same result")
+      ->required();
+  search->add_option("--jobs", o->jobs,
+                     "Flights at once, the optimiser's batch (default: the cores this process may run on)")
+      ->check(WholeNumber(0, 256));
+  search->add_option("--promote", o->promote_dir,
+                     "DIR: write each confirmed failure as a regression scenario there (its violated "
+                     "expectation, so tofu check fails until the cause is fixed)");
+  search->add_flag("--no-renders", [o](std::int64_t) { o->renders = false; }, "Do not render the failures' flights");
+  search->add_flag("--quiet", o->quiet, "No progress and no table");
+  search->footer("Exit 0: no confirmed failure; 1: a confirmed failure was found; 2: bad spec or options, "
+                 "or --out holds a search of another spec (nothing flown).");
+  return {search, true, [o] { return tofu::campaign::RunSearchCommand(*o); }};
+}
+
 Command AddBaselineCommand(CLI::App& parent) {
   struct Options {
     std::string check_dir;
@@ -850,6 +873,7 @@ int main(int argc, char** argv) {
   commands.push_back(AddCheckCommand(app));
   commands.push_back(AddCompareCommand(app));
   commands.push_back(AddBaselineCommand(app));
+  commands.push_back(AddSearchCommand(app));
   commands.push_back(AddConsistencyCommand(app));
   commands.push_back(AddEstimateCommand(app));
   commands.push_back(AddRenderCommand(app));

@@ -1,0 +1,312 @@
+#include "campaign/search_command.h"
+
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <nlohmann/json.hpp>
+
+#include "campaign/check_command.h"
+#include "campaign/margin.h"
+#include "campaign/run_pool.h"
+#include "campaign/search.h"
+#include "campaign/search_spec.h"
+#include "core/cores.h"
+#include "core/error.h"
+#include "core/file_io.h"
+#include "replay/file_io.h"
+
+extern char** environ;
+
+namespace tofu::campaign {
+
+namespace {
+
+namespace fs = std::filesystem;
+using core::FormatDouble;
+
+// Flies each request as `tofu run <out>/flights/<id>.yaml --out <out>/flights/<id>`. A
+// passing flight's run directory and log are removed (its margin is in the journal); a
+// failing flight's stay, for the failure's report and renders.
+class PoolEvaluator : public FlightEvaluator {
+ public:
+  PoolEvaluator(const SearchSpec& spec, fs::path flights, std::string binary, int jobs, bool quiet)
+      : spec_(spec), flights_(std::move(flights)), binary_(std::move(binary)), jobs_(jobs), quiet_(quiet) {}
+
+  std::vector<FlightMargin> Fly(const std::vector<FlightRequest>& requests) override {
+    std::vector<RunRequest> runs(requests.size());
+    std::vector<RunRequest*> queue;
+    for (std::size_t i = 0; i < requests.size(); ++i) {
+      const FlightRequest& r = requests[i];
+      RunRequest& run = runs[i];
+      run.scenario_path = (flights_ / (r.id + ".yaml")).string();
+      replay::WriteFileAtomically(run.scenario_path, ScenarioYaml(spec_, r.setting, spec_.name + "_" + r.id));
+      run.label = r.id;
+      run.run.seed = r.setting.seed;
+      run.run.run_dir = (flights_ / r.id).string();
+      run.run.log_path = run.run.run_dir + ".log";
+      queue.push_back(&run);
+    }
+    RunPool(binary_, queue, jobs_, /*quiet=*/true, "search");
+    std::vector<FlightMargin> margins;
+    for (RunRequest& run : runs) {
+      ReadSummary(run.run);
+      margins.push_back(MarginOfRun(run.run, spec_.objective_metrics));
+      if (margins.back().margin >= 0.0) {
+        std::error_code ec;
+        fs::remove_all(run.run.run_dir, ec);
+        fs::remove(run.run.log_path, ec);
+      }
+    }
+    (void)quiet_;
+    return margins;
+  }
+
+ private:
+  const SearchSpec& spec_;
+  fs::path flights_;
+  std::string binary_;
+  int jobs_;
+  bool quiet_;
+};
+
+nlohmann::json SettingJson(const SearchSpec& spec, const Setting& s) {
+  nlohmann::json j;
+  j["seed"] = s.seed;
+  j["set"] = nlohmann::json::object();
+  for (std::size_t i = 0; i < spec.set.size(); ++i) {
+    j["set"][spec.set[i].path] = std::isnan(s.set_values[i]) ? nlohmann::json(nullptr) : nlohmann::json(s.set_values[i]);
+  }
+  j["faults"] = nlohmann::json::array();
+  for (std::size_t k = 0; k < s.faults.size(); ++k) {
+    const FaultSetting& f = s.faults[k];
+    if (!f.present) {
+      j["faults"].push_back(nullptr);
+      continue;
+    }
+    const FaultSlot::Option& o = spec.faults[k].options[f.option];
+    j["faults"].push_back({{"kind", sim::FaultKindName(o.kind)}, {"sensor", o.sensor}, {"onset_s", f.onset_s},
+                           {"duration_s", f.duration_s}, {"magnitude", f.magnitude},
+                           {"direction_z", f.direction_z}, {"direction_phi", f.direction_phi}});
+  }
+  return j;
+}
+
+nlohmann::json MarginJsonOf(const FlightMargin& m) {
+  return {{"margin", std::isfinite(m.margin) ? nlohmann::json(m.margin) : nlohmann::json(nullptr)},
+          {"outcome", m.outcome},
+          {"failing_metric", m.failing_metric},
+          {"cause", m.cause}};
+}
+
+std::string MarginText(double margin) { return std::isfinite(margin) ? fmt::format("{:.3g}", margin) : "none"; }
+
+// Renders a failure's flight: `tofu render <run> --events` (its keyframes and clips in
+// <run>/renders). A render that fails is a warning: the failure stands without pictures.
+void RenderFlight(const std::string& binary, const fs::path& run_dir, bool quiet) {
+  std::vector<std::string> args = {binary, "render", run_dir.string(), "--out", (run_dir / "renders").string()};
+  std::vector<char*> argv;
+  for (std::string& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  const std::string log = (run_dir / "render.log").string();
+  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+  pid_t pid = -1;
+  const int rc = posix_spawn(&pid, binary.c_str(), &actions, nullptr, argv.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  int status = 0;
+  if (rc != 0 || ::waitpid(pid, &status, 0) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    if (!quiet) fmt::print(stderr, "tofu search: warning: no renders of {} (see {})\n", run_dir.string(), log);
+  }
+}
+
+std::string FailuresMarkdown(const SearchSpec& spec, const SearchOutcome& outcome) {
+  std::string md = fmt::format("# tofu search {}: failures found\n\n", spec.name);
+  md += fmt::format("Base `{}`; objective: the least margin of {}; {} search simulations ({} to confirm, {} to "
+                    "shrink).\n\n",
+                    spec.base_path.filename().string(), fmt::join(spec.objective_metrics, ", "),
+                    outcome.evaluations.size(), outcome.confirm_flights, outcome.shrink_flights);
+  if (outcome.failures.empty()) return md + "No flight failed.\n";
+  md += "| rank | failure | expectation | confirmed | failure rate [95 % CI] | margin found | margin shrunk | "
+        "found at simulation | shrunk change from the base |\n|---|---|---|---|---|---|---|---|---|\n";
+  int rank = 0;
+  for (const FoundFailure& f : outcome.failures) {
+    const std::string change =
+        f.confirmed ? fmt::format("{}", fmt::join(DescribeSetting(spec, f.shrunk), "; ")) : std::string("-");
+    md += fmt::format("| {} | {} | {} | {} | {}/{} [{:.2f}, {:.2f}] | {} | {} | {} | {} |\n", ++rank, f.id, f.metric,
+                      f.confirmed ? "yes" : "no", f.confirm_failures, f.confirm_flights, f.failure_rate_ci.low,
+                      f.failure_rate_ci.high, MarginText(f.found_margin.margin),
+                      f.confirmed ? MarginText(f.shrunk_margin.margin) : "-", f.first_simulation, change);
+  }
+  for (const FoundFailure& f : outcome.failures) {
+    if (f.found_margin.cause.empty()) continue;
+    md += fmt::format("\n{} ({}): {}\n", f.id, f.metric, f.found_margin.cause);
+  }
+  return md;
+}
+
+nlohmann::json SearchJson(const SearchSpec& spec, const SearchOutcome& outcome) {
+  nlohmann::json j;
+  j["format"] = "tofu-search-1";
+  j["spec"] = spec.name;
+  j["base"] = spec.base_path.filename().string();
+  j["objective"] = spec.objective_metrics;
+  j["optimizer"] = spec.optimizer;
+  j["optimizer_seed"] = spec.optimizer_seed;
+  j["budget"] = spec.budget;
+  j["dimensions"] = nlohmann::json::array();
+  for (const SearchDimension& d : spec.dimensions) j["dimensions"].push_back({{"name", d.name}, {"choices", d.choices}});
+  j["simulations"] = {{"search", outcome.evaluations.size()},
+                      {"confirm", outcome.confirm_flights},
+                      {"shrink", outcome.shrink_flights}};
+  j["simulations_to_first_confirmed"] = outcome.simulations_to_first_confirmed
+                                            ? nlohmann::json(*outcome.simulations_to_first_confirmed)
+                                            : nlohmann::json(nullptr);
+  nlohmann::json evaluations = nlohmann::json::array();
+  for (const SearchEvaluation& e : outcome.evaluations) {
+    nlohmann::json row = MarginJsonOf(e.margin);
+    row["id"] = e.id;
+    row["unit"] = e.unit;
+    row["setting"] = SettingJson(spec, e.setting);
+    evaluations.push_back(std::move(row));
+  }
+  j["evaluations"] = std::move(evaluations);
+  nlohmann::json failures = nlohmann::json::array();
+  for (const FoundFailure& f : outcome.failures) {
+    nlohmann::json row;
+    row["id"] = f.id;
+    row["expectation"] = f.metric;
+    row["confirmed"] = f.confirmed;
+    row["confirm_failures"] = f.confirm_failures;
+    row["confirm_flights"] = f.confirm_flights;
+    row["failure_rate_ci95"] = {f.failure_rate_ci.low, f.failure_rate_ci.high};
+    row["first_simulation"] = f.first_simulation;
+    row["members"] = f.members;
+    row["found"] = SettingJson(spec, f.found);
+    row["found_flight"] = f.found_flight;
+    row["found_margin"] = MarginJsonOf(f.found_margin);
+    if (f.confirmed) {
+      row["shrunk"] = SettingJson(spec, f.shrunk);
+      row["shrunk_flight"] = f.shrunk_flight;
+      row["shrunk_margin"] = MarginJsonOf(f.shrunk_margin);
+      row["shrunk_change"] = DescribeSetting(spec, f.shrunk);
+    }
+    failures.push_back(std::move(row));
+  }
+  j["failures"] = std::move(failures);
+  return j;
+}
+
+// The out directory holds this spec's search, or nothing yet: a search of another spec
+// is not resumed into (its journal would answer for other flights).
+void ClaimOutDirectory(const SearchSpec& spec, const fs::path& out) {
+  const fs::path marker = out / "spec.yaml";
+  if (fs::exists(marker)) {
+    const std::string held = core::ReadWholeFile(marker, "search spec", core::kMaxConfigFileBytes);
+    if (held != spec.text) {
+      throw core::InputError({spec.file, 0, 0}, "--out",
+                             fmt::format("{} holds a search of another spec (its spec.yaml differs): choose "
+                                         "another --out, or remove it",
+                                         out.string()));
+    }
+    return;
+  }
+  if (fs::exists(out) && !fs::is_empty(out)) {
+    throw core::InputError({spec.file, 0, 0}, "--out",
+                           fmt::format("{} is not empty and holds no search: choose another --out", out.string()));
+  }
+  fs::create_directories(out / "flights");
+  replay::WriteFileAtomically(marker, spec.text);
+}
+
+void WriteFailures(const SearchSpec& spec, const SearchOutcome& outcome, const fs::path& out,
+                   const std::string& binary, const SearchCommandOptions& options) {
+  for (const FoundFailure& f : outcome.failures) {
+    const fs::path dir = out / "failures" / f.id;
+    fs::create_directories(dir);
+    replay::WriteFileAtomically(dir / "found.yaml", ScenarioYaml(spec, f.found, spec.name + "_" + f.id + "_found"));
+    if (!f.confirmed) continue;
+    replay::WriteFileAtomically(dir / "scenario.yaml", ScenarioYaml(spec, f.shrunk, spec.name + "_" + f.id));
+    const fs::path run = out / "flights" / f.shrunk_flight;
+    if (options.renders && fs::is_directory(run) && !fs::exists(run / "renders")) {
+      RenderFlight(binary, run, options.quiet);
+    }
+  }
+}
+
+void Promote(const SearchSpec& spec, const SearchOutcome& outcome, const fs::path& dir, bool quiet) {
+  fs::create_directories(dir);
+  for (const FoundFailure& f : outcome.failures) {
+    if (!f.confirmed) continue;
+    const std::string name = spec.name + "_" + f.id;
+    // The violated expectation alone (all of the objective's for a flight that failed
+    // without one): the scenario fails until the cause is fixed.
+    const bool has_metric = f.shrunk_margin.outcome == "violated" || f.shrunk_margin.outcome == "not measurable";
+    const std::vector<std::string> kept = has_metric ? std::vector<std::string>{f.metric} : spec.objective_metrics;
+    const std::string header = fmt::format(
+        "# Found by `tofu search {}` (failure {}: {}, margin {} after shrinking; failed at {}/{} other seeds, "
+        "95 % CI [{:.2f}, {:.2f}]).\n# The change from the base {}: {}.\n# A regression scenario: it fails "
+        "until the cause is fixed.\n",
+        fs::path(spec.file).filename().string(), f.id, f.metric, MarginText(f.shrunk_margin.margin),
+        f.confirm_failures, f.confirm_flights, f.failure_rate_ci.low, f.failure_rate_ci.high,
+        spec.base_path.filename().string(), fmt::join(DescribeSetting(spec, f.shrunk), "; "));
+    const fs::path path = dir / (name + ".yaml");
+    replay::WriteFileAtomically(path, header + ScenarioYaml(spec, f.shrunk, name, kept));
+    if (!quiet) fmt::print(stderr, "tofu search: promoted {} -> {}\n", f.id, path.string());
+  }
+}
+
+}  // namespace
+
+int RunSearchCommand(const SearchCommandOptions& options) {
+  SearchSpec spec;
+  const fs::path out = fs::absolute(options.out_dir).lexically_normal();
+  try {
+    if (options.jobs < 0) throw core::InputError({}, "--jobs", "expected a whole number >= 1 (0: every core)");
+    spec = LoadSearchSpec(options.spec_path);
+    harness::CheckScenarioModels(spec.base);
+    CheckScenarioMinimalEffects(spec.base);
+    ClaimOutDirectory(spec, out);
+  } catch (const core::InputError& e) {
+    fmt::print(stderr, "tofu: error: {}\n", e.what());
+    return core::kExitBadInput;
+  }
+  const int jobs = options.jobs == 0 ? core::UsableCores() : options.jobs;
+  const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
+  if (!options.quiet) {
+    fmt::print(stderr, "tofu search: {} over {} dimensions, {} simulations with {}, {} at a time -> {}\n", spec.name,
+               spec.dimensions.size(), spec.budget, spec.optimizer, jobs, out.string());
+  }
+  PoolEvaluator pool(spec, out / "flights", binary, jobs, options.quiet);
+  JournaledEvaluator journaled(spec, pool, out / "evaluations.jsonl");
+  const std::unique_ptr<Proposer> proposer = MakeProposer(spec, TOFU_SCRIPTS_DIR);
+  const SearchProgress progress = [&](const std::string& line) {
+    if (!options.quiet) fmt::print(stderr, "tofu search: {}\n", line);
+  };
+  const SearchOutcome outcome = RunSearch(spec, journaled, *proposer, static_cast<std::size_t>(jobs), progress);
+  WriteFailures(spec, outcome, out, binary, options);
+  replay::WriteFileAtomically(out / "search.json", SearchJson(spec, outcome).dump(1) + "\n");
+  const std::string md = FailuresMarkdown(spec, outcome);
+  replay::WriteFileAtomically(out / "failures.md", md);
+  if (options.promote_dir) Promote(spec, outcome, fs::absolute(*options.promote_dir), options.quiet);
+  if (!options.quiet) {
+    fmt::print(stderr, "tofu search: {} flights flown, {} taken from the journal\n", journaled.flown(),
+               journaled.reused());
+    fmt::print("{}", md);
+  }
+  for (const FoundFailure& f : outcome.failures) {
+    if (f.confirmed) return core::kExitExpectationFailed;
+  }
+  return core::kExitOk;
+}
+
+}  // namespace tofu::campaign

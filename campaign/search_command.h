@@ -1,0 +1,31 @@
+#pragma once
+// `tofu search SPEC --out DIR`: looks for failures of a base scenario's expectations over a
+// spec's space (campaign/search.h), flying each point as a `tofu run` of the campaign's run
+// pool, and writes what it found: evaluations.jsonl (every flight's margin, the journal a
+// killed search resumes from), search.json, failures.md, and per failure its runnable
+// scenario (shrunk towards the base), the scenario where it was found and its flight's run
+// directory with renders. `--promote DIR` writes each confirmed failure as a regression
+// scenario that `tofu check` flies and that fails until the cause is fixed.
+
+#include <optional>
+#include <string>
+
+namespace tofu::campaign {
+
+struct SearchCommandOptions {
+  std::string spec_path;
+  std::string out_dir;
+  int jobs = 0;  ///< flights at once (the optimiser's batch); 0: core::UsableCores()
+  bool quiet = false;
+  std::optional<std::string> promote_dir;
+  bool renders = true;  ///< `tofu render` each failure's flight
+  /// The `tofu` executable to spawn for each flight; empty: this process's.
+  std::string tofu_binary;
+};
+
+/// kExitOk when the search found no confirmed failure, kExitExpectationFailed when it
+/// did, kExitBadInput for a bad spec, base scenario or options, or an --out directory
+/// holding a search of another spec (nothing flown, nothing written).
+int RunSearchCommand(const SearchCommandOptions& options);
+
+}  // namespace tofu::campaign
