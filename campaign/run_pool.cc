@@ -54,6 +54,7 @@ pid_t SpawnRun(const std::string& binary, RunRequest& job, int threads) {
                                    "--seed", seed,         "--out",
                                    job.run.run_dir, "--quiet", "--force",
                                    "--threads", std::to_string(threads)};
+  args.insert(args.end(), job.extra_args.begin(), job.extra_args.end());
   std::vector<char*> argv;
   for (std::string& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);

@@ -33,6 +33,7 @@ struct RunRequest {
   std::string scenario_path;
   std::string label;
   SeedRun run;
+  std::vector<std::string> extra_args;  ///< more options of `tofu run` ("--no-plots")
 };
 
 /// This process's executable (/proc/self/exe resolved), to spawn `tofu run` with.

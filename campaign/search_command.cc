@@ -52,6 +52,9 @@ class PoolEvaluator : public FlightEvaluator {
       run.run.seed = r.setting.seed;
       run.run.run_dir = (flights_ / r.id).string();
       run.run.log_path = run.run.run_dir + ".log";
+      // A search's flights are read for their margins: no figures (a failure's flight is
+      // rendered instead).
+      run.extra_args = {"--no-plots"};
       queue.push_back(&run);
     }
     RunPool(binary_, queue, jobs_, /*quiet=*/true, "search");

@@ -253,7 +253,7 @@ int RenderScenarioEvents(const tofu::harness::RenderRequest& request, const std:
 
 int RunCommand(const std::string& scenario_path, std::optional<std::string> out_dir,
                std::optional<uint64_t> seed, bool quiet, bool force,
-               const std::optional<std::string>& mcap_file, int threads) {
+               const std::optional<std::string>& mcap_file, int threads, bool plots) {
   tofu::harness::Scenario scenario = tofu::harness::LoadScenario(scenario_path);
   if (seed) scenario.seed = *seed;
   const std::string out = out_dir.value_or("runs/" + scenario.name);
@@ -315,6 +315,7 @@ int RunCommand(const std::string& scenario_path, std::optional<std::string> out_
   }
   tofu::harness::RunOutputOptions output;
   output.threads = threads;
+  output.plot = plots;
   const tofu::harness::Evaluation evaluation = tofu::harness::WriteRun(record, out, output);
   if (!quiet) PrintReport(record, evaluation, out);
   tofu::replay::ThrowIfInterrupted();
@@ -376,6 +377,7 @@ Command AddRunCommand(CLI::App& parent) {
     bool force = false;
     std::optional<std::string> mcap;
     int threads = tofu::core::UsableCores();
+    bool no_plots = false;
   };
   auto o = std::make_shared<Options>();
   CLI::App* run = parent.add_subcommand("run", "Fly a scenario and write its run directory");
@@ -391,9 +393,11 @@ Command AddRunCommand(CLI::App& parent) {
                   "Threads for the in-loop estimation methods, the closed-loop flights and the scoring "
                   "(default: the cores this process may run on); the output is the same for any number")
       ->check(WholeNumber(1, 256));
+  run->add_flag("--no-plots", o->no_plots,
+                "Draw no figures (consensus.png, closed_loop.png): a campaign's many flights (tofu search)");
   return {run, true, [o] {
             return RunCommand(o->scenario_path, o->out_dir, o->seed, o->quiet, o->force, o->mcap,
-                              o->threads);
+                              o->threads, !o->no_plots);
           }};
 }
 
