@@ -4,6 +4,7 @@
 #include <spawn.h>
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -213,9 +214,12 @@ nlohmann::json SearchJson(const SearchSpec& spec, const SearchOutcome& outcome) 
 // is not resumed into (its journal would answer for other flights).
 void ClaimOutDirectory(const SearchSpec& spec, const fs::path& out) {
   const fs::path marker = out / "spec.yaml";
+  // The spec as flown: its text, and the optimiser when the command line overrode it.
+  const std::string flown = spec.text + fmt::format("\n# flown with optimizer {}, seed {}\n", spec.optimizer,
+                                                    spec.optimizer_seed);
   if (fs::exists(marker)) {
     const std::string held = core::ReadWholeFile(marker, "search spec", core::kMaxConfigFileBytes);
-    if (held != spec.text) {
+    if (held != flown) {
       throw core::InputError({spec.file, 0, 0}, "--out",
                              fmt::format("{} holds a search of another spec (its spec.yaml differs): choose "
                                          "another --out, or remove it",
@@ -228,7 +232,7 @@ void ClaimOutDirectory(const SearchSpec& spec, const fs::path& out) {
                            fmt::format("{} is not empty and holds no search: choose another --out", out.string()));
   }
   fs::create_directories(out / "flights");
-  replay::WriteFileAtomically(marker, spec.text);
+  replay::WriteFileAtomically(marker, flown);
 }
 
 void WriteFailures(const SearchSpec& spec, const SearchOutcome& outcome, const fs::path& out,
@@ -276,6 +280,16 @@ int RunSearchCommand(const SearchCommandOptions& options) {
   try {
     if (options.jobs < 0) throw core::InputError({}, "--jobs", "expected a whole number >= 1 (0: every core)");
     spec = LoadSearchSpec(options.spec_path);
+    if (options.optimizer) {
+      const auto& known = SearchOptimizers();
+      if (std::find(known.begin(), known.end(), *options.optimizer) == known.end()) {
+        throw core::InputError({}, "--optimizer",
+                               fmt::format("unknown optimizer '{}' (expected one of: {})", *options.optimizer,
+                                           fmt::join(known, ", ")));
+      }
+      spec.optimizer = *options.optimizer;
+    }
+    if (options.optimizer_seed) spec.optimizer_seed = *options.optimizer_seed;
     harness::CheckScenarioModels(spec.base);
     CheckScenarioMinimalEffects(spec.base);
     ClaimOutDirectory(spec, out);

@@ -7,6 +7,7 @@
 // directory with renders. `--promote DIR` writes each confirmed failure as a regression
 // scenario that `tofu check` flies and that fails until the cause is fixed.
 
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -19,6 +20,10 @@ struct SearchCommandOptions {
   bool quiet = false;
   std::optional<std::string> promote_dir;
   bool renders = true;  ///< `tofu render` each failure's flight
+  /// The spec's optimizer and its seed, overridden (repeated trials of one problem, as the
+  /// benchmark flies them).
+  std::optional<std::string> optimizer;
+  std::optional<uint64_t> optimizer_seed;
   /// The `tofu` executable to spawn for each flight; empty: this process's.
   std::string tofu_binary;
 };

@@ -544,6 +544,9 @@ Command AddSearchCommand(CLI::App& parent) {
   search->add_option("--promote", o->promote_dir,
                      "DIR: write each confirmed failure as a regression scenario there (its violated "
                      "expectation, so tofu check fails until the cause is fixed)");
+  search->add_option("--optimizer", o->optimizer, "Override the spec's optimizer: random or tpe");
+  search->add_option("--optimizer-seed", o->optimizer_seed, "Override the spec's optimizer seed")
+      ->check(WholeNumber(0, std::numeric_limits<std::uint64_t>::max()));
   search->add_flag("--no-renders", [o](std::int64_t) { o->renders = false; }, "Do not render the failures' flights");
   search->add_flag("--quiet", o->quiet, "No progress and no table");
   search->footer("Exit 0: no confirmed failure; 1: a confirmed failure was found; 2: bad spec or options, "
