@@ -5,10 +5,8 @@
 #include <limits>
 
 #include <fmt/format.h>
-#include <fmt/ranges.h>
 
 #include "core/error.h"
-#include "core/file_io.h"
 
 namespace tofu::campaign {
 
@@ -65,10 +63,7 @@ FlightMargin MarginOfRun(const SeedRun& run, const std::vector<std::string>& met
     // the margins of the methods that kept going.
     out.margin = kNone;
     out.outcome = "client failed";
-    out.cause = run.client_failure;
-    if (const std::vector<std::string> tail = core::LogTail(run.log_path, 20); !tail.empty()) {
-      out.cause += "\n" + fmt::format("{}", fmt::join(tail, "\n"));
-    }
+    out.cause = run.client_failure;  // with the client's last lines of standard error
     return out;
   }
   if (std::isinf(out.margin) && out.margin > 0.0) {

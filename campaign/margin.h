@@ -25,7 +25,7 @@ struct FlightMargin {
   std::string failing_metric;  ///< the expectation with the least margin; "" for a failed run
   /// "passed", "violated", "client failed", "simulation failed", "not measurable"
   std::string outcome;
-  std::string cause;  ///< why a flight without a margin has none (with the log's tail)
+  std::string cause;  ///< why a flight without a margin has none (a client's with its stderr)
 };
 FlightMargin MarginOfRun(const SeedRun& run, const std::vector<std::string>& metrics);
 

@@ -333,6 +333,37 @@ TEST(SearchCommand, APromotedFailureFailsUnderCheck) {
   fs::remove_all(dir);
 }
 
+TEST(SearchCommand, AUsersEstimatorThatCrashesIsAFailureFoundWithItsStderr) {
+  const fs::path dir = test::PerTestDirectory("tofu_search_client_");
+  fs::create_directories(dir);
+  const std::string spec = (kData / "client_search.yaml").string();
+  const test::CommandResult search = Tofu(fmt::format("search {} --out {} --jobs 2 --no-renders --promote {}",
+                                                      test::Quote(spec), test::Quote((dir / "out").string()),
+                                                      test::Quote((dir / "promoted").string())),
+                                          dir);
+  ASSERT_EQ(search.exit_code, 1) << search.err;
+  const nlohmann::json result = nlohmann::json::parse(test::ReadFile(dir / "out" / "search.json"));
+  ASSERT_FALSE(result["failures"].empty());
+  const nlohmann::json& f = result["failures"][0];
+  EXPECT_EQ(f["expectation"], "client failed");
+  EXPECT_TRUE(f["confirmed"].get<bool>());
+  EXPECT_TRUE(f["found_margin"]["margin"].is_null());
+  const std::string cause = f["found_margin"]["cause"].get<std::string>();
+  EXPECT_NE(cause.find("external:gap_intolerant"), std::string::npos) << cause;
+  EXPECT_NE(cause.find("gap_intolerant: no vio for"), std::string::npos) << cause;  // its stderr
+  // The shrunk dropout still silences VIO for more than 1.2 s, and not much more.
+  const nlohmann::json& fault = f["shrunk"]["faults"][0];
+  EXPECT_GT(fault["duration_s"].get<double>(), 1.1);
+  EXPECT_LT(fault["duration_s"].get<double>(), 1.4);
+  // Promoted, the crash fails the check (a client failed: exit 5).
+  const test::CommandResult check =
+      Tofu(fmt::format("check {} --out {} --quiet", test::Quote((dir / "promoted").string()),
+                       test::Quote((dir / "check").string())),
+           dir);
+  EXPECT_EQ(check.exit_code, 5) << check.out << check.err;
+  fs::remove_all(dir);
+}
+
 TEST(SearchCommand, ATerminatedSearchResumesWithTheSameResult) {
   const fs::path dir = test::PerTestDirectory("tofu_search_kill_");
   fs::create_directories(dir);
