@@ -25,6 +25,7 @@ inline constexpr const char* kRunForm =
 inline constexpr const char* kCheckForm =
     "a check directory (what `tofu check --out DIR` writes: <scenario>/seed_<s>/ run "
     "directories)";
+inline constexpr const char* kSearchForm = "a search directory (tofu search --out: search.json)";
 
 // The scenario.yaml of a run: the resolved scenario, read tolerantly (the page shows what
 // is there; harness validated it when the run was made).

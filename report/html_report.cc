@@ -11,6 +11,7 @@
 #include "core/error.h"
 #include "replay/file_io.h"
 #include "report/html_check_page.h"
+#include "report/html_search_page.h"
 #include "report/html_inputs.h"
 #include "report/html_run_page.h"
 
@@ -23,6 +24,7 @@ using html::CheckScenarioFolders;
 using html::IsRunDirectory;
 using html::kCheckForm;
 using html::kRunForm;
+using html::kSearchForm;
 using html::PageContext;
 using html::ReadCheckScenario;
 using html::ReadRunInputs;
@@ -68,15 +70,17 @@ ReportInputKind DetectReportInput(const fs::path& input) {
   std::error_code ec;
   if (!fs::exists(input, ec)) {
     throw InputError({input.string()}, "",
-                     fmt::format("no such directory: expected {} or {}", kRunForm, kCheckForm));
+                     fmt::format("no such directory: expected {}, {} or {}", kRunForm, kCheckForm, kSearchForm));
   }
   if (!fs::is_directory(input, ec)) {
     throw InputError({input.string()}, "",
-                     fmt::format("not a directory: expected {} or {}", kRunForm, kCheckForm));
+                     fmt::format("not a directory: expected {}, {} or {}", kRunForm, kCheckForm, kSearchForm));
   }
   if (IsRunDirectory(input)) return ReportInputKind::kRun;
+  if (html::IsSearchDirectory(input)) return ReportInputKind::kSearch;
   if (!CheckScenarioFolders(input).empty()) return ReportInputKind::kCheck;
-  throw InputError({input.string()}, "", fmt::format("neither {} nor {}", kRunForm, kCheckForm));
+  throw InputError({input.string()}, "",
+                   fmt::format("neither {}, {} nor {}", kRunForm, kCheckForm, kSearchForm));
 }
 
 void CheckReportOutputDirectory(const fs::path& out_dir) {
@@ -129,10 +133,26 @@ fs::path WriteCheckReport(const fs::path& check_dir, const fs::path& out_dir,
   return fs::absolute(out_dir).lexically_normal() / "index.html";
 }
 
+fs::path WriteSearchReport(const fs::path& search_dir, const fs::path& out_dir) {
+  CheckReportOutputDirectory(out_dir);
+  if (DetectReportInput(search_dir) != ReportInputKind::kSearch) {
+    throw InputError({search_dir.string()}, "", fmt::format("not a search directory: expected {}", kSearchForm));
+  }
+  WriteReportDirectory(out_dir, [&](const fs::path& staging) { html::WriteSearchPages(search_dir, staging); });
+  return fs::absolute(out_dir).lexically_normal() / "index.html";
+}
+
 fs::path WriteReport(const fs::path& input, const fs::path& out_dir) {
   CheckReportOutputDirectory(out_dir);
-  return DetectReportInput(input) == ReportInputKind::kRun ? WriteRunReport(input, out_dir)
-                                                           : WriteCheckReport(input, out_dir);
+  switch (DetectReportInput(input)) {
+    case ReportInputKind::kRun:
+      return WriteRunReport(input, out_dir);
+    case ReportInputKind::kCheck:
+      return WriteCheckReport(input, out_dir);
+    case ReportInputKind::kSearch:
+      return WriteSearchReport(input, out_dir);
+  }
+  throw std::logic_error("WriteReport: unknown input kind");
 }
 
 }  // namespace tofu::report

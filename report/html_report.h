@@ -29,6 +29,7 @@ inline constexpr const char* kReportMarkerFile = ".tofu-report";
 enum class ReportInputKind {
   kRun,    ///< what `tofu run SCENARIO --out DIR` writes (.tofu-run, summary.json)
   kCheck,  ///< what `tofu check --out DIR` writes (<scenario>/seed_<s>/ run directories)
+  kSearch,  ///< what `tofu search --out DIR` writes (search.json)
 };
 
 /// Which kind of directory `input` is. Throws core::InputError naming the path and both
@@ -57,7 +58,12 @@ std::filesystem::path WriteCheckReport(const std::filesystem::path& check_dir,
                                        const std::filesystem::path& out_dir,
                                        const std::vector<std::string>& only_scenarios = {});
 
-/// DetectReportInput, then WriteRunReport or WriteCheckReport.
+/// Writes the report of a search directory: the margins over the search, the ranked
+/// failures, and each confirmed failure's flight page under failures/<id>/.
+std::filesystem::path WriteSearchReport(const std::filesystem::path& search_dir,
+                                        const std::filesystem::path& out_dir);
+
+/// DetectReportInput, then WriteRunReport, WriteCheckReport or WriteSearchReport.
 std::filesystem::path WriteReport(const std::filesystem::path& input,
                                   const std::filesystem::path& out_dir);
 

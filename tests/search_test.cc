@@ -302,6 +302,17 @@ TEST(SearchCommand, APromotedFailureFailsUnderCheck) {
   EXPECT_LT(lost, 1.8);
   EXPECT_TRUE(fs::exists(dir / "out" / "failures" / "f1" / "scenario.yaml"));
 
+  // tofu report of the search: the margins, the failures ranked, each one's flight page.
+  const test::CommandResult report = Tofu(fmt::format("report {} --out {}", test::Quote((dir / "out").string()),
+                                                      test::Quote((dir / "report").string())),
+                                          dir);
+  ASSERT_EQ(report.exit_code, 0) << report.err;
+  const std::string page = test::ReadFile(dir / "report" / "index.html");
+  EXPECT_NE(page.find("CONFIRMED FAILURE"), std::string::npos);
+  EXPECT_NE(page.find("<svg class=\"margins\""), std::string::npos);
+  EXPECT_NE(page.find("sensors.vio.delivered_samples"), std::string::npos);
+  EXPECT_TRUE(fs::exists(dir / "report" / "failures" / "f1" / "index.html"));
+
   std::vector<fs::path> promoted;
   for (const auto& e : fs::directory_iterator(dir / "promoted")) promoted.push_back(e.path());
   ASSERT_FALSE(promoted.empty());

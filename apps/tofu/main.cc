@@ -819,13 +819,15 @@ Command AddReportCommand(CLI::App& parent) {
   };
   auto o = std::make_shared<Options>();
   CLI::App* report = parent.add_subcommand(
-      "report", "A self-contained HTML report of a run or a check directory");
+      "report", "A self-contained HTML report of a run, a check or a search directory");
   report->add_option("input", o->input,
-                     "A run directory (tofu run --out) or a check directory (tofu check --out)")
+                     "A run directory (tofu run --out), a check directory (tofu check --out) or a "
+                     "search directory (tofu search --out)")
       ->required();
   report->add_option("--out", o->out,
                      "Report directory: index.html (+ media/; a check: <scenario>/seed_<s>/ "
-                     "pages); new, empty or an earlier report, which is replaced")
+                     "pages; a search: failures/<id>/ pages); new, empty or an earlier report, "
+                     "which is replaced")
       ->required();
   return {report, true, [o] {
             // The report directory is staged as <out>.tmp-<pid> too: sweep what killed
