@@ -78,4 +78,20 @@ FlightMargin MarginOfRun(const SeedRun& run, const std::vector<std::string>& met
   return out;
 }
 
+nlohmann::json MarginToJson(const FlightMargin& m) {
+  return {{"margin", std::isfinite(m.margin) ? nlohmann::json(m.margin) : nlohmann::json(nullptr)},
+          {"outcome", m.outcome},
+          {"failing_metric", m.failing_metric},
+          {"cause", m.cause}};
+}
+
+FlightMargin MarginFromJson(const nlohmann::json& j) {
+  FlightMargin m;
+  m.margin = j.at("margin").is_null() ? -std::numeric_limits<double>::infinity() : j.at("margin").get<double>();
+  m.outcome = j.at("outcome").get<std::string>();
+  m.failing_metric = j.at("failing_metric").get<std::string>();
+  m.cause = j.at("cause").get<std::string>();
+  return m;
+}
+
 }  // namespace tofu::campaign

@@ -29,4 +29,10 @@ struct FlightMargin {
 };
 FlightMargin MarginOfRun(const SeedRun& run, const std::vector<std::string>& metrics);
 
+/// A flight's margin as JSON ({margin (null for -inf), outcome, failing_metric, cause}), the
+/// form of a search's journal and search.json; and back (throws nlohmann::json's errors
+/// for another form).
+nlohmann::json MarginToJson(const FlightMargin& margin);
+FlightMargin MarginFromJson(const nlohmann::json& j);
+
 }  // namespace tofu::campaign

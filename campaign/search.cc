@@ -155,24 +155,6 @@ std::string SettingKey(const SearchSpec& spec, const FlightRequest& r) {
   return fmt::format("{:016x}", core::Fnv1a64(ScenarioYaml(spec, r.setting, spec.name + "_" + r.id)));
 }
 
-nlohmann::json MarginJson(const FlightMargin& m) {
-  nlohmann::json j;
-  j["margin"] = std::isfinite(m.margin) ? nlohmann::json(m.margin) : nlohmann::json(nullptr);
-  j["outcome"] = m.outcome;
-  j["failing_metric"] = m.failing_metric;
-  j["cause"] = m.cause;
-  return j;
-}
-
-FlightMargin MarginFromJson(const nlohmann::json& j) {
-  FlightMargin m;
-  m.margin = j.at("margin").is_null() ? -std::numeric_limits<double>::infinity() : j.at("margin").get<double>();
-  m.outcome = j.at("outcome").get<std::string>();
-  m.failing_metric = j.at("failing_metric").get<std::string>();
-  m.cause = j.at("cause").get<std::string>();
-  return m;
-}
-
 // ---- failures ----
 
 // What makes two failures the same failure: the expectation that failed, or how the
@@ -184,8 +166,9 @@ std::string FailureKey(const FlightMargin& m) {
 
 bool Fails(const FlightMargin& m) { return m.margin < 0.0; }
 
-// Max-norm distance in the cube; a categorical coordinate is 0 or 1 (same choice or not).
-double Distance(const SearchSpec& spec, const std::vector<double>& a, const std::vector<double>& b) {
+}  // namespace
+
+double PointDistance(const SearchSpec& spec, const std::vector<double>& a, const std::vector<double>& b) {
   double d = 0.0;
   for (std::size_t i = 0; i < a.size(); ++i) {
     const int n = spec.dimensions[i].choices;
@@ -199,6 +182,18 @@ double Distance(const SearchSpec& spec, const std::vector<double>& a, const std:
   }
   return d;
 }
+
+void RankFailures(std::vector<FoundFailure>& failures) {
+  std::stable_sort(failures.begin(), failures.end(), [](const FoundFailure& a, const FoundFailure& b) {
+    if (a.confirmed != b.confirmed) return a.confirmed;
+    const double ra = static_cast<double>(a.confirm_failures) / std::max(1, a.confirm_flights);
+    const double rb = static_cast<double>(b.confirm_failures) / std::max(1, b.confirm_flights);
+    if (ra != rb) return ra > rb;
+    return a.found_margin.margin < b.found_margin.margin;
+  });
+}
+
+namespace {
 
 struct Cluster {
   FoundFailure failure;
@@ -372,7 +367,7 @@ std::vector<FlightMargin> JournaledEvaluator::Fly(const std::vector<FlightReques
     const std::size_t i = missing_at[m];
     margins[i] = flown[m];
     recorded_[requests[i].id] = {keys[i], flown[m]};
-    nlohmann::json j = MarginJson(flown[m]);
+    nlohmann::json j = MarginToJson(flown[m]);
     j["id"] = requests[i].id;
     j["key"] = keys[i];
     out << j.dump() << "\n";
@@ -383,13 +378,13 @@ std::vector<FlightMargin> JournaledEvaluator::Fly(const std::vector<FlightReques
 }
 
 SearchOutcome RunSearch(const SearchSpec& spec, FlightEvaluator& evaluator, Proposer& proposer,
-                        std::size_t batch, const SearchProgress& progress) {
+                        const SearchProgress& progress) {
   SearchOutcome out;
   std::vector<Cluster> clusters;
   clusters.reserve(spec.budget);  // Confirm keeps pointers into it
   double best = std::numeric_limits<double>::infinity();
   std::size_t done = 0;
-  batch = std::max<std::size_t>(1, batch);
+  const std::size_t batch = std::max<std::size_t>(1, spec.batch);
   bool stop = false;
   while (done < spec.budget && !stop) {
     const std::size_t n = std::min<std::size_t>(batch, spec.budget - done);
@@ -411,7 +406,7 @@ SearchOutcome RunSearch(const SearchSpec& spec, FlightEvaluator& evaluator, Prop
       const std::string key = FailureKey(margins[i]);
       Cluster* near = nullptr;
       for (Cluster& c : clusters) {
-        if (c.failure.metric == key && Distance(spec, c.failure.unit, units[i]) <= spec.dedupe_distance) {
+        if (c.failure.metric == key && PointDistance(spec, c.failure.unit, units[i]) <= spec.dedupe_distance) {
           near = &c;
           break;
         }
@@ -461,13 +456,7 @@ SearchOutcome RunSearch(const SearchSpec& spec, FlightEvaluator& evaluator, Prop
     Shrink(spec, evaluator, c, out);
   }
   for (Cluster& c : clusters) out.failures.push_back(std::move(c.failure));
-  std::stable_sort(out.failures.begin(), out.failures.end(), [](const FoundFailure& a, const FoundFailure& b) {
-    if (a.confirmed != b.confirmed) return a.confirmed;
-    const double ra = static_cast<double>(a.confirm_failures) / std::max(1, a.confirm_flights);
-    const double rb = static_cast<double>(b.confirm_failures) / std::max(1, b.confirm_flights);
-    if (ra != rb) return ra > rb;
-    return a.found_margin.margin < b.found_margin.margin;
-  });
+  RankFailures(out.failures);
   return out;
 }
 

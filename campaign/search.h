@@ -84,6 +84,9 @@ struct FoundFailure {
   Setting shrunk;  ///< the smallest change from the base that still fails (confirmed only)
   FlightMargin shrunk_margin;
   std::string shrunk_flight;  ///< the id of the flight at `shrunk`
+  /// Where its flights' run directories are, relative to the search directory (a merged
+  /// search's failures are in their shard's).
+  std::string flights_dir = "flights";
 };
 
 struct SearchEvaluation {
@@ -106,10 +109,18 @@ struct SearchOutcome {
 /// One line per event ("[12/200] best margin 0.21", "f1 confirmed 5/5"), for progress.
 using SearchProgress = std::function<void(const std::string&)>;
 
-/// Runs the search: batches of `batch` points until the budget is spent (or, with
+/// Runs the search: batches of spec.batch points until the budget is spent (or, with
 /// spec.stop_at_first, the first failure is confirmed), then shrinks each confirmed failure.
 SearchOutcome RunSearch(const SearchSpec& spec, FlightEvaluator& evaluator, Proposer& proposer,
-                        std::size_t batch, const SearchProgress& progress = {});
+                        const SearchProgress& progress = {});
+
+/// Max-norm distance of two points of the cube; a categorical coordinate counts 0 or 1
+/// (the same choice or not). Two failures of one expectation within spec.dedupe_distance
+/// are one.
+double PointDistance(const SearchSpec& spec, const std::vector<double>& a, const std::vector<double>& b);
+
+/// The ranking of failures: confirmed first, then by failure rate, then by margin (stable).
+void RankFailures(std::vector<FoundFailure>& failures);
 
 /// The seeds a failure found at `seed` is confirmed at: `count` seeds none of which is
 /// `seed` (and, for a seed searched in a range, outside that range).

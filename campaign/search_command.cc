@@ -9,6 +9,9 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <map>
+#include <regex>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -22,6 +25,7 @@
 #include "core/cores.h"
 #include "core/error.h"
 #include "core/file_io.h"
+#include "harness/shard.h"
 #include "replay/file_io.h"
 
 extern char** environ;
@@ -103,13 +107,6 @@ nlohmann::json SettingJson(const SearchSpec& spec, const Setting& s) {
   return j;
 }
 
-nlohmann::json MarginJsonOf(const FlightMargin& m) {
-  return {{"margin", std::isfinite(m.margin) ? nlohmann::json(m.margin) : nlohmann::json(nullptr)},
-          {"outcome", m.outcome},
-          {"failing_metric", m.failing_metric},
-          {"cause", m.cause}};
-}
-
 std::string MarginText(double margin) { return std::isfinite(margin) ? fmt::format("{:.3g}", margin) : "none"; }
 
 // Renders a failure's flight: `tofu render <run> --events` (its keyframes and clips in
@@ -167,6 +164,7 @@ nlohmann::json SearchJson(const SearchSpec& spec, const SearchOutcome& outcome) 
   j["optimizer"] = spec.optimizer;
   j["optimizer_seed"] = spec.optimizer_seed;
   j["budget"] = spec.budget;
+  j["batch"] = spec.batch;
   j["dimensions"] = nlohmann::json::array();
   for (const SearchDimension& d : spec.dimensions) j["dimensions"].push_back({{"name", d.name}, {"choices", d.choices}});
   j["simulations"] = {{"search", outcome.evaluations.size()},
@@ -177,7 +175,7 @@ nlohmann::json SearchJson(const SearchSpec& spec, const SearchOutcome& outcome) 
                                             : nlohmann::json(nullptr);
   nlohmann::json evaluations = nlohmann::json::array();
   for (const SearchEvaluation& e : outcome.evaluations) {
-    nlohmann::json row = MarginJsonOf(e.margin);
+    nlohmann::json row = MarginToJson(e.margin);
     row["id"] = e.id;
     row["unit"] = e.unit;
     row["setting"] = SettingJson(spec, e.setting);
@@ -195,19 +193,150 @@ nlohmann::json SearchJson(const SearchSpec& spec, const SearchOutcome& outcome) 
     row["failure_rate_ci95"] = {f.failure_rate_ci.low, f.failure_rate_ci.high};
     row["first_simulation"] = f.first_simulation;
     row["members"] = f.members;
+    row["unit"] = f.unit;
     row["found"] = SettingJson(spec, f.found);
     row["found_flight"] = f.found_flight;
-    row["found_margin"] = MarginJsonOf(f.found_margin);
+    row["found_margin"] = MarginToJson(f.found_margin);
     if (f.confirmed) {
       row["shrunk"] = SettingJson(spec, f.shrunk);
       row["shrunk_flight"] = f.shrunk_flight;
-      row["shrunk_margin"] = MarginJsonOf(f.shrunk_margin);
+      row["run_dir"] = f.flights_dir + "/" + f.shrunk_flight;
+      row["shrunk_margin"] = MarginToJson(f.shrunk_margin);
       row["shrunk_change"] = DescribeSetting(spec, f.shrunk);
     }
     failures.push_back(std::move(row));
   }
   j["failures"] = std::move(failures);
   return j;
+}
+
+// ---- across machines: shards of a search, and their merge ----
+
+Setting SettingFromJson(const SearchSpec& spec, const nlohmann::json& j) {
+  Setting s;
+  s.seed = j.at("seed").get<uint64_t>();
+  for (const SetKey& k : spec.set) {
+    const nlohmann::json& v = j.at("set").at(k.path);
+    s.set_values.push_back(v.is_null() ? std::numeric_limits<double>::quiet_NaN() : v.get<double>());
+  }
+  const nlohmann::json& faults = j.at("faults");
+  if (faults.size() != spec.faults.size()) throw std::runtime_error("another number of fault slots");
+  for (std::size_t k = 0; k < spec.faults.size(); ++k) {
+    FaultSetting f;
+    const nlohmann::json& fj = faults[k];
+    if (fj.is_null()) {
+      f.present = false;
+      s.faults.push_back(f);
+      continue;
+    }
+    const auto& options = spec.faults[k].options;
+    const auto it = std::find_if(options.begin(), options.end(), [&](const FaultSlot::Option& o) {
+      return sim::FaultKindName(o.kind) == fj.at("kind").get<std::string>() && o.sensor == fj.at("sensor").get<std::string>();
+    });
+    if (it == options.end()) throw std::runtime_error("a fault the spec's slot does not offer");
+    f.option = static_cast<std::size_t>(it - options.begin());
+    f.onset_s = fj.at("onset_s").get<double>();
+    f.duration_s = fj.at("duration_s").get<double>();
+    f.magnitude = fj.at("magnitude").get<double>();
+    f.direction_z = fj.at("direction_z").get<double>();
+    f.direction_phi = fj.at("direction_phi").get<double>();
+    s.faults.push_back(f);
+  }
+  return s;
+}
+
+FoundFailure FailureFromJson(const SearchSpec& spec, const nlohmann::json& j, const std::string& stem) {
+  FoundFailure f;
+  f.id = j.at("id").get<std::string>();
+  f.metric = j.at("expectation").get<std::string>();
+  f.unit = j.at("unit").get<std::vector<double>>();
+  f.found = SettingFromJson(spec, j.at("found"));
+  f.found_margin = MarginFromJson(j.at("found_margin"));
+  f.found_flight = stem + "/" + j.at("found_flight").get<std::string>();
+  f.first_simulation = j.at("first_simulation").get<std::size_t>();
+  f.members = j.at("members").get<std::size_t>();
+  f.confirm_failures = j.at("confirm_failures").get<int>();
+  f.confirm_flights = j.at("confirm_flights").get<int>();
+  f.failure_rate_ci = {j.at("failure_rate_ci95").at(0).get<double>(), j.at("failure_rate_ci95").at(1).get<double>()};
+  f.confirmed = j.at("confirmed").get<bool>();
+  if (f.confirmed) {
+    f.shrunk = SettingFromJson(spec, j.at("shrunk"));
+    f.shrunk_margin = MarginFromJson(j.at("shrunk_margin"));
+    f.shrunk_flight = j.at("shrunk_flight").get<std::string>();
+    f.flights_dir = stem + "/flights";
+  }
+  return f;
+}
+
+// The shards' searches (<out>/shard_<I>_of_<N>/, each a whole search of its own) as one:
+// their flights in shard order, their failures de-duplicated across shards (the spec's
+// rule; the one found first, in shard order, stays) and ranked anew.
+SearchOutcome MergeShards(const SearchSpec& spec, const fs::path& out, uint64_t& shard_count) {
+  std::map<uint64_t, fs::path> shards;
+  shard_count = 0;
+  const std::regex name(R"(shard_(\d+)_of_(\d+))");
+  for (const auto& entry : fs::directory_iterator(out)) {
+    std::smatch m;
+    const std::string file = entry.path().filename().string();
+    if (!entry.is_directory() || !std::regex_match(file, m, name)) continue;
+    const uint64_t count = std::stoull(m[2].str());
+    if (shard_count != 0 && count != shard_count) {
+      throw core::InputError({out.string()}, "--merge",
+                             fmt::format("holds shards of {} and of {} machines: expected one search's", shard_count, count));
+    }
+    shard_count = count;
+    shards[std::stoull(m[1].str())] = entry.path();
+  }
+  if (shard_count == 0) {
+    throw core::InputError({out.string()}, "--merge", "holds no shard_<I>_of_<N> directory (expected the --out of the shards)");
+  }
+  std::vector<std::string> problems;
+  for (uint64_t i = 0; i < shard_count; ++i) {
+    const auto it = shards.find(i);
+    const std::string stem = harness::ShardStem(harness::Shard(i, shard_count));
+    if (it == shards.end()) {
+      problems.push_back(fmt::format("shard {} of {} is missing ({})", i, shard_count, stem));
+    } else if (!fs::exists(it->second / "search.json")) {
+      problems.push_back(fmt::format("shard {} of {} has not finished (no {})", i, shard_count,
+                                     (it->second / "search.json").string()));
+    } else if (core::ReadWholeFile(it->second / "spec.yaml", "search spec", core::kMaxConfigFileBytes)
+                   .rfind(spec.text, 0) != 0) {
+      problems.push_back(fmt::format("shard {} of {} is a search of another spec", i, shard_count));
+    }
+  }
+  if (!problems.empty()) {
+    throw core::InputError({out.string()}, "--merge", fmt::format("{}", fmt::join(problems, "; ")));
+  }
+  SearchOutcome merged;
+  for (uint64_t i = 0; i < shard_count; ++i) {
+    const std::string stem = shards[i].filename().string();
+    const nlohmann::json j = nlohmann::json::parse(core::ReadWholeFile(shards[i] / "search.json", "search record", 1ull << 30));
+    for (const nlohmann::json& e : j.at("evaluations")) {
+      merged.evaluations.push_back({stem + "/" + e.at("id").get<std::string>(), e.at("unit").get<std::vector<double>>(),
+                                    SettingFromJson(spec, e.at("setting")), MarginFromJson(e)});
+    }
+    merged.confirm_flights += j.at("simulations").at("confirm").get<std::size_t>();
+    merged.shrink_flights += j.at("simulations").at("shrink").get<std::size_t>();
+    const nlohmann::json& first = j.at("simulations_to_first_confirmed");
+    if (first.is_number()) {
+      const auto n = first.get<std::size_t>();
+      merged.simulations_to_first_confirmed =
+          merged.simulations_to_first_confirmed ? std::min(*merged.simulations_to_first_confirmed, n) : n;
+    }
+    for (const nlohmann::json& fj : j.at("failures")) {
+      FoundFailure f = FailureFromJson(spec, fj, stem);
+      const bool seen = std::any_of(merged.failures.begin(), merged.failures.end(), [&](const FoundFailure& g) {
+        return g.metric == f.metric && g.confirmed == f.confirmed && PointDistance(spec, g.unit, f.unit) <= spec.dedupe_distance;
+      });
+      if (!seen) merged.failures.push_back(std::move(f));
+    }
+  }
+  RankFailures(merged.failures);
+  for (std::size_t k = 0; k < merged.failures.size(); ++k) {
+    // The shard's own id stays in the failure's flights; the merge numbers them anew.
+    merged.failures[k].id = fmt::format("f{}", k + 1);
+  }
+  return merged;
 }
 
 // The out directory holds this spec's search, or nothing yet: a search of another spec
@@ -243,7 +372,7 @@ void WriteFailures(const SearchSpec& spec, const SearchOutcome& outcome, const f
     replay::WriteFileAtomically(dir / "found.yaml", ScenarioYaml(spec, f.found, spec.name + "_" + f.id + "_found"));
     if (!f.confirmed) continue;
     replay::WriteFileAtomically(dir / "scenario.yaml", ScenarioYaml(spec, f.shrunk, spec.name + "_" + f.id));
-    const fs::path run = out / "flights" / f.shrunk_flight;
+    const fs::path run = out / f.flights_dir / f.shrunk_flight;
     if (options.renders && fs::is_directory(run) && !fs::exists(run / "renders")) {
       RenderFlight(binary, run, options.quiet);
     }
@@ -277,8 +406,18 @@ void Promote(const SearchSpec& spec, const SearchOutcome& outcome, const fs::pat
 int RunSearchCommand(const SearchCommandOptions& options) {
   SearchSpec spec;
   const fs::path out = fs::absolute(options.out_dir).lexically_normal();
+  const bool sharded = !options.shard.origin.empty();
+  // A shard is a whole search of its own in <out>/shard_<I>_of_<N>/: a share of the budget,
+  // the optimiser seeded apart from the other shards' (random: together one random search).
+  const fs::path dir = sharded ? out / harness::ShardStem(options.shard) : out;
   try {
     if (options.jobs < 0) throw core::InputError({}, "--jobs", "expected a whole number >= 1 (0: every core)");
+    if (sharded && options.merge) {
+      throw core::InputError({}, "--merge", "a merge is no shard: give --merge without --shard");
+    }
+    if (sharded && options.promote_dir) {
+      throw core::InputError({}, "--promote", "a shard promotes nothing: give --promote to the merge (--merge)");
+    }
     spec = LoadSearchSpec(options.spec_path);
     if (options.optimizer) {
       const auto& known = SearchOptimizers();
@@ -292,34 +431,55 @@ int RunSearchCommand(const SearchCommandOptions& options) {
     if (options.optimizer_seed) spec.optimizer_seed = *options.optimizer_seed;
     harness::CheckScenarioModels(spec.base);
     CheckScenarioMinimalEffects(spec.base);
-    ClaimOutDirectory(spec, out);
+    if (sharded) {
+      spec.budget = (spec.budget + options.shard.count - 1) / options.shard.count;
+      spec.optimizer_seed += options.shard.index;
+    }
+    if (!options.merge) ClaimOutDirectory(spec, dir);
   } catch (const core::InputError& e) {
     fmt::print(stderr, "tofu: error: {}\n", e.what());
     return core::kExitBadInput;
   }
   const int jobs = options.jobs == 0 ? core::UsableCores() : options.jobs;
   const std::string binary = options.tofu_binary.empty() ? SelfExecutable() : options.tofu_binary;
-  if (!options.quiet) {
-    fmt::print(stderr, "tofu search: {} over {} dimensions, {} simulations with {}, {} at a time -> {}\n", spec.name,
-               spec.dimensions.size(), spec.budget, spec.optimizer, jobs, out.string());
+  SearchOutcome outcome;
+  uint64_t shard_count = 0;
+  if (options.merge) {
+    try {
+      outcome = MergeShards(spec, out, shard_count);
+    } catch (const core::InputError& e) {
+      fmt::print(stderr, "tofu: error: {}\n", e.what());
+      return core::kExitBadInput;
+    }
+  } else {
+    if (!options.quiet) {
+      fmt::print(stderr, "tofu search: {}{} over {} dimensions, {} simulations with {} (seed {}), batches of {}, {} flights at a time -> {}\n",
+                 sharded ? fmt::format("shard {}/{} (from {}) of ", options.shard.index, options.shard.count,
+                                       options.shard.origin)
+                         : std::string(),
+                 spec.name, spec.dimensions.size(), spec.budget, spec.optimizer, spec.optimizer_seed, spec.batch, jobs,
+                 dir.string());
+    }
+    PoolEvaluator pool(spec, dir / "flights", binary, jobs, options.quiet);
+    JournaledEvaluator journaled(spec, pool, dir / "evaluations.jsonl");
+    const std::unique_ptr<Proposer> proposer = MakeProposer(spec, TOFU_SCRIPTS_DIR);
+    const SearchProgress progress = [&](const std::string& line) {
+      if (!options.quiet) fmt::print(stderr, "tofu search: {}\n", line);
+    };
+    outcome = RunSearch(spec, journaled, *proposer, progress);
+    if (!options.quiet) {
+      fmt::print(stderr, "tofu search: {} flights flown, {} taken from the journal\n", journaled.flown(),
+                 journaled.reused());
+    }
   }
-  PoolEvaluator pool(spec, out / "flights", binary, jobs, options.quiet);
-  JournaledEvaluator journaled(spec, pool, out / "evaluations.jsonl");
-  const std::unique_ptr<Proposer> proposer = MakeProposer(spec, TOFU_SCRIPTS_DIR);
-  const SearchProgress progress = [&](const std::string& line) {
-    if (!options.quiet) fmt::print(stderr, "tofu search: {}\n", line);
-  };
-  const SearchOutcome outcome = RunSearch(spec, journaled, *proposer, static_cast<std::size_t>(jobs), progress);
-  WriteFailures(spec, outcome, out, binary, options);
-  replay::WriteFileAtomically(out / "search.json", SearchJson(spec, outcome).dump(1) + "\n");
+  WriteFailures(spec, outcome, dir, binary, options);
+  nlohmann::json record = SearchJson(spec, outcome);
+  if (options.merge) record["shards"] = shard_count;
+  replay::WriteFileAtomically(dir / "search.json", record.dump(1) + "\n");
   const std::string md = FailuresMarkdown(spec, outcome);
-  replay::WriteFileAtomically(out / "failures.md", md);
+  replay::WriteFileAtomically(dir / "failures.md", md);
   if (options.promote_dir) Promote(spec, outcome, fs::absolute(*options.promote_dir), options.quiet);
-  if (!options.quiet) {
-    fmt::print(stderr, "tofu search: {} flights flown, {} taken from the journal\n", journaled.flown(),
-               journaled.reused());
-    fmt::print("{}", md);
-  }
+  if (!options.quiet) fmt::print("{}", md);
   for (const FoundFailure& f : outcome.failures) {
     if (f.confirmed) return core::kExitExpectationFailed;
   }

@@ -11,12 +11,14 @@
 #include <optional>
 #include <string>
 
+#include "harness/shard.h"
+
 namespace tofu::campaign {
 
 struct SearchCommandOptions {
   std::string spec_path;
   std::string out_dir;
-  int jobs = 0;  ///< flights at once (the optimiser's batch); 0: core::UsableCores()
+  int jobs = 0;  ///< flights at once (never changes what is flown: the batch is the spec's); 0: every core
   bool quiet = false;
   std::optional<std::string> promote_dir;
   bool renders = true;  ///< `tofu render` each failure's flight
@@ -26,6 +28,13 @@ struct SearchCommandOptions {
   std::optional<uint64_t> optimizer_seed;
   /// The `tofu` executable to spawn for each flight; empty: this process's.
   std::string tofu_binary;
+  /// This process's shard of a search spread over machines (harness/shard.h: --shard, a
+  /// Slurm array task): an independent search of budget / N flights, its optimiser seeded
+  /// seed + I, into <out>/shard_<I>_of_<N>/. An empty origin: the whole search.
+  harness::Shard shard;
+  /// Fly nothing: merge the finished shards in <out> into <out>'s search.json,
+  /// failures.md and failures/ (failures de-duplicated across shards), and promote.
+  bool merge = false;
 };
 
 /// kExitOk when the search found no confirmed failure, kExitExpectationFailed when it

@@ -312,11 +312,17 @@ SearchSpec ParseSearchSpec(const std::string& text, const std::string& file_labe
   ReadObjective(top.Required("objective"), spec);
   ReadSpace(top.Required("space"), base_root, spec);
   {
-    YamlMap b = top.Required("budget").Map({"simulations"});
+    YamlMap b = top.Required("budget").Map({"simulations", "batch"});
     const YamlValue sims = b.Required("simulations");
     spec.budget = sims.UnsignedInteger();
     if (spec.budget == 0 || spec.budget > 1'000'000) {
       sims.Fail(fmt::format("a budget of {} simulations (expected a whole number in [1, 1000000])", spec.budget));
+    }
+    if (auto batch = b.Optional("batch")) {
+      spec.batch = batch->UnsignedInteger();
+      if (spec.batch == 0 || spec.batch > 256) {
+        batch->Fail(fmt::format("a batch of {} (expected a whole number in [1, 256])", spec.batch));
+      }
     }
     b.Finish();
   }

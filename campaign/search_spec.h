@@ -87,6 +87,9 @@ struct SearchSpec {
   std::vector<SetKey> set;
   std::vector<FaultSlot> faults;
   uint64_t budget = 0;               ///< search simulations (confirmation and shrinking aside)
+  /// Points the optimiser proposes at once (`budget.batch`): a property of the search, not
+  /// of the machine, so that any --jobs (or Slurm's CPUs) flies the same points.
+  uint64_t batch = 2;
   std::string optimizer = "random";  ///< random, tpe
   uint64_t optimizer_seed = 1;
   ConfirmOptions confirm;

@@ -102,8 +102,9 @@ std::string ChangeText(const json& f) {
 
 // The shrunk flight's page under failures/<id>/; "" and `why` when it has none.
 std::string WriteFailurePage(const fs::path& search_dir, const json& f, const fs::path& staging, std::string& why) {
-  const std::string flight = f.value("shrunk_flight", "");
-  const fs::path run = search_dir / "flights" / flight;
+  // A merged search's failures are in their shard's flights (run_dir, relative).
+  const std::string flight = f.value("run_dir", "flights/" + f.value("shrunk_flight", ""));
+  const fs::path run = search_dir / flight;
   if (flight.empty() || !fs::is_directory(run)) {
     why = fmt::format("its flight {} was not kept", flight);
     return "";

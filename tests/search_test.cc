@@ -133,7 +133,7 @@ TEST_P(SearchAnalytic, FindsTheKnownRegionAndShrinksToItsEdge) {
   const campaign::SearchSpec spec = Spec(DropoutSpec(GetParam(), 40));
   AnalyticDropout flights(spec);
   const auto proposer = campaign::MakeProposer(spec, fs::path(TOFU_SOURCE_DIR) / "scripts");
-  const campaign::SearchOutcome out = campaign::RunSearch(spec, flights, *proposer, 2);
+  const campaign::SearchOutcome out = campaign::RunSearch(spec, flights, *proposer);
   ASSERT_EQ(out.evaluations.size(), 40u);
   // Every evaluation's verdict is the analytic one: fails exactly when > 1.5 s is lost.
   for (const campaign::SearchEvaluation& e : out.evaluations) {
@@ -164,8 +164,8 @@ TEST(Search, TheSameSpecProposesTheSamePoints) {
     AnalyticDropout a(spec), b(spec);
     const auto pa = campaign::MakeProposer(spec, fs::path(TOFU_SOURCE_DIR) / "scripts");
     const auto pb = campaign::MakeProposer(spec, fs::path(TOFU_SOURCE_DIR) / "scripts");
-    const auto oa = campaign::RunSearch(spec, a, *pa, 2);
-    const auto ob = campaign::RunSearch(spec, b, *pb, 2);
+    const auto oa = campaign::RunSearch(spec, a, *pa);
+    const auto ob = campaign::RunSearch(spec, b, *pb);
     ASSERT_EQ(oa.evaluations.size(), ob.evaluations.size());
     for (std::size_t i = 0; i < oa.evaluations.size(); ++i) {
       EXPECT_EQ(oa.evaluations[i].unit, ob.evaluations[i].unit) << optimizer << " " << i;
@@ -182,7 +182,7 @@ TEST(Search, AKilledSearchResumesWithTheSameResult) {
 
     AnalyticDropout whole(spec);
     const auto p0 = campaign::MakeProposer(spec, scripts);
-    const campaign::SearchOutcome expected = campaign::RunSearch(spec, whole, *p0, 2);
+    const campaign::SearchOutcome expected = campaign::RunSearch(spec, whole, *p0);
 
     const fs::path journal = dir / (optimizer + ".jsonl");
     AnalyticDropout killed(spec);
@@ -190,7 +190,7 @@ TEST(Search, AKilledSearchResumesWithTheSameResult) {
     {
       campaign::JournaledEvaluator journaled(spec, killed, journal);
       const auto p1 = campaign::MakeProposer(spec, scripts);
-      EXPECT_THROW(campaign::RunSearch(spec, journaled, *p1, 2), std::runtime_error);
+      EXPECT_THROW(campaign::RunSearch(spec, journaled, *p1), std::runtime_error);
     }
     // A kill while the journal was written leaves a torn line: dropped on resume.
     { std::ofstream(journal, std::ios::app) << R"({"id": "e0000)"; }
@@ -198,7 +198,7 @@ TEST(Search, AKilledSearchResumesWithTheSameResult) {
     AnalyticDropout resumed(spec);
     campaign::JournaledEvaluator journaled(spec, resumed, journal);
     const auto p2 = campaign::MakeProposer(spec, scripts);
-    const campaign::SearchOutcome got = campaign::RunSearch(spec, journaled, *p2, 2);
+    const campaign::SearchOutcome got = campaign::RunSearch(spec, journaled, *p2);
     // What the killed search journaled is not flown again; the rest is, once.
     EXPECT_GE(journaled.reused(), 8u) << optimizer;
     EXPECT_EQ(static_cast<int>(journaled.flown() + journaled.reused()), whole.flown_) << optimizer;
@@ -244,6 +244,8 @@ TEST(SearchSpec, BadSpecsNameTheKeyAndTheExpectedForm) {
        {"objective.expectations", "names no expectation of the base", "sensors.vio.delivered_samples"}},
       {"budget of 0", head + objective + space + "budget: {simulations: 0}\n",
        {"budget.simulations", "[1, 1000000]"}},
+      {"batch of 0", head + objective + space + "budget: {simulations: 4, batch: 0}\n",
+       {"budget.batch", "[1, 256]"}},
       {"unknown optimizer", head + objective + space + budget + "optimizer: {name: cmaes}\n",
        {"optimizer.name", "random, tpe"}},
       {"sensor the base lacks", head + objective +
@@ -372,6 +374,43 @@ TEST(SearchCommand, AUsersEstimatorThatCrashesIsAFailureFoundWithItsStderr) {
                        test::Quote((dir / "check").string())),
            dir);
   EXPECT_EQ(check.exit_code, 5) << check.out << check.err;
+  fs::remove_all(dir);
+}
+
+TEST(SearchCommand, ShardsMergeIntoOneSearch) {
+  const fs::path dir = test::PerTestDirectory("tofu_search_shards_");
+  fs::create_directories(dir);
+  const std::string spec = (kData / "dropout_search.yaml").string();
+  const std::string out = test::Quote((dir / "out").string());
+  // The merge refuses while a shard has not flown, naming it.
+  ASSERT_LE(Tofu(fmt::format("search {} --out {} --shard 0/2 --jobs 2 --no-renders --quiet", test::Quote(spec), out),
+                 dir).exit_code, 1);
+  const test::CommandResult early = Tofu(fmt::format("search {} --out {} --merge", test::Quote(spec), out), dir);
+  EXPECT_EQ(early.exit_code, 2);
+  EXPECT_NE(early.err.find("shard 1 of 2 is missing"), std::string::npos) << early.err;
+  ASSERT_LE(Tofu(fmt::format("search {} --out {} --shard 1/2 --jobs 2 --no-renders --quiet", test::Quote(spec), out),
+                 dir).exit_code, 1);
+  const test::CommandResult merge = Tofu(fmt::format("search {} --out {} --merge --quiet", test::Quote(spec), out), dir);
+  ASSERT_LE(merge.exit_code, 1) << merge.err;
+
+  const auto read = [&](const fs::path& p) { return nlohmann::json::parse(test::ReadFile(p)); };
+  const nlohmann::json s0 = read(dir / "out" / "shard_0000_of_0002" / "search.json");
+  const nlohmann::json s1 = read(dir / "out" / "shard_0001_of_0002" / "search.json");
+  const nlohmann::json merged = read(dir / "out" / "search.json");
+  // Each shard: half the budget, its optimiser seeded apart.
+  EXPECT_EQ(s0["budget"], 4);
+  EXPECT_EQ(s1["optimizer_seed"].get<int>(), s0["optimizer_seed"].get<int>() + 1);
+  EXPECT_EQ(merged["shards"], 2);
+  EXPECT_EQ(merged["evaluations"].size(), s0["evaluations"].size() + s1["evaluations"].size());
+  EXPECT_EQ(merged["evaluations"][0]["id"], "shard_0000_of_0002/e000000");
+  // No two merged failures of one expectation lie within the dedupe distance.
+  EXPECT_LE(merged["failures"].size(), s0["failures"].size() + s1["failures"].size());
+  for (const nlohmann::json& f : merged["failures"]) {
+    if (f["confirmed"].get<bool>()) {
+      EXPECT_TRUE(fs::is_directory(dir / "out" / f["run_dir"].get<std::string>())) << f["run_dir"];
+    }
+  }
+  EXPECT_EQ(merge.exit_code, merged["failures"].empty() ? 0 : 1);
   fs::remove_all(dir);
 }
 

@@ -539,7 +539,7 @@ Command AddSearchCommand(CLI::App& parent) {
   search->add_option("--out", o->out_dir, "Output directory; a search killed there resumes with the same result")
       ->required();
   search->add_option("--jobs", o->jobs,
-                     "Flights at once, the optimiser's batch (default: the cores this process may run on)")
+                     "Flights at once (default: the cores this process may run on); the flights are the same for any number")
       ->check(WholeNumber(0, 256));
   search->add_option("--promote", o->promote_dir,
                      "DIR: write each confirmed failure as a regression scenario there (its violated "
@@ -549,9 +549,23 @@ Command AddSearchCommand(CLI::App& parent) {
       ->check(WholeNumber(0, std::numeric_limits<std::uint64_t>::max()));
   search->add_flag("--no-renders", [o](std::int64_t) { o->renders = false; }, "Do not render the failures' flights");
   search->add_flag("--quiet", o->quiet, "No progress and no table");
+  auto shard = std::make_shared<std::optional<std::string>>();
+  auto shard_count = std::make_shared<std::optional<std::uint64_t>>();
+  search->add_option("--shard", *shard,
+                     "I/N: fly shard I of a search spread over N machines: an independent search of "
+                     "budget/N flights seeded seed + I into <out>/shard_<I>_of_<N>/. Default: from "
+                     "SLURM_ARRAY_TASK_ID/COUNT or JOB_COMPLETION_INDEX, else the whole search");
+  search->add_option("--shard-count", *shard_count, "N, with JOB_COMPLETION_INDEX")->check(WholeNumber(1, 1000000));
+  search->add_flag("--merge", o->merge,
+                   "Fly nothing: merge the finished shards in --out (failures de-duplicated across them), "
+                   "write its search.json, failures and report inputs, and promote");
   search->footer("Exit 0: no confirmed failure; 1: a confirmed failure was found; 2: bad spec or options, "
-                 "or --out holds a search of another spec (nothing flown).");
-  return {search, true, [o] { return tofu::campaign::RunSearchCommand(*o); }};
+                 "or --out holds a search of another spec (nothing flown). Across machines: "
+                 "scripts/search.sbatch (an array of shards, then the merge).");
+  return {search, true, [o, shard, shard_count] {
+            if (!o->merge || *shard) o->shard = tofu::harness::ResolveShard(*shard, *shard_count);
+            return tofu::campaign::RunSearchCommand(*o);
+          }};
 }
 
 Command AddBaselineCommand(CLI::App& parent) {
