@@ -31,6 +31,8 @@ namespace {
 namespace fs = std::filesystem;
 
 constexpr const char* kSpecFile = "corpus.yaml";
+// The included scenarios (corpus_spec.h), copied: the directory stands alone.
+constexpr const char* kIncludedDir = "included";
 constexpr int kSchemaVersion = 1;
 
 // The corpus directory for `spec`: created with corpus.yaml, or an existing one made
@@ -46,14 +48,17 @@ void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
                              fmt::format("holds the shards of another spec ({} differs from {}); "
                                          "use another directory", spec_copy.string(), spec.file));
     }
+    CopyIncluded(spec, dir / kIncludedDir);
     return;
   }
   // The shards of one array job start together: another may be writing corpus.yaml right
-  // now (its corpus.yaml.partial<pid>, WriteAtomically), which is no foreign content.
+  // now (its corpus.yaml.partial<pid>, WriteAtomically) or the included copies before it,
+  // which are no foreign content.
   const std::string spec_partial = std::string(kSpecFile) + ".partial";
   const auto holds_foreign_files = [&] {
     for (const fs::directory_entry& entry : fs::directory_iterator(dir)) {
-      if (!entry.path().filename().string().starts_with(spec_partial)) return true;
+      const std::string name = entry.path().filename().string();
+      if (!name.starts_with(spec_partial) && name != kIncludedDir) return true;
     }
     return false;
   };
@@ -62,6 +67,7 @@ void PrepareCorpusDirectory(const CorpusSpec& spec, const fs::path& dir) {
                            "is not empty and not a corpus directory (no corpus.yaml): refused, untouched");
   }
   fs::create_directories(dir);
+  CopyIncluded(spec, dir / kIncludedDir);
   replay::WriteFileAtomically(spec_copy, spec.text);  // concurrent shards write the same bytes
 }
 
@@ -173,8 +179,10 @@ int RunCorpusPlan(const fs::path& spec_path, const fs::path& out_dir, bool quiet
   // flight and are counted by `generate`).
   std::map<std::string, std::map<std::string, int>> counts;
   std::map<std::string, int> families, worlds;
+  double flight_s = 0.0;
   for (std::uint64_t i = 0; i < spec.episodes; ++i) {
     const EpisodePlan plan = PlanEpisode(spec, i);
+    flight_s += plan.duration_s;
     harness::ParseScenario(plan.scenario_yaml, fmt::format("{} episode {}", spec.file, i));
     std::ofstream(staging / "episodes" / (plan.id + ".yaml"), std::ios::binary) << plan.scenario_yaml;
     for (const PlannedFault& f : plan.faults) ++counts[std::string(sim::FaultKindName(f.kind))][f.sensor];
@@ -184,7 +192,7 @@ int RunCorpusPlan(const fs::path& spec_path, const fs::path& out_dir, bool quiet
   nlohmann::ordered_json j = {{"corpus", spec.name},
                               {"seed", spec.seed},
                               {"episodes", spec.episodes},
-                              {"flight_hours", static_cast<double>(spec.episodes) * spec.duration_s / 3600.0},
+                              {"flight_hours", flight_s / 3600.0},
                               {"scheduled_faults", counts},
                               {"families", families},
                               {"worlds", worlds}};
@@ -433,7 +441,8 @@ void VerifyEpisode(const CorpusSpec& spec, const fs::path& shard, const Hdf5File
   // Every scheduled fault has its row (a dropout leaves no flagged sample to check).
   const std::size_t scheduled = static_cast<std::size_t>(std::count(cause.begin(), cause.end(), "scheduled"));
   std::size_t planned = 0;
-  for (const PlannedFault& f : PlanEpisode(spec, row.index).faults) planned += f.start_s < spec.duration_s;
+  const EpisodePlan plan = PlanEpisode(spec, row.index);
+  for (const PlannedFault& f : plan.faults) planned += f.start_s < plan.duration_s;
   if (scheduled != planned) {
     problems.push_back(fmt::format("{}: episode {}: {} scheduled fault events, the plan has {} faults",
                                    shard.filename().string(), id, scheduled, planned));
@@ -498,7 +507,7 @@ int RunCorpusVerify(const fs::path& dir, bool quiet) {
     throw core::InputError({dir.string()}, "", "not a corpus directory (expected corpus.yaml and shard_*.h5)");
   }
   const CorpusSpec spec = ParseCorpusSpec(core::ReadWholeFile(dir / kSpecFile, "corpus spec", core::kMaxConfigFileBytes),
-                                          (dir / kSpecFile).string());
+                                          (dir / kSpecFile).string(), dir / kIncludedDir);
   std::vector<std::string> problems;
   const std::vector<fs::path> shards = ShardFiles(dir, problems);
   CorpusTally tally;

@@ -2,10 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <Eigen/Geometry>
 #include <yaml-cpp/yaml.h>
 
 #include "core/error.h"
@@ -15,9 +18,12 @@
 #include "harness/client_config.h"
 #include "harness/scenario.h"
 #include "harness/yaml_reader.h"
+#include "replay/file_io.h"
 
 namespace tofu::corpus {
 namespace {
+
+namespace fs = std::filesystem;
 
 using core::FormatDouble;
 using core::NumberRule;
@@ -319,21 +325,151 @@ void ReadFaultRanges(const YamlValue& value, CorpusSpec& spec) {
 
 }  // namespace
 
-CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label) {
+namespace {
+
+// What every episode flies on: the spec's users' clients, estimation methods and closed
+// loop (YAML lines of a scenario).
+std::string MethodsYaml(const CorpusSpec& spec) {
+  std::string yaml = spec.clients_yaml;
+  if (!spec.estimation_yaml.empty()) yaml += "estimation:\n" + Indent(spec.estimation_yaml, "  ");
+  if (!spec.closed_loop_methods.empty()) {
+    std::string methods;
+    for (const std::string& m : spec.closed_loop_methods) methods += (methods.empty() ? "\"" : ", \"") + m + "\"";
+    yaml += fmt::format("control: {{state_source: estimate, methods: [{}]{}}}\n", methods,
+                        spec.controller.empty() ? "" : ", controller: \"" + spec.controller + "\"");
+  }
+  return yaml;
+}
+
+// The size a corpus gives a fault of each kind (docs/CORPUS.md), read back from a scenario's.
+double FaultMagnitude(const sim::FaultSpec& f) {
+  switch (f.kind) {
+    case sim::FaultKind::kDivergence:
+      return f.divergence.initial_velocity_mps;
+    case sim::FaultKind::kJump:
+      return f.jump.translation_S_m.norm();
+    case sim::FaultKind::kNonGaussianNoise:
+      return f.noise.white_std_m;
+    case sim::FaultKind::kOutliers:
+      return f.outliers.scale_m;
+    case sim::FaultKind::kDelay:
+      return f.delay.delay_s;
+    case sim::FaultKind::kMisalignment:
+      return Eigen::AngleAxisd(f.misalignment.q_FS).angle() * 180.0 / kPi;
+    case sim::FaultKind::kDropout:
+    case sim::FaultKind::kFreeze:
+      break;
+  }
+  return 0.0;
+}
+
+EpisodePlan PlanIncluded(const CorpusSpec& spec, std::uint64_t index) {
+  const IncludedEpisode& e = spec.included.at(index - spec.sampled_episodes);
+  EpisodePlan plan;
+  plan.index = index;
+  plan.id = fmt::format("{}_e{:06d}", spec.name, index);
+  plan.scenario_seed = e.seed;
+  plan.world = e.world;
+  plan.family = "included";
+  plan.duration_s = e.duration_s;
+  plan.faults = e.faults;
+  plan.scenario_yaml = fmt::format("# Episode {} of corpus '{}': {}, included.\nname: {}\n", index, spec.name,
+                                   e.file, plan.id) +
+                       e.scenario_body_yaml + MethodsYaml(spec);
+  return plan;
+}
+
+// `include:` scenario files (a directory: its *.yaml, sorted), each an episode of its own.
+// The name an include entry has under a corpus directory's included/: its last component.
+std::string CopyName(const std::string& entry) {
+  fs::path p = fs::path(entry).lexically_normal();
+  if (p.filename().empty()) p = p.parent_path();
+  return p.filename().string();
+}
+
+void ReadIncluded(const YamlValue& value, const std::string& file_label,
+                  const std::optional<fs::path>& included_copies, CorpusSpec& spec) {
+  const fs::path base = fs::absolute(fs::path(file_label).parent_path());
+  std::vector<std::string> copy_names;
+  for (const YamlValue& item : value.List(true)) {
+    const std::string copy_name = CopyName(item.String());
+    if (copy_name.empty() || copy_name == "." || copy_name == "..") {
+      item.FailExpected("a scenario file or directory, named by a path that ends in its name");
+    }
+    if (std::find(copy_names.begin(), copy_names.end(), copy_name) != copy_names.end()) {
+      item.Fail(fmt::format("a second include named '{}' (expected distinct last names: a corpus directory "
+                            "keeps each under included/<name>)", copy_name));
+    }
+    copy_names.push_back(copy_name);
+    const fs::path named = included_copies ? *included_copies / copy_name : base / item.String();
+    std::vector<fs::path> files;
+    if (fs::is_directory(named)) {
+      for (const auto& entry : fs::directory_iterator(named)) {
+        if (entry.path().extension() == ".yaml") files.push_back(entry.path());
+      }
+      std::sort(files.begin(), files.end());
+      if (files.empty()) item.Fail(fmt::format("{} holds no *.yaml scenario", named.string()));
+    } else if (fs::is_regular_file(named)) {
+      files.push_back(named);
+    } else {
+      item.Fail(fmt::format("no scenario file or directory {} (expected paths relative to the spec)", named.string()));
+    }
+    for (const fs::path& file : files) {
+      IncludedEpisode e;
+      e.file = file.lexically_normal().string();
+      e.copy_name = fs::is_directory(named) ? (fs::path(copy_name) / file.filename()).string() : copy_name;
+      const std::string text = core::ReadWholeFile(file, "scenario", core::kMaxConfigFileBytes);
+      e.text = text;
+      harness::Scenario scenario;
+      try {
+        scenario = harness::ParseScenario(text, e.file);
+      } catch (const core::InputError& error) {
+        item.Fail(fmt::format("the included scenario does not load: {}", error.what()));
+      }
+      std::vector<std::string> names;
+      for (const harness::SensorConfig& c : scenario.sensors) names.push_back(c.name);
+      std::vector<std::string> expected = spec.sensor_names;
+      std::sort(names.begin(), names.end());
+      std::sort(expected.begin(), expected.end());
+      if (names != expected) {
+        item.Fail(fmt::format("{} has the sensors [{}], the spec [{}]: an episode's streams are the corpus's",
+                              e.file, fmt::join(names, ", "), fmt::join(expected, ", ")));
+      }
+      e.world = scenario.world;
+      e.seed = scenario.seed;
+      e.duration_s = scenario.duration_s;
+      for (const sim::FaultSpec& f : scenario.faults) {
+        e.faults.push_back({f.sensor, f.kind, f.start_s, std::min(f.end_s, scenario.duration_s), Round4(FaultMagnitude(f))});
+      }
+      YAML::Node root = YAML::Load(text);
+      for (const char* key : {"name", "description", "expect", "estimation", "control", "external", "plugins",
+                              "render", "compare"}) {
+        root.remove(key);
+      }
+      e.scenario_body_yaml = EmitNode(root) + "\n";
+      spec.included.push_back(std::move(e));
+    }
+  }
+}
+
+}  // namespace
+
+CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label,
+                           const std::optional<fs::path>& included_copies) {
   CorpusSpec spec;
   spec.file = file_label;
   spec.text = text;
   const YamlValue root = harness::ParseDocument(text, file_label);
   YamlMap top = root.Map({"name", "description", "seed", "episodes", "duration_s", "worlds",
                           "trajectory", "sensors", "wind", "faults", "external", "plugins",
-                          "estimation", "closed_loop"});
+                          "estimation", "closed_loop", "include"});
   spec.name = top.Required("name").Identifier();
   if (auto d = top.Optional("description")) spec.description = d->String();
   spec.seed = top.Required("seed").UnsignedInteger();
   const YamlValue episodes = top.Required("episodes");
-  spec.episodes = episodes.UnsignedInteger();
-  if (spec.episodes == 0 || spec.episodes > 10'000'000) {
-    episodes.Fail("expected a whole number of episodes in [1, 10000000]");
+  spec.sampled_episodes = episodes.UnsignedInteger();
+  if ((spec.sampled_episodes == 0 && !top.Has("include")) || spec.sampled_episodes > 10'000'000) {
+    episodes.Fail("expected a whole number of episodes in [1, 10000000] (0 only with include:)");
   }
   spec.duration_s = top.Required("duration_s").Number(NumberRule::Between(2.0, 3600.0, "s"));
 
@@ -376,15 +512,21 @@ CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_labe
     if (spec.estimation_yaml.empty()) c->Fail("closed_loop needs an estimation: block (its methods fly)");
     cm.Finish();
   }
+  if (auto i = top.Optional("include")) ReadIncluded(*i, file_label, included_copies, spec);
+  spec.episodes = spec.sampled_episodes + spec.included.size();
   top.Finish();
 
-  // A spec that loads plans scenarios that load: check episode 0 (and report its errors
-  // against the spec, since its YAML is the spec's doing).
-  const EpisodePlan first = PlanEpisode(spec, 0);
-  try {
-    harness::ParseScenario(first.scenario_yaml, file_label + " (episode 0 as planned)");
-  } catch (const core::InputError& e) {
-    throw core::InputError({file_label}, "", fmt::format("the spec plans an invalid scenario: {}", e.what()));
+  // A spec that loads plans scenarios that load: check episode 0 and every included one
+  // (and report their errors against the spec, since their YAML is the spec's doing).
+  std::vector<std::uint64_t> checked = {0};
+  for (std::uint64_t i = std::max<std::uint64_t>(1, spec.sampled_episodes); i < spec.episodes; ++i) checked.push_back(i);
+  for (const std::uint64_t index : checked) {
+    const EpisodePlan plan = PlanEpisode(spec, index);
+    try {
+      harness::ParseScenario(plan.scenario_yaml, fmt::format("{} (episode {} as planned)", file_label, index));
+    } catch (const core::InputError& e) {
+      throw core::InputError({file_label}, "", fmt::format("the spec plans an invalid scenario: {}", e.what()));
+    }
   }
   return spec;
 }
@@ -394,10 +536,28 @@ CorpusSpec LoadCorpusSpec(const std::filesystem::path& path) {
                          path.string());
 }
 
+void CopyIncluded(const CorpusSpec& spec, const fs::path& dir) {
+  for (const IncludedEpisode& e : spec.included) {
+    const fs::path copy = dir / e.copy_name;
+    if (fs::exists(copy)) {
+      if (core::ReadWholeFile(copy, "scenario", core::kMaxConfigFileBytes) != e.text) {
+        throw core::InputError({e.file}, "include",
+                               fmt::format("changed since the corpus directory was made (its copy {} differs): "
+                                           "use another directory", copy.string()));
+      }
+      continue;
+    }
+    fs::create_directories(copy.parent_path());
+    replay::WriteFileAtomically(copy, e.text);  // concurrent shards write the same bytes
+  }
+}
+
 EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {
+  if (index >= spec.sampled_episodes) return PlanIncluded(spec, index);
   EpisodePlan plan;
   plan.index = index;
   plan.id = fmt::format("{}_e{:06d}", spec.name, index);
+  plan.duration_s = spec.duration_s;
   plan.scenario_seed = core::StreamSeed(spec.seed, fmt::format("corpus/episode/{}/scenario", index)) >> 1;
   core::RandomStream random(spec.seed, fmt::format("corpus/episode/{}", index));
 
@@ -442,15 +602,7 @@ EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index) {
       FormatDouble(kMaxAcceleration), path.segment_yaml);
   yaml += "sensors:\n" + Indent(spec.sensors_yaml, "  ");
   if (!faults_yaml.empty()) yaml += "faults:\n" + faults_yaml;
-  yaml += spec.clients_yaml;
-  if (!spec.estimation_yaml.empty()) yaml += "estimation:\n" + Indent(spec.estimation_yaml, "  ");
-  if (!spec.closed_loop_methods.empty()) {
-    std::string methods;
-    for (const std::string& m : spec.closed_loop_methods) methods += (methods.empty() ? "\"" : ", \"") + m + "\"";
-    yaml += fmt::format("control: {{state_source: estimate, methods: [{}]{}}}\n", methods,
-                        spec.controller.empty() ? "" : ", controller: \"" + spec.controller + "\"");
-  }
-  plan.scenario_yaml = yaml;
+  plan.scenario_yaml = yaml + MethodsYaml(spec);
   return plan;
 }
 

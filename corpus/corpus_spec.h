@@ -46,14 +46,22 @@ struct FaultChoice {
   Range magnitude{0.0, 0.0};
 };
 
+/// A scenario file a spec includes as an episode of its own (`include:`): a hard case, such
+/// as a failure `tofu search --promote` kept. It flies as written (world, trajectory,
+/// sensors' options, faults, seed, duration), with the spec's methods (estimation,
+/// clients, closed loop) in place of its own, so that every episode predicts alike.
+struct IncludedEpisode;
+
 struct CorpusSpec {
   std::string file;  ///< where it was read from (messages)
   std::string text;  ///< the file's text (stored with the corpus)
   std::string name;  ///< [a-z0-9_]+
   std::string description;
   std::uint64_t seed = 0;
+  /// Every episode: the sampled ones (`episodes:`), then the included ones (`include:`).
   std::uint64_t episodes = 0;
-  double duration_s = 0.0;
+  std::uint64_t sampled_episodes = 0;
+  double duration_s = 0.0;  ///< of a sampled episode
   std::vector<WorldChoice> worlds;
   std::vector<std::string> families;  ///< figure_eight, circle, wall_pass
   Range speed_mps, size_m, height_m, structure_distance_m, tilt_deg;
@@ -73,6 +81,8 @@ struct CorpusSpec {
   /// `closed_loop.controller`: who flies every flight of every episode (a client of the
   /// spec's external:/plugins:); "" = tofu's SE(3) controller.
   std::string controller;
+  /// `include:` the scenario files flown as episodes sampled_episodes.. (in order).
+  std::vector<IncludedEpisode> included;
 };
 
 /// A fault as planned for one episode (the severity that the fault-event table reports).
@@ -84,12 +94,26 @@ struct PlannedFault {
   double magnitude = 0.0;
 };
 
+struct IncludedEpisode {
+  std::string file;  ///< absolute
+  std::string copy_name;  ///< its path under a corpus directory's included/ (CopyIncluded)
+  std::string text;       ///< the file's text
+  std::string world;
+  std::uint64_t seed = 0;
+  double duration_s = 0.0;
+  std::vector<PlannedFault> faults;
+  /// The file's scenario without its name, expect:, estimation:, control:, external:,
+  /// plugins:, render: and compare: (the plan adds the episode's name and the spec's methods).
+  std::string scenario_body_yaml;
+};
+
 struct EpisodePlan {
   std::uint64_t index = 0;
   std::string id;               ///< "<corpus>_e000042"
   std::uint64_t scenario_seed = 0;
   std::string world;
-  std::string family;
+  std::string family;  ///< a trajectory family, or "included"
+  double duration_s = 0.0;
   double speed_mps = 0.0, size_m = 0.0, height_m = 0.0, structure_distance_m = 0.0,
          tilt_deg = 0.0, gust_std_mps = 0.0, mean_wind_mps = 0.0;
   std::vector<PlannedFault> faults;
@@ -97,11 +121,20 @@ struct EpisodePlan {
 };
 
 /// Reads and validates a spec (strict: unknown keys, empty or inverted ranges, unknown
-/// fault kinds or sensors, a wall_pass family with a world without a wall are
-/// core::InputError naming file:line, the key and the expected form). Episode 0 is
+/// fault kinds or sensors, a wall_pass family with a world without a wall, an included
+/// scenario that does not load or whose sensors are not the spec's are core::InputError
+/// naming file:line, the key and the expected form). Episode 0 is
 /// planned and its scenario validated, so a spec that loads plans valid scenarios.
 CorpusSpec LoadCorpusSpec(const std::filesystem::path& path);
-CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label);
+/// `included_copies`: where the included scenarios are read from instead of the paths the
+/// spec names (a corpus directory's included/, CopyIncluded: the directory stands alone).
+CorpusSpec ParseCorpusSpec(const std::string& text, const std::string& file_label,
+                           const std::optional<std::filesystem::path>& included_copies = std::nullopt);
+
+/// Copies the spec's included scenarios into `dir` (a corpus directory's included/), or,
+/// when they are there already, checks that they are the same: a changed one is a
+/// core::InputError (the corpus's episodes would no longer be its own).
+void CopyIncluded(const CorpusSpec& spec, const std::filesystem::path& dir);
 
 /// Episode `index` of the spec: a function of (spec, index) only.
 EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index);

@@ -325,6 +325,23 @@ TEST(SearchCommand, APromotedFailureFailsUnderCheck) {
   EXPECT_EQ(check.exit_code, 1) << check.out << check.err;
   EXPECT_NE(check.out.find("sensors.vio.delivered_samples"), std::string::npos) << check.out;
 
+  // ...and as episodes of a failure corpus: a spec that includes the promoted directory
+  // flies them after its sampled episodes, and the corpus verifies.
+  test::WriteFile(dir / "corpus.yaml",
+                  "name: hard_cases\nseed: 3\nepisodes: 1\nduration_s: 6\n"
+                  "worlds: [{world: indoor_arena, center_m: [0, 0]}]\n"
+                  "trajectory: {families: [circle], speed_mps: 0.5, size_m: 1.0, height_m: 1.5, tilt_deg: 0}\n"
+                  "sensors: {imu: {}, vio: {rate_hz: 20}}\ninclude: [promoted]\n");
+  const std::string corpus = test::Quote((dir / "corpus").string());
+  const test::CommandResult generate =
+      Tofu(fmt::format("corpus generate {} --out {} --quiet", test::Quote((dir / "corpus.yaml").string()), corpus), dir);
+  ASSERT_EQ(generate.exit_code, 0) << generate.err;
+  const test::CommandResult verify = Tofu(fmt::format("corpus verify {}", corpus), dir);
+  ASSERT_EQ(verify.exit_code, 0) << verify.out << verify.err;
+  const std::string manifest = test::ReadFile(dir / "corpus" / "manifest.csv");
+  EXPECT_NE(manifest.find("hard_cases_e000001,1,indoor_arena,included"), std::string::npos) << manifest;
+  EXPECT_TRUE(fs::exists(dir / "corpus" / "included" / "promoted"));
+
   // Resumed in the same --out: nothing flown again, the same result.
   const std::string before = test::ReadFile(dir / "out" / "search.json");
   const test::CommandResult again = Tofu(fmt::format("search {} --out {} --jobs 2 --no-renders", test::Quote(spec),
