@@ -42,7 +42,7 @@ usage() {
 
 all_targets=(fuzz_scenario fuzz_calibration fuzz_run_directory fuzz_euroc_imu
              fuzz_euroc_groundtruth fuzz_tum fuzz_velocity_csv fuzz_corpus_spec
-             fuzz_client_message)
+             fuzz_search_spec fuzz_client_message)
 
 [[ $# -ge 1 ]] || usage
 seconds="$1"
@@ -101,6 +101,8 @@ seed() {  # seed TARGET CORPUS_DIR: fills CORPUS_DIR with the target's seeds
       done ;;
     fuzz_corpus_spec)
       for f in "$root"/corpora/*.yaml; do cp "$f" "$dir/project_$(basename "$f")"; done ;;
+    fuzz_search_spec)
+      for f in "$root"/tests/data/search/*_search.yaml; do cp "$f" "$dir/project_$(basename "$f")"; done ;;
     fuzz_euroc_imu)
       [[ -f "$euroc/mav0/imu0/data.csv" ]] && excerpt "$euroc/mav0/imu0/data.csv" > "$dir/shared_euroc_imu0.csv" ;;
     fuzz_euroc_groundtruth)
@@ -116,7 +118,7 @@ seed() {  # seed TARGET CORPUS_DIR: fills CORPUS_DIR with the target's seeds
 dictionary() {  # dictionary TARGET CORPUS_DIR OUT
   local t="$1" dir="$2" out="$3"
   case "$t" in
-    fuzz_scenario|fuzz_calibration|fuzz_corpus_spec)
+    fuzz_scenario|fuzz_calibration|fuzz_corpus_spec|fuzz_search_spec)
       cp "$root/fuzz/dicts/yaml.dict" "$out"
       cat "$dir"/* | grep -oE '[A-Za-z_][A-Za-z0-9_]{2,}' | sort -u | sed 's/.*/"&"/' >> "$out" ;;
     fuzz_client_message) cp "$root/fuzz/dicts/client_message.dict" "$out" ;;
@@ -126,7 +128,7 @@ dictionary() {  # dictionary TARGET CORPUS_DIR OUT
 max_len() {
   case "$1" in
     fuzz_scenario) echo 16384 ;;
-    fuzz_calibration|fuzz_corpus_spec) echo 8192 ;;
+    fuzz_calibration|fuzz_corpus_spec|fuzz_search_spec) echo 8192 ;;
     *) echo 20480 ;;
   esac
 }

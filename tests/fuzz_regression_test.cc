@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "campaign/search_spec.h"
 #include "corpus/corpus_spec.h"
 #include "fuzz/client_messages.h"
 #include "fuzz/recorded_log_layouts.h"
@@ -181,6 +182,11 @@ const std::vector<std::pair<std::string, Reader>>& Readers() {
       {"fuzz_corpus_spec",
        [](const std::string& bytes, const fs::path&) {
          (void)corpus::ParseCorpusSpec(bytes, "fuzz_corpus.yaml");
+       }},
+      {"fuzz_search_spec",
+       [](const std::string& bytes, const fs::path&) {
+         (void)campaign::ParseSearchSpec(bytes, "fuzz_search.yaml",
+                                         fs::path(TOFU_SOURCE_DIR) / "tests" / "data" / "search");
        }},
       // The protocol's oracle is its own (fuzz/client_messages.h): ProtocolError is
       // absorbed, anything else escapes. A seed must hold a message that decodes.
