@@ -52,7 +52,8 @@ class PoolEvaluator : public FlightEvaluator {
       const FlightRequest& r = requests[i];
       RunRequest& run = runs[i];
       run.scenario_path = (flights_ / (r.id + ".yaml")).string();
-      replay::WriteFileAtomically(run.scenario_path, ScenarioYaml(spec_, r.setting, spec_.name + "_" + r.id));
+      replay::WriteFileAtomically(run.scenario_path, ScenarioYaml(spec_, r.setting, spec_.name + "_" + r.id, {},
+                                                                  ScenarioScope::kObjective));
       run.label = r.id;
       run.run.seed = r.setting.seed;
       run.run.run_dir = (flights_ / r.id).string();

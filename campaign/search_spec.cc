@@ -4,6 +4,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <set>
 #include <sstream>
 
 #include <fmt/format.h>
@@ -415,9 +416,63 @@ Setting BaseSetting(const SearchSpec& spec) {
   return s;
 }
 
+namespace {
+
+// The method a metric reads: "methods.<method>.…" or "closed_loop.<method>.…".
+std::optional<std::string> MethodOf(const std::string& metric, const std::string& prefix) {
+  if (!metric.starts_with(prefix)) return std::nullopt;
+  const std::size_t end = metric.find('.', prefix.size());
+  return metric.substr(prefix.size(), end == std::string::npos ? std::string::npos : end - prefix.size());
+}
+
+// Only what the objective reads (ScenarioScope::kObjective).
+void KeepObjectiveOnly(const SearchSpec& spec, YAML::Node& root) {
+  std::vector<std::string> metrics;
+  for (const harness::Expectation& e : spec.base.expect) {
+    if (std::find(spec.objective_metrics.begin(), spec.objective_metrics.end(), e.metric) == spec.objective_metrics.end()) {
+      continue;
+    }
+    metrics.push_back(e.metric);
+    if (e.relative_to) metrics.push_back(*e.relative_to);
+  }
+  std::set<std::string> methods, flights;
+  for (const std::string& m : metrics) {
+    if (auto method = MethodOf(m, "methods.")) methods.insert(*method);
+    if (auto flight = MethodOf(m, "closed_loop.")) flights.insert(*flight);
+  }
+  methods.insert(flights.begin(), flights.end());  // a closed loop flies one of the methods
+  if (YAML::Node control = root["control"]; control && control["methods"]) {
+    YAML::Node kept(YAML::NodeType::Sequence);
+    for (const YAML::Node& m : control["methods"]) {
+      if (flights.count(m.as<std::string>())) kept.push_back(m);
+    }
+    if (kept.size() == 0) {
+      root.remove("control");
+    } else {
+      root["control"]["methods"] = kept;
+    }
+  }
+  if (YAML::Node estimation = root["estimation"]; estimation && estimation["methods"]) {
+    YAML::Node kept(YAML::NodeType::Sequence);
+    for (const YAML::Node& m : estimation["methods"]) {
+      if (methods.count(m.as<std::string>())) kept.push_back(m);
+    }
+    if (kept.size() == 0 && !root["control"]) {
+      root.remove("estimation");
+    } else {
+      root["estimation"]["methods"] = kept;
+    }
+  }
+  root.remove("render");
+}
+
+}  // namespace
+
 std::string ScenarioYaml(const SearchSpec& spec, const Setting& setting, const std::string& name,
-                         const std::vector<std::string>& expect_metrics) {
+                         const std::vector<std::string>& expect_metrics, ScenarioScope scope) {
   YAML::Node root = YAML::Clone(YAML::Load(spec.base_text));
+  if (scope == ScenarioScope::kObjective) KeepObjectiveOnly(spec, root);
+  const std::vector<std::string>& kept_metrics = scope == ScenarioScope::kObjective ? spec.objective_metrics : expect_metrics;
   root["name"] = name;
   root["seed"] = std::to_string(setting.seed);
   for (std::size_t i = 0; i < spec.set.size(); ++i) {
@@ -448,11 +503,11 @@ std::string ScenarioYaml(const SearchSpec& spec, const Setting& setting, const s
       root["faults"].push_back(fault);
     }
   }
-  if (!expect_metrics.empty() && root["expect"]) {
+  if (!kept_metrics.empty() && root["expect"]) {
     YAML::Node kept(YAML::NodeType::Sequence);
     for (const YAML::Node& e : root["expect"]) {
       const std::string metric = e["metric"] ? e["metric"].as<std::string>() : std::string();
-      if (std::find(expect_metrics.begin(), expect_metrics.end(), metric) != expect_metrics.end()) {
+      if (std::find(kept_metrics.begin(), kept_metrics.end(), metric) != kept_metrics.end()) {
         kept.push_back(e);
       }
     }

@@ -122,11 +122,22 @@ Setting DecodePoint(const SearchSpec& spec, const std::vector<double>& unit);
 /// The base itself: its seed, its set keys' values, no added fault.
 Setting BaseSetting(const SearchSpec& spec);
 
+/// What ScenarioYaml keeps of the base besides the setting.
+enum class ScenarioScope {
+  kWhole,  ///< every method, flight and expectation: the scenario a user runs
+  /// The flight a search flies: the objective's expectations alone, and only the
+  /// estimation methods and closed-loop flights their metrics (and relative_to) read.
+  /// Methods are independent consumers of one stream and each closed loop flies alone,
+  /// so the objective's values are those of the whole scenario (tests/search_test.cc).
+  kObjective,
+};
+
 /// The base scenario's YAML with `setting` applied and the scenario renamed `name`; users'
 /// clients named with absolute paths (the file may be written anywhere). `expect_metrics`
 /// non-empty: only the expectations on those metrics are kept.
 std::string ScenarioYaml(const SearchSpec& spec, const Setting& setting, const std::string& name,
-                         const std::vector<std::string>& expect_metrics = {});
+                         const std::vector<std::string>& expect_metrics = {},
+                         ScenarioScope scope = ScenarioScope::kWhole);
 
 /// One line per parameter of a setting, "faults[0]: divergence on vio, 12.3-15.0 s, 0.4" ...
 std::vector<std::string> DescribeSetting(const SearchSpec& spec, const Setting& setting);

@@ -14,6 +14,7 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <map>
 #include <filesystem>
 #include <stdexcept>
 #include <string>
@@ -28,6 +29,7 @@
 #include "campaign/search_spec.h"
 #include "campaign/statistics.h"
 #include "core/error.h"
+#include "harness/scenario.h"
 #include "tests/test_support.h"
 
 namespace tofu {
@@ -428,6 +430,55 @@ TEST(SearchCommand, ShardsMergeIntoOneSearch) {
     }
   }
   EXPECT_EQ(merge.exit_code, merged["failures"].empty() ? 0 : 1);
+  fs::remove_all(dir);
+}
+
+// A search flight flies only what its objective reads (ScenarioScope::kObjective); the
+// objective's values must be those of the whole scenario, bit for bit.
+TEST(SearchFlights, FlyOnlyWhatTheObjectiveReadsWithTheWholeScenariosValues) {
+  const fs::path dir = test::PerTestDirectory("tofu_search_scope_");
+  fs::create_directories(dir);
+  const auto spec_for = [](const std::string& metric) {
+    return Spec(fmt::format("name: scope\nbase: closed_loop_base.yaml\nobjective: {{expectations: [{}]}}\n"
+                            "space: {{seed: [1, 9]}}\nbudget: {{simulations: 1}}\n",
+                            metric));
+  };
+  const auto values = [&](const std::string& yaml, const std::string& name) {
+    test::WriteFile(dir / (name + ".yaml"), yaml);
+    const test::CommandResult run =
+        Tofu(fmt::format("run {} --out {} --quiet --no-plots", test::Quote((dir / (name + ".yaml")).string()),
+                         test::Quote((dir / name).string())),
+             dir);
+    EXPECT_LE(run.exit_code, 1) << run.err;
+    std::map<std::string, double> v;
+    const nlohmann::json summary = nlohmann::json::parse(test::ReadFile(dir / name / "summary.json"));
+    for (const nlohmann::json& e : summary["expectations"]) {
+      v[e["metric"].get<std::string>()] = e["value"].get<double>();
+    }
+    return v;
+  };
+  const campaign::SearchSpec whole_spec = spec_for("collisions.count");
+  Setting s = campaign::BaseSetting(whole_spec);
+  const std::map<std::string, double> whole = values(campaign::ScenarioYaml(whole_spec, s, "whole"), "whole");
+  ASSERT_EQ(whole.size(), 4u);
+  for (const std::string metric : {"closed_loop.naive.tracking_rmse_m", "methods.naive.ate_m", "collisions.count"}) {
+    const campaign::SearchSpec spec = spec_for(metric);
+    const std::string yaml = campaign::ScenarioYaml(spec, s, "scoped", {}, campaign::ScenarioScope::kObjective);
+    const harness::Scenario scoped = harness::ParseScenario(yaml, "scoped.yaml");
+    ASSERT_EQ(scoped.expect.size(), 1u) << metric;
+    if (metric == "closed_loop.naive.tracking_rmse_m") {  // relative_to the consensus flight
+      EXPECT_EQ(scoped.control->methods, (std::vector<std::string>{"consensus", "naive"}));
+    } else if (metric == "methods.naive.ate_m") {
+      EXPECT_FALSE(scoped.control.has_value());
+      ASSERT_TRUE(scoped.estimation.has_value());
+      EXPECT_EQ(scoped.estimation->methods.size(), 1u);
+    } else {
+      EXPECT_FALSE(scoped.estimation.has_value());
+    }
+    const std::map<std::string, double> got = values(yaml, "scoped_" + std::to_string(scoped.expect.size()) + metric);
+    ASSERT_EQ(got.count(metric), 1u);
+    EXPECT_EQ(got.at(metric), whole.at(metric)) << metric;
+  }
   fs::remove_all(dir);
 }
 
