@@ -388,6 +388,9 @@ TEST(SearchCommand, AUsersEstimatorThatCrashesIsAFailureFoundWithItsStderr) {
   EXPECT_GT(fault["duration_s"].get<double>(), 1.1);
   EXPECT_LT(fault["duration_s"].get<double>(), 1.4);
   // Promoted, the crash fails the check (a client failed: exit 5).
+  EXPECT_NE(test::ReadFile(dir / "out" / "flights" / (f["shrunk_flight"].get<std::string>() + ".yaml"))
+                .find("external:gap_intolerant"),
+            std::string::npos);
   const test::CommandResult check =
       Tofu(fmt::format("check {} --out {} --quiet", test::Quote((dir / "promoted").string()),
                        test::Quote((dir / "check").string())),
