@@ -1109,7 +1109,8 @@ def _median_or_inf(values):
 
 
 def extract_search_benchmark(r):
-    v = {}
+    v = {"search.reps": str(SEARCH_REPS)}
+    all_medians = {}
     for problem in SEARCH_PROBLEMS:
         medians = {}
         spec_budget = None
@@ -1129,10 +1130,16 @@ def extract_search_benchmark(r):
             v[k + "range"] = span(found, lambda x: str(x)) if found else "-"
             v[k + "flights"] = sig(statistics.median(flights), 3)
         v[f"search.{problem}.budget"] = str(spec_budget)
+        all_medians[problem] = medians
         ratio = medians["random"] / medians["tpe"]
         v[f"search.{problem}.ratio"] = ("-" if math.isinf(medians["tpe"]) else
                                         f"> {sig(spec_budget / medians['tpe'], 2)}" if math.isinf(ratio) else
                                         sig(ratio, 2))
+    # The goals: >= 5x fewer simulations than random on two problems, never more.
+    five_x = [p for p, m in all_medians.items() if m["tpe"] * 5 <= m["random"]]
+    worse = [p for p, m in all_medians.items() if m["tpe"] > m["random"]]
+    v["search.goal.five_x"] = f"{len(five_x)} of {len(all_medians)}"
+    v["search.goal.worse"] = ", ".join(worse) if worse else "none"
     return v
 
 
