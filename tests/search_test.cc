@@ -399,6 +399,24 @@ TEST(SearchCommand, AUsersEstimatorThatCrashesIsAFailureFoundWithItsStderr) {
   fs::remove_all(dir);
 }
 
+TEST(SearchCommand, ABadSpecIsExit2NamingTheKeyWithNothingFlown) {
+  const fs::path dir = test::PerTestDirectory("tofu_search_bad_");
+  fs::create_directories(dir);
+  fs::copy_file(kData / "dropout_base.yaml", dir / "dropout_base.yaml");
+  test::WriteFile(dir / "bad.yaml", "name: bad\nbase: dropout_base.yaml\n"
+                                    "objective: {expectations: [sensors.vio.delivered_samples]}\n"
+                                    "space: {seed: [1, 5]}\nbudget: {simulations: 0}\n");
+  const test::CommandResult bad = Tofu(fmt::format("search {} --out {}", test::Quote((dir / "bad.yaml").string()),
+                                                   test::Quote((dir / "out").string())),
+                                       dir);
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("bad.yaml:5:"), std::string::npos) << bad.err;
+  EXPECT_NE(bad.err.find("budget.simulations"), std::string::npos) << bad.err;
+  EXPECT_NE(bad.err.find("expected a whole number in [1, 1000000]"), std::string::npos) << bad.err;
+  EXPECT_FALSE(fs::exists(dir / "out"));
+  fs::remove_all(dir);
+}
+
 TEST(SearchCommand, ShardsMergeIntoOneSearch) {
   const fs::path dir = test::PerTestDirectory("tofu_search_shards_");
   fs::create_directories(dir);
