@@ -1126,9 +1126,9 @@ def extract_search_benchmark(r):
             medians[optimizer] = median
             k = f"search.{problem}.{optimizer}."
             v[k + "rate"] = f"{len(found)}/{len(firsts)}"
-            v[k + "median"] = f"> {spec_budget}" if math.isinf(median) else sig(median, 3)
+            v[k + "median"] = f"> {spec_budget}" if math.isinf(median) else f"{median:g}"
             v[k + "range"] = span(found, lambda x: str(x)) if found else "-"
-            v[k + "flights"] = sig(statistics.median(flights), 3)
+            v[k + "flights"] = f"{statistics.median(flights):g}"
         v[f"search.{problem}.budget"] = str(spec_budget)
         all_medians[problem] = medians
         ratio = medians["random"] / medians["tpe"]
