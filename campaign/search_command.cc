@@ -42,8 +42,8 @@ using core::FormatDouble;
 // failing flight's stay, for the failure's report and renders.
 class PoolEvaluator : public FlightEvaluator {
  public:
-  PoolEvaluator(const SearchSpec& spec, fs::path flights, std::string binary, int jobs, bool quiet)
-      : spec_(spec), flights_(std::move(flights)), binary_(std::move(binary)), jobs_(jobs), quiet_(quiet) {}
+  PoolEvaluator(const SearchSpec& spec, fs::path flights, std::string binary, int jobs)
+      : spec_(spec), flights_(std::move(flights)), binary_(std::move(binary)), jobs_(jobs) {}
 
   std::vector<FlightMargin> Fly(const std::vector<FlightRequest>& requests) override {
     std::vector<RunRequest> runs(requests.size());
@@ -74,7 +74,6 @@ class PoolEvaluator : public FlightEvaluator {
         fs::remove(run.run.log_path, ec);
       }
     }
-    (void)quiet_;
     return margins;
   }
 
@@ -83,7 +82,6 @@ class PoolEvaluator : public FlightEvaluator {
   fs::path flights_;
   std::string binary_;
   int jobs_;
-  bool quiet_;
 };
 
 nlohmann::json SettingJson(const SearchSpec& spec, const Setting& s) {
@@ -461,7 +459,7 @@ int RunSearchCommand(const SearchCommandOptions& options) {
                  spec.name, spec.dimensions.size(), spec.budget, spec.optimizer, spec.optimizer_seed, spec.batch, jobs,
                  dir.string());
     }
-    PoolEvaluator pool(spec, dir / "flights", binary, jobs, options.quiet);
+    PoolEvaluator pool(spec, dir / "flights", binary, jobs);
     JournaledEvaluator journaled(spec, pool, dir / "evaluations.jsonl");
     const std::unique_ptr<Proposer> proposer = MakeProposer(spec, TOFU_SCRIPTS_DIR);
     const SearchProgress progress = [&](const std::string& line) {

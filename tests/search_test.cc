@@ -218,6 +218,24 @@ TEST(Search, AKilledSearchResumesWithTheSameResult) {
   fs::remove_all(dir);
 }
 
+// The shipped problems (searches/, the benchmark of docs/RESULTS.md) load, and their bases
+// load their models: a change of the scenario format cannot leave them behind unnoticed.
+TEST(SearchSpec, TheShippedProblemsLoad) {
+  int problems = 0;
+  for (const auto& entry : fs::directory_iterator(fs::path(TOFU_SOURCE_DIR) / "searches")) {
+    if (entry.path().extension() != ".yaml") continue;
+    ++problems;
+    try {
+      const campaign::SearchSpec spec = campaign::LoadSearchSpec(entry.path());
+      harness::CheckScenarioModels(spec.base);
+      EXPECT_TRUE(spec.stop_at_first) << entry.path();  // the benchmark counts to the first failure
+    } catch (const core::InputError& e) {
+      ADD_FAILURE() << e.what();
+    }
+  }
+  EXPECT_GE(problems, 3);
+}
+
 // Each bad spec: exit 2's message names the key and the expected form.
 struct BadSpec {
   std::string what;
