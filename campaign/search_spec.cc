@@ -302,7 +302,8 @@ SearchSpec ParseSearchSpec(const std::string& text, const std::string& file_labe
   if (auto d = top.Optional("description")) spec.description = d->String();
   const YamlValue base = top.Required("base");
   spec.base_path = fs::absolute(spec_dir / base.String()).lexically_normal();
-  if (!fs::is_regular_file(spec.base_path)) {
+  std::error_code status_error;  // a name the file system refuses (too long, ...) is no file
+  if (!fs::is_regular_file(spec.base_path, status_error)) {
     base.Fail(fmt::format("cannot read the base scenario {} (expected a scenario file, relative to the "
                           "spec's directory)", spec.base_path.string()));
   }

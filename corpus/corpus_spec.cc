@@ -403,13 +403,14 @@ void ReadIncluded(const YamlValue& value, const std::string& file_label,
     copy_names.push_back(copy_name);
     const fs::path named = included_copies ? *included_copies / copy_name : base / item.String();
     std::vector<fs::path> files;
-    if (fs::is_directory(named)) {
+    std::error_code status_error;  // a name the file system refuses (too long, ...) is none
+    if (fs::is_directory(named, status_error)) {
       for (const auto& entry : fs::directory_iterator(named)) {
         if (entry.path().extension() == ".yaml") files.push_back(entry.path());
       }
       std::sort(files.begin(), files.end());
       if (files.empty()) item.Fail(fmt::format("{} holds no *.yaml scenario", named.string()));
-    } else if (fs::is_regular_file(named)) {
+    } else if (fs::is_regular_file(named, status_error)) {
       files.push_back(named);
     } else {
       item.Fail(fmt::format("no scenario file or directory {} (expected paths relative to the spec)", named.string()));
@@ -417,7 +418,7 @@ void ReadIncluded(const YamlValue& value, const std::string& file_label,
     for (const fs::path& file : files) {
       IncludedEpisode e;
       e.file = file.lexically_normal().string();
-      e.copy_name = fs::is_directory(named) ? (fs::path(copy_name) / file.filename()).string() : copy_name;
+      e.copy_name = files.size() > 1 || file != named ? (fs::path(copy_name) / file.filename()).string() : copy_name;
       const std::string text = core::ReadWholeFile(file, "scenario", core::kMaxConfigFileBytes);
       e.text = text;
       harness::Scenario scenario;

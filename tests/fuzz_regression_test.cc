@@ -253,6 +253,17 @@ TEST(FuzzRegressions, StrayCommaInACorpusSpecIsASyntaxErrorNotAHang) {
   EXPECT_CONTAINS(outcome.text, "fuzz_corpus.yaml:1:1: YAML syntax error: unexpected ','");
 }
 
+// Finding 7 (campaign/search_spec.cc, ParseSearchSpec; the same in a corpus spec's include:
+// entries): a `base:` whose quoted value runs over many lines named a path longer than the
+// file system takes, and std::filesystem::is_regular_file threw filesystem_error ("File
+// name too long"), exit 3, instead of the missing-base input error.
+TEST(FuzzRegressions, ASearchBaseNameTooLongIsAnInputError) {
+  const Outcome outcome = Replay("fuzz_search_spec", "base_name_too_long.yaml");
+  ASSERT_EQ(outcome.kind, Outcome::kInputError) << outcome.Describe();
+  EXPECT_EQ(outcome.file, "fuzz_search.yaml");
+  EXPECT_CONTAINS(outcome.text, "cannot read the base scenario");
+}
+
 // Finding 2 (replay/recorded_log.cc, ParseCalibration): a sensor of calibration.yaml
 // without an `options` key threw YAML::InvalidNode (`s.options = node["options"]` assigned
 // a missing node), so `tofu estimate` on a real log whose calibration.yaml gives only a
