@@ -1,22 +1,13 @@
 #include "campaign/check_command.h"
 
-#include <fcntl.h>
-#include <spawn.h>
-#include <sys/wait.h>
-#include <unistd.h>
-
 #include <algorithm>
-#include <cerrno>
-#include <chrono>
 #include <cmath>
-#include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <set>
-#include <thread>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -31,16 +22,9 @@
 #include "campaign/compare.h"
 #include "harness/yaml_reader.h"
 #include "replay/file_io.h"
-#include "replay/interrupt.h"
-
-extern char** environ;
 
 namespace tofu::campaign {
 
-using replay::InterruptSignal;
-using replay::InterruptSignalName;
-using replay::ThrowIfInterrupted;
-using replay::WaitForInterrupt;
 using replay::WriteFileAtomically;
 
 namespace {

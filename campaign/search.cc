@@ -13,7 +13,6 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
-#include <sstream>
 #include <stdexcept>
 
 #include <fmt/format.h>
@@ -255,7 +254,7 @@ void Shrink(const SearchSpec& spec, FlightEvaluator& evaluator, Cluster& cluster
   // Bisection of one value between where it passes (lo) and where it fails (hi).
   const auto bisect = [&](double lo, double hi, const std::function<void(Setting&, double)>& set) {
     for (int i = 0; i < spec.shrink_steps; ++i) {
-      const double mid = RoundSetting(0.5 * (lo + hi));
+      const double mid = corpus::Round4(0.5 * (lo + hi));
       if (mid == lo || mid == hi) break;
       Setting t = f.shrunk;
       set(t, mid);

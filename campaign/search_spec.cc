@@ -2,10 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
 #include <limits>
 #include <set>
-#include <sstream>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -28,7 +26,7 @@ using core::NumberRule;
 using harness::YamlMap;
 using harness::YamlValue;
 
-double Round4(double v) { return RoundSetting(v); }
+using corpus::Round4;
 
 // A search range: two numbers in `rule` with lo < hi (a range of no width searches
 // nothing: say the value in the base instead).
@@ -282,8 +280,6 @@ void CheckCorners(const SearchSpec& spec, const YamlValue& root) {
 }
 
 }  // namespace
-
-double RoundSetting(double v) { return std::round(v * 1e4) / 1e4 + 0.0; }  // + 0.0: no "-0"
 
 const std::vector<std::string>& SearchOptimizers() {
   static const std::vector<std::string> names = {"random", "tpe"};

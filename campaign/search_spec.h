@@ -111,12 +111,8 @@ SearchSpec ParseSearchSpec(const std::string& text, const std::string& file_labe
 /// The optimisers a spec may name.
 const std::vector<std::string>& SearchOptimizers();
 
-/// A setting's value as the scenario file states it: rounded as the corpus rounds its
-/// episodes (1e-4: 0.1 mm, 0.1 ms), so the file says exactly what was flown.
-double RoundSetting(double v);
-
 /// The setting of a point of the unit cube (one coordinate per SearchSpec::dimensions, each
-/// in [0, 1]), rounded as the corpus rounds (0.1 mm, 0.1 ms).
+/// in [0, 1]), rounded as the corpus rounds (corpus::Round4).
 Setting DecodePoint(const SearchSpec& spec, const std::vector<double>& unit);
 
 /// The base itself: its seed, its set keys' values, no added fault.

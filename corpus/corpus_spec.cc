@@ -21,6 +21,9 @@
 #include "replay/file_io.h"
 
 namespace tofu::corpus {
+
+double Round4(double v) { return std::round(v * 1e4) / 1e4 + 0.0; }  // + 0.0: no "-0"
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -89,9 +92,6 @@ std::string Vec(const Eigen::Vector3d& v) {
   return fmt::format("[{}, {}, {}]", FormatDouble(v.x()), FormatDouble(v.y()), FormatDouble(v.z()));
 }
 
-// Rounded to a tenth of a millimetre / degree / ms: the episode's YAML stays readable, and
-// the plan records exactly what the scenario says.
-double Round4(double v) { return std::round(v * 1e4) / 1e4 + 0.0; }  // + 0.0: no "-0"
 
 }  // namespace
 

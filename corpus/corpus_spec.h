@@ -141,6 +141,10 @@ EpisodePlan PlanEpisode(const CorpusSpec& spec, std::uint64_t index);
 
 // The space's vocabulary, shared with `tofu search` (campaign/search_spec.h).
 
+/// A planned value as a scenario file states it: rounded to 1e-4 (0.1 mm, 0.1 ms, 1e-4 of
+/// a degree or a magnitude), so the file says exactly what was flown.
+double Round4(double v);
+
 /// [lo, hi] or a single number (a constant), each in `rule`; lo <= hi.
 Range ReadRange(const harness::YamlValue& value, const core::NumberRule& rule);
 /// An item of a `faults.kinds:` list ({kind, sensors, weight, magnitude}); its sensors must

@@ -81,19 +81,8 @@ std::string HostClients() {
          "  builtin: {library: \"" + plugin + "\", config: {method: consensus}}\n";
 }
 
-struct Result {
-  int exit_code = -1;
-  std::string err;
-};
-
-Result RunTofu(const std::string& args, const fs::path& cwd) {
-  const std::string command = "cd " + test::Quote(cwd.string()) + " && " +
-                              test::Quote(TOFU_BINARY) + " " + args + " >" +
-                              test::Quote((cwd / "stdout.txt").string()) + " 2>" +
-                              test::Quote((cwd / "stderr.txt").string());
-  const int status = std::system(command.c_str());
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, test::ReadFile(cwd / "stderr.txt")};
-}
+using Result = test::CommandResult;
+using test::RunTofu;
 
 void ExpectSameFile(const fs::path& a, const fs::path& b) {
   ASSERT_TRUE(fs::exists(a)) << a;

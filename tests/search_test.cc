@@ -291,27 +291,27 @@ TEST(SearchSpec, BadSpecsNameTheKeyAndTheExpectedForm) {
 
 // ---- flown for real: `tofu search` and `tofu check` as processes ----
 
-test::CommandResult Tofu(const std::string& args, const fs::path& dir) {
-  const fs::path out = dir / "stdout.txt";
-  const fs::path err = dir / "stderr.txt";
-  const std::string command = test::Quote(TOFU_BINARY) + " " + args + " >" + test::Quote(out.string()) + " 2>" +
-                              test::Quote(err.string());
-  const int status = std::system(command.c_str());
-  test::CommandResult r;
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  r.out = test::ReadFile(out);
-  r.err = test::ReadFile(err);
-  return r;
+// tofu, run in the test's directory.
+test::CommandResult Tofu(const std::string& args, const fs::path& dir) { return test::RunTofu(args, dir); }
+
+// `tofu search SPEC --out <dir>/out --promote <dir>/promoted`, then `tofu check` of what it
+// promoted.
+test::CommandResult SearchAndPromote(const std::string& spec, const fs::path& dir) {
+  return Tofu(fmt::format("search {} --out {} --jobs 2 --no-renders --promote {}", test::Quote(spec),
+                          test::Quote((dir / "out").string()), test::Quote((dir / "promoted").string())),
+              dir);
+}
+test::CommandResult CheckPromoted(const fs::path& dir) {
+  return Tofu(fmt::format("check {} --out {} --quiet", test::Quote((dir / "promoted").string()),
+                          test::Quote((dir / "check").string())),
+              dir);
 }
 
 TEST(SearchCommand, APromotedFailureFailsUnderCheck) {
   const fs::path dir = test::PerTestDirectory("tofu_search_promote_");
   fs::create_directories(dir);
   const std::string spec = (kData / "dropout_search.yaml").string();
-  const test::CommandResult search = Tofu(fmt::format("search {} --out {} --jobs 2 --no-renders --promote {}",
-                                                      test::Quote(spec), test::Quote((dir / "out").string()),
-                                                      test::Quote((dir / "promoted").string())),
-                                          dir);
+  const test::CommandResult search = SearchAndPromote(spec, dir);
   ASSERT_EQ(search.exit_code, 1) << search.err;
   const nlohmann::json result = nlohmann::json::parse(test::ReadFile(dir / "out" / "search.json"));
   ASSERT_FALSE(result["failures"].empty());
@@ -338,10 +338,7 @@ TEST(SearchCommand, APromotedFailureFailsUnderCheck) {
   std::vector<fs::path> promoted;
   for (const auto& e : fs::directory_iterator(dir / "promoted")) promoted.push_back(e.path());
   ASSERT_FALSE(promoted.empty());
-  const test::CommandResult check =
-      Tofu(fmt::format("check {} --out {} --quiet", test::Quote((dir / "promoted").string()),
-                       test::Quote((dir / "check").string())),
-           dir);
+  const test::CommandResult check = CheckPromoted(dir);
   EXPECT_EQ(check.exit_code, 1) << check.out << check.err;
   EXPECT_NE(check.out.find("sensors.vio.delivered_samples"), std::string::npos) << check.out;
 
@@ -387,10 +384,7 @@ TEST(SearchCommand, AUsersEstimatorThatCrashesIsAFailureFoundWithItsStderr) {
   const fs::path dir = test::PerTestDirectory("tofu_search_client_");
   fs::create_directories(dir);
   const std::string spec = (kData / "client_search.yaml").string();
-  const test::CommandResult search = Tofu(fmt::format("search {} --out {} --jobs 2 --no-renders --promote {}",
-                                                      test::Quote(spec), test::Quote((dir / "out").string()),
-                                                      test::Quote((dir / "promoted").string())),
-                                          dir);
+  const test::CommandResult search = SearchAndPromote(spec, dir);
   ASSERT_EQ(search.exit_code, 1) << search.err;
   const nlohmann::json result = nlohmann::json::parse(test::ReadFile(dir / "out" / "search.json"));
   ASSERT_FALSE(result["failures"].empty());
@@ -409,10 +403,7 @@ TEST(SearchCommand, AUsersEstimatorThatCrashesIsAFailureFoundWithItsStderr) {
   EXPECT_NE(test::ReadFile(dir / "out" / "flights" / (f["shrunk_flight"].get<std::string>() + ".yaml"))
                 .find("external:gap_intolerant"),
             std::string::npos);
-  const test::CommandResult check =
-      Tofu(fmt::format("check {} --out {} --quiet", test::Quote((dir / "promoted").string()),
-                       test::Quote((dir / "check").string())),
-           dir);
+  const test::CommandResult check = CheckPromoted(dir);
   EXPECT_EQ(check.exit_code, 5) << check.out << check.err;
   fs::remove_all(dir);
 }

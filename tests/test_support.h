@@ -12,6 +12,7 @@
 #include <chrono>
 #include <cerrno>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -69,6 +70,22 @@ struct CommandResult {
   std::string out;
   std::string err;
 };
+
+#ifdef TOFU_BINARY
+/// `tofu ARGS` run in `cwd` (relative paths of ARGS are relative to it), its standard output
+/// and error captured (in cwd/stdout.txt and cwd/stderr.txt).
+inline CommandResult RunTofu(const std::string& args, const std::filesystem::path& cwd) {
+  const std::string command = "cd " + Quote(cwd.string()) + " && " + Quote(TOFU_BINARY) + " " + args + " >" +
+                              Quote((cwd / "stdout.txt").string()) + " 2>" +
+                              Quote((cwd / "stderr.txt").string());
+  const int status = std::system(command.c_str());
+  CommandResult r;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.out = ReadFile(cwd / "stdout.txt");
+  r.err = ReadFile(cwd / "stderr.txt");
+  return r;
+}
+#endif
 
 /// A fresh, empty directory for the running test: <gtest temp dir>/<prefix><test>_<pid>
 /// (unique per test and per process, so ctest -j never collides).
