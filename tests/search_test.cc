@@ -129,6 +129,25 @@ TEST(SearchStatistics, ClopperPearsonMatchesScipy) {
   EXPECT_EQ(all.high, 1.0);
 }
 
+// The interval's coverage, counted exactly (binomial probabilities of every outcome whose
+// interval holds p): Clopper-Pearson never covers less than its level, at any p and n.
+TEST(SearchStatistics, ClopperPearsonCoversAtLeastItsLevel) {
+  for (const int n : {2, 3, 5, 10, 20}) {
+    std::vector<campaign::Interval> intervals;
+    for (int k = 0; k <= n; ++k) intervals.push_back(campaign::ClopperPearsonInterval(k, n, 0.95));
+    for (double p = 0.005; p < 1.0; p += 0.01) {
+      double coverage = 0.0;
+      for (int k = 0; k <= n; ++k) {
+        if (intervals[k].low <= p && p <= intervals[k].high) {
+          coverage += std::exp(std::lgamma(n + 1.0) - std::lgamma(k + 1.0) - std::lgamma(n - k + 1.0) +
+                               k * std::log(p) + (n - k) * std::log1p(-p));
+        }
+      }
+      EXPECT_GE(coverage, 0.95 - 1e-9) << "n " << n << ", p " << p;
+    }
+  }
+}
+
 class SearchAnalytic : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(SearchAnalytic, FindsTheKnownRegionAndShrinksToItsEdge) {
