@@ -9,12 +9,18 @@ std::span<const OptionField<LidarBeamPattern>> LidarBeamPattern::Fields() {
   using R = NumberRule;
   using O = LidarBeamPattern;
   static const F kFields[] = {
-      F::Integer("azimuth_count", &O::azimuth_count, 1, 3600),
-      F::Integer("elevation_count", &O::elevation_count, 1, 256),
-      F::Degrees("elevation_min_deg", &O::elevation_min_rad, R::Between(-90.0, 90.0, "deg")),
-      F::Degrees("elevation_max_deg", &O::elevation_max_rad, R::Between(-90.0, 90.0, "deg")),
-      F::Number("min_range_m", &O::min_range_m, R::NonNegative("m")),
-      F::Number("max_range_m", &O::max_range_m, R::Positive("m")),
+      F::Integer("azimuth_count", &O::azimuth_count, 1, 3600)
+          .Doc("rays per elevation row"),
+      F::Integer("elevation_count", &O::elevation_count, 1, 256)
+          .Doc("rows of rays, evenly spaced from the minimum to the maximum elevation"),
+      F::Degrees("elevation_min_deg", &O::elevation_min_rad, R::Between(-90.0, 90.0, "deg"))
+          .Doc("elevation of the lowest row"),
+      F::Degrees("elevation_max_deg", &O::elevation_max_rad, R::Between(-90.0, 90.0, "deg"))
+          .Doc("elevation of the highest row"),
+      F::Number("min_range_m", &O::min_range_m, R::NonNegative("m"))
+          .Doc("returns nearer than this are not seen (close blind zone)"),
+      F::Number("max_range_m", &O::max_range_m, R::Positive("m"))
+          .Doc("returns farther than this are not seen (Mid-360 spec at 10 % reflectivity)"),
   };
   return kFields;
 }

@@ -163,4 +163,29 @@ std::string CheckField(const FieldFormat&, const std::optional<Eigen::Quaternion
   return fmt::format("expected a finite unit quaternion, got norm {}", norm);
 }
 
+std::string CheckField(const FieldFormat& format, const std::optional<double>& value) {
+  return value ? CheckField(format, *value) : std::string();
+}
+
+std::string_view ChoiceWord(const FieldFormat& format, int value) {
+  for (const ChoiceName& choice : format.choices) {
+    if (choice.value == value) return choice.name;
+  }
+  return {};
+}
+
+std::string ChoiceList(const FieldFormat& format) {
+  std::string text;
+  for (std::size_t i = 0; i < format.choices.size(); ++i) {
+    text += (i == 0 ? "" : i + 1 == format.choices.size() ? " or " : ", ");
+    text += format.choices[i].name;
+  }
+  return text;
+}
+
+std::string CheckField(const FieldFormat& format, ChoiceValue value) {
+  if (!ChoiceWord(format, value.value).empty()) return {};
+  return fmt::format("expected {}, got the value {}", ChoiceList(format), value.value);
+}
+
 }  // namespace tofu::core

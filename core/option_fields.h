@@ -51,6 +51,12 @@ struct NumberRule {
 /// Shortest decimal text that parses back to exactly `value` (std::to_chars).
 std::string FormatDouble(double value);
 
+/// One word a choice field allows and the enumerator it stands for.
+struct ChoiceName {
+  std::string_view name;
+  int value = 0;
+};
+
 /// What the file holds for a field, beyond its member's type.
 struct FieldFormat {
   std::string_view key;  ///< as written in files, with the unit suffix of the file's value
@@ -62,6 +68,32 @@ struct FieldFormat {
   /// Integers: the inclusive range.
   int min_integer = 0;
   int max_integer = 0;
+  /// Choice fields: the words allowed, in the order "expected ..." lists them.
+  std::span<const ChoiceName> choices;
+  /// One line for the reference of scenario keys (`tofu reference`); may be empty.
+  std::string_view doc;
+};
+
+/// The format of a field under `key` with the number rule `rule` (every other property at
+/// its default).
+inline FieldFormat FormatOf(std::string_view key, NumberRule rule = NumberRule::Any("")) {
+  FieldFormat format;
+  format.key = key;
+  format.rule = rule;
+  return format;
+}
+
+/// An enum (or bool) member reached through its value as an int: the member variant
+/// cannot name a pointer to every enum type, so a choice field carries these two instead.
+template <typename Options>
+struct ChoiceMember {
+  int (*get)(const Options&) = nullptr;
+  void (*set)(Options&, int) = nullptr;
+};
+
+/// A choice field's value as CheckField and the YAML reader and writer see it.
+struct ChoiceValue {
+  int value = 0;
 };
 
 /// The value type of a pointer to data member: MemberValue<int Options::*> is int.
@@ -83,48 +115,71 @@ struct OptionField {
                               std::string Options::*, Eigen::Vector3d Options::*,
                               std::array<double, 2> Options::*,
                               std::optional<Eigen::Vector3d> Options::*,
-                              std::optional<Eigen::Quaterniond> Options::*>;
+                              std::optional<Eigen::Quaterniond> Options::*,
+                              std::optional<double> Options::*, ChoiceMember<Options>>;
   FieldFormat format;
   Member member;
 
   static OptionField Number(std::string_view key, double Options::*m, NumberRule rule) {
-    return {FieldFormat{key, rule}, m};
+    return {FormatOf(key, rule), m};
   }
   /// A member in radians (or rad/s, rad/sqrt(m)) written in degrees; `rule` in degrees.
   static OptionField Degrees(std::string_view key, double Options::*m, NumberRule rule) {
-    FieldFormat format{key, rule};
+    FieldFormat format = FormatOf(key, rule);
     format.degrees = true;
     return {format, m};
   }
   static OptionField Integer(std::string_view key, int Options::*m, int lo, int hi) {
-    FieldFormat format{key};
+    FieldFormat format = FormatOf(key);
     format.min_integer = lo;
     format.max_integer = hi;
     return {format, m};
   }
-  static OptionField Flag(std::string_view key, bool Options::*m) { return {FieldFormat{key}, m}; }
+  static OptionField Flag(std::string_view key, bool Options::*m) { return {FormatOf(key), m}; }
   /// A name of [a-z0-9_] (a model site).
   static OptionField Name(std::string_view key, std::string Options::*m) {
-    return {FieldFormat{key}, m};
+    return {FormatOf(key), m};
   }
   static OptionField Vector(std::string_view key, Eigen::Vector3d Options::*m, NumberRule rule,
                             bool scalar_for_all_three = false) {
-    FieldFormat format{key, rule};
+    FieldFormat format = FormatOf(key, rule);
     format.scalar_for_vector = scalar_for_all_three;
     return {format, m};
   }
   static OptionField Pair(std::string_view key, std::array<double, 2> Options::*m,
                           NumberRule rule) {
-    return {FieldFormat{key, rule}, m};
+    return {FormatOf(key, rule), m};
+  }
+  /// A number that may be left unset (written only when set).
+  static OptionField OptionalNumber(std::string_view key, std::optional<double> Options::*m,
+                                    NumberRule rule) {
+    return {FormatOf(key, rule), m};
+  }
+  /// An enum or bool member written as one of `choices`' words (each naming the member's
+  /// value as an int); `choices` must outlive the table (a static array).
+  template <auto kMember>
+  static OptionField Choice(std::string_view key, std::span<const ChoiceName> choices) {
+    using Value = MemberValue<decltype(kMember)>;
+    FieldFormat format = FormatOf(key);
+    format.choices = choices;
+    return {format, ChoiceMember<Options>{
+                        [](const Options& o) { return static_cast<int>(o.*kMember); },
+                        [](Options& o, int v) { o.*kMember = static_cast<Value>(v); }}};
+  }
+  /// This field with its line of documentation.
+  OptionField Doc(std::string_view text) const {
+    OptionField field = *this;
+    field.format.doc = text;
+    return field;
   }
   static OptionField OptionalVector(std::string_view key,
                                     std::optional<Eigen::Vector3d> Options::*m, NumberRule rule) {
-    return {FieldFormat{key, rule}, m};
+    return {FormatOf(key, rule), m};
   }
   /// An optional attitude, written as [roll, pitch, yaw] in degrees.
   static OptionField OptionalAttitude(std::string_view key,
                                       std::optional<Eigen::Quaterniond> Options::*m) {
-    FieldFormat format{key, NumberRule::Any("deg")};
+    FieldFormat format = FormatOf(key, NumberRule::Any("deg"));
     format.degrees = true;
     return {format, m};
   }
@@ -139,7 +194,12 @@ OptionField<Derived> DerivedField(const OptionField<Base>& field) {
   return {field.format,
           std::visit(
               [](auto member) -> typename OptionField<Derived>::Member {
-                return static_cast<MemberValue<decltype(member)> Derived::*>(member);
+                if constexpr (std::is_same_v<decltype(member), ChoiceMember<Base>>) {
+                  // Its accessors take the base by reference; none is derived today.
+                  throw std::logic_error("DerivedField: a choice field cannot be derived");
+                } else {
+                  return static_cast<MemberValue<decltype(member)> Derived::*>(member);
+                }
               },
               field.member)};
 }
@@ -154,6 +214,29 @@ std::string CheckField(const FieldFormat& format, const Eigen::Vector3d& value);
 std::string CheckField(const FieldFormat& format, const std::array<double, 2>& value);
 std::string CheckField(const FieldFormat& format, const std::optional<Eigen::Vector3d>& value);
 std::string CheckField(const FieldFormat& format, const std::optional<Eigen::Quaterniond>& value);
+std::string CheckField(const FieldFormat& format, const std::optional<double>& value);
+std::string CheckField(const FieldFormat& format, ChoiceValue value);
+
+/// The word of a choice field's value (empty for a value the field does not list).
+std::string_view ChoiceWord(const FieldFormat& format, int value);
+/// "a, b or c": a choice field's words as an "expected" text lists them.
+std::string ChoiceList(const FieldFormat& format);
+
+/// Calls visitor(value) with the field's value in `options`: the member itself, or a
+/// ChoiceValue for a choice field.
+template <typename Options, typename Visitor>
+decltype(auto) VisitFieldValue(const Options& options, const OptionField<Options>& field,
+                               Visitor&& visitor) {
+  return std::visit(
+      [&](auto member) -> decltype(auto) {
+        if constexpr (std::is_same_v<decltype(member), ChoiceMember<Options>>) {
+          return visitor(ChoiceValue{member.get(options)});
+        } else {
+          return visitor(options.*member);
+        }
+      },
+      field.member);
+}
 
 /// Checks every field of `options` against its table; on the first violation sets *why
 /// to "<prefix><key>: <what is wrong>" and returns false (Ceres' IsValid convention).
@@ -161,8 +244,8 @@ template <typename Options>
 bool CheckOptionFields(const Options& options, std::span<const OptionField<Options>> fields,
                        std::string* why, std::string_view prefix = {}) {
   for (const OptionField<Options>& field : fields) {
-    const std::string problem = std::visit(
-        [&](auto member) { return CheckField(field.format, options.*member); }, field.member);
+    const std::string problem = VisitFieldValue(
+        options, field, [&](const auto& value) { return CheckField(field.format, value); });
     if (!problem.empty()) {
       if (why != nullptr) *why = std::string(prefix) + std::string(field.format.key) + ": " + problem;
       return false;

@@ -13,6 +13,8 @@
 #include "core/hash.h"
 #include "core/units.h"
 #include "harness/metrics.h"
+#include "replay/json_field.h"
+#include "replay/method_evaluation.h"
 
 namespace tofu::harness {
 
@@ -56,9 +58,8 @@ Stats TrackingStats(const RunRecord& record,
   return s;
 }
 
-nlohmann::json OptionalNumber(const std::optional<double>& v) {
-  return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
-}
+using replay::FailedFiguresJson;
+using replay::NumberOrNull;
 
 // Time the labels of `sensor` say any of `labels` ("a+b": condition names joined by '+';
 // source "condition") was active inside the window [from, to].
@@ -175,66 +176,9 @@ nlohmann::json DigestsJson(const RunRecord& record) {
           {"random_streams", core::HexDigest(record.random_streams_digest)}};
 }
 
-nlohmann::json FailedFiguresJson(nlohmann::json figures, const std::string& failure) {
-  nlohmann::json failed = nlohmann::json::object();
-  nlohmann::json partial = nlohmann::json::object();
-  for (auto& [key, value] : figures.items()) {
-    // What the figures are of, not figures: kept.
-    if (key == "ate_alignment" || key == "corridor_m" || key == "digests") {
-      failed[key] = value;
-      continue;
-    }
-    failed[key] = nullptr;
-    partial[key] = std::move(value);
-  }
-  failed["failure"] = failure;
-  failed["partial"] = std::move(partial);
-  return failed;
-}
-
 nlohmann::json MethodsJson(const RunRecord& record) {
   nlohmann::json methods = nlohmann::json::object();
-  for (const MethodEvaluation& m : record.methods) {
-    nlohmann::json j = {{"ate_alignment", "se3"},
-                        {"ate_m", OptionalNumber(m.ate_m)},
-                        {"ate_max_m", OptionalNumber(m.ate_max_m)},
-                        {"rotation_rmse_deg", OptionalNumber(m.rotation_rmse_deg)},
-                        {"rpe_m", OptionalNumber(m.rpe_m)},
-                        {"rpe_deg", OptionalNumber(m.rpe_deg)},
-                        {"position_step_max_m", OptionalNumber(m.position_step_max_m)},
-                        {"position_step_max_t_s", OptionalNumber(m.position_step_max_t_s)},
-                        {"nees_position_mean", OptionalNumber(m.nees_position_mean)},
-                        {"nees_position_median", OptionalNumber(m.nees_position_median)},
-                        {"position_containment_95", OptionalNumber(m.position_containment_95)},
-                        {"nees_samples", m.nees_samples},
-                        {"outputs", m.outputs},
-                        {"valid_fraction", m.valid_fraction}};
-    if (m.consensus) {
-      j["threshold"] = OptionalNumber(m.threshold);
-      j["switches"] = m.switches;
-      j["faults"] = m.detections.size();
-      j["faults_detected"] = m.detections.size() - static_cast<std::size_t>(m.missed_faults());
-      j["max_detection_delay_s"] = OptionalNumber(m.max_detection_delay_s());
-      j["max_readmission_delay_s"] = OptionalNumber(m.max_readmission_delay_s());
-      j["false_exclusion_fraction"] = m.false_exclusion_fraction();
-      nlohmann::json false_exclusions = nlohmann::json::object();
-      for (const auto& [sensor, seconds] : m.false_exclusion_s) false_exclusions[sensor] = seconds;
-      j["false_exclusion_s"] = false_exclusions;
-      nlohmann::json detections = nlohmann::json::array();
-      for (const FaultDetection& d : m.detections) {
-        detections.push_back({{"sensor", d.sensor},
-                              {"fault", d.fault},
-                              {"onset_s", core::TimeToSeconds(d.onset_ns)},
-                              {"end_s", core::TimeToSeconds(d.end_ns)},
-                              {"detected", d.detected_ns.has_value()},
-                              {"delay_s", OptionalNumber(d.delay_s())},
-                              {"readmission_delay_s", OptionalNumber(d.readmission_delay_s())}});
-      }
-      j["detections"] = detections;
-    }
-    if (m.failure) j = FailedFiguresJson(std::move(j), *m.failure);
-    methods[m.method] = j;
-  }
+  for (const MethodEvaluation& m : record.methods) methods[m.method] = replay::MethodEvaluationJson(m);
   return methods;
 }
 
@@ -351,15 +295,15 @@ nlohmann::json ClosedLoopJson(const RunRecord& flight) {
                         {"detail", e.detail}});
     }
   }
-  nlohmann::json j = {{"tracking_rmse_m", OptionalNumber(m.tracking_rmse_m)},
-          {"tracking_max_m", OptionalNumber(m.tracking_max_m)},
-          {"estimate_ate_m", OptionalNumber(m.estimate_ate_m)},
+  nlohmann::json j = {{"tracking_rmse_m", NumberOrNull(m.tracking_rmse_m)},
+          {"tracking_max_m", NumberOrNull(m.tracking_max_m)},
+          {"estimate_ate_m", NumberOrNull(m.estimate_ate_m)},
           {"collisions", m.collisions},
-          {"min_structure_distance_m", OptionalNumber(m.min_structure_distance_m)},
-          {"time_to_first_collision_s", OptionalNumber(m.time_to_first_collision_s)},
+          {"min_structure_distance_m", NumberOrNull(m.min_structure_distance_m)},
+          {"time_to_first_collision_s", NumberOrNull(m.time_to_first_collision_s)},
           {"failsafe_events", m.failsafe_events},
           {"diverged", m.diverged},
-          {"handover_s", OptionalNumber(m.handover_s)},
+          {"handover_s", NumberOrNull(m.handover_s)},
           {"corridor_m", flight.closed_loop ? flight.closed_loop->control.corridor_m : 0.0},
           {"digests", DigestsJson(flight)}};
   if (const std::optional<std::string> failure = ClosedLoopFlightFailure(flight)) {
@@ -458,7 +402,7 @@ nlohmann::json ApproachesJson(const RunRecord& record) {
     approaches.push_back({{"segment", a.segment_index},
                           {"t_s", core::TimeToSeconds(a.t_ns)},
                           {"standoff_m", a.standoff_m},
-                          {"tool_tip_distance_m", OptionalNumber(a.distance_m)}});
+                          {"tool_tip_distance_m", NumberOrNull(a.distance_m)}});
   }
   return approaches;
 }
@@ -483,7 +427,7 @@ nlohmann::json SensorsJson(const RunRecord& record, double run_s) {
         {"delivered", stream.delivered_count},
         {"condition_time_fraction", conditions},
         {"position_error_rms_m",
-         OptionalNumber(SensorMetricValue(record, "sensors.<sensor>.position_error_rms_m",
+         NumberOrNull(SensorMetricValue(record, "sensors.<sensor>.position_error_rms_m",
                                           stream_args, std::nullopt))}};
   }
   return sensors;
@@ -530,9 +474,9 @@ ExpectationResult CheckExpectation(const RunRecord& record, const Expectation& e
 
 nlohmann::json ExpectationJson(const Expectation& e, const ExpectationResult& r) {
   nlohmann::json je = {{"metric", e.metric},
-                       {"min", OptionalNumber(e.min)},
-                       {"max", OptionalNumber(e.max)},
-                       {"value", OptionalNumber(r.value)},
+                       {"min", NumberOrNull(e.min)},
+                       {"max", NumberOrNull(e.max)},
+                       {"value", NumberOrNull(r.value)},
                        {"passed", r.passed},
                        {"where", e.location.file + ":" + std::to_string(e.location.line)}};
   if (r.not_measurable) je["not_measurable"] = *r.not_measurable;
@@ -560,7 +504,7 @@ Evaluation Evaluate(const RunRecord& record) {
   nlohmann::json metrics = nlohmann::json::object();
   for (const MetricInfo& info : MetricCatalog()) {
     if (info.name.find('<') != std::string::npos) continue;  // per sensor: see "sensors"
-    metrics[info.name] = OptionalNumber(MetricValue(record, info.name, std::nullopt));
+    metrics[info.name] = NumberOrNull(MetricValue(record, info.name, std::nullopt));
   }
   j["metrics"] = metrics;
   j["collisions"] = CollisionsJson(record);

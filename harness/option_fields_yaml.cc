@@ -55,6 +55,23 @@ void ReadFieldValue(const YamlValue& value, const core::FieldFormat& format,
   *out = config::QuatFromRpyDeg(value.Vector3(format.rule));
 }
 
+void ReadFieldValue(const YamlValue& value, const core::FieldFormat& format,
+                    std::optional<double>* out) {
+  *out = value.Number(format.rule);
+}
+
+void ReadFieldValue(const YamlValue& value, const core::FieldFormat& format,
+                    core::ChoiceValue* out) {
+  const std::string word = value.String();
+  for (const core::ChoiceName& choice : format.choices) {
+    if (word == choice.name) {
+      out->value = choice.value;
+      return;
+    }
+  }
+  value.FailExpected(core::ChoiceList(format));
+}
+
 void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format, double value) {
   config::EmitNumber(out, format.key, format.degrees ? value * kDegPerRad : value);
 }
@@ -91,6 +108,17 @@ void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format,
 void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format,
                     const std::optional<Eigen::Quaterniond>& value) {
   if (value) config::EmitVector(out, format.key, config::RpyDegFromQuat(*value));
+}
+
+void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format,
+                    const std::optional<double>& value) {
+  if (value) config::EmitNumber(out, format.key, *value);
+}
+
+void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format,
+                    core::ChoiceValue value) {
+  out << YAML::Key << std::string(format.key) << YAML::Value
+      << std::string(core::ChoiceWord(format, value.value));
 }
 
 void FailInvalidOptions(YamlMap& map, const std::string& why) {

@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <type_traits>
 #include <variant>
 #include <vector>
 
@@ -31,6 +32,10 @@ void ReadFieldValue(const YamlValue& value, const core::FieldFormat& format,
                     std::optional<Eigen::Vector3d>* out);
 void ReadFieldValue(const YamlValue& value, const core::FieldFormat& format,
                     std::optional<Eigen::Quaterniond>* out);
+void ReadFieldValue(const YamlValue& value, const core::FieldFormat& format,
+                    std::optional<double>* out);
+void ReadFieldValue(const YamlValue& value, const core::FieldFormat& format,
+                    core::ChoiceValue* out);
 
 // One field as `key: value` into the caller's open map (nothing for an unset optional).
 void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format, double value);
@@ -45,6 +50,9 @@ void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format,
                     const std::optional<Eigen::Vector3d>& value);
 void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format,
                     const std::optional<Eigen::Quaterniond>& value);
+void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format,
+                    const std::optional<double>& value);
+void EmitFieldValue(YAML::Emitter& out, const core::FieldFormat& format, core::ChoiceValue value);
 
 /// The allowed keys of a map holding `fields`: `leading` (keys the caller reads itself,
 /// such as a sensor's `type`), the table's keys in order, then `trailing`.
@@ -73,8 +81,17 @@ const core::FieldFormat& FieldFormatOf(std::span<const core::OptionField<Options
 template <typename Options>
 void ReadOptionField(const YamlValue& value, const core::OptionField<Options>& field,
                      Options* options) {
-  std::visit([&](auto member) { ReadFieldValue(value, field.format, &(options->*member)); },
-             field.member);
+  std::visit(
+      [&](auto member) {
+        if constexpr (std::is_same_v<decltype(member), core::ChoiceMember<Options>>) {
+          core::ChoiceValue choice;
+          ReadFieldValue(value, field.format, &choice);
+          member.set(*options, choice.value);
+        } else {
+          ReadFieldValue(value, field.format, &(options->*member));
+        }
+      },
+      field.member);
 }
 
 /// Reads every field whose key `map` has into *options; absent keys keep the values
@@ -92,8 +109,8 @@ template <typename Options>
 void EmitOptionFields(YAML::Emitter& out, std::span<const core::OptionField<Options>> fields,
                       const Options& options) {
   for (const core::OptionField<Options>& field : fields) {
-    std::visit([&](auto member) { EmitFieldValue(out, field.format, options.*member); },
-               field.member);
+    core::VisitFieldValue(options, field,
+                          [&](const auto& value) { EmitFieldValue(out, field.format, value); });
   }
 }
 

@@ -138,29 +138,16 @@ T ChoiceOf(const YamlValue& value, std::initializer_list<std::pair<std::string_v
 EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<SensorConfig>& sensors,
                                 const std::vector<replay::ClientSpec>& clients,
                                 bool check_methods = true) {
-  EstimationConfig config;
+  const auto fields = EstimationConfig::Fields();
+  YamlMap map = value.Map(internal::OptionKeys(fields, {"methods", "consensus"}));
+  // The profile first: it gives every other key's default.
+  EstimationConfig profile_of;
+  if (const auto profile = map.Optional("profile")) {
+    internal::ReadOptionField(*profile, fields.front(), &profile_of);
+  }
+  EstimationConfig config = EstimationConfig::Defaults(profile_of.profile);
   config.clients = clients;
-  YamlMap map = value.Map(
-      {"methods", "consensus", "huber_delta", "position_factors", "degenerate_directions",
-       "alignment_level_prior_deg", "pose_between_noise"});
-  ReadNumber(map, "huber_delta", NumberRule::Between(0.0, 100.0, "sigma"), &config.huber_delta);
-  ReadNumber(map, "alignment_level_prior_deg", NumberRule::Between(0.0, 10.0, "deg"),
-             &config.alignment_level_prior_deg);
-  if (const auto factors = map.Optional("position_factors")) {
-    config.position_factors =
-        ChoiceOf<estimator::PositionFactors>(*factors, {{"between", estimator::PositionFactors::kBetween},
-                            {"absolute", estimator::PositionFactors::kAbsolute},
-                            {"offset", estimator::PositionFactors::kOffset}});
-  }
-  if (const auto noise = map.Optional("pose_between_noise")) {
-    config.pose_between_noise =
-        ChoiceOf<estimator::PoseBetweenNoise>(*noise, {{"constant", estimator::PoseBetweenNoise::kConstant},
-                          {"white_and_drift", estimator::PoseBetweenNoise::kWhiteAndDrift}});
-  }
-  if (const auto degenerate = map.Optional("degenerate_directions")) {
-    config.leave_out_degenerate_directions =
-        ChoiceOf<bool>(*degenerate, {{"fused", false}, {"left_out", true}});
-  }
+  internal::ReadOptionFields(map, fields, &config);
   std::vector<std::string> sensor_names;
   bool has_imu = false;
   for (const SensorConfig& s : sensors) {
@@ -190,43 +177,15 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   }
   if (const auto consensus = map.Optional("consensus")) {
     ConsensusConfig& c = config.consensus;
-    YamlMap cmap = consensus->Map({"metric", "threshold", "leave_threshold", "min_dwell_s",
-                                   "fuse", "return_to_priority", "priority", "window_s",
-                                   "rate_hz", "bias_window_s", "bias_false_alarm",
-                                   "bias_floor_mps"});
-    if (const auto metric = cmap.Optional("metric")) {
-      const auto parsed = estimator::MetricFromName(metric->String());
-      if (!parsed || (*parsed != estimator::ConsistencyMetric::kCm &&
-                      *parsed != estimator::ConsistencyMetric::kNis)) {
-        metric->FailExpected("cm or nis");
-      }
-      c.metric = *parsed;
+    const auto consensus_fields = ConsensusConfig::Fields();
+    YamlMap cmap = consensus->Map(internal::OptionKeys(consensus_fields, {}, {"priority"}));
+    const estimator::ConsistencyMetric profile_metric = c.metric;
+    internal::ReadOptionFields(cmap, consensus_fields, &c);
+    // Each metric has its own scale: a block that names another metric than its profile's
+    // and no threshold gets the profile's threshold for that metric, not the other's.
+    if (c.metric != profile_metric && !cmap.Has("threshold")) {
+      c.threshold = EstimationConfig::DefaultThreshold(config.profile, c.metric);
     }
-    // Each metric has its own scale (cm: a velocity distance in m/s; nis: a normalised,
-    // unitless one), so the default threshold, the paper's 0.1 m/s, is cm's alone: nis
-    // needs its own, written.
-    const bool nis = c.metric == estimator::ConsistencyMetric::kNis;
-    if (nis && !cmap.Has("threshold")) {
-      cmap.self().FailAtKey(
-          "metric: nis needs its own threshold (unitless; the default 0.1 is cm's, in m/s): "
-          "add threshold, e.g. `threshold: 3` (docs/RESULTS.md, consensus with metric: nis)");
-    }
-    const char* unit = nis ? "" : "m/s";
-    ReadNumber(cmap, "threshold", NumberRule::Between(1e-6, 100.0, unit), &c.threshold);
-    if (const auto leave = cmap.Optional("leave_threshold")) {
-      c.leave_threshold = leave->Number(NumberRule::Between(1e-6, 100.0, unit));
-      if (*c.leave_threshold < c.threshold) {
-        leave->Fail(fmt::format("expected leave_threshold >= threshold ({}), got {}",
-                                FormatDouble(c.threshold), FormatDouble(*c.leave_threshold)));
-      }
-    }
-    ReadNumber(cmap, "min_dwell_s", NumberRule::Between(0.0, 3600.0, "s"), &c.min_dwell_s);
-    if (const auto fuse = cmap.Optional("fuse")) {
-      const auto parsed = estimator::ConsensusPolicyFromName(fuse->String());
-      if (!parsed) fuse->FailExpected("pair_member or consistent_set");
-      c.policy = *parsed;
-    }
-    ReadBool(cmap, "return_to_priority", &c.return_to_priority);
     if (const auto priority = cmap.Optional("priority")) {
       for (const YamlValue& item : priority->List(/*non_empty=*/false)) {
         const std::string name = item.Identifier();
@@ -238,20 +197,44 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
         c.priority.push_back(name);
       }
     }
-    ReadNumber(cmap, "window_s", NumberRule::Between(0.1, 60.0, "s"), &c.window_s);
-    ReadNumber(cmap, "rate_hz", NumberRule::Between(0.5, 100.0, "Hz"), &c.rate_hz);
-    ReadNumber(cmap, "bias_window_s", NumberRule::Between(0.0, 600.0, "s (0: off)"),
-               &c.bias_window_s);
-    ReadNumber(cmap, "bias_false_alarm", NumberRule::Between(1e-12, 0.5, "a probability"),
-               &c.bias_false_alarm);
-    ReadNumber(cmap, "bias_floor_mps", NumberRule::Between(0.0, 1.0, "m/s"), &c.bias_floor_mps);
-    if (c.bias_window_s > 0.0 && c.bias_window_s < 0.5) {
-      cmap.Required("bias_window_s").FailExpected("0 (off) or at least 0.5 s");
-    }
-    cmap.Finish();
+    internal::FinishOptionsMap(cmap, c);
   }
-  map.Finish();
+  internal::FinishOptionsMap(map, config);
   return config;
+}
+
+// The key of `settings` entry "KEY=VALUE", its value, and the field it names.
+struct EstimationSetting {
+  std::string text;  ///< as given
+  std::string key;
+  std::string value;
+};
+
+EstimationSetting SplitSetting(const std::string& text) {
+  const std::size_t equals = text.find('=');
+  if (equals == std::string::npos || equals == 0 || equals + 1 == text.size()) {
+    throw core::InputError({}, "--set",
+                           fmt::format("expected KEY=VALUE (a key of the scenario's estimation: "
+                                       "block, e.g. consensus.metric=nis), got '{}'",
+                                       text));
+  }
+  return {text, text.substr(0, equals), text.substr(equals + 1)};
+}
+
+template <typename Options>
+const core::OptionField<Options>* FindField(std::span<const core::OptionField<Options>> fields,
+                                            std::string_view key) {
+  for (const core::OptionField<Options>& field : fields) {
+    if (field.format.key == key) return &field;
+  }
+  return nullptr;
+}
+
+std::string SettableKeys() {
+  std::vector<std::string> keys;
+  for (const auto& f : EstimationConfig::Fields()) keys.emplace_back(f.format.key);
+  for (const auto& f : ConsensusConfig::Fields()) keys.push_back("consensus." + std::string(f.format.key));
+  return fmt::format("{}", fmt::join(keys, ", "));
 }
 
 // `control:` (harness/closed_loop.h). Needs the scenario's sensors and `estimation:`
@@ -837,51 +820,32 @@ void EmitConsistency(YAML::Emitter& out, const ConsistencyConfig& cc) {
   out << YAML::EndMap;
 }
 
+// Every option, resolved: a run directory's scenario configures its methods alike under
+// any later profile's defaults. `profile` first, as a reader of the block takes it.
 void EmitEstimation(YAML::Emitter& out, const EstimationConfig& ec) {
+  const auto fields = EstimationConfig::Fields();
   out << YAML::Key << "estimation" << YAML::Value << YAML::BeginMap;
+  internal::EmitOptionFields(out, fields.first(1), ec);
   out << YAML::Key << "methods" << YAML::Value << YAML::Flow << YAML::BeginSeq;
   for (const std::string& m : ec.methods) out << YAML::DoubleQuoted << m;
   out << YAML::EndSeq;
-  const ConsensusConfig& cons = ec.consensus;
   out << YAML::Key << "consensus" << YAML::Value << YAML::BeginMap;
-  // Only when not the paper's, so the run directories of cm scenarios keep their bytes.
-  if (cons.metric != estimator::ConsistencyMetric::kCm) {
-    out << YAML::Key << "metric" << YAML::Value << std::string(estimator::MetricName(cons.metric));
-  }
-  EmitNumber(out, "threshold", cons.threshold);
-  if (cons.leave_threshold) EmitNumber(out, "leave_threshold", *cons.leave_threshold);
-  EmitNumber(out, "min_dwell_s", cons.min_dwell_s);
-  out << YAML::Key << "fuse" << YAML::Value << std::string(estimator::ConsensusPolicyName(cons.policy));
-  out << YAML::Key << "return_to_priority" << YAML::Value << cons.return_to_priority;
+  internal::EmitOptionFields(out, ConsensusConfig::Fields(), ec.consensus);
   out << YAML::Key << "priority" << YAML::Value << YAML::Flow << YAML::BeginSeq;
-  for (const std::string& p : cons.priority) out << p;
+  for (const std::string& p : ec.consensus.priority) out << p;
   out << YAML::EndSeq;
-  EmitNumber(out, "window_s", cons.window_s);
-  EmitNumber(out, "rate_hz", cons.rate_hz);
-  // Only when on, so the run directories of the paper's consensus keep their bytes.
-  if (cons.bias_window_s > 0.0) {
-    EmitNumber(out, "bias_window_s", cons.bias_window_s);
-    EmitNumber(out, "bias_false_alarm", cons.bias_false_alarm);
-    EmitNumber(out, "bias_floor_mps", cons.bias_floor_mps);
-  }
   out << YAML::EndMap;
-  EmitNumber(out, "huber_delta", ec.huber_delta);
-  out << YAML::Key << "position_factors" << YAML::Value
-      << (ec.position_factors == estimator::PositionFactors::kAbsolute ? "absolute"
-          : ec.position_factors == estimator::PositionFactors::kOffset ? "offset"
-                                                                       : "between");
-  // Only when not the paper's, so the run directories that fuse every direction keep
-  // their bytes.
-  if (ec.leave_out_degenerate_directions) {
-    out << YAML::Key << "degenerate_directions" << YAML::Value << "left_out";
-  }
-  if (ec.alignment_level_prior_deg > 0.0) {
-    EmitNumber(out, "alignment_level_prior_deg", ec.alignment_level_prior_deg);
-  }
-  if (ec.pose_between_noise == estimator::PoseBetweenNoise::kWhiteAndDrift) {
-    out << YAML::Key << "pose_between_noise" << YAML::Value << "white_and_drift";
-  }
+  internal::EmitOptionFields(out, fields.subspan(1), ec);
   out << YAML::EndMap;
+}
+
+// What a client's setup carries: the block as the resolved scenario writes it.
+std::string ResolvedEstimationYaml(const EstimationConfig& config) {
+  YAML::Emitter block;
+  block << YAML::BeginMap;
+  EmitEstimation(block, config);
+  block << YAML::EndMap;
+  return std::string(block.c_str()) + "\n";
 }
 
 void EmitControl(YAML::Emitter& out, const ControlConfig& control) {
@@ -961,6 +925,59 @@ void CheckMethodOfMetric(const Scenario& scenario, const Expectation& expectatio
 }
 
 }  // namespace
+
+void ApplyEstimationSettings(const std::vector<std::string>& settings,
+                             EstimationConfig* config) {
+  if (settings.empty()) return;
+  std::vector<EstimationSetting> parsed;
+  for (const std::string& text : settings) parsed.push_back(SplitSetting(text));
+  // The value as the scenario would write it under its key ("--set:1:C: <key>: ...").
+  const auto value_of = [](const EstimationSetting& s) {
+    const YamlValue root = ParseDocument(fmt::format("{}: {}", s.key, s.value), "--set");
+    YamlMap map = root.Map({s.key});
+    const YamlValue value = map.Required(s.key);
+    map.Finish();
+    return value;
+  };
+  // The profile first: it resets what the others then change.
+  for (const EstimationSetting& s : parsed) {
+    if (s.key != "profile") continue;
+    EstimationConfig profile_of;
+    internal::ReadOptionField(value_of(s), EstimationConfig::Fields().front(), &profile_of);
+    EstimationConfig reset = EstimationConfig::Defaults(profile_of.profile);
+    reset.methods = config->methods;
+    reset.clients = config->clients;
+    reset.consensus.priority = config->consensus.priority;
+    *config = std::move(reset);
+  }
+  const estimator::ConsistencyMetric metric_before = config->consensus.metric;
+  bool threshold_set = false;
+  for (const EstimationSetting& s : parsed) {
+    if (s.key == "profile") continue;
+    if (const auto* field = FindField(EstimationConfig::Fields(), s.key)) {
+      internal::ReadOptionField(value_of(s), *field, config);
+    } else if (const auto* consensus_field =
+                   s.key.starts_with("consensus.")
+                       ? FindField(ConsensusConfig::Fields(), std::string_view(s.key).substr(10))
+                       : nullptr) {
+      internal::ReadOptionField(value_of(s), *consensus_field, &config->consensus);
+      threshold_set = threshold_set || s.key == "consensus.threshold";
+    } else {
+      throw core::InputError({}, "--set " + s.text,
+                             fmt::format("no estimation key '{}'; expected one of {}", s.key,
+                                         SettableKeys()));
+    }
+  }
+  if (config->consensus.metric != metric_before && !threshold_set) {
+    config->consensus.threshold =
+        EstimationConfig::DefaultThreshold(config->profile, config->consensus.metric);
+  }
+  std::string why;
+  if (!config->IsValid(&why)) {
+    throw core::InputError({}, "--set", "the estimation settings break a rule: " + why);
+  }
+  config->resolved_yaml = ResolvedEstimationYaml(*config);
+}
 
 replay::EstimationConfig ParseEstimationBlock(const std::string& yaml_text,
                                               const std::string& file_label,
@@ -1106,12 +1123,7 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
   }
   if (const auto estimation = map.Optional("estimation")) {
     scenario.estimation = ReadEstimation(*estimation, scenario.sensors, scenario.clients);
-    // What a client's setup carries: the block as the resolved scenario writes it.
-    YAML::Emitter block;
-    block << YAML::BeginMap;
-    EmitEstimation(block, *scenario.estimation);
-    block << YAML::EndMap;
-    scenario.estimation->resolved_yaml = std::string(block.c_str()) + "\n";
+    scenario.estimation->resolved_yaml = ResolvedEstimationYaml(*scenario.estimation);
   }
   if (const auto control = map.Optional("control")) {
     scenario.control = ReadControl(*control, scenario);

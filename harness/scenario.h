@@ -139,6 +139,16 @@ Scenario LoadScenario(const std::string& path);
 /// Same, from YAML text; `file_label` is used in error messages.
 Scenario ParseScenario(const std::string& yaml_text, const std::string& file_label);
 
+/// `tofu estimate --set KEY=VALUE`: each setting of a key of the `estimation:` block
+/// (`profile`, `huber_delta`, ..., `consensus.<key>`; replay::EstimationConfig::Fields and
+/// ConsensusConfig::Fields) applied to *config, VALUE in the scenario's form. `profile`
+/// applies first and resets every option to that profile's (methods, clients and the
+/// priority kept); a metric set without a threshold takes the profile's threshold for it,
+/// as in a scenario. Throws core::InputError naming the setting for an unknown key, a
+/// value outside its limits or a rule between fields broken.
+void ApplyEstimationSettings(const std::vector<std::string>& settings,
+                             replay::EstimationConfig* config);
+
 /// A resolved `estimation:` block alone ({estimation: {...}}, as a client's setup carries
 /// it: replay::EstimationConfig::resolved_yaml), for the streams `sensors` of which `imu`
 /// is the IMU. Its method names are not checked (the client's side does not know the

@@ -34,18 +34,19 @@ std::vector<ReplayMethod> MethodsToReplay(const EstimateCommandOptions& options,
 // A tofu run directory says how its methods were configured (its scenario's
 // estimation: block): the same configuration reproduces what ran in the flight.
 EstimationConfig RunEstimationConfig(const EstimateCommandOptions& options) {
-  EstimationConfig run_config;
+  EstimationConfig run_config = EstimationConfig::Defaults(EstimationConfig::kDefaultProfile);
   if (const std::filesystem::path scenario = options.log_dir / "scenario.yaml";
       options.read_estimation_config && std::filesystem::is_regular_file(scenario)) {
     if (const std::optional<EstimationConfig> config = options.read_estimation_config(scenario)) {
       run_config = *config;
       run_config.methods.clear();
       if (!options.quiet) {
-        fmt::print("note: estimator configured from {} (estimation: consensus, huber_delta)\n",
+        fmt::print("note: estimator configured from {} (its estimation: block)\n",
                    scenario.string());
       }
     }
   }
+  if (options.apply_settings) options.apply_settings(&run_config);
   return run_config;
 }
 
@@ -53,7 +54,6 @@ estimator::MultiGraphEstimatorOptions WithEstimatorOverrides(
     estimator::MultiGraphEstimatorOptions estimator_options, const EstimateCommandOptions& options) {
   if (options.window_s) estimator_options.local.window_ns = core::SecondsToTime(*options.window_s);
   if (options.keyframe_rate_hz) estimator_options.local.keyframe_rate_hz = *options.keyframe_rate_hz;
-  if (options.huber_delta) estimator_options.local.huber_delta = *options.huber_delta;
   if (options.imu_noise_scale) {
     const double k = *options.imu_noise_scale / kInFlightImuNoiseScale;
     estimator_options.local.imu_noise.gyro_noise_density_radps_per_sqrthz *= k;
@@ -164,12 +164,9 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     fmt::print("{:<28} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>10}\n", "method", "ATE [m]",
                "rot [deg]", "RPE1s [m]", "valid", "x RT", "solve [ms]", "p99 [ms]");
   }
-  estimator::ConsensusEstimatorOptions consensus_options = setup.consensus;
-  if (options.consensus_threshold) consensus_options.selection.threshold = *options.consensus_threshold;
+  const estimator::ConsensusEstimatorOptions& consensus_options = setup.consensus;
   RequireValidOptions(estimator_options, consensus_options,
-                      {"tofu estimate (--window, --keyframe-rate, --huber, --imu-noise-scale, "
-                       "--consensus-threshold)"},
-                      "");
+                      {"tofu estimate (--window, --keyframe-rate, --imu-noise-scale)"}, "");
   const std::filesystem::path out_dir = options.out_dir.value_or(options.log_dir);
   std::filesystem::create_directories(out_dir);
   ConsensusFiles consensus_files(out_dir);
@@ -186,6 +183,10 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
   }
   for (const estimator::SensorSpec& s : specs) scoring.sensors.push_back(s.name);
   scoring.consensus_threshold = consensus_options.selection.threshold;
+  // Every method's figures in summary.json's schema (MethodEvaluationJson): what a run's
+  // scoring of the same outputs gives, so a configuration can be measured on recorded runs.
+  nlohmann::json evaluation = {{"methods", nlohmann::json::object()},
+                               {"estimation", run_config.resolved_yaml}};
   for (const ReplayMethod& method : methods) {
     std::function<void(double)> progress;
     if (options.progress) progress = [&](double f) { options.progress(method.name, f); };
@@ -195,6 +196,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     scoring.labels = &method_log.labels;
     const MethodScores scores = ScoreMethod(method_log, result, scoring);
     const MethodFiles files = WriteMethodResult(method_log, result, scores, out_dir);
+    evaluation["methods"][method.name] = MethodEvaluationJson(scores.evaluation);
     if (result.failure) {
       PrintClientFailure(result);
       failed_client = true;
@@ -212,6 +214,7 @@ int RunEstimateCommand(const EstimateCommandOptions& options) {
     if (!options.quiet) PrintMethodRow(method, result, scores, files);
   }
   consensus_files.Commit();
+  WriteFileAtomically(out_dir / "evaluation.json", evaluation.dump(2) + "\n");
   WriteRawStreamBaselines(log, first_output_ns, last_output_ns, out_dir, options.quiet);
   if (failed_client) return core::kExitSimulationError;
   return failed ? 1 : 0;

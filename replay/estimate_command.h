@@ -25,18 +25,19 @@ struct EstimateCommandOptions {
   std::optional<double> keyframe_rate_hz;
   std::optional<double> between_position_std_m;
   std::optional<double> between_rotation_std_rad;
-  std::optional<double> huber_delta;
   std::optional<bool> between_position_in_reference;
   /// Factor from the at-rest (calibration or datasheet) IMU white-noise densities to the
   /// in-flight ones the estimator uses (default 10, see DefaultEstimatorOptions).
   std::optional<double> imu_noise_scale;
-  /// `consensus` methods: the CM threshold (default 0.1, the paper's).
-  std::optional<double> consensus_threshold;
   /// Reads the `estimation:` block of a tofu run directory's scenario.yaml (the
   /// harness's scenario reader; nullopt when the scenario has none), so the methods are
   /// configured as in the flight. Unset: scenario.yaml is not read.
   std::function<std::optional<EstimationConfig>(const std::filesystem::path& scenario_yaml)>
       read_estimation_config;
+  /// Applies `--set KEY=VALUE` to the estimation configuration (the run's scenario's, or
+  /// the default profile's for a real log): the harness's reader of the estimation keys
+  /// (harness::ApplyEstimationSettings). May be empty.
+  std::function<void(EstimationConfig* config)> apply_settings;
   /// Progress of each method (the CLI draws a bar); may be empty.
   std::function<void(const std::string& method, double fraction)> progress;
 };

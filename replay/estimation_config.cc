@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include <fmt/format.h>
+
 #include "core/error.h"
 #include "core/time.h"
 #include "core/units.h"
@@ -9,6 +11,158 @@
 #include "replay/replay_method.h"
 
 namespace tofu::replay {
+
+namespace {
+
+using estimator::ConsistencyMetric;
+
+constexpr core::ChoiceName kProfileChoices[] = {
+    {"paper", static_cast<int>(EstimationProfile::kPaper)}};
+// nis needs the streams' stated covariances, which only the consensus has; the paper's
+// other metrics (mae, pcc, kl) are `tofu consistency`'s, not a selection's.
+constexpr core::ChoiceName kMetricChoices[] = {
+    {"cm", static_cast<int>(ConsistencyMetric::kCm)},
+    {"nis", static_cast<int>(ConsistencyMetric::kNis)}};
+constexpr core::ChoiceName kPolicyChoices[] = {
+    {"pair_member", static_cast<int>(estimator::ConsensusPolicy::kPairMember)},
+    {"consistent_set", static_cast<int>(estimator::ConsensusPolicy::kConsistentSet)}};
+constexpr core::ChoiceName kPositionFactorChoices[] = {
+    {"between", static_cast<int>(estimator::PositionFactors::kBetween)},
+    {"absolute", static_cast<int>(estimator::PositionFactors::kAbsolute)},
+    {"offset", static_cast<int>(estimator::PositionFactors::kOffset)}};
+constexpr core::ChoiceName kDegenerateChoices[] = {{"fused", 0}, {"left_out", 1}};
+constexpr core::ChoiceName kPoseNoiseChoices[] = {
+    {"constant", static_cast<int>(estimator::PoseBetweenNoise::kConstant)},
+    {"white_and_drift", static_cast<int>(estimator::PoseBetweenNoise::kWhiteAndDrift)}};
+
+}  // namespace
+
+std::string_view EstimationProfileName(EstimationProfile profile) {
+  switch (profile) {
+    case EstimationProfile::kPaper: return "paper";
+  }
+  return "paper";
+}
+
+core::NumberRule ThresholdRule(ConsistencyMetric metric) {
+  // cm: the paper's 0.1 m/s sits well inside; above 2 m/s no fault of the suite would be
+  // seen. nis: below 1 (the statistic's mean for consistent streams) healthy pairs fail.
+  return metric == ConsistencyMetric::kNis ? core::NumberRule::Between(1.0, 100.0, "")
+                                           : core::NumberRule::Between(1e-6, 2.0, "m/s");
+}
+
+std::span<const core::OptionField<ConsensusConfig>> ConsensusConfig::Fields() {
+  using F = core::OptionField<ConsensusConfig>;
+  using R = core::NumberRule;
+  using C = ConsensusConfig;
+  static const F kFields[] = {
+      F::Choice<&C::metric>("metric", kMetricChoices)
+          .Doc("the pairs' consistency metric: cm, the paper's Cramér-von Mises distance of "
+               "body velocities (m/s), or nis, the difference normalised by the sensors' "
+               "stated covariances (unitless, 1 for consistent streams)"),
+      F::Number("threshold", &C::threshold, R::Positive("m/s for cm, unitless for nis"))
+          .Doc("a pair below it is consistent; in the metric's unit (cm: at most 2 m/s; nis: "
+               "at least 1); a block naming a metric without it gets its profile's threshold "
+               "for that metric"),
+      F::OptionalNumber("leave_threshold", &C::leave_threshold,
+                        R::Positive("m/s for cm, unitless for nis"))
+          .Doc("hysteresis: a fused pair stays consistent below this (>= threshold); unset: "
+               "the threshold"),
+      F::Number("min_dwell_s", &C::min_dwell_s, R::Between(0.0, 3600.0, "s"))
+          .Doc("least time between two changes of the fused set"),
+      F::Choice<&C::policy>("fuse", kPolicyChoices)
+          .Doc("pair_member: one sensor of the most consistent pair (the paper); "
+               "consistent_set: every sensor of the largest mutually consistent set"),
+      F::Flag("return_to_priority", &C::return_to_priority)
+          .Doc("pair_member: give way to a preferred sensor (priority) once it is consistent "
+               "again"),
+      F::Number("window_s", &C::window_s, R::Between(0.1, 60.0, "s"))
+          .Doc("the consistency metric's sliding window"),
+      F::Number("rate_hz", &C::rate_hz, R::Between(0.5, 100.0, "Hz"))
+          .Doc("consistency evaluations per second"),
+      F::Number("bias_window_s", &C::bias_window_s, R::Between(0.0, 600.0, "s"))
+          .Doc("window of each pair's mean-difference test, which sees slow drifts the "
+               "window metric does not (0: off; else at least 0.5 s)"),
+      F::Number("bias_false_alarm", &C::bias_false_alarm, R::Between(1e-12, 0.5, ""))
+          .Doc("the mean-difference test's false-alarm probability per evaluation"),
+      F::Number("bias_floor_mps", &C::bias_floor_mps, R::Between(0.0, 1.0, "m/s"))
+          .Doc("floor of the standard deviation of the mean difference"),
+  };
+  return kFields;
+}
+
+bool ConsensusConfig::IsValid(std::string* why) const {
+  if (!core::CheckOptionFields<ConsensusConfig>(*this, Fields(), why)) return false;
+  const core::NumberRule rule = ThresholdRule(metric);
+  const std::string metric_name(estimator::MetricName(metric));
+  const auto fail = [&](const std::string& text) {
+    if (why != nullptr) *why = text;
+    return false;
+  };
+  if (!rule.Accepts(threshold)) {
+    return fail(fmt::format("threshold: expected a number{} for metric {}, got {}",
+                            rule.Describe(), metric_name, core::FormatDouble(threshold)));
+  }
+  if (leave_threshold && (!rule.Accepts(*leave_threshold) || *leave_threshold < threshold)) {
+    return fail(fmt::format("leave_threshold: expected a number{} for metric {}, at least "
+                            "threshold ({}), got {}",
+                            rule.Describe(), metric_name, core::FormatDouble(threshold),
+                            core::FormatDouble(*leave_threshold)));
+  }
+  if (bias_window_s > 0.0 && bias_window_s < 0.5) {
+    return fail(fmt::format("bias_window_s: expected 0 (off) or at least 0.5 (s), got {}",
+                            core::FormatDouble(bias_window_s)));
+  }
+  return true;
+}
+
+std::span<const core::OptionField<EstimationConfig>> EstimationConfig::Fields() {
+  using F = core::OptionField<EstimationConfig>;
+  using R = core::NumberRule;
+  using E = EstimationConfig;
+  static const F kFields[] = {
+      F::Choice<&E::profile>("profile", kProfileChoices)
+          .Doc("the defaults of every other key: paper (the seed paper's configuration)"),
+      F::Number("huber_delta", &E::huber_delta, R::Between(0.0, 100.0, "sigma"))
+          .Doc("Huber loss on the between factors, in standard deviations (0: off, the "
+               "paper)"),
+      F::Choice<&E::position_factors>("position_factors", kPositionFactorChoices)
+          .Doc("how position sensors constrain the local graph: between (displacements, the "
+               "paper's eq. 3), absolute (through the frozen T_AL) or offset (up to an offset "
+               "per chain the graph estimates)"),
+      F::Choice<&E::leave_out_degenerate_directions>("degenerate_directions",
+                                                     kDegenerateChoices)
+          .Doc("a LiDAR odometry's degenerate directions: fused (the paper) or left_out of "
+               "its between factors"),
+      F::Choice<&E::pose_between_noise>("pose_between_noise", kPoseNoiseChoices)
+          .Doc("weights of pose sensors' between factors: constant (the paper's ω) or "
+               "white_and_drift (white error at both ends and drift over the distance)"),
+      F::Number("alignment_level_prior_deg", &E::alignment_level_prior_deg,
+                R::Between(0.0, 10.0, "deg"))
+          .Doc("> 0: position sensors' alignments hold R_AL's tilt to this std (both frames "
+               "levelled); 0: every rotation from the pairs (the paper)"),
+  };
+  return kFields;
+}
+
+bool EstimationConfig::IsValid(std::string* why) const {
+  if (!core::CheckOptionFields<EstimationConfig>(*this, Fields(), why)) return false;
+  if (!consensus.IsValid(why)) {
+    if (why != nullptr) *why = "consensus." + *why;
+    return false;
+  }
+  return true;
+}
+
+EstimationConfig EstimationConfig::Defaults(EstimationProfile profile) {
+  EstimationConfig config;
+  config.profile = profile;
+  return config;
+}
+
+double EstimationConfig::DefaultThreshold(EstimationProfile, ConsistencyMetric metric) {
+  return metric == ConsistencyMetric::kNis ? 3.0 : 0.1;
+}
 
 estimator::ConsensusOptions SelectionOptions(const ConsensusConfig& config) {
   estimator::ConsensusOptions options;

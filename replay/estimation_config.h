@@ -6,10 +6,13 @@
 // configured alike.
 
 #include <optional>
+#include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/error.h"
+#include "core/option_fields.h"
 #include "core/units.h"
 #include "estimator/consensus_estimator.h"
 #include "estimator/consensus_selector.h"
@@ -19,7 +22,18 @@ namespace tofu::replay {
 
 struct RecordedLog;
 
-/// `estimation.consensus` in a scenario (and the options of `consensus` methods).
+/// A named set of defaults for the whole `estimation:` block (`profile:`): a scenario
+/// writes a key only where that option is what it is about.
+///  - kPaper: the seed paper's configuration (Lanegger et al.), as tofu reproduces it.
+enum class EstimationProfile { kPaper };
+/// Every profile, in the order the reference lists them.
+inline constexpr EstimationProfile kEstimationProfiles[] = {EstimationProfile::kPaper};
+/// "paper".
+std::string_view EstimationProfileName(EstimationProfile profile);
+
+/// `estimation.consensus` in a scenario (and the options of `consensus` methods). Its
+/// keys, limits and documentation: Fields(); its defaults: a profile's
+/// (EstimationConfig::Defaults), not the member initialisers below.
 struct ConsensusConfig {
   /// The pairs' consistency metric: cm (the paper's Cramér-von Mises distance, m/s) or
   /// nis (normalised by the sensors' stated covariances, unitless; consistency.h).
@@ -42,7 +56,18 @@ struct ConsensusConfig {
   double bias_window_s = 0.0;
   double bias_false_alarm = 1e-4;
   double bias_floor_mps = 0.001;
+
+  /// Every key of the block but `priority` (a list of the scenario's sensors, read where
+  /// the sensors are known), in the order the writer writes them.
+  static std::span<const core::OptionField<ConsensusConfig>> Fields();
+  /// The table's limits and the rules between fields: the threshold on its metric's
+  /// scale (ThresholdRule), leave_threshold >= threshold, a bias window of 0 or >= 0.5 s.
+  bool IsValid(std::string* why = nullptr) const;
 };
+
+/// The limits of a consensus threshold for `metric`, in its unit: cm's is a velocity
+/// distance in m/s, nis's a normalised one (1 on average for consistent streams).
+core::NumberRule ThresholdRule(estimator::ConsistencyMetric metric);
 
 /// A user's estimator (or controller) a scenario names: `external: {<key>: {command: [...],
 /// config: {...}, timeout_s: 10}}` (a process speaking docs/INTERFACE.md's protocol) or
@@ -67,8 +92,10 @@ struct ClientTexts {
   double gravity_mps2 = core::kWorldGravity_mps2;
 };
 
-/// `estimation:` in a scenario.
+/// `estimation:` in a scenario. Its keys: Fields() and ConsensusConfig::Fields(), plus
+/// `methods` and `consensus.priority`; its defaults: Defaults(profile).
 struct EstimationConfig {
+  EstimationProfile profile = EstimationProfile::kPaper;
   /// Method names (replay/replay_method.h ParseReplayMethod): consensus,
   /// consensus:pair_member, consensus:consistent_set, oracle, naive, single:<sensor>,
   /// fuse:<a>+<b>, imu_only, each optionally with @clean.
@@ -102,6 +129,19 @@ struct EstimationConfig {
   std::vector<ClientSpec> clients;
   /// This block as the resolved scenario writes it (what a client's setup carries).
   std::string resolved_yaml;
+
+  /// The profile a block without `profile:` gets.
+  static constexpr EstimationProfile kDefaultProfile = EstimationProfile::kPaper;
+  /// A profile's values of every option (no methods, no clients).
+  static EstimationConfig Defaults(EstimationProfile profile);
+  /// The threshold a profile gives `metric` when a block names the metric without one:
+  /// each metric has its own scale.
+  static double DefaultThreshold(EstimationProfile profile, estimator::ConsistencyMetric metric);
+  /// The block's own keys but `methods` and `consensus` (the writer's order; `profile`
+  /// first, read before the others).
+  static std::span<const core::OptionField<EstimationConfig>> Fields();
+  /// Both tables' limits and rules (consensus keys as "consensus.<key>: ...").
+  bool IsValid(std::string* why = nullptr) const;
 };
 
 /// What every method of a run is configured with, from the streams' description (the

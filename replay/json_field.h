@@ -4,6 +4,7 @@
 // wrong type: the one reader of such fields, for harness and campaign.
 
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include <fmt/format.h>
@@ -24,6 +25,11 @@ T JsonField(const nlohmann::json& object, const char* key, const std::filesystem
     // Said below, with the expected form.
   }
   throw core::InputError({file.string()}, key, fmt::format("expected {}", expected));
+}
+
+/// A figure that may be undefined, as tofu's records write it: the number, or null.
+inline nlohmann::json NumberOrNull(const std::optional<double>& value) {
+  return value ? nlohmann::json(*value) : nlohmann::json(nullptr);
 }
 
 }  // namespace tofu::replay

@@ -8,6 +8,7 @@
 #include <Eigen/Cholesky>
 
 #include "core/units.h"
+#include "replay/json_field.h"
 #include "replay/method_runner.h"
 #include "replay/recorded_log.h"
 #include "replay/stream_comparison.h"
@@ -384,6 +385,65 @@ std::vector<RawStreamScore> ScoreRawStreams(const RecordedLog& log, core::Time f
     scores.push_back({stream.name, std::move(raw), std::move(errors)});
   }
   return scores;
+}
+
+nlohmann::json FailedFiguresJson(nlohmann::json figures, const std::string& failure) {
+  nlohmann::json failed = nlohmann::json::object();
+  nlohmann::json partial = nlohmann::json::object();
+  for (auto& [key, value] : figures.items()) {
+    // What the figures are of, not figures: kept.
+    if (key == "ate_alignment" || key == "corridor_m" || key == "digests") {
+      failed[key] = value;
+      continue;
+    }
+    failed[key] = nullptr;
+    partial[key] = std::move(value);
+  }
+  failed["failure"] = failure;
+  failed["partial"] = std::move(partial);
+  return failed;
+}
+
+nlohmann::json MethodEvaluationJson(const MethodEvaluation& m) {
+  nlohmann::json j = {{"ate_alignment", "se3"},
+                      {"ate_m", NumberOrNull(m.ate_m)},
+                      {"ate_max_m", NumberOrNull(m.ate_max_m)},
+                      {"rotation_rmse_deg", NumberOrNull(m.rotation_rmse_deg)},
+                      {"rpe_m", NumberOrNull(m.rpe_m)},
+                      {"rpe_deg", NumberOrNull(m.rpe_deg)},
+                      {"position_step_max_m", NumberOrNull(m.position_step_max_m)},
+                      {"position_step_max_t_s", NumberOrNull(m.position_step_max_t_s)},
+                      {"nees_position_mean", NumberOrNull(m.nees_position_mean)},
+                      {"nees_position_median", NumberOrNull(m.nees_position_median)},
+                      {"position_containment_95", NumberOrNull(m.position_containment_95)},
+                      {"nees_samples", m.nees_samples},
+                      {"outputs", m.outputs},
+                      {"valid_fraction", m.valid_fraction}};
+  if (m.consensus) {
+    j["threshold"] = NumberOrNull(m.threshold);
+    j["switches"] = m.switches;
+    j["faults"] = m.detections.size();
+    j["faults_detected"] = m.detections.size() - static_cast<std::size_t>(m.missed_faults());
+    j["max_detection_delay_s"] = NumberOrNull(m.max_detection_delay_s());
+    j["max_readmission_delay_s"] = NumberOrNull(m.max_readmission_delay_s());
+    j["false_exclusion_fraction"] = m.false_exclusion_fraction();
+    nlohmann::json false_exclusions = nlohmann::json::object();
+    for (const auto& [sensor, seconds] : m.false_exclusion_s) false_exclusions[sensor] = seconds;
+    j["false_exclusion_s"] = false_exclusions;
+    nlohmann::json detections = nlohmann::json::array();
+    for (const FaultDetection& d : m.detections) {
+      detections.push_back({{"sensor", d.sensor},
+                            {"fault", d.fault},
+                            {"onset_s", core::TimeToSeconds(d.onset_ns)},
+                            {"end_s", core::TimeToSeconds(d.end_ns)},
+                            {"detected", d.detected_ns.has_value()},
+                            {"delay_s", NumberOrNull(d.delay_s())},
+                            {"readmission_delay_s", NumberOrNull(d.readmission_delay_s())}});
+    }
+    j["detections"] = detections;
+  }
+  if (m.failure) j = FailedFiguresJson(std::move(j), *m.failure);
+  return j;
 }
 
 }  // namespace tofu::replay

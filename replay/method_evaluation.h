@@ -26,6 +26,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <nlohmann/json.hpp>
 
 #include "core/time.h"
 #include "estimator/consensus_estimator.h"
@@ -156,6 +157,16 @@ struct MethodEvaluation {
   /// The largest false-exclusion time of any sensor as a fraction of the run.
   double false_exclusion_fraction() const;
 };
+
+/// One method's figures as every record writes them (summary.json's `methods.<name>`,
+/// `tofu estimate`'s evaluation.json): a failed method's figures are null, with the
+/// failure and what it measured before under `partial` (FailedFiguresJson).
+nlohmann::json MethodEvaluationJson(const MethodEvaluation& evaluation);
+
+/// `figures` of something that failed: each figure null, the measured values kept apart
+/// under `partial` (they would read as healthy ones) and `failure` saying why; the keys
+/// that say what the figures are of (ate_alignment, corridor_m, digests) kept.
+nlohmann::json FailedFiguresJson(nlohmann::json figures, const std::string& failure);
 
 /// Everything ScoreMethod measured: the evaluation, and what the method's files show.
 struct MethodScores {

@@ -13,22 +13,33 @@ std::span<const core::OptionField<ControllerOptions>> ControllerOptions::Fields(
   // Gains may be written as one number for all three axes.
   static const F kFields[] = {
       // At most the physics rate, which the scenario checks (the struct does not know it).
-      F::Number("rate_hz", &O::rate_hz, R::Between(1.0, 10000.0, "Hz")),
-      F::Vector("position_gain_per_s2", &O::position_gain_per_s2, R::NonNegative("1/s^2"), true),
-      F::Vector("velocity_gain_per_s", &O::velocity_gain_per_s, R::NonNegative("1/s"), true),
+      F::Number("rate_hz", &O::rate_hz, R::Between(1.0, 10000.0, "Hz"))
+          .Doc("controller update rate"),
+      F::Vector("position_gain_per_s2", &O::position_gain_per_s2, R::NonNegative("1/s^2"), true)
+          .Doc("gain on the position error, per axis"),
+      F::Vector("velocity_gain_per_s", &O::velocity_gain_per_s, R::NonNegative("1/s"), true)
+          .Doc("gain on the velocity error, per axis"),
       F::Vector("position_integral_gain_per_s3", &O::position_integral_gain_per_s3,
-                R::NonNegative("1/s^3"), true),
-      F::Number("integral_limit_mps2", &O::integral_limit_mps2, R::NonNegative("m/s^2")),
-      F::Vector("attitude_gain_per_s2", &O::attitude_gain_per_s2, R::NonNegative("1/s^2"), true),
+                R::NonNegative("1/s^3"), true)
+          .Doc("gain on the integral of the position error, per axis"),
+      F::Number("integral_limit_mps2", &O::integral_limit_mps2, R::NonNegative("m/s^2"))
+          .Doc("anti-windup bound of the position integral term"),
+      F::Vector("attitude_gain_per_s2", &O::attitude_gain_per_s2, R::NonNegative("1/s^2"), true)
+          .Doc("gain on the attitude error, per axis"),
       F::Vector("angular_rate_gain_per_s", &O::angular_rate_gain_per_s, R::NonNegative("1/s"),
-                true),
+                true)
+          .Doc("gain on the angular-rate error, per axis"),
       F::Vector("attitude_integral_gain_per_s3", &O::attitude_integral_gain_per_s3,
-                R::NonNegative("1/s^3"), true),
+                R::NonNegative("1/s^3"), true)
+          .Doc("gain on the integral of the attitude error, per axis"),
       F::Number("attitude_integral_limit_radps2", &O::attitude_integral_limit_radps2,
-                R::NonNegative("rad/s^2")),
-      F::Number("integral_error_band_m", &O::integral_error_band_m, R::NonNegative("m")),
+                R::NonNegative("rad/s^2"))
+          .Doc("anti-windup bound of the attitude integral term"),
+      F::Number("integral_error_band_m", &O::integral_error_band_m, R::NonNegative("m"))
+          .Doc("anti-windup: the position integrators see the error clipped to this band"),
       F::Number("attitude_integral_error_band_rad", &O::attitude_integral_error_band_rad,
-                R::NonNegative("rad")),
+                R::NonNegative("rad"))
+          .Doc("anti-windup: the attitude integrators see the error clipped to this band"),
   };
   return kFields;
 }

@@ -18,11 +18,17 @@ std::span<const core::OptionField<GnssFixErrorOptions>> GnssFixErrorOptions::Fie
   using R = core::NumberRule;
   using O = GnssFixErrorOptions;
   static const F kFields[] = {
-      F::Number("std_horizontal_m", &O::std_horizontal_m, R::Positive("m")),
-      F::Number("std_vertical_m", &O::std_vertical_m, R::Positive("m")),
-      F::Number("correlated_fraction", &O::correlated_fraction, R::Between(0.0, 1.0, "")),
-      F::Number("correlation_time_s", &O::correlation_time_s, R::Positive("s")),
-      F::Number("multipath_std_m", &O::multipath_std_m, R::NonNegative("m")),
+      F::Number("std_horizontal_m", &O::std_horizontal_m, R::Positive("m"))
+          .Doc("reported 1-sigma per horizontal axis (E, N)"),
+      F::Number("std_vertical_m", &O::std_vertical_m, R::Positive("m"))
+          .Doc("reported 1-sigma on U"),
+      F::Number("correlated_fraction", &O::correlated_fraction, R::Between(0.0, 1.0, ""))
+          .Doc("share of the variance in the Gauss-Markov (correlated) part"),
+      F::Number("correlation_time_s", &O::correlation_time_s, R::Positive("s"))
+          .Doc("time constant of the Gauss-Markov part"),
+      F::Number("multipath_std_m", &O::multipath_std_m, R::NonNegative("m"))
+          .Doc("std per axis of the Gauss-Markov multipath error, scaled by the blocked sky "
+               "fraction"),
   };
   return kFields;
 }
@@ -36,24 +42,39 @@ std::span<const core::OptionField<GnssOptions>> GnssOptions::Fields() {
   using R = core::NumberRule;
   using O = GnssOptions;
   static const F kFields[] = {
-      F::Name("site", &O::site),
-      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(100.0, "Hz")),
-      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s")),
-      F::Vector("enu_origin_m", &O::enu_origin_W_m, R::Any("m")),
-      F::Degrees("enu_yaw_deg", &O::enu_yaw_rad, R::Between(-360.0, 360.0, "deg")),
-      F::Integer("satellite_count", &O::satellite_count, 0, 200),
-      F::Degrees("elevation_mask_deg", &O::elevation_mask_rad, R::Between(0.0, 89.0, "deg")),
-      F::Number("sky_ray_length_m", &O::sky_ray_length_m, R::Positive("m")),
+      F::Name("site", &O::site)
+          .Doc("robot mount site of the antenna phase centre"),
+      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(100.0, "Hz"))
+          .Doc("RTK output rate (F9P: up to 20 Hz RTK)"),
+      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s"))
+          .Doc("delay from a fix's stamp to its delivery"),
+      F::Vector("enu_origin_m", &O::enu_origin_W_m, R::Any("m"))
+          .Doc("origin of the ENU frame S in W"),
+      F::Degrees("enu_yaw_deg", &O::enu_yaw_rad, R::Between(-360.0, 360.0, "deg"))
+          .Doc("yaw of E from x_W (S's z is W's z)"),
+      F::Integer("satellite_count", &O::satellite_count, 0, 200)
+          .Doc("satellites in view, drawn once per scenario over the sky above the elevation mask"),
+      F::Degrees("elevation_mask_deg", &O::elevation_mask_rad, R::Between(0.0, 89.0, "deg"))
+          .Doc("elevation mask: satellites are drawn above it only"),
+      F::Number("sky_ray_length_m", &O::sky_ray_length_m, R::Positive("m"))
+          .Doc("length of the rays towards the satellites; hits beyond it count as clear sky"),
       // A position fix needs 4 satellites; the order single <= float <= fixed is IsValid's.
-      F::Integer("min_satellites_single", &O::min_satellites_single, 4, 200),
-      F::Integer("min_satellites_float", &O::min_satellites_float, 4, 200),
-      F::Integer("min_satellites_fixed", &O::min_satellites_fixed, 4, 200),
-      F::Number("time_to_fix_s", &O::time_to_fix_s, R::NonNegative("s")),
-      F::Flag("fixed_at_start", &O::fixed_at_start),
+      F::Integer("min_satellites_single", &O::min_satellites_single, 4, 200)
+          .Doc("fewer visible satellites than this: no fix"),
+      F::Integer("min_satellites_float", &O::min_satellites_float, 4, 200)
+          .Doc("fewer visible satellites than this: a single fix; else RTK float"),
+      F::Integer("min_satellites_fixed", &O::min_satellites_fixed, 4, 200)
+          .Doc("RTK float becomes fixed once this many have been visible for time_to_fix_s"),
+      F::Number("time_to_fix_s", &O::time_to_fix_s, R::NonNegative("s"))
+          .Doc("time from (re-)acquisition to RTK fixed (ambiguity resolution)"),
+      F::Flag("fixed_at_start", &O::fixed_at_start)
+          .Doc("true: already RTK fixed at the run's start when enough satellites are visible"),
       F::Number("multipath_min_blocked_fraction", &O::multipath_min_blocked_fraction,
-                R::Between(0.0, 1.0, "")),
+                R::Between(0.0, 1.0, ""))
+          .Doc("multipath is reported when at least this fraction of the sky is blocked"),
       F::Number("multipath_correlation_time_s", &O::multipath_correlation_time_s,
-                R::Positive("s")),
+                R::Positive("s"))
+          .Doc("time constant of the Gauss-Markov multipath error"),
   };
   return kFields;
 }

@@ -17,48 +17,79 @@ std::span<const core::OptionField<ImuOptions>> ImuOptions::Fields() {
   using F = core::OptionField<ImuOptions>;
   using R = core::NumberRule;
   static const F kFields[] = {
-      F::Name("site", &ImuOptions::site),
-      F::Number("rate_hz", &ImuOptions::rate_hz, R::Between(200.0, 1000.0, "Hz")),
-      F::Number("latency_s", &ImuOptions::latency_s, R::Between(0.0, 1.0, "s")),
-      F::Flag("enable_noise", &ImuOptions::enable_noise),
+      F::Name("site", &ImuOptions::site)
+          .Doc("mount site on the robot (frame I)"),
+      F::Number("rate_hz", &ImuOptions::rate_hz, R::Between(200.0, 1000.0, "Hz"))
+          .Doc("output rate"),
+      F::Number("latency_s", &ImuOptions::latency_s, R::Between(0.0, 1.0, "s"))
+          .Doc("delay from a sample's time to its arrival"),
+      F::Flag("enable_noise", &ImuOptions::enable_noise)
+          .Doc("false: a perfect IMU (no white noise, biases, vibration, scale factor or "
+               "misalignment); saturation still applies"),
       F::Number("gyro_noise_density_radps_per_sqrthz",
-                &ImuOptions::gyro_noise_density_radps_per_sqrthz, R::NonNegative("rad/s/sqrt(Hz)")),
+                &ImuOptions::gyro_noise_density_radps_per_sqrthz, R::NonNegative("rad/s/sqrt(Hz)"))
+          .Doc("white-noise density of the gyroscope, sigma_g (Kalibr convention, continuous "
+               "time)"),
       F::Number("gyro_random_walk_radps2_per_sqrthz",
                 &ImuOptions::gyro_random_walk_radps2_per_sqrthz,
-                R::NonNegative("rad/s^2/sqrt(Hz)")),
+                R::NonNegative("rad/s^2/sqrt(Hz)"))
+          .Doc("bias random walk of the gyroscope, sigma_bg (Kalibr convention, continuous time)"),
       F::Number("accel_noise_density_mps2_per_sqrthz",
                 &ImuOptions::accel_noise_density_mps2_per_sqrthz,
-                R::NonNegative("m/s^2/sqrt(Hz)")),
+                R::NonNegative("m/s^2/sqrt(Hz)"))
+          .Doc("white-noise density of the accelerometer, sigma_a (Kalibr convention, continuous "
+               "time)"),
       F::Number("accel_random_walk_mps3_per_sqrthz", &ImuOptions::accel_random_walk_mps3_per_sqrthz,
-                R::NonNegative("m/s^3/sqrt(Hz)")),
+                R::NonNegative("m/s^3/sqrt(Hz)"))
+          .Doc("bias random walk of the accelerometer, sigma_ba (Kalibr convention, continuous "
+               "time)"),
       F::Number("gyro_turn_on_bias_std_radps", &ImuOptions::gyro_turn_on_bias_std_radps,
-                R::NonNegative("rad/s")),
+                R::NonNegative("rad/s"))
+          .Doc("std of the initial gyro bias per axis, drawn once per run"),
       F::Number("accel_turn_on_bias_std_mps2", &ImuOptions::accel_turn_on_bias_std_mps2,
-                R::NonNegative("m/s^2")),
+                R::NonNegative("m/s^2"))
+          .Doc("std of the initial accelerometer bias per axis, drawn once per run"),
       F::Number("gyro_scale_factor_std", &ImuOptions::gyro_scale_factor_std,
-                R::Between(0.0, 0.1, "")),
+                R::Between(0.0, 0.1, ""))
+          .Doc("std of each gyro axis' scale error, drawn once per run"),
       F::Number("accel_scale_factor_std", &ImuOptions::accel_scale_factor_std,
-                R::Between(0.0, 0.1, "")),
+                R::Between(0.0, 0.1, ""))
+          .Doc("std of each accelerometer axis' scale error, drawn once per run"),
       // Small-angle model: a few degrees at most.
       F::Degrees("gyro_misalignment_std_deg", &ImuOptions::gyro_misalignment_std_rad,
-                 R::Between(0.0, 5.0, "deg")),
+                 R::Between(0.0, 5.0, "deg"))
+          .Doc("std of each off-diagonal entry of the gyro misalignment, drawn once per run"),
       F::Degrees("accel_misalignment_std_deg", &ImuOptions::accel_misalignment_std_rad,
-                 R::Between(0.0, 5.0, "deg")),
-      F::Number("gyro_range_radps", &ImuOptions::gyro_range_radps, R::Positive("rad/s")),
-      F::Number("accel_range_mps2", &ImuOptions::accel_range_mps2, R::Positive("m/s^2")),
+                 R::Between(0.0, 5.0, "deg"))
+          .Doc("std of each off-diagonal entry of the accelerometer misalignment, drawn once per "
+               "run"),
+      F::Number("gyro_range_radps", &ImuOptions::gyro_range_radps, R::Positive("rad/s"))
+          .Doc("measurement range of the gyroscope; rates beyond it saturate"),
+      F::Number("accel_range_mps2", &ImuOptions::accel_range_mps2, R::Positive("m/s^2"))
+          .Doc("measurement range of the accelerometer; accelerations beyond it saturate"),
       F::Number("rotor_thrust_coefficient_N_per_radps2",
-                &ImuOptions::rotor_thrust_coefficient_N_per_radps2, R::Positive("N/(rad/s)^2")),
+                &ImuOptions::rotor_thrust_coefficient_N_per_radps2, R::Positive("N/(rad/s)^2"))
+          .Doc("rotor thrust coefficient k_f in T = k_f w^2, which gives the rotor frequency from "
+               "the thrust"),
       F::Number("vibration_reference_thrust_N", &ImuOptions::vibration_reference_thrust_N,
-                R::Positive("N")),
+                R::Positive("N"))
+          .Doc("rotor thrust at which the vibration has the amplitudes below (hover)"),
       F::Number("vibration_accel_mps2", &ImuOptions::vibration_accel_mps2,
-                R::NonNegative("m/s^2")),
+                R::NonNegative("m/s^2"))
+          .Doc("per-rotor acceleration amplitude of the vibration at the reference thrust on a "
+               "rigid mount"),
       F::Number("vibration_gyro_radps", &ImuOptions::vibration_gyro_radps,
-                R::NonNegative("rad/s")),
+                R::NonNegative("rad/s"))
+          .Doc("per-rotor angular-rate amplitude of the vibration at the reference thrust on a "
+               "rigid mount"),
       F::Pair("vibration_harmonic_gains", &ImuOptions::vibration_harmonic_gains,
-              R::NonNegative("")),
+              R::NonNegative(""))
+          .Doc("relative amplitudes of the harmonics 1 and 2 of the rotor frequency"),
       // > 1: a mount resonating near the rotor frequency amplifies the vibration.
       F::Number("mount_transmissibility", &ImuOptions::mount_transmissibility,
-                R::Between(0.0, 10.0, "")),
+                R::Between(0.0, 10.0, ""))
+          .Doc("mount transmissibility at the rotor frequencies: 0 perfectly damped, 1 rigid, > 1 "
+               "resonating"),
   };
   return kFields;
 }

@@ -22,37 +22,64 @@ std::span<const core::OptionField<LidarOdometryOptions>> LidarOdometryOptions::F
   // The beam pattern's fields (core::LidarBeamPattern::Fields()) stand after the latency,
   // where the files have always written them.
   static const F kLeading[] = {
-      F::Name("site", &O::site),
-      F::OptionalVector("frame_position_m", &O::p_WS_m, R::Any("m")),
-      F::OptionalAttitude("frame_rpy_deg", &O::q_WS),
-      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(1000.0, "Hz")),
-      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s")),
+      F::Name("site", &O::site)
+          .Doc("robot mount site of the LiDAR (z = scanner axis)"),
+      F::OptionalVector("frame_position_m", &O::p_WS_m, R::Any("m"))
+          .Doc("position of the odometry frame S in W; unset: the LiDAR's position at t = 0"),
+      F::OptionalAttitude("frame_rpy_deg", &O::q_WS)
+          .Doc("attitude of the odometry frame S in W; unset: the LiDAR's attitude at t = 0"),
+      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(1000.0, "Hz"))
+          .Doc("frame rate, which is also the odometry output rate (Mid-360: 10 Hz)"),
+      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s"))
+          .Doc("delay from a scan's end to the odometry output"),
   };
   static const F kTrailing[] = {
-      F::Number("range_noise_m", &O::range_noise_m, R::NonNegative("m")),
+      F::Number("range_noise_m", &O::range_noise_m, R::NonNegative("m"))
+          .Doc("1-sigma range precision, weighting the registration information; 0 switches its "
+               "noise off"),
       F::Number("degenerate_translation_threshold", &O::degenerate_translation_threshold,
-                R::NonNegative("returns")),
+                R::NonNegative("returns"))
+          .Doc("a translation direction is degenerate when its eigenvalue of H is below this many "
+               "returns / sigma^2"),
       F::Number("degenerate_rotation_threshold_m2", &O::degenerate_rotation_threshold_m2,
-                R::NonNegative("m^2")),
-      F::Integer("min_returns", &O::min_returns, 0, 1000000),
+                R::NonNegative("m^2"))
+          .Doc("a rotation axis is degenerate when its information eigenvalue times sigma^2 is "
+               "below this"),
+      F::Integer("min_returns", &O::min_returns, 0, 1000000)
+          .Doc("fewer returns than this: registration fails and the output diverges"),
       F::Number("position_random_walk_m_per_sqrtm", &O::position_random_walk_m_per_sqrtm,
-                R::NonNegative("m/sqrt(m)")),
+                R::NonNegative("m/sqrt(m)"))
+          .Doc("drift along a constrained translation direction: sigma = this * sqrt(distance "
+               "moved along it)"),
       F::Number("degenerate_position_random_walk_m_per_sqrtm",
-                &O::degenerate_position_random_walk_m_per_sqrtm, R::NonNegative("m/sqrt(m)")),
+                &O::degenerate_position_random_walk_m_per_sqrtm, R::NonNegative("m/sqrt(m)"))
+          .Doc("drift along a degenerate translation direction, where the IMU alone carries the "
+               "motion"),
       F::Degrees("rotation_random_walk_deg_per_sqrtm", &O::rotation_random_walk_rad_per_sqrtm,
-                 R::NonNegative("deg/sqrt(m)")),
+                 R::NonNegative("deg/sqrt(m)"))
+          .Doc("rotation drift per constrained axis: sigma = this * sqrt(distance travelled)"),
       F::Number("degenerate_rotation_random_walk_rad_per_sqrtrad",
                 &O::degenerate_rotation_random_walk_rad_per_sqrtrad,
-                R::NonNegative("rad/sqrt(rad)")),
-      F::Number("divergence_velocity_mps", &O::divergence_velocity_mps, R::NonNegative("m/s")),
-      F::Number("divergence_time_constant_s", &O::divergence_time_constant_s, R::Positive("s")),
-      F::Number("velocity_noise_mps", &O::velocity_noise_mps, R::NonNegative("m/s")),
+                R::NonNegative("rad/sqrt(rad)"))
+          .Doc("drift about a degenerate rotation axis: sigma = this * sqrt(angle rotated about "
+               "it)"),
+      F::Number("divergence_velocity_mps", &O::divergence_velocity_mps, R::NonNegative("m/s"))
+          .Doc("std per axis of the velocity error drawn when the returns drop below min_returns"),
+      F::Number("divergence_time_constant_s", &O::divergence_time_constant_s, R::Positive("s"))
+          .Doc("time constant tau of the divergence: the velocity error grows as exp(t / tau)"),
+      F::Number("velocity_noise_mps", &O::velocity_noise_mps, R::NonNegative("m/s"))
+          .Doc("white noise of the reported velocity, per axis"),
       F::Degrees("angular_rate_noise_degps", &O::angular_rate_noise_radps,
-                 R::NonNegative("deg/s")),
+                 R::NonNegative("deg/s"))
+          .Doc("white noise of the reported angular rate, per axis"),
       F::Number("max_reported_position_std_m", &O::max_reported_position_std_m,
-                R::Positive("m")),
+                R::Positive("m"))
+          .Doc("largest reported position 1-sigma (the prior of the regularised inverse "
+               "information)"),
       F::Degrees("max_reported_rotation_std_deg", &O::max_reported_rotation_std_rad,
-                 R::Positive("deg")),
+                 R::Positive("deg"))
+          .Doc("largest reported rotation 1-sigma (the prior of the regularised inverse "
+               "information)"),
   };
   static const std::vector<F> kFields = [] {
     std::vector<F> fields(std::begin(kLeading), std::end(kLeading));

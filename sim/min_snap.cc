@@ -163,8 +163,10 @@ std::span<const core::OptionField<MinimumDerivativeOptions>> MinimumDerivativeOp
   using O = MinimumDerivativeOptions;
   static const F kFields[] = {
       // Degree-7 segments: snap (4) is the highest derivative the rest conditions leave free.
-      F::Integer("cost_derivative", &O::cost_derivative, 1, 4),
-      F::Integer("continuity_derivative", &O::continuity_derivative, 1, 6),
+      F::Integer("cost_derivative", &O::cost_derivative, 1, 4)
+          .Doc("derivative r whose squared norm the trajectory minimises: 4 = snap, 3 = jerk"),
+      F::Integer("continuity_derivative", &O::continuity_derivative, 1, 6)
+          .Doc("derivatives 1..this are constrained continuous at interior points"),
   };
   return kFields;
 }

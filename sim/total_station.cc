@@ -13,21 +13,37 @@ std::span<const core::OptionField<TotalStationOptions>> TotalStationOptions::Fie
   using R = core::NumberRule;
   using O = TotalStationOptions;
   static const F kFields[] = {
-      F::Name("site", &O::site),
-      F::Name("station_site", &O::station_site),
-      F::OptionalVector("station_position_m", &O::p_WS_m, R::Any("m")),
-      F::OptionalAttitude("station_rpy_deg", &O::q_WS),
-      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(1000.0, "Hz")),
-      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s")),
+      F::Name("site", &O::site)
+          .Doc("robot mount site of the prism"),
+      F::Name("station_site", &O::station_site)
+          .Doc("world site whose pose is the station frame S (instrument centre, z up, x = Hz "
+               "zero)"),
+      F::OptionalVector("station_position_m", &O::p_WS_m, R::Any("m"))
+          .Doc("override of the station position in W; unset: station_site's"),
+      F::OptionalAttitude("station_rpy_deg", &O::q_WS)
+          .Doc("override of the station attitude in W; unset: station_site's"),
+      F::Number("rate_hz", &O::rate_hz, R::PositiveAtMost(1000.0, "Hz"))
+          .Doc("tracking output rate (MS60: up to 20 Hz)"),
+      F::Number("latency_s", &O::latency_s, R::Between(0.0, 10.0, "s"))
+          .Doc("delay from a measurement's stamp to its delivery"),
       F::Degrees("horizontal_angle_std_deg", &O::horizontal_angle_std_rad,
-                 R::Between(0.0, 1.0, "deg")),
+                 R::Between(0.0, 1.0, "deg"))
+          .Doc("1-sigma noise of the horizontal (Hz) angle"),
       F::Degrees("vertical_angle_std_deg", &O::vertical_angle_std_rad,
-                 R::Between(0.0, 1.0, "deg")),
-      F::Number("distance_std_m", &O::distance_std_m, R::Between(0.0, 1.0, "m")),
-      F::Number("distance_std_ppm", &O::distance_std_ppm, R::Between(0.0, 1000.0, "ppm")),
-      F::Degrees("max_angular_rate_degps", &O::max_angular_rate_radps, R::Positive("deg/s")),
-      F::Number("search_delay_s", &O::search_delay_s, R::NonNegative("s")),
-      F::Number("prism_clearance_m", &O::prism_clearance_m, R::Between(0.0, 1.0, "m")),
+                 R::Between(0.0, 1.0, "deg"))
+          .Doc("1-sigma noise of the vertical (V) angle"),
+      F::Number("distance_std_m", &O::distance_std_m, R::Between(0.0, 1.0, "m"))
+          .Doc("constant part of the distance noise: sigma_d = distance_std_m + distance_std_ppm * "
+               "1e-6 * d"),
+      F::Number("distance_std_ppm", &O::distance_std_ppm, R::Between(0.0, 1000.0, "ppm"))
+          .Doc("part of the distance noise proportional to the distance (see distance_std_m)"),
+      F::Degrees("max_angular_rate_degps", &O::max_angular_rate_radps, R::Positive("deg/s"))
+          .Doc("lock is lost when the prism's angular rate seen from the station exceeds this"),
+      F::Number("search_delay_s", &O::search_delay_s, R::NonNegative("s"))
+          .Doc("after a loss, re-lock once the prism has been visible and slower than the limit "
+               "this long"),
+      F::Number("prism_clearance_m", &O::prism_clearance_m, R::Between(0.0, 1.0, "m"))
+          .Doc("a ray hit within this distance of the prism centre is the prism itself"),
   };
   return kFields;
 }

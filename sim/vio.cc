@@ -17,48 +17,84 @@ std::span<const core::OptionField<VioOptions>> VioOptions::Fields() {
   using F = core::OptionField<VioOptions>;
   using R = core::NumberRule;
   static const F kFields[] = {
-      F::Name("site", &VioOptions::site),
-      F::OptionalVector("frame_position_m", &VioOptions::p_WS_m, R::Any("m")),
-      F::OptionalAttitude("frame_rpy_deg", &VioOptions::q_WS),
-      F::Number("rate_hz", &VioOptions::rate_hz, R::PositiveAtMost(10000.0, "Hz")),
-      F::Number("latency_s", &VioOptions::latency_s, R::Between(0.0, 10.0, "s")),
+      F::Name("site", &VioOptions::site)
+          .Doc("robot mount site of the camera (optical frame: z forward, x right, y down)"),
+      F::OptionalVector("frame_position_m", &VioOptions::p_WS_m, R::Any("m"))
+          .Doc("position of the odometry frame S in W; unset: the camera's position at t = 0"),
+      F::OptionalAttitude("frame_rpy_deg", &VioOptions::q_WS)
+          .Doc("attitude of the odometry frame S in W; unset: the camera's attitude at t = 0"),
+      F::Number("rate_hz", &VioOptions::rate_hz, R::PositiveAtMost(10000.0, "Hz"))
+          .Doc("pose output rate (T265 pose stream: 200 Hz)"),
+      F::Number("latency_s", &VioOptions::latency_s, R::Between(0.0, 10.0, "s"))
+          .Doc("delay from a pose's stamp to its delivery"),
       F::Number("position_random_walk_m_per_sqrtm", &VioOptions::position_random_walk_m_per_sqrtm,
-                R::NonNegative("m/sqrt(m)")),
+                R::NonNegative("m/sqrt(m)"))
+          .Doc("position drift per axis of S: sigma_p = this * sqrt(distance travelled)"),
       F::Degrees("yaw_random_walk_deg_per_sqrtm", &VioOptions::yaw_random_walk_rad_per_sqrtm,
-                 R::NonNegative("deg/sqrt(m)")),
+                 R::NonNegative("deg/sqrt(m)"))
+          .Doc("heading (rotation about gravity) drift: sigma_yaw = this * sqrt(distance "
+               "travelled)"),
       F::Degrees("tilt_random_walk_deg_per_sqrtm", &VioOptions::tilt_random_walk_rad_per_sqrtm,
-                 R::NonNegative("deg/sqrt(m)")),
-      F::Number("position_noise_m", &VioOptions::position_noise_m, R::NonNegative("m")),
-      F::Degrees("rotation_noise_deg", &VioOptions::rotation_noise_rad, R::NonNegative("deg")),
-      F::Number("velocity_noise_mps", &VioOptions::velocity_noise_mps, R::NonNegative("m/s")),
+                 R::NonNegative("deg/sqrt(m)"))
+          .Doc("roll/pitch drift per horizontal axis: sigma = this * sqrt(distance travelled)"),
+      F::Number("position_noise_m", &VioOptions::position_noise_m, R::NonNegative("m"))
+          .Doc("white position noise per axis of S (not accumulated)"),
+      F::Degrees("rotation_noise_deg", &VioOptions::rotation_noise_rad, R::NonNegative("deg"))
+          .Doc("white rotation noise per axis, a right perturbation (not accumulated)"),
+      F::Number("velocity_noise_mps", &VioOptions::velocity_noise_mps, R::NonNegative("m/s"))
+          .Doc("white velocity noise per axis of the camera frame s"),
       F::Degrees("angular_rate_noise_degps", &VioOptions::angular_rate_noise_radps,
-                 R::NonNegative("deg/s")),
+                 R::NonNegative("deg/s"))
+          .Doc("white angular-rate noise per axis of the camera frame s"),
       F::Number("feature_check_rate_hz", &VioOptions::feature_check_rate_hz,
-                R::PositiveAtMost(1000.0, "Hz")),
-      F::Integer("feature_grid_columns", &VioOptions::feature_grid_columns, 1, 64),
-      F::Integer("feature_grid_rows", &VioOptions::feature_grid_rows, 1, 64),
+                R::PositiveAtMost(1000.0, "Hz"))
+          .Doc("rate of the feature-availability check (a grid of rays through the field of view)"),
+      F::Integer("feature_grid_columns", &VioOptions::feature_grid_columns, 1, 64)
+          .Doc("columns of the grid of rays through the usable field of view"),
+      F::Integer("feature_grid_rows", &VioOptions::feature_grid_rows, 1, 64)
+          .Doc("rows of the grid of rays through the usable field of view"),
       F::Degrees("feature_fov_horizontal_deg", &VioOptions::feature_fov_horizontal_rad,
-                 R::Between(1.0, 179.0, "deg")),
+                 R::Between(1.0, 179.0, "deg"))
+          .Doc("usable horizontal field of view of the fisheye pair (the rim carries few "
+               "features)"),
       F::Degrees("feature_fov_vertical_deg", &VioOptions::feature_fov_vertical_rad,
-                 R::Between(1.0, 179.0, "deg")),
-      F::Number("feature_min_depth_m", &VioOptions::feature_min_depth_m, R::NonNegative("m")),
-      F::Number("feature_max_depth_m", &VioOptions::feature_max_depth_m, R::Positive("m")),
+                 R::Between(1.0, 179.0, "deg"))
+          .Doc("usable vertical field of view of the fisheye pair"),
+      F::Number("feature_min_depth_m", &VioOptions::feature_min_depth_m, R::NonNegative("m"))
+          .Doc("a textured hit nearer than this along the ray is no feature (out of focus, no "
+               "stereo overlap)"),
+      F::Number("feature_max_depth_m", &VioOptions::feature_max_depth_m, R::Positive("m"))
+          .Doc("a textured hit farther than this along the ray is no feature (too little "
+               "parallax)"),
       F::Number("starved_score_threshold", &VioOptions::starved_score_threshold,
-                R::Between(0.0, 1.0, "")),
+                R::Between(0.0, 1.0, ""))
+          .Doc("score (fraction of rays with a feature) below which tracking is starved"),
       F::Number("starved_drift_factor", &VioOptions::starved_drift_factor,
-                R::Between(1.0, 1000.0, "")),
+                R::Between(1.0, 1000.0, ""))
+          .Doc("drift rates are multiplied by this while starved (score > 0 but below the "
+               "threshold)"),
       F::Degrees("blur_angular_rate_degps", &VioOptions::blur_angular_rate_radps,
-                 R::Positive("deg/s")),
-      F::Number("blur_drift_factor", &VioOptions::blur_drift_factor, R::Between(1.0, 1000.0, "")),
+                 R::Positive("deg/s"))
+          .Doc("camera angular rate beyond which the images blur"),
+      F::Number("blur_drift_factor", &VioOptions::blur_drift_factor, R::Between(1.0, 1000.0, ""))
+          .Doc("drift multiplier while the images are blurred"),
       F::Number("lost_velocity_random_walk_mps_per_sqrts",
-                &VioOptions::lost_velocity_random_walk_mps_per_sqrts, R::NonNegative("m/s/sqrt(s)")),
-      F::Number("reset_after_s", &VioOptions::reset_after_s, R::NonNegative("s")),
-      F::Number("reset_jump_position_m", &VioOptions::reset_jump_position_m, R::NonNegative("m")),
-      F::Degrees("reset_jump_yaw_deg", &VioOptions::reset_jump_yaw_rad, R::NonNegative("deg")),
+                &VioOptions::lost_velocity_random_walk_mps_per_sqrts, R::NonNegative("m/s/sqrt(s)"))
+          .Doc("with no feature at all: random walk in time of the velocity error per axis, "
+               "integrated into position"),
+      F::Number("reset_after_s", &VioOptions::reset_after_s, R::NonNegative("s"))
+          .Doc("the tracker resets after the score has been zero this long"),
+      F::Number("reset_jump_position_m", &VioOptions::reset_jump_position_m, R::NonNegative("m"))
+          .Doc("std of the position jump per axis at a tracker reset"),
+      F::Degrees("reset_jump_yaw_deg", &VioOptions::reset_jump_yaw_rad, R::NonNegative("deg"))
+          .Doc("std of the jump about gravity at a tracker reset"),
       F::Number("reported_pose_variance_base", &VioOptions::reported_pose_variance_base,
-                R::Positive("m^2 or rad^2")),
+                R::Positive("m^2 or rad^2"))
+          .Doc("reported pose covariance diagonal = this * 10^(3 - c) for tracker confidence c in "
+               "0..3"),
       F::Number("reported_twist_variance_base", &VioOptions::reported_twist_variance_base,
-                R::Positive("(m/s)^2 or (rad/s)^2")),
+                R::Positive("(m/s)^2 or (rad/s)^2"))
+          .Doc("reported twist covariance diagonal = this * 10^(1 - c) for tracker confidence c"),
   };
   return kFields;
 }

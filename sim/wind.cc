@@ -11,11 +11,16 @@ std::span<const core::OptionField<WindOptions>> WindOptions::Fields() {
   using R = core::NumberRule;
   using O = WindOptions;
   static const F kFields[] = {
-      F::Vector("mean_velocity_mps", &O::mean_velocity_W_mps, R::Any("m/s")),
-      F::Number("gust_std_mps", &O::gust_std_mps, R::NonNegative("m/s")),
-      F::Number("gust_correlation_time_s", &O::gust_correlation_time_s, R::Positive("s")),
-      F::Number("drag_area_m2", &O::drag_area_m2, R::NonNegative("m^2")),
-      F::Number("air_density_kgpm3", &O::air_density_kgpm3, R::Positive("kg/m^3")),
+      F::Vector("mean_velocity_mps", &O::mean_velocity_W_mps, R::Any("m/s"))
+          .Doc("mean wind velocity in W"),
+      F::Number("gust_std_mps", &O::gust_std_mps, R::NonNegative("m/s"))
+          .Doc("stationary standard deviation of the gusts per axis"),
+      F::Number("gust_correlation_time_s", &O::gust_correlation_time_s, R::Positive("s"))
+          .Doc("Gauss-Markov time constant of the gusts"),
+      F::Number("drag_area_m2", &O::drag_area_m2, R::NonNegative("m^2"))
+          .Doc("drag coefficient times frontal area of the airframe, Cd*A"),
+      F::Number("air_density_kgpm3", &O::air_density_kgpm3, R::Positive("kg/m^3"))
+          .Doc("air density"),
   };
   return kFields;
 }

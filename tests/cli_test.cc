@@ -398,11 +398,13 @@ TEST_F(CliTest, OutOfRangeNumericOptionsExitTwoNamingTheOptionAndItsRange) {
   } cases[] = {
       {"estimate log --window -1", "--window: expected a number in (0, 60] s, got -1"},
       {"estimate log --window nan", "--window: expected a number in (0, 60] s, got nan"},
-      {"estimate log --huber nan", "--huber: expected a number in [0, 100] sigma"},
+      {"estimate log --set huber_delta=nan", "huber_delta': expected a number in [0, 100] (sigma)"},
+      {"estimate log --set huber=3", "no estimation key 'huber'"},
       {"estimate log --imu-noise-scale -1", "--imu-noise-scale: expected a number in (0, 1000]"},
       {"estimate log --imu-noise-scale 0", "--imu-noise-scale: expected a number in (0, 1000]"},
       {"estimate log --keyframe-rate 0", "--keyframe-rate: expected a number in [0.1, 1000] Hz"},
-      {"estimate log --consensus-threshold nan", "--consensus-threshold: expected a number"},
+      {"estimate log --set consensus.metric=nis --set consensus.threshold=0.1",
+       "consensus.threshold: expected a number in [1, 100] for metric nis"},
       {"estimate log --between-position-std inf", "--between-position-std: expected a number"},
       {"consistency --metric cm --rate 1e6 a.csv b.csv", "--rate: expected a number in (0, 1000] Hz"},
       {"run s.yaml --seed -1", "--seed: expected a whole number in [0, 18446744073709551615], got -1"},
@@ -416,7 +418,7 @@ TEST_F(CliTest, OutOfRangeNumericOptionsExitTwoNamingTheOptionAndItsRange) {
     EXPECT_EQ(WorkEntries(), std::set<std::string>{}) << c.args << " left something behind";
   }
   // In range is accepted (the command then fails on its missing input, not on the option).
-  const Result ok = Tofu("estimate log --window 0.5 --huber 0 --keyframe-rate 30");
+  const Result ok = Tofu("estimate log --window 0.5 --set huber_delta=0 --keyframe-rate 30");
   EXPECT_EQ(ok.exit_code, 2);
   EXPECT_EQ(ok.err.find("expected a number"), std::string::npos) << ok.err;
 }

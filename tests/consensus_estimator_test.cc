@@ -274,7 +274,7 @@ TEST_F(ConsensusEstimatorTest, EstimateCommandRunsConsensusOnARecordedLog) {
   // decisions as the run's own consensus method when given the same threshold.
   const fs::path out = *dir_ / "estimate";
   const std::string command = std::string(TOFU_BINARY) + " estimate " + (*dir_ / "a").string() +
-                              " --method consensus --consensus-threshold 0.3 --quiet --out " +
+                              " --method consensus --set consensus.threshold=0.3 --quiet --out " +
                               out.string();
   ASSERT_EQ(std::system(command.c_str()), 0) << command;
   const std::string decisions = ReadFile(out / "decisions.csv");

@@ -39,7 +39,10 @@ unchanged, the paper's metric reading no covariance), and when every summary.jso
 `digests` (the samples the methods saw and the random streams, issue 52) and
 `failure_kind` (issue 55): only the 16 summary.json files differed, each equal to the
 golden one once those keys are removed (checked by re-serialising; every other file
-byte-identical).
+byte-identical), and when the `estimation:` block came from its option table with a
+profile (issue 54: the resolved block writes `profile` and every key; only the 14
+scenario.yaml files of the scenarios with an estimation block differed, every estimate,
+summary and stream byte-identical).
 
     golden_check.py GOLDEN_JSON CHECK_DIR [SOURCE_DIR]    compare (CHECK_DIR: what
                                                           `tofu check` wrote)

@@ -17,6 +17,7 @@
 #include "core/lidar_beam_pattern.h"
 #include "core/option_fields.h"
 #include "core/units.h"
+#include "replay/estimation_config.h"
 #include "sim/controller.h"
 #include "sim/gnss.h"
 #include "sim/imu.h"
@@ -51,8 +52,11 @@ bool SetNumber(Options& options, const typename core::OptionField<Options>::Memb
                double value) {
   return std::visit(
       [&](auto pointer) {
+        if constexpr (std::is_same_v<decltype(pointer), core::ChoiceMember<Options>>) {
+          return false;
+        } else {
         using T = std::remove_reference_t<decltype(options.*pointer)>;
-        if constexpr (std::is_same_v<T, double>) {
+        if constexpr (std::is_same_v<T, double> || std::is_same_v<T, std::optional<double>>) {
           options.*pointer = value;
           return true;
         } else if constexpr (std::is_same_v<T, Eigen::Vector3d>) {
@@ -66,6 +70,7 @@ bool SetNumber(Options& options, const typename core::OptionField<Options>::Memb
           return true;
         } else {
           return false;
+        }
         }
       },
       member);
@@ -85,7 +90,8 @@ using OptionTypes =
     ::testing::Types<core::LidarBeamPattern, sim::ImuOptions, sim::VioOptions,
                      sim::LidarOdometryOptions,
                      sim::TotalStationOptions, sim::GnssOptions, sim::GnssFixErrorOptions,
-                     sim::WindOptions, sim::ControllerOptions>;
+                     sim::WindOptions, sim::ControllerOptions, replay::ConsensusConfig,
+                     replay::EstimationConfig>;
 TYPED_TEST_SUITE(OptionFieldsTest, OptionTypes);
 
 TYPED_TEST(OptionFieldsTest, DefaultsAreValid) {

@@ -739,22 +739,6 @@ TEST(ScenarioModels, AnEstimationBlockWithoutAnImuIsRejectedAtParse) {
   EXPECT_CONTAINS(e.what(), "vio, lio");
 }
 
-// Each consistency metric has its own threshold scale: `metric: nis` without a threshold
-// is refused (the default is cm's 0.1 m/s), with one it is read and kept.
-TEST(ScenarioLoad, MetricNisNeedsItsOwnThreshold) {
-  const std::string base = std::string(kMinimal) +
-                           "sensors:\n  imu: {}\n  vio: {}\n  leica: {type: total_station}\n"
-                           "estimation:\n  methods: [consensus]\n  consensus: ";
-  const core::InputError e = ParseError(base + "{metric: nis}\n");
-  ExpectLocated(e, 14, "estimation.consensus");
-  EXPECT_CONTAINS(e.what(), "metric: nis needs its own threshold");
-  const Scenario scenario = ParseScenario(base + "{metric: nis, threshold: 3}\n", kLabel);
-  EXPECT_EQ(scenario.estimation->consensus.threshold, 3.0);
-  const Scenario reloaded = ParseScenario(ResolvedScenarioYaml(scenario), "resolved.yaml");
-  EXPECT_EQ(reloaded.estimation->consensus.threshold, 3.0);
-  EXPECT_NO_THROW(ParseScenario(base + "{metric: cm}\n", kLabel));
-}
-
 // `position_factors` takes each of its three kinds, keeps it through the resolved YAML,
 // and names the three when given another.
 TEST(ScenarioLoad, PositionFactorsAreReadResolvedAndABadKindIsNamed) {

@@ -35,6 +35,7 @@
 #include "harness/run.h"
 #include "harness/run_directory.h"
 #include "harness/scenario.h"
+#include "harness/scenario_reference.h"
 #include "harness/shard.h"
 #include "renders/render_command.h"
 #include "replay/consistency_command.h"
@@ -498,6 +499,15 @@ Command AddMetricsCommand(CLI::App& parent) {
           }};
 }
 
+Command AddReferenceCommand(CLI::App& parent) {
+  CLI::App* reference = parent.add_subcommand(
+      "reference", "Print the reference of the scenario's option keys (docs/REFERENCE.md)");
+  return {reference, false, [] {
+            fmt::print("{}", tofu::harness::ScenarioReferenceMarkdown());
+            return static_cast<int>(tofu::core::kExitOk);
+          }};
+}
+
 Command AddCompareCommand(CLI::App& parent) {
   auto o = std::make_shared<tofu::campaign::CompareCommandOptions>();
   CLI::App* compare = parent.add_subcommand(
@@ -718,6 +728,7 @@ Command AddEstimateCommand(CLI::App& parent) {
   struct Options {
     tofu::replay::EstimateCommandOptions est;
     std::optional<std::string> out;
+    std::vector<std::string> settings;
   };
   auto o = std::make_shared<Options>();
   tofu::replay::EstimateCommandOptions& est = o->est;
@@ -747,13 +758,10 @@ Command AddEstimateCommand(CLI::App& parent) {
   estimate->add_option("--imu-noise-scale", est.imu_noise_scale,
                        "Factor on the IMU white-noise densities")
       ->check(FiniteIn(0.0, 1000.0, "", true));
-  estimate->add_option("--huber", est.huber_delta,
-                       "Huber loss on between factors [sigma] (a run directory: its scenario's "
-                       "huber_delta; else off)")
-      ->check(FiniteIn(0.0, 100.0, "sigma", false));
-  estimate->add_option("--consensus-threshold", est.consensus_threshold,
-                       "consensus methods: CM distance threshold (0.1)")
-      ->check(FiniteIn(0.0, 100.0, "m/s", true));
+  estimate->add_option("--set", o->settings,
+                       "KEY=VALUE: a key of the scenario's estimation: block over the run's "
+                       "own (a real log: over the default profile's), e.g. profile=paper, "
+                       "huber_delta=3, consensus.metric=nis; repeatable (docs/REFERENCE.md)");
   estimate->add_option("--position-in-reference", est.between_position_in_reference,
                        "Pose sensors: relative position in the sensor's frame (true/false)");
   return {estimate, true, [o] {
@@ -776,6 +784,14 @@ Command AddEstimateCommand(CLI::App& parent) {
             options.read_estimation_config = [](const std::filesystem::path& scenario_yaml) {
               return tofu::harness::LoadScenario(scenario_yaml.string()).estimation;
             };
+            options.apply_settings = [o](tofu::replay::EstimationConfig* config) {
+              tofu::harness::ApplyEstimationSettings(o->settings, config);
+            };
+            // Keys and values are checked before the log is read (a rule between a setting
+            // and the run's own block is checked once that is read).
+            tofu::replay::EstimationConfig probe = tofu::replay::EstimationConfig::Defaults(
+                tofu::replay::EstimationConfig::kDefaultProfile);
+            options.apply_settings(&probe);
             return tofu::replay::RunEstimateCommand(options);
           }};
 }
@@ -893,6 +909,7 @@ int main(int argc, char** argv) {
   for (Command& c : AddCorpusCommands(app)) commands.push_back(std::move(c));
   commands.push_back(AddValidateCommand(app));
   commands.push_back(AddMetricsCommand(app));
+  commands.push_back(AddReferenceCommand(app));
   commands.push_back(AddCheckCommand(app));
   commands.push_back(AddCompareCommand(app));
   commands.push_back(AddBaselineCommand(app));
