@@ -127,7 +127,8 @@ sensors:
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.estimation.has_value());
   EXPECT_EQ(scenario.estimation->methods.size(), 4u);
-  EXPECT_EQ(scenario.estimation->consensus.leave_threshold, 0.4);
+  EXPECT_EQ(scenario.estimation->profile, replay::EstimationProfile::kPaper);
+  EXPECT_EQ(scenario.estimation->consensus.threshold, 0.3);
   EXPECT_EQ(scenario.expect.size(), 3u);
 }
 
