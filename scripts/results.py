@@ -1553,6 +1553,7 @@ def extract_profiles(r):
         v[f"profiles.round{n}.from"] = rnd["from"]
         v[f"profiles.round{n}.chosen"] = rnd["chosen"]
         v[f"profiles.round{n}.count"] = str(len(rnd["tried"]))
+        v[f"profiles.round{n}.tried"] = "|".join(t["configuration"] for t in rnd["tried"])
         for t in rnd["tried"]:
             v[f"profiles.round{n}.{t['configuration']}"] = f"{t['met']} ({t['excess']:.1f})"
     v["profiles.rounds"] = str(len(d["rounds"]))
@@ -2157,8 +2158,19 @@ def table_profiles_choice(V):
     for label in ("paper", "start", "recommended"):
         k = f"profiles.{label}."
         rows.append([label, V(k + "settings") or "(the paper's)", V(k + "calibration"), V(k + "validation")])
-    return md_table(["configuration", "over the paper's", f"goals met, seeds {V('profiles.calibration_seeds')}",
-                     f"goals met, seeds {V('profiles.validation_seeds')}"], rows)
+    return md_table(["configuration", "over the paper's", f"goal cells met, {V('profiles.calibration_seeds')}",
+                     f"goal cells met, {V('profiles.validation_seeds')}"], rows)
+
+
+def table_profiles_rounds(V):
+    rows = []
+    for n in range(1, int(V("profiles.rounds")) + 1):
+        k = f"profiles.round{n}."
+        for i, configuration in enumerate(V(k + "tried").split("|")):
+            chosen = " (chosen)" if configuration == V(k + "chosen") else ""
+            rows.append([str(n) if i == 0 else "", configuration.replace("+", " ") + chosen,
+                         V(k + configuration)])
+    return md_table(["round", "configuration (over the paper's)", "goal cells met (excess)"], rows)
 
 
 def table_profiles_goals(V):
@@ -2173,6 +2185,7 @@ def table_profiles_goals(V):
 TABLES = {
     "profiles_choice": table_profiles_choice,
     "profiles_goals": table_profiles_goals,
+    "profiles_rounds": table_profiles_rounds,
     "clients_ekf": table_clients_ekf,
     "clients_plugin": table_clients_plugin,
     "clients_controller": table_clients_controller,

@@ -8,6 +8,8 @@
 #include <sstream>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 #include "core/error.h"
 #include "harness/scenario.h"
 #include "harness/scenario_reference.h"
@@ -105,6 +107,25 @@ TEST(EstimationProfile, PaperIsTheSeedPapersConfiguration) {
             3.0);
 }
 
+// The measured choice, stated: the paper's with the threshold and Huber loss the shipped
+// scenarios used, pose streams weighted by their own noise and the bias test.
+TEST(EstimationProfile, RecommendedIsThePapersWithTheMeasuredChanges) {
+  const EstimationConfig c = Parse("  profile: recommended\n");
+  EXPECT_EQ(c.profile, EstimationProfile::kRecommended);
+  EXPECT_EQ(c.consensus.metric, ConsistencyMetric::kCm);
+  EXPECT_EQ(c.consensus.threshold, 0.3);
+  EXPECT_EQ(c.huber_delta, 3.0);
+  EXPECT_EQ(c.pose_between_noise, PoseBetweenNoise::kWhiteAndDrift);
+  EXPECT_EQ(c.consensus.bias_window_s, 10.0);
+  EstimationConfig rest = c;
+  rest.consensus.threshold = 0.1;
+  rest.huber_delta = 0.0;
+  rest.pose_between_noise = PoseBetweenNoise::kConstant;
+  rest.consensus.bias_window_s = 0.0;
+  rest.profile = EstimationProfile::kPaper;
+  ExpectSameOptions(rest, Parse("  profile: paper\n"));
+}
+
 TEST(EstimationProfile, ABlockWithoutAProfileGetsTheDefaultProfile) {
   const EstimationConfig c = Parse("");
   EXPECT_EQ(c.profile, EstimationConfig::kDefaultProfile);
@@ -131,6 +152,24 @@ TEST(EstimationProfile, AnUnknownProfileIsNamedWithTheChoices) {
   EXPECT_EQ(e.location().line, 14);
   EXPECT_CONTAINS(e.what(), "expected " + core::ChoiceList(EstimationConfig::Fields().front().format));
   EXPECT_CONTAINS(e.what(), "paper");
+}
+
+// The recommended profile is the configuration docs/RESULTS.md reports as chosen
+// (scripts/results.py source `profiles`): the same options as the paper's with the
+// measured settings applied, read from docs/results/results.json.
+TEST(EstimationProfile, RecommendedIsTheMeasuredChoice) {
+  std::ifstream in(std::string(TOFU_SOURCE_DIR) + "/docs/results/results.json");
+  ASSERT_TRUE(in.good());
+  const nlohmann::json results = nlohmann::json::parse(in);
+  const std::string settings =
+      results.at("sources").at("profiles").at("values").at("profiles.recommended.settings");
+  std::vector<std::string> chosen = {"profile=paper"};
+  std::istringstream words(settings);
+  for (std::string word; words >> word;) chosen.push_back(word);
+  EstimationConfig measured = EstimationConfig::Defaults(EstimationProfile::kPaper);
+  ApplyEstimationSettings(chosen, &measured);
+  measured.profile = EstimationProfile::kRecommended;
+  ExpectSameOptions(EstimationConfig::Defaults(EstimationProfile::kRecommended), measured);
 }
 
 // ---- rules between fields ----
