@@ -133,6 +133,16 @@ T ChoiceOf(const YamlValue& value, std::initializer_list<std::pair<std::string_v
   value.FailExpected(expected);
 }
 
+// Each metric has its own threshold scale: a block (or --set) that changes the metric from
+// `before` and gives no threshold gets its profile's threshold for the new metric, not the
+// old metric's.
+void KeepThresholdOnItsMetric(estimator::ConsistencyMetric before, bool threshold_given,
+                              EstimationConfig* config) {
+  if (config->consensus.metric == before || threshold_given) return;
+  config->consensus.threshold =
+      EstimationConfig::DefaultThreshold(config->profile, config->consensus.metric);
+}
+
 // `check_methods`: false for a block read on a client's side, which does not know the
 // scenario's clients (its methods are not what it runs).
 EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<SensorConfig>& sensors,
@@ -181,11 +191,7 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
     YamlMap cmap = consensus->Map(internal::OptionKeys(consensus_fields, {}, {"priority"}));
     const estimator::ConsistencyMetric profile_metric = c.metric;
     internal::ReadOptionFields(cmap, consensus_fields, &c);
-    // Each metric has its own scale: a block that names another metric than its profile's
-    // and no threshold gets the profile's threshold for that metric, not the other's.
-    if (c.metric != profile_metric && !cmap.Has("threshold")) {
-      c.threshold = EstimationConfig::DefaultThreshold(config.profile, c.metric);
-    }
+    KeepThresholdOnItsMetric(profile_metric, cmap.Has("threshold"), &config);
     if (const auto priority = cmap.Optional("priority")) {
       for (const YamlValue& item : priority->List(/*non_empty=*/false)) {
         const std::string name = item.Identifier();
@@ -203,7 +209,7 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   return config;
 }
 
-// The key of `settings` entry "KEY=VALUE", its value, and the field it names.
+// One `--set KEY=VALUE`, split.
 struct EstimationSetting {
   std::string text;  ///< as given
   std::string key;
@@ -968,10 +974,7 @@ void ApplyEstimationSettings(const std::vector<std::string>& settings,
                                          SettableKeys()));
     }
   }
-  if (config->consensus.metric != metric_before && !threshold_set) {
-    config->consensus.threshold =
-        EstimationConfig::DefaultThreshold(config->profile, config->consensus.metric);
-  }
+  KeepThresholdOnItsMetric(metric_before, threshold_set, config);
   std::string why;
   if (!config->IsValid(&why)) {
     throw core::InputError({}, "--set", "the estimation settings break a rule: " + why);
