@@ -39,11 +39,8 @@ constexpr core::ChoiceName kPoseNoiseChoices[] = {
 }  // namespace
 
 std::string_view EstimationProfileName(EstimationProfile profile) {
-  switch (profile) {
-    case EstimationProfile::kPaper: return "paper";
-    case EstimationProfile::kRecommended: return "recommended";
-  }
-  return "paper";
+  // The words of the `profile` field (the table's first), so a profile is named once.
+  return core::ChoiceWord(EstimationConfig::Fields().front().format, static_cast<int>(profile));
 }
 
 core::NumberRule ThresholdRule(ConsistencyMetric metric) {

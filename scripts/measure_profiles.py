@@ -64,9 +64,6 @@ NIS_DEFAULT_THRESHOLD = "3"  # replay::EstimationConfig::DefaultThreshold(paper,
 # The fault that drifts slowly (its goal is 5 s, an abrupt one's 1 s): scenario, sensor, kind.
 SLOW_DRIFTS = {("total_station_slow_drift", "leica", "divergence")}
 
-GOALS = ("ate", "detection", "detection_slow", "readmit", "exclusion", "nees_consensus", "nees_oracle",
-         "contain_consensus", "contain_oracle", "rotation")
-
 
 class Failure(Exception):
     pass
