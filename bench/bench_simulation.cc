@@ -132,10 +132,9 @@ BENCHMARK(BM_BareMjStep200s)->Apply([](benchmark::internal::Benchmark* b) {
 // factor: they say whether the estimator would keep up on the robot.
 void BM_ClosedLoopFlight200s(benchmark::State& state) {
   Scenario scenario = BenchScenario(true);
-  tofu::replay::EstimationConfig estimation;
+  tofu::replay::EstimationConfig estimation =
+      tofu::replay::EstimationConfig::Defaults(tofu::replay::EstimationConfig::kDefaultProfile);
   estimation.methods = {"consensus", "naive"};
-  estimation.consensus.threshold = 0.3;
-  estimation.huber_delta = 3.0;
   scenario.estimation = estimation;
   tofu::harness::SimulateOptions options;
   options.fly_on = estimation.methods[static_cast<std::size_t>(state.range(0))];

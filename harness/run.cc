@@ -354,7 +354,8 @@ class Flight {
       in_loop_names = scenario_.estimation->methods;
     }
     in_loop_.emplace(in_loop_names,
-                     scenario_.estimation ? *scenario_.estimation : EstimationConfig{},
+                     scenario_.estimation ? *scenario_.estimation
+                                         : EstimationConfig::Defaults(EstimationConfig::kDefaultProfile),
                      options_.threads, options_.fly_on.has_value());
     const std::vector<uint32_t> stream_rank = RanksByName(record_.sensors);
     delivered_queue_.emplace(stream_rank);

@@ -152,6 +152,7 @@ EstimationConfig ReadEstimation(const YamlValue& value, const std::vector<Sensor
   YamlMap map = value.Map(internal::OptionKeys(fields, {"methods", "consensus"}));
   // The profile first: it gives every other key's default.
   EstimationConfig profile_of;
+  profile_of.profile = EstimationConfig::kDefaultProfile;
   if (const auto profile = map.Optional("profile")) {
     internal::ReadOptionField(*profile, fields.front(), &profile_of);
   }

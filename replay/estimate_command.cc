@@ -72,7 +72,8 @@ std::vector<estimator::SensorSpec> WithBetweenFactorOverrides(
           {}, "--between-position-std, --between-rotation-std, --position-in-reference",
           "the run's scenario weights '" + spec.name +
               "' by its own noise (estimation.pose_between_noise: white_and_drift), which "
-              "constant between stds do not apply to; expected none of these options");
+              "constant between stds do not apply to; expected none of these options, or "
+              "--set pose_between_noise=constant with them");
     }
     if (options.between_position_std_m) spec.between_position_std_m = *options.between_position_std_m;
     if (options.between_rotation_std_rad) spec.between_rotation_std_rad = *options.between_rotation_std_rad;

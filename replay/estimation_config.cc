@@ -136,7 +136,8 @@ std::span<const core::OptionField<EstimationConfig>> EstimationConfig::Fields() 
                "its between factors"),
       F::Choice<&E::pose_between_noise>("pose_between_noise", kPoseNoiseChoices)
           .Doc("weights of pose sensors' between factors: constant (the paper's ω) or "
-               "white_and_drift (white error at both ends and drift over the distance)"),
+               "white_and_drift (white error at both ends and drift over the distance; a stream "
+               "that states no white error keeps constant)"),
       F::Number("alignment_level_prior_deg", &E::alignment_level_prior_deg,
                 R::Between(0.0, 10.0, "deg"))
           .Doc("> 0: position sensors' alignments hold R_AL's tilt to this std (both frames "
@@ -209,19 +210,15 @@ EstimationSetup MakeEstimationSetup(const RecordedLog& log, const EstimationConf
     const auto stream = std::find_if(log.streams.begin(), log.streams.end(),
                                      [&](const RecordedStream& s) { return s.name == spec.name; });
     if (spec.kind == estimator::SensorKind::kPose) {
-      spec.pose_between_noise = config.pose_between_noise;
-      // A white error the stream states nowhere would be the default identity covariance
-      // of its samples: 1 m and 1 rad, a factor that constrains nothing.
-      if (config.pose_between_noise == estimator::PoseBetweenNoise::kWhiteAndDrift &&
-          stream != log.streams.end() && !stream->covariance_stated &&
-          !(stream->position_noise_m && stream->rotation_noise_rad)) {
-        throw core::InputError({}, "estimation.pose_between_noise",
-                               "white_and_drift needs each pose stream's white noise, but '" +
-                                   spec.name +
-                                   "' states neither a covariance per sample nor "
-                                   "position_noise_m and rotation_noise_deg in "
-                                   "calibration.yaml; expected constant for it");
-      }
+      // A stream that states its white error nowhere (a TUM file: no covariance per sample,
+      // no noise in calibration.yaml) would be weighted by its samples' default identity
+      // covariance, 1 m and 1 rad: a factor that constrains nothing. It keeps the constant
+      // weights of its stated (or nominal) between stds instead.
+      const bool white_stated =
+          stream == log.streams.end() || stream->covariance_stated ||
+          (stream->position_noise_m && stream->rotation_noise_rad);
+      spec.pose_between_noise = white_stated ? config.pose_between_noise
+                                             : estimator::PoseBetweenNoise::kConstant;
     }
     if (!config.leave_out_degenerate_directions) continue;
     if (stream == log.streams.end() || spec.kind != estimator::SensorKind::kPose) continue;

@@ -135,7 +135,7 @@ struct EstimationConfig {
   std::string resolved_yaml;
 
   /// The profile a block without `profile:` gets.
-  static constexpr EstimationProfile kDefaultProfile = EstimationProfile::kPaper;
+  static constexpr EstimationProfile kDefaultProfile = EstimationProfile::kRecommended;
   /// A profile's values of every option (no methods, no clients).
   static EstimationConfig Defaults(EstimationProfile profile);
   /// The threshold a profile gives `metric` when a block names the metric without one:

@@ -400,17 +400,21 @@ TEST(EstimationScenario, PoseBetweenNoiseIsReadAndRoundTripsAndReachesPoseSensor
   EXPECT_EQ(setup.sensors[0].drift.position_random_walk_m_per_sqrtm, 0.02);
   EXPECT_EQ(setup.sensors[0].drift.rotation_random_walk_rad_per_sqrtm, 0.002);
   EXPECT_EQ(setup.sensors[1].pose_between_noise, estimator::PoseBetweenNoise::kConstant);
-  // A pose stream that states its white error nowhere (a TUM file) cannot be weighted by it.
+  // A pose stream that states its white error nowhere (a TUM file) cannot be weighted by it:
+  // it keeps constant weights, the other streams keep their own noise.
   log.streams[0].covariance_stated = false;
-  try {
-    replay::MakeEstimationSetup(log, *own.estimation);
-    ADD_FAILURE() << "a pose stream without a stated white error was accepted";
-  } catch (const core::InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("'vio' states neither"), std::string::npos) << e.what();
-  }
+  log.streams.push_back(log.streams[0]);
+  log.streams[2].name = "lio";
+  log.streams[2].covariance_stated = true;
+  const replay::EstimationSetup unstated = replay::MakeEstimationSetup(log, *own.estimation);
+  ASSERT_EQ(unstated.sensors.size(), 3u);
+  EXPECT_EQ(unstated.sensors[0].pose_between_noise, estimator::PoseBetweenNoise::kConstant);
+  EXPECT_EQ(unstated.sensors[2].pose_between_noise, estimator::PoseBetweenNoise::kWhiteAndDrift);
   log.streams[0].rotation_noise_rad = 0.001;
-  EXPECT_NO_THROW(replay::MakeEstimationSetup(log, *own.estimation));
-  const harness::Scenario paper = harness::ParseScenario(kScenario, "paper.yaml");
+  EXPECT_EQ(replay::MakeEstimationSetup(log, *own.estimation).sensors[0].pose_between_noise,
+            estimator::PoseBetweenNoise::kWhiteAndDrift);
+  const harness::Scenario paper =
+      harness::ParseScenario(With("  huber_delta: 3", "  huber_delta: 3\n  profile: paper"), "paper.yaml");
   EXPECT_EQ(paper.estimation->pose_between_noise, estimator::PoseBetweenNoise::kConstant);
   EXPECT_NE(harness::ResolvedScenarioYaml(paper).find("pose_between_noise: constant"), std::string::npos);
 }
@@ -432,7 +436,8 @@ TEST(EstimationScenario, AlignmentLevelPriorIsReadBoundedAndRoundTrips) {
   EXPECT_NEAR(replay::MakeEstimationSetup(replay::RecordedLog{}, *level.estimation)
                   .estimator.alignment.level_prior_std_rad,
               0.2 * M_PI / 180.0, 1e-15);
-  const harness::Scenario paper = harness::ParseScenario(kScenario, "paper.yaml");
+  const harness::Scenario paper =
+      harness::ParseScenario(With("  huber_delta: 3", "  huber_delta: 3\n  profile: paper"), "paper.yaml");
   EXPECT_EQ(paper.estimation->alignment_level_prior_deg, 0.0);
   EXPECT_NE(harness::ResolvedScenarioYaml(paper).find("alignment_level_prior_deg: 0\n"), std::string::npos);
 }
@@ -462,7 +467,8 @@ TEST(EstimationScenario, TheBiasTestIsReadBoundedAndRoundTrips) {
   EXPECT_EQ(setup.consensus.bias_false_alarm, 1e-3);
   EXPECT_EQ(setup.consensus.bias.floor_std_mps, 0.002);
   EXPECT_EQ(again.estimation->consensus.bias_floor_mps, 0.002);
-  const harness::Scenario paper = harness::ParseScenario(kScenario, "paper.yaml");
+  const harness::Scenario paper =
+      harness::ParseScenario(With("  huber_delta: 3", "  huber_delta: 3\n  profile: paper"), "paper.yaml");
   EXPECT_EQ(paper.estimation->consensus.bias_window_s, 0.0);
   EXPECT_NE(harness::ResolvedScenarioYaml(paper).find("bias_window_s: 0\n"), std::string::npos);
 }

@@ -127,7 +127,9 @@ sensors:
   ASSERT_NO_THROW(scenario = ParseScenario(yaml, "README.md")) << yaml;
   ASSERT_TRUE(scenario.estimation.has_value());
   EXPECT_EQ(scenario.estimation->methods.size(), 4u);
-  EXPECT_EQ(scenario.estimation->profile, replay::EstimationProfile::kPaper);
+  // The example names no profile: it flies the default, whose threshold is the 0.3 the
+  // shipped scenarios use.
+  EXPECT_EQ(scenario.estimation->profile, replay::EstimationConfig::kDefaultProfile);
   EXPECT_EQ(scenario.estimation->consensus.threshold, 0.3);
   EXPECT_EQ(scenario.expect.size(), 3u);
 }
