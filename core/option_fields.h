@@ -238,6 +238,40 @@ decltype(auto) VisitFieldValue(const Options& options, const OptionField<Options
       field.member);
 }
 
+/// Whether `a` and `b` hold the same value in `field` (bitwise for numbers: a table's
+/// values are parsed or defaulted, never computed, so equal means written alike).
+template <typename Options>
+bool SameFieldValue(const Options& a, const Options& b, const OptionField<Options>& field) {
+  return std::visit(
+      [&](auto member) {
+        if constexpr (std::is_same_v<decltype(member), ChoiceMember<Options>>) {
+          return member.get(a) == member.get(b);
+        } else if constexpr (std::is_same_v<decltype(member),
+                                            std::optional<Eigen::Quaterniond> Options::*>) {
+          const auto& x = a.*member;
+          const auto& y = b.*member;
+          return x.has_value() == y.has_value() && (!x || x->coeffs() == y->coeffs());
+        } else {
+          return a.*member == b.*member;
+        }
+      },
+      field.member);
+}
+
+/// Sets `field` of *to to its value in `from`.
+template <typename Options>
+void CopyFieldValue(const Options& from, Options* to, const OptionField<Options>& field) {
+  std::visit(
+      [&](auto member) {
+        if constexpr (std::is_same_v<decltype(member), ChoiceMember<Options>>) {
+          member.set(*to, member.get(from));
+        } else {
+          (*to).*member = from.*member;
+        }
+      },
+      field.member);
+}
+
 /// Checks every field of `options` against its table; on the first violation sets *why
 /// to "<prefix><key>: <what is wrong>" and returns false (Ceres' IsValid convention).
 template <typename Options>

@@ -946,16 +946,27 @@ void ApplyEstimationSettings(const std::vector<std::string>& settings,
     map.Finish();
     return value;
   };
-  // The profile first: it resets what the others then change.
+  // The profile first, under the run's own choices: a key whose value differs from its
+  // profile's default is one the scenario wrote, and keeps it; every other key takes the
+  // new profile's value. The settings after it then change what they name.
   for (const EstimationSetting& s : parsed) {
     if (s.key != "profile") continue;
     EstimationConfig profile_of;
     internal::ReadOptionField(value_of(s), EstimationConfig::Fields().front(), &profile_of);
-    EstimationConfig reset = EstimationConfig::Defaults(profile_of.profile);
-    reset.methods = config->methods;
-    reset.clients = config->clients;
-    reset.consensus.priority = config->consensus.priority;
-    *config = std::move(reset);
+    const EstimationConfig own = EstimationConfig::Defaults(config->profile);
+    EstimationConfig switched = EstimationConfig::Defaults(profile_of.profile);
+    for (const auto& field : EstimationConfig::Fields().subspan(1)) {
+      if (!core::SameFieldValue(*config, own, field)) core::CopyFieldValue(*config, &switched, field);
+    }
+    for (const auto& field : ConsensusConfig::Fields()) {
+      if (!core::SameFieldValue(config->consensus, own.consensus, field)) {
+        core::CopyFieldValue(config->consensus, &switched.consensus, field);
+      }
+    }
+    switched.methods = config->methods;
+    switched.clients = config->clients;
+    switched.consensus.priority = config->consensus.priority;
+    *config = std::move(switched);
   }
   const estimator::ConsistencyMetric metric_before = config->consensus.metric;
   bool threshold_set = false;

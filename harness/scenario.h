@@ -142,7 +142,8 @@ Scenario ParseScenario(const std::string& yaml_text, const std::string& file_lab
 /// `tofu estimate --set KEY=VALUE`: each setting of a key of the `estimation:` block
 /// (`profile`, `huber_delta`, ..., `consensus.<key>`; replay::EstimationConfig::Fields and
 /// ConsensusConfig::Fields) applied to *config, VALUE in the scenario's form. `profile`
-/// applies first and resets every option to that profile's (methods, clients and the
+/// applies first: every option the run left at its own profile's default takes the new
+/// profile's, every option it set otherwise keeps its value (methods, clients and the
 /// priority kept); a metric set without a threshold takes the profile's threshold for it,
 /// as in a scenario. Throws core::InputError naming the setting for an unknown key, a
 /// value outside its limits or a rule between fields broken.

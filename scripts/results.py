@@ -615,7 +615,13 @@ def extract_closed_loop_wall(r):
     k = "closed_loop_wall."
     v[k + "seed1.consensus_rmse_cm"] = fixed(100 * one["closed_loop"]["consensus"]["tracking_rmse_m"], 1)
     v[k + "seed1.naive_first_hit_s"] = fixed(one["closed_loop"]["naive"]["time_to_first_collision_s"], 1)
+    v[k + "seed1.naive_min_dist_m"] = fixed(one["closed_loop"]["naive"]["min_structure_distance_m"], 2)
+    v[k + "seed1.naive_over_consensus"] = sig(one["closed_loop"]["naive"]["tracking_rmse_m"] /
+                                              one["closed_loop"]["consensus"]["tracking_rmse_m"], 2)
     v[k + "seed1.detection_s"] = fixed(detection_delay(one["methods"]["consensus"]), 1)
+    cl = [s[i]["closed_loop"] for i in CLOSED_LOOP_SEEDS]
+    v[k + "naive_min_dist_m"] = span([x["naive"]["min_structure_distance_m"] for x in cl],
+                                     lambda x: fixed(x, 2)) + " m"
     return v
 
 

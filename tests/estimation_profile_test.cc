@@ -10,6 +10,7 @@
 #include <type_traits>
 #include <variant>
 
+#include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
@@ -262,7 +263,7 @@ TEST(EstimationResolved, TheResolvedBlockWritesEveryKeyAndReadsBackTheSame) {
 
 // ---- tofu estimate --set ----
 
-TEST(EstimationSettings, ASettingChangesItsKeyAndAProfileResetsTheRest) {
+TEST(EstimationSettings, ASettingChangesItsKeyAndAProfileSwitchesTheRest) {
   EstimationConfig c = Parse("  consensus: {threshold: 0.3, priority: [leica, vio]}\n  huber_delta: 3\n");
   ApplyEstimationSettings({"consensus.metric=nis", "position_factors=offset"}, &c);
   EXPECT_EQ(c.consensus.metric, ConsistencyMetric::kNis);
@@ -271,11 +272,28 @@ TEST(EstimationSettings, ASettingChangesItsKeyAndAProfileResetsTheRest) {
   EXPECT_EQ(c.huber_delta, 3.0);
   EXPECT_CONTAINS(c.resolved_yaml, "metric: nis");
 
-  // profile= applies first, whatever its place, and keeps methods and priority.
+  // profile= applies first, whatever its place, and keeps methods and priority; what the
+  // run set otherwise than its own profile (metric, its threshold, the position factors)
+  // stays, what it left at the default (threshold 0.3 and Huber 3 are the recommended
+  // profile's) takes the paper's.
   ApplyEstimationSettings({"huber_delta=2", "profile=paper"}, &c);
-  EstimationConfig expected = Parse("  profile: paper\n  consensus: {priority: [leica, vio]}\n  huber_delta: 2\n");
+  EstimationConfig expected = Parse(fmt::format(
+      "  profile: paper\n  consensus: {{metric: nis, threshold: {}, priority: [leica, vio]}}\n"
+      "  position_factors: offset\n  huber_delta: 2\n",
+      EstimationConfig::DefaultThreshold(EstimationProfile::kRecommended, ConsistencyMetric::kNis)));
   ExpectSameOptions(c, expected);
   EXPECT_EQ(c.methods, expected.methods);
+}
+
+// A scenario's own choices survive a switch of profile both ways; a key written at its
+// profile's value is not told apart from one left out, and takes the new profile's.
+TEST(EstimationSettings, AProfileSwitchKeepsTheRunsOwnChoices) {
+  EstimationConfig c = Parse("  consensus: {leave_threshold: 0.6, fuse: consistent_set}\n");
+  ApplyEstimationSettings({"profile=paper"}, &c);
+  ExpectSameOptions(c, Parse("  profile: paper\n  consensus: {leave_threshold: 0.6, fuse: consistent_set}\n"));
+  EstimationConfig paper = Parse("  profile: paper\n  huber_delta: 0\n  alignment_level_prior_deg: 0.35\n");
+  ApplyEstimationSettings({"profile=recommended"}, &paper);
+  ExpectSameOptions(paper, Parse("  alignment_level_prior_deg: 0.35\n"));
 }
 
 TEST(EstimationSettings, ABadSettingNamesWhatIsWrong) {

@@ -760,8 +760,9 @@ Command AddEstimateCommand(CLI::App& parent) {
       ->check(FiniteIn(0.0, 1000.0, "", true));
   estimate->add_option("--set", o->settings,
                        "KEY=VALUE: a key of the scenario's estimation: block over the run's "
-                       "own (a real log: over the default profile's), e.g. profile=paper, "
-                       "huber_delta=3, consensus.metric=nis; repeatable (docs/REFERENCE.md)");
+                       "own (a real log: over the default profile's), e.g. profile=paper (the "
+                       "keys the run set otherwise than its profile kept), huber_delta=3, "
+                       "consensus.metric=nis; repeatable (docs/REFERENCE.md)");
   estimate->add_option("--position-in-reference", est.between_position_in_reference,
                        "Pose sensors: relative position in the sensor's frame (true/false)");
   return {estimate, true, [o] {
