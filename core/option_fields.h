@@ -272,6 +272,15 @@ void CopyFieldValue(const Options& from, Options* to, const OptionField<Options>
       field.member);
 }
 
+/// Copies into *to every field of `fields` in which `from` differs from `baseline`.
+template <typename Options>
+void CopyFieldsThatDiffer(const Options& from, const Options& baseline, Options* to,
+                          std::span<const OptionField<Options>> fields) {
+  for (const OptionField<Options>& field : fields) {
+    if (!SameFieldValue(from, baseline, field)) CopyFieldValue(from, to, field);
+  }
+}
+
 /// Checks every field of `options` against its table; on the first violation sets *why
 /// to "<prefix><key>: <what is wrong>" and returns false (Ceres' IsValid convention).
 template <typename Options>

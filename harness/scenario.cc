@@ -955,14 +955,10 @@ void ApplyEstimationSettings(const std::vector<std::string>& settings,
     internal::ReadOptionField(value_of(s), EstimationConfig::Fields().front(), &profile_of);
     const EstimationConfig own = EstimationConfig::Defaults(config->profile);
     EstimationConfig switched = EstimationConfig::Defaults(profile_of.profile);
-    for (const auto& field : EstimationConfig::Fields().subspan(1)) {
-      if (!core::SameFieldValue(*config, own, field)) core::CopyFieldValue(*config, &switched, field);
-    }
-    for (const auto& field : ConsensusConfig::Fields()) {
-      if (!core::SameFieldValue(config->consensus, own.consensus, field)) {
-        core::CopyFieldValue(config->consensus, &switched.consensus, field);
-      }
-    }
+    // `profile` itself never differs from `own`'s: it is switched.
+    core::CopyFieldsThatDiffer(*config, own, &switched, EstimationConfig::Fields());
+    core::CopyFieldsThatDiffer(config->consensus, own.consensus, &switched.consensus,
+                               ConsensusConfig::Fields());
     switched.methods = config->methods;
     switched.clients = config->clients;
     switched.consensus.priority = config->consensus.priority;
